@@ -1,0 +1,117 @@
+"""HDF5 map schema: round trip, validation, versions, corrupt files, atomic writes."""
+
+from __future__ import annotations
+
+import h5py
+import numpy as np
+import pytest
+
+from ldlmap.errors import FormatVersionError, InputError
+from ldlmap.mapfile import FORMAT_VERSION, LdlMap, MapFeatures, read_map, read_map_header, write_map
+
+
+def make_map(with_features: bool = True, seed: int = 0) -> LdlMap:
+    rng = np.random.default_rng(seed)
+    lines = rng.uniform(0, 4, size=(30, 2, 3))
+    feats = None
+    nt = 12
+    if with_features:
+        counts = np.array([5, 0, 7])
+        k = counts.sum()
+        feats = MapFeatures(
+            backend="sift",
+            view_centers=rng.uniform(0, 4, size=(3, 3)),
+            offsets=np.concatenate([[0], np.cumsum(counts)]),
+            xyz=rng.uniform(0, 4, size=(k, 3)).astype(np.float32),
+            keypoints=rng.uniform(0, 512, size=(k, 2)).astype(np.float32),
+            scores=rng.uniform(size=k).astype(np.float16),
+            descriptors=rng.integers(0, 255, size=(k, 128), dtype=np.uint8),
+            translation_view=rng.integers(0, 3, size=nt).astype(np.int32),
+        )
+    return LdlMap(
+        name="room_1",
+        bounds_min=np.zeros(3),
+        bounds_max=np.array([4.0, 4.0, 2.5]),
+        lines_raw=np.concatenate([lines, lines[:5] * 0.1]),
+        lines=lines,
+        line_groups=rng.integers(-1, 3, size=30),
+        length_threshold=0.35,
+        kept_ratio=30 / 35,
+        principal_directions=np.eye(3),
+        translations=rng.uniform(0, 4, size=(nt, 3)),
+        cloud_points=rng.uniform(0, 4, size=(100, 3)),
+        cloud_colors=rng.integers(0, 255, size=(100, 3), dtype=np.uint8),
+        features=feats,
+        config={"lambda": 0.1, "features": "sift"},
+    )
+
+
+def test_round_trip(tmp_path):
+    m = make_map()
+    p = write_map(tmp_path / "room_1.h5", m)
+    r = read_map(p)
+    np.testing.assert_allclose(r.lines, m.lines, atol=1e-5)
+    np.testing.assert_array_equal(r.line_groups, m.line_groups)
+    np.testing.assert_allclose(r.translations, m.translations, atol=1e-5)
+    assert r.features.backend == "sift"
+    assert r.features.descriptors.dtype == np.uint8
+    np.testing.assert_array_equal(r.features.descriptors, m.features.descriptors)
+    s = r.features.view_slice(2)
+    np.testing.assert_allclose(r.features.xyz[s], m.features.xyz[5:12])
+    assert r.features.view_slice(1) == slice(5, 5)
+    assert r.kept_ratio == pytest.approx(30 / 35)
+    assert r.config["features"] == "sift"
+    info = read_map_header(p)
+    assert info["num_lines"] == 30 and info["num_lines_raw"] == 35 and info["feature_backend"] == "sift"
+    # Only the target file remains: no temporary leftovers.
+    assert [x.name for x in tmp_path.iterdir()] == ["room_1.h5"]
+
+
+def test_lines_only_map(tmp_path):
+    m = make_map(with_features=False)
+    m.cloud_points = m.cloud_colors = None
+    r = read_map(write_map(tmp_path / "l.h5", m))
+    assert r.lines_only and r.cloud_points is None
+
+
+def test_superpoint_descriptors_stored_as_float16(tmp_path):
+    m = make_map()
+    m.features.backend = "superpoint"
+    m.features.descriptors = np.random.default_rng(0).normal(size=(12, 256)).astype(np.float32)
+    r = read_map(write_map(tmp_path / "sp.h5", m))
+    assert r.features.descriptors.dtype == np.float16
+
+
+def test_invalid_map_is_not_written(tmp_path):
+    m = make_map()
+    m.lines[3, 0, 1] = np.nan
+    with pytest.raises(InputError, match="NaN"):
+        write_map(tmp_path / "bad.h5", m)
+    assert not any(tmp_path.iterdir())
+    m = make_map()
+    m.translations = m.translations[:, :2]
+    with pytest.raises(InputError, match="translations"):
+        write_map(tmp_path / "bad.h5", m)
+    assert not any(tmp_path.iterdir())
+
+
+def test_other_format_version_is_rejected(tmp_path):
+    p = write_map(tmp_path / "m.h5", make_map())
+    with h5py.File(p, "a") as h5:
+        h5.attrs["format_version"] = FORMAT_VERSION + 1
+    with pytest.raises(FormatVersionError, match="newer"):
+        read_map(p)
+
+
+def test_corrupt_and_missing_files(tmp_path):
+    bad = tmp_path / "corrupt.h5"
+    bad.write_bytes(b"this is not hdf5" * 10)
+    with pytest.raises(InputError, match="not a readable HDF5"):
+        read_map(bad)
+    with pytest.raises(InputError, match="not found"):
+        read_map(tmp_path / "missing.h5")
+    p = write_map(tmp_path / "m.h5", make_map())
+    with h5py.File(p, "a") as h5:
+        del h5["lines/segments"]
+    with pytest.raises(InputError, match="corrupt"):
+        read_map(p)
