@@ -1,0 +1,181 @@
+"""Localization results: per-query records, summaries at the paper's thresholds, JSON/CSV, tables.
+
+Results file (DESIGN.md section 4)::
+
+    {"queries": [ {image, scene, split, name, R (3x3), t (3,), t_error_m, r_error_deg,
+                   seconds: {stage: s}, num_rotations, num_matches, num_inliers, refined,
+                   status, message}, ... ],
+     "summary": {count, failed, median_t_error_m, median_r_error_deg,
+                 accuracy: {"0.05m_5deg": a, "0.1m_5deg": a, "0.2m_10deg": a},
+                 median_seconds: {stage: s}, device, ...}}
+
+``ResultsWriter`` rewrites the JSON and the CSV beside it atomically after every query, so an
+interrupted run loses nothing and ``--resume`` skips the queries already there.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, Iterable
+
+import numpy as np
+
+from ldlmap.errors import InputError, atomic_file, require_file
+
+# (name, metres, degrees): the paper's thresholds; the second is the headline accuracy.
+THRESHOLDS: tuple[tuple[str, float, float], ...] = (
+    ("0.05m_5deg", 0.05, 5.0),
+    ("0.1m_5deg", 0.1, 5.0),
+    ("0.2m_10deg", 0.2, 10.0),
+)
+STAGES = ("lines2d", "rotation", "search", "refine", "total")
+
+
+@dataclass
+class QueryResult:
+    """The outcome of localizing one panorama."""
+
+    image: str
+    scene: str
+    split: str
+    name: str
+    R: list | None = None  # estimated rotation, world -> camera (3x3 nested list)
+    t: list | None = None  # estimated camera centre (3,)
+    t_error_m: float | None = None
+    r_error_deg: float | None = None
+    seconds: dict[str, float] = field(default_factory=dict)
+    num_rotations: int = 0
+    num_matches: int = 0
+    num_inliers: int = 0
+    refined: bool = False
+    status: str = "ok"  # ok | coarse (refinement failed or skipped) | failed
+    message: str = ""
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "QueryResult":
+        known = {k: d[k] for k in cls.__dataclass_fields__ if k in d}
+        return cls(**known)
+
+
+def _median(values: Iterable[float]) -> float | None:
+    v = [x for x in values if x is not None and np.isfinite(x)]
+    return float(np.median(v)) if v else None
+
+
+def summarize(results: list[QueryResult], device: str | None = None) -> dict[str, Any]:
+    """Counts, median errors, accuracy at each threshold and median per-stage seconds.
+
+    Failed queries count as not localized (infinite error) in the accuracies and medians.
+    """
+    n = len(results)
+    terr = np.array([r.t_error_m if r.t_error_m is not None else np.inf for r in results], float)
+    rerr = np.array([r.r_error_deg if r.r_error_deg is not None else np.inf for r in results], float)
+    acc = {name: (float(np.mean((terr < m) & (rerr < d))) if n else None) for name, m, d in THRESHOLDS}
+    stages = sorted({s for r in results for s in r.seconds})
+    out: dict[str, Any] = {
+        "count": n,
+        "failed": int(sum(r.status == "failed" for r in results)),
+        "coarse_only": int(sum(r.status == "coarse" for r in results)),
+        "median_t_error_m": float(np.median(terr)) if n else None,
+        "median_r_error_deg": float(np.median(rerr)) if n else None,
+        "accuracy": acc,
+        "median_seconds": {s: _median(r.seconds.get(s) for r in results) for s in stages},
+        "median_num_rotations": _median(r.num_rotations for r in results if r.status != "failed"),
+    }
+    if device is not None:
+        out["device"] = device
+    return out
+
+
+def group_by(results: list[QueryResult], key: str) -> dict[str, list[QueryResult]]:
+    """Results grouped by an attribute (``scene`` or ``split``), keys sorted."""
+    groups: dict[str, list[QueryResult]] = {}
+    for r in results:
+        groups.setdefault(getattr(r, key), []).append(r)
+    return dict(sorted(groups.items()))
+
+
+def load_results(path: str | Path) -> tuple[list[QueryResult], dict[str, Any]]:
+    """Read a results JSON written by :class:`ResultsWriter`."""
+    path = require_file(path, "results file")
+    try:
+        data = json.loads(path.read_text())
+        queries = [QueryResult.from_dict(q) for q in data["queries"]]
+    except (json.JSONDecodeError, KeyError, TypeError) as exc:
+        raise InputError(f"not a results file of `ldlloc run`: {path} ({exc})") from None
+    return queries, data.get("meta", {})
+
+
+class ResultsWriter:
+    """Keeps the results of a run and rewrites ``path`` (JSON) and its ``.csv`` after each query."""
+
+    def __init__(self, path: str | Path, meta: dict[str, Any] | None = None, resume: bool = False):
+        self.path = Path(path)
+        self.meta = dict(meta or {})
+        self.results: list[QueryResult] = []
+        if resume and self.path.exists():
+            self.results, _ = load_results(self.path)
+
+    def done(self) -> set[str]:
+        """Names of queries already in the file (for ``--resume``)."""
+        return {r.name for r in self.results}
+
+    def add(self, result: QueryResult) -> None:
+        self.results = [r for r in self.results if r.name != result.name] + [result]
+        self.flush()
+
+    def flush(self) -> None:
+        data = {
+            "meta": self.meta,
+            "summary": summarize(self.results, self.meta.get("device")),
+            "queries": [asdict(r) for r in self.results],
+        }
+        with atomic_file(self.path) as tmp:
+            tmp.write_text(json.dumps(data, indent=1))
+        with atomic_file(self.path.with_suffix(".csv")) as tmp:
+            tmp.write_text(results_csv(self.results))
+
+
+def results_csv(results: list[QueryResult]) -> str:
+    """One row per query: identifiers, errors, estimate, counts and stage seconds."""
+    stages = sorted({s for r in results for s in r.seconds}, key=lambda s: (s not in STAGES, STAGES.index(s) if s in STAGES else 0, s))
+    buf = io.StringIO()
+    w = csv.writer(buf)
+    w.writerow(["name", "scene", "split", "image", "status", "t_error_m", "r_error_deg", "tx", "ty", "tz",
+                "num_rotations", "num_matches", "num_inliers", "refined"] + [f"sec_{s}" for s in stages])
+    for r in results:
+        t = r.t if r.t is not None else [None] * 3
+        w.writerow([r.name, r.scene, r.split, r.image, r.status, r.t_error_m, r.r_error_deg, *t,
+                    r.num_rotations, r.num_matches, r.num_inliers, int(r.refined)]
+                   + [r.seconds.get(s) for s in stages])
+    return buf.getvalue()
+
+
+def _fmt(x: float | None, spec: str) -> str:
+    return "-" if x is None or not np.isfinite(x) else format(x, spec)
+
+
+def summary_table(results: list[QueryResult], by: str, title: str):
+    """A Rich table with one row per group (scene or split) and a total row."""
+    from rich.table import Table
+
+    table = Table(title=title)
+    table.add_column(by)
+    for col in ("n", "t err (m)", "R err (deg)", *[name.replace("_", " / ") for name, _, _ in THRESHOLDS],
+                "lines2d s", "rotation s", "search s", "refine s", "total s"):
+        table.add_column(col, justify="right")
+    groups = group_by(results, by)
+    rows = list(groups.items()) + ([("all", results)] if len(groups) > 1 else [])
+    for name, rs in rows:
+        s = summarize(rs)
+        table.add_row(
+            name, str(s["count"]), _fmt(s["median_t_error_m"], ".3f"), _fmt(s["median_r_error_deg"], ".2f"),
+            *[_fmt(s["accuracy"][k], ".2f") for k, _, _ in THRESHOLDS],
+            *[_fmt(s["median_seconds"].get(st), ".3f") for st in STAGES],
+            style="bold" if name == "all" else None,
+        )
+    return table
