@@ -118,7 +118,8 @@ class ResultsWriter:
         self.meta = dict(meta or {})
         self.results: list[QueryResult] = []
         if resume and self.path.exists():
-            self.results, _ = load_results(self.path)
+            self.results, old_meta = load_results(self.path)
+            self.meta = {**old_meta, **self.meta}
 
     def done(self) -> set[str]:
         """Names of queries already in the file (for ``--resume``)."""
