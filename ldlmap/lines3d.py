@@ -1,0 +1,504 @@
+"""3D line segments from an unorganized point cloud (DESIGN.md 5.1, paper sec. 3.1).
+
+An equivalent of Lu Xiaohu et al. 2019 ("Fast 3D line segment detection from unorganized point
+cloud") on numpy / scipy / open3d / OpenCV:
+
+1. voxel downsampling (``voxel_size``) when the cloud is denser than that;
+2. normals and surface variation ``lambda_0 / (lambda_0 + lambda_1 + lambda_2)`` from k-nearest
+   neighbour covariances (open3d);
+3. planar regions: connected components of the kNN graph restricted to low-curvature points
+   whose normals agree and that lie on each other's tangent plane (a vectorized form of
+   smoothness-constrained region growing), a least-squares plane per region, then the
+   high-curvature points near edges are given back to the closest neighbouring plane;
+4. per plane: points projected to 2D plane coordinates, rasterised to an occupancy image
+   (``cell_size``), morphologically closed, boundary contours approximated by polygons
+   (Douglas-Peucker) whose sides are lifted back to 3D;
+5. intersection lines of adjacent, non-parallel planes, clipped to where both supports lie near
+   the line;
+6. merge of collinear overlapping pieces (intersection lines, being more accurate, fix the
+   position of the merged segment).
+
+Then the paper's length filter (:func:`filter_by_length`) drops segments shorter than
+``lambda (b_x + b_y + b_z) / 3``. :func:`line_precision_recall` measures extracted segments
+against true edges.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ldlmap.errors import InputError
+
+
+@dataclass(frozen=True)
+class Lines3DParams:
+    """Parameters of :func:`extract_lines` (metres and degrees)."""
+
+    voxel_size: float = 0.02  # downsampling grid; 0 disables it
+    normal_k: int = 20  # neighbours for normals and surface variation
+    graph_k: int = 10  # neighbours linked by region growing
+    normal_angle_deg: float = 12.0  # max normal difference of linked neighbours
+    max_curvature: float = 0.03  # surface variation above which a point is an edge point
+    plane_tol: float = 0.025  # max point-to-plane distance when linking / re-assigning points
+    min_region_points: int = 120  # smallest planar region kept
+    max_plane_rms: float = 0.02  # regions less planar than this RMS are not planes
+    cell_size: float = 0.02  # raster cell of the per-plane occupancy images
+    close_cells: int = 2  # closing radius (cells) that bridges sampling gaps
+    poly_eps: float = 0.03  # Douglas-Peucker tolerance of boundary polygons
+    min_segment: float = 0.08  # raw pieces shorter than this are dropped before merging
+    min_plane_angle_deg: float = 20.0  # planes meeting at a smaller angle give no intersection
+    support_dist: float = 0.06  # points this close to an intersection line support it
+    min_adjacent_links: int = 5  # kNN links needed between two planes to call them adjacent
+    merge_angle_deg: float = 5.0  # collinear pieces: direction difference ...
+    merge_dist: float = 0.04  # ... distance between the lines ...
+    merge_gap: float = 0.03  # ... and largest gap along the line to still merge
+    lam: float = 0.1  # lambda: length filter ratio of the paper (sec. 3.1)
+
+
+# ------------------------------------------------------------------------------------ validation
+
+
+def _check_points(points: np.ndarray) -> np.ndarray:
+    P = np.asarray(points)
+    if P.ndim != 2 or P.shape[1] != 3:
+        raise InputError(f"point cloud must have shape (N, 3), got {P.shape}")
+    if len(P) == 0:
+        raise InputError("point cloud is empty")
+    P = P.astype(np.float64, copy=False)
+    if not np.all(np.isfinite(P)):
+        raise InputError("point cloud contains NaN or infinite coordinates")
+    return P
+
+
+def _check_lines(lines: np.ndarray) -> np.ndarray:
+    L = np.asarray(lines, dtype=np.float64)
+    if L.ndim != 3 or L.shape[1:] != (2, 3):
+        raise InputError(f"lines must have shape (N, 2, 3), got {L.shape}")
+    if not np.all(np.isfinite(L)):
+        raise InputError("lines contain NaN or infinite coordinates")
+    return L
+
+
+# --------------------------------------------------------------------------------- length filter
+
+
+def length_threshold(bounds_min: np.ndarray, bounds_max: np.ndarray, lam: float = 0.1) -> float:
+    """The paper's length threshold ``lambda (b_x + b_y + b_z) / 3`` for a bounding box."""
+    b = np.asarray(bounds_max, dtype=np.float64) - np.asarray(bounds_min, dtype=np.float64)
+    if b.shape != (3,) or not np.all(np.isfinite(b)) or np.any(b < 0):
+        raise InputError("bounding box must be two finite 3-vectors with max >= min")
+    return float(lam * b.sum() / 3.0)
+
+
+def filter_by_length(lines: np.ndarray, bounds_min: np.ndarray, bounds_max: np.ndarray,
+                     lam: float = 0.1) -> tuple[np.ndarray, np.ndarray, float]:
+    """Drop segments shorter than ``lam * (b_x + b_y + b_z) / 3`` (paper, lambda = 0.1).
+
+    Returns ``(kept_lines (M, 2, 3), kept_mask (N,) bool, threshold)``; the kept ratio that the
+    2D filter matches is ``kept_mask.mean()``.
+    """
+    L = _check_lines(lines)
+    thr = length_threshold(bounds_min, bounds_max, lam)
+    mask = np.linalg.norm(L[:, 1] - L[:, 0], axis=1) >= thr
+    return L[mask], mask, thr
+
+
+# ------------------------------------------------------------------------------ plane detection
+
+
+def _neighbours(P: np.ndarray, k: int) -> np.ndarray:
+    from scipy.spatial import cKDTree
+
+    k = min(k + 1, len(P))
+    _, idx = cKDTree(P).query(P, k=k, workers=-1)
+    return idx[:, 1:] if k > 1 else idx[:, :0]
+
+
+def _normals_and_curvature(P: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    import open3d as o3d
+
+    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(P))
+    pcd.estimate_covariances(o3d.geometry.KDTreeSearchParamKNN(knn=int(k)))
+    C = np.asarray(pcd.covariances)
+    w, V = np.linalg.eigh(C)  # ascending eigenvalues
+    curv = w[:, 0] / np.maximum(w.sum(axis=1), 1e-18)
+    return V[:, :, 0], curv
+
+
+def _plane_fits(P: np.ndarray, labels: np.ndarray, n_labels: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Per label least-squares plane: (centroid (L,3), normal (L,3), rms (L,), count (L,))."""
+    cnt = np.bincount(labels, minlength=n_labels).astype(np.float64)
+    c = np.stack([np.bincount(labels, P[:, i], n_labels) for i in range(3)], 1) / np.maximum(cnt, 1)[:, None]
+    Q = P - c[labels]
+    cov = np.empty((n_labels, 3, 3))
+    for i in range(3):
+        for j in range(i, 3):
+            cov[:, i, j] = cov[:, j, i] = np.bincount(labels, Q[:, i] * Q[:, j], n_labels)
+    cov /= np.maximum(cnt, 1)[:, None, None]
+    w, V = np.linalg.eigh(cov)
+    return c, V[:, :, 0], np.sqrt(np.maximum(w[:, 0], 0.0)), cnt
+
+
+@dataclass
+class PlaneRegions:
+    """Planar regions of a (downsampled) cloud."""
+
+    points: np.ndarray  # (N, 3) the processed points
+    labels: np.ndarray  # (N,) region index or -1
+    centroids: np.ndarray  # (L, 3)
+    normals: np.ndarray  # (L, 3)
+    neighbours: np.ndarray  # (N, k) kNN indices used for growing
+
+
+def segment_planes(points: np.ndarray, params: Lines3DParams = Lines3DParams()) -> PlaneRegions:
+    """Planar regions by normal-constrained kNN connected components (steps 1-3 of the module)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    P = _check_points(points)
+    if params.voxel_size > 0:
+        import open3d as o3d
+
+        pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(P))
+        P = np.asarray(pcd.voxel_down_sample(params.voxel_size).points)
+    if len(P) < max(params.normal_k, 10):
+        raise InputError(f"point cloud too small for line extraction ({len(P)} points)")
+    normals, curv = _normals_and_curvature(P, params.normal_k)
+    nbr = _neighbours(P, params.graph_k)
+    n, k = nbr.shape
+    i = np.repeat(np.arange(n), k)
+    j = nbr.ravel()
+    flat = curv <= params.max_curvature
+    cos_t = np.cos(np.radians(params.normal_angle_deg))
+    d = P[j] - P[i]
+    ok = (flat[i] & flat[j]
+          & (np.abs(np.einsum("ij,ij->i", normals[i], normals[j])) >= cos_t)
+          & (np.abs(np.einsum("ij,ij->i", normals[i], d)) <= params.plane_tol)
+          & (np.abs(np.einsum("ij,ij->i", normals[j], d)) <= params.plane_tol))
+    g = coo_matrix((np.ones(ok.sum(), np.int8), (i[ok], j[ok])), shape=(n, n))
+    n_comp, comp = connected_components(g, directed=False)
+    comp = np.where(flat, comp, -1)
+    # Keep big, planar components.
+    sizes = np.bincount(comp[comp >= 0], minlength=n_comp)
+    big = sizes >= params.min_region_points
+    remap = np.full(n_comp, -1)
+    remap[big] = np.arange(big.sum())
+    labels = np.where(comp >= 0, remap[np.maximum(comp, 0)], -1)
+    L = int(big.sum())
+    if L == 0:
+        return PlaneRegions(P, labels, np.zeros((0, 3)), np.zeros((0, 3)), nbr)
+    sel = labels >= 0
+    c, nrm, rms, _ = _plane_fits(P[sel], labels[sel], L)
+    good = rms <= params.max_plane_rms
+    remap = np.where(good, np.cumsum(good) - 1, -1)
+    labels = np.where(labels >= 0, remap[np.maximum(labels, 0)], -1)
+    c, nrm = c[good], nrm[good]
+    # Give edge points (and small regions) back to the closest plane among their neighbours.
+    for _ in range(4):
+        free = np.flatnonzero(labels < 0)
+        if len(free) == 0:
+            break
+        cand = labels[nbr[free]]  # (F, k)
+        dist = np.abs(np.einsum("fkj,fkj->fk", P[free][:, None, :] - c[np.maximum(cand, 0)], nrm[np.maximum(cand, 0)]))
+        dist = np.where(cand >= 0, dist, np.inf)
+        best = np.argmin(dist, axis=1)
+        bd = dist[np.arange(len(free)), best]
+        take = bd <= params.plane_tol
+        if not take.any():
+            break
+        labels[free[take]] = cand[np.arange(len(free)), best][take]
+    if len(c):
+        c, nrm, _, _ = _plane_fits(P[labels >= 0], labels[labels >= 0], len(c))
+    return PlaneRegions(P, labels, c, nrm, nbr)
+
+
+# ---------------------------------------------------------------------------- per-plane segments
+
+
+def _plane_basis(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    a = np.eye(3)[int(np.argmin(np.abs(n)))]
+    e1 = np.cross(n, a)
+    e1 /= np.linalg.norm(e1)
+    return e1, np.cross(n, e1)
+
+
+def _boundary_segments(Q: np.ndarray, c: np.ndarray, n: np.ndarray, params: Lines3DParams) -> np.ndarray:
+    """Boundary polygon sides (M, 2, 3) of one planar region's occupancy image."""
+    import cv2
+
+    e1, e2 = _plane_basis(n)
+    uv = np.stack([(Q - c) @ e1, (Q - c) @ e2], 1)
+    cs = params.cell_size
+    pad = params.close_cells + 2
+    lo = uv.min(0) - pad * cs
+    ij = np.floor((uv - lo) / cs).astype(np.int64)
+    h, w = ij[:, 1].max() + pad + 1, ij[:, 0].max() + pad + 1
+    img = np.zeros((h, w), np.uint8)
+    img[ij[:, 1], ij[:, 0]] = 255
+    r = params.close_cells
+    ker = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
+    img = cv2.morphologyEx(img, cv2.MORPH_CLOSE, ker)
+    img = cv2.morphologyEx(img, cv2.MORPH_OPEN, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (3, 3)))
+    contours, _ = cv2.findContours(img, cv2.RETR_LIST, cv2.CHAIN_APPROX_NONE)
+    segs = []
+    eps = params.poly_eps / cs
+    for cnt in contours:
+        if len(cnt) < 4:
+            continue
+        poly = cv2.approxPolyDP(cnt, eps, True)[:, 0, :].astype(np.float64)
+        if len(poly) < 2:
+            continue
+        a, b = poly, np.roll(poly, -1, axis=0)
+        segs.append(np.stack([a, b], 1))
+    if not segs:
+        return np.zeros((0, 2, 3))
+    S = np.concatenate(segs)  # pixel (col, row) of boundary pixel centres
+    S2 = lo + (S + 0.5) * cs
+    S3 = c + S2[..., :1] * e1 + S2[..., 1:] * e2
+    return S3[np.linalg.norm(S3[:, 1] - S3[:, 0], axis=1) >= params.min_segment]
+
+
+def _runs(mask: np.ndarray) -> np.ndarray:
+    """(R, 2) start / end (exclusive) indices of True runs of a 1D boolean array."""
+    m = np.concatenate([[False], mask, [False]]).astype(np.int8)
+    d = np.diff(m)
+    return np.stack([np.flatnonzero(d == 1), np.flatnonzero(d == -1)], 1)
+
+
+def _intersection_segments(reg: PlaneRegions, params: Lines3DParams) -> np.ndarray:
+    """Intersection lines of adjacent planes clipped to both supports (M, 2, 3)."""
+    P, lab, nbr = reg.points, reg.labels, reg.neighbours
+    L = len(reg.normals)
+    if L < 2:
+        return np.zeros((0, 2, 3))
+    a = np.repeat(lab, nbr.shape[1])
+    b = lab[nbr.ravel()]
+    ok = (a >= 0) & (b >= 0) & (a != b)
+    lo, hi = np.minimum(a[ok], b[ok]), np.maximum(a[ok], b[ok])
+    pairs, counts = np.unique(lo * L + hi, return_counts=True)
+    pairs = pairs[counts >= params.min_adjacent_links]
+    order = np.argsort(lab, kind="stable")
+    starts = np.searchsorted(lab[order], np.arange(L + 1))
+    members = [order[starts[i]:starts[i + 1]] for i in range(L)]
+    sin_min = np.sin(np.radians(params.min_plane_angle_deg))
+    cs = params.cell_size
+    out = []
+    for key in pairs:
+        i, j = divmod(int(key), L)
+        ni, nj = reg.normals[i], reg.normals[j]
+        d = np.cross(ni, nj)
+        s = np.linalg.norm(d)
+        if s < sin_min:
+            continue
+        d /= s
+        A = np.stack([ni, nj, d])
+        x0 = np.linalg.solve(A, [ni @ reg.centroids[i], nj @ reg.centroids[j], d @ (reg.centroids[i] + reg.centroids[j]) / 2])
+        occ = []
+        for m in (members[i], members[j]):
+            Q = P[m] - x0
+            t = Q @ d
+            near = np.linalg.norm(Q - t[:, None] * d, axis=1) <= params.support_dist
+            occ.append(t[near])
+        if len(occ[0]) == 0 or len(occ[1]) == 0:
+            continue
+        t0 = max(occ[0].min(), occ[1].min())
+        t1 = min(occ[0].max(), occ[1].max())
+        if t1 - t0 < params.min_segment:
+            continue
+        nb = int(np.ceil((t1 - t0) / cs)) + 1
+        both = np.ones(nb, bool)
+        for t in occ:
+            tb = np.floor((t[(t >= t0) & (t <= t1)] - t0) / cs).astype(np.int64)
+            hit = np.bincount(tb, minlength=nb)[:nb] > 0
+            # Close gaps of up to ``close_cells`` bins (sampling holes, not real gaps).
+            gap = params.close_cells
+            run = _runs(~hit)
+            for s0, s1 in run[(run[:, 1] - run[:, 0] <= gap) & (run[:, 0] > 0) & (run[:, 1] < nb)]:
+                hit[s0:s1] = True
+            both &= hit
+        for s0, s1 in _runs(both):
+            ta, tb_ = t0 + s0 * cs, t0 + s1 * cs
+            if tb_ - ta >= params.min_segment:
+                out.append([x0 + ta * d, x0 + tb_ * d])
+    return np.asarray(out, dtype=np.float64).reshape(-1, 2, 3)
+
+
+# ----------------------------------------------------------------------------------------- merge
+
+
+def merge_collinear(lines: np.ndarray, weights: np.ndarray | None = None, angle_deg: float = 5.0,
+                    dist: float = 0.04, gap: float = 0.03) -> np.ndarray:
+    """Merge segments that are collinear (angle, line distance) and overlap or nearly touch.
+
+    Groups are the connected components of the "mergeable" relation. A group becomes one segment
+    along the weighted mean direction through the weighted mean midpoint (only the members of
+    highest weight place it), spanning the projections of all member endpoints.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    L = _check_lines(lines)
+    n = len(L)
+    if n < 2:
+        return L.copy()
+    w = np.ones(n) if weights is None else np.asarray(weights, dtype=np.float64)
+    v = L[:, 1] - L[:, 0]
+    length = np.linalg.norm(v, axis=1)
+    d = v / np.maximum(length, 1e-12)[:, None]
+    mid = L.mean(axis=1)
+    cos_t = np.cos(np.radians(angle_deg))
+    rows, cols = [], []
+    block = max(1, int(4e6 // n))
+    for s in range(0, n, block):
+        ii = np.arange(s, min(n, s + block))
+        cosang = np.abs(d[ii] @ d.T)  # (B, n)
+        cand = np.argwhere((cosang >= cos_t) & (np.arange(n)[None, :] > ii[:, None]))
+        if len(cand) == 0:
+            continue
+        a, b = ii[cand[:, 0]], cand[:, 1]
+        # Reference = longer segment of the pair; distances of the other's endpoints to its line.
+        ref = np.where(length[a] >= length[b], a, b)
+        oth = np.where(ref == a, b, a)
+        rel = L[oth] - L[ref][:, None, 0, :]  # (M, 2, 3)
+        t = np.einsum("mkj,mj->mk", rel, d[ref])
+        perp = np.linalg.norm(rel - t[..., None] * d[ref][:, None, :], axis=2).max(axis=1)
+        lo, hi = t.min(axis=1), t.max(axis=1)
+        overlap_gap = np.maximum(lo - length[ref], -hi)  # > 0: gap between the intervals
+        ok = (perp <= dist) & (overlap_gap <= gap)
+        rows.append(a[ok])
+        cols.append(b[ok])
+    if not rows:
+        return L.copy()
+    r, c = np.concatenate(rows), np.concatenate(cols)
+    g = coo_matrix((np.ones(len(r), np.int8), (r, c)), shape=(n, n))
+    n_g, grp = connected_components(g, directed=False)
+    # Members that place the line: those with the group's highest weight.
+    wmax = np.full(n_g, -np.inf)
+    np.maximum.at(wmax, grp, w)
+    top = w >= wmax[grp]
+    # Sign-align directions to the group's longest member, average weighted by length.
+    longest = np.zeros(n_g, np.int64)
+    order = np.lexsort((length, grp))
+    longest[grp[order]] = order  # last write per group = longest
+    sgn = np.sign(np.einsum("ij,ij->i", d, d[longest[grp]]))
+    sgn[sgn == 0] = 1
+    wl = np.where(top, length, 0.0)
+    D = np.zeros((n_g, 3))
+    M = np.zeros((n_g, 3))
+    np.add.at(D, grp, (sgn * wl)[:, None] * d)
+    np.add.at(M, grp, wl[:, None] * mid)
+    D /= np.linalg.norm(D, axis=1, keepdims=True)
+    M /= np.bincount(grp, wl, n_g)[:, None]
+    t = np.einsum("ikj,ij->ik", L - M[grp][:, None, :], D[grp])
+    tmin = np.full(n_g, np.inf)
+    tmax = np.full(n_g, -np.inf)
+    np.minimum.at(tmin, grp, t.min(axis=1))
+    np.maximum.at(tmax, grp, t.max(axis=1))
+    return np.stack([M + tmin[:, None] * D, M + tmax[:, None] * D], axis=1)
+
+
+# ------------------------------------------------------------------------------------ extraction
+
+
+def extract_lines_with_stats(points: np.ndarray, params: Lines3DParams = Lines3DParams()) -> tuple[np.ndarray, dict]:
+    """:func:`extract_lines` plus per-stage seconds and counts (for benchmarks and the CLI)."""
+    import time
+
+    stats: dict = {}
+    t = time.perf_counter()
+    reg = segment_planes(points, params)
+    stats["planes_s"] = time.perf_counter() - t
+    stats["points_processed"] = len(reg.points)
+    stats["planes"] = len(reg.normals)
+    t = time.perf_counter()
+    lab = reg.labels
+    order = np.argsort(lab, kind="stable")
+    starts = np.searchsorted(lab[order], np.arange(len(reg.normals) + 1))
+    bnd = [_boundary_segments(reg.points[order[starts[i]:starts[i + 1]]], reg.centroids[i], reg.normals[i], params)
+           for i in range(len(reg.normals))]
+    B = np.concatenate(bnd) if bnd else np.zeros((0, 2, 3))
+    stats["boundary_s"] = time.perf_counter() - t
+    t = time.perf_counter()
+    X = _intersection_segments(reg, params)
+    stats["intersections_s"] = time.perf_counter() - t
+    stats["boundary_segments"], stats["intersection_segments"] = len(B), len(X)
+    t = time.perf_counter()
+    raw = np.concatenate([X, B])
+    w = np.concatenate([np.full(len(X), 2.0), np.ones(len(B))])
+    out = merge_collinear(raw, w, params.merge_angle_deg, params.merge_dist, params.merge_gap)
+    out = out[np.linalg.norm(out[:, 1] - out[:, 0], axis=1) >= params.min_segment]
+    stats["merge_s"] = time.perf_counter() - t
+    stats["lines"] = len(out)
+    return out, stats
+
+
+def extract_lines(points: np.ndarray, colors: np.ndarray | None = None,
+                  params: Lines3DParams = Lines3DParams()) -> np.ndarray:
+    """3D line segments (N, 2, 3) of a point cloud (N_p, 3), before the length filter.
+
+    ``colors`` is accepted for interface symmetry and currently unused: lines come from
+    geometry only (plane boundaries and plane intersections), as in Lu et al. 2019.
+    """
+    P = _check_points(points)
+    if colors is not None and len(np.asarray(colors)) != len(P):
+        raise InputError("colors must have one row per point")
+    return extract_lines_with_stats(P, params)[0]
+
+
+# ------------------------------------------------------------------------------------- evaluation
+
+
+def _sample_segments(L: np.ndarray, step: float) -> tuple[np.ndarray, np.ndarray]:
+    """Points along each segment every ``step`` (at least 2 per segment) and their segment index."""
+    length = np.linalg.norm(L[:, 1] - L[:, 0], axis=1)
+    k = np.maximum(2, np.ceil(length / step).astype(np.int64) + 1)
+    seg = np.repeat(np.arange(len(L)), k)
+    first = np.cumsum(k) - k
+    f = (np.arange(k.sum()) - first[seg] + 0.5) / k[seg]  # bin centres: each point = equal length
+    return L[seg, 0] + f[:, None] * (L[seg, 1] - L[seg, 0]), seg
+
+
+def _covered(samples: np.ndarray, sdir: np.ndarray, ref: np.ndarray, dist: float, cos_t: float) -> np.ndarray:
+    """For each sample point: is there a reference segment within ``dist`` and the angle?"""
+    a, b = ref[:, 0], ref[:, 1]
+    v = b - a
+    vv = np.maximum(np.einsum("ij,ij->i", v, v), 1e-18)
+    rdir = v / np.sqrt(vv)[:, None]
+    out = np.zeros(len(samples), bool)
+    block = max(1, int(2e6 // max(len(ref), 1)))
+    for s in range(0, len(samples), block):
+        x = samples[s:s + block]
+        t = np.clip(((x[:, None, :] - a[None]) * v[None]).sum(-1) / vv[None], 0.0, 1.0)
+        dd = np.linalg.norm(x[:, None, :] - (a[None] + t[..., None] * v[None]), axis=2)
+        par = np.abs(sdir[s:s + block] @ rdir.T) >= cos_t
+        out[s:s + block] = np.any((dd <= dist) & par, axis=1)
+    return out
+
+
+def line_precision_recall(pred: np.ndarray, gt: np.ndarray, dist: float = 0.05, angle_deg: float = 5.0,
+                          min_cover: float = 0.7, step: float = 0.01) -> tuple[float, float]:
+    """Segment-level precision and recall of ``pred`` against ``gt`` (both (N, 2, 3)).
+
+    A ground-truth segment is found when at least ``min_cover`` of its length lies within
+    ``dist`` of a predicted segment whose direction is within ``angle_deg``; precision is the
+    same with the roles swapped. Lengths are measured by sampling points every ``step``.
+    Returns ``(precision, recall)``; an empty set scores 0 (1 when both are empty).
+    """
+    P, G = _check_lines(pred), _check_lines(gt)
+    if len(P) == 0 or len(G) == 0:
+        both_empty = float(len(P) == 0 and len(G) == 0)
+        return both_empty, both_empty
+    cos_t = np.cos(np.radians(angle_deg))
+
+    def frac(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+        x, seg = _sample_segments(A, step)
+        da = A[:, 1] - A[:, 0]
+        da = da / np.maximum(np.linalg.norm(da, axis=1, keepdims=True), 1e-12)
+        cov = _covered(x, da[seg], B, dist, cos_t)
+        return np.bincount(seg, cov, len(A)) / np.bincount(seg, minlength=len(A))
+
+    precision = float(np.mean(frac(P, G) >= min_cover))
+    recall = float(np.mean(frac(G, P) >= min_cover))
+    return precision, recall

@@ -1,0 +1,146 @@
+"""3D line extraction, length filter, collinear merge and the precision/recall metric."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tests._room_cloud import box_room
+from ldlmap.errors import InputError
+from ldlmap.lines3d import (Lines3DParams, extract_lines, extract_lines_with_stats, filter_by_length,
+                            length_threshold, line_precision_recall, merge_collinear)
+
+
+def seg(a, b) -> np.ndarray:
+    return np.array([a, b], dtype=np.float64)
+
+
+# ------------------------------------------------------------------------------------ filter
+
+
+def test_filter_by_length_threshold_closed_form():
+    lines = np.stack([seg([0, 0, 0], [0.3, 0, 0]), seg([0, 0, 0], [0, 0.5, 0]), seg([1, 1, 1], [1, 1, 1.41])])
+    kept, mask, thr = filter_by_length(lines, [0, 0, 0], [6, 4, 2], lam=0.1)
+    assert thr == pytest.approx(0.1 * 12 / 3)
+    assert mask.tolist() == [False, True, True]
+    assert kept.shape == (2, 2, 3)
+    assert length_threshold([0, 0, 0], [3, 3, 3], lam=0.2) == pytest.approx(0.6)
+
+
+def test_filter_rejects_bad_shapes_and_nans():
+    with pytest.raises(InputError):
+        filter_by_length(np.zeros((3, 3)), [0, 0, 0], [1, 1, 1])
+    bad = np.zeros((1, 2, 3))
+    bad[0, 0, 0] = np.nan
+    with pytest.raises(InputError):
+        filter_by_length(bad, [0, 0, 0], [1, 1, 1])
+
+
+# ------------------------------------------------------------------------------------ metric
+
+
+def test_precision_recall_closed_cases():
+    gt = np.stack([seg([0, 0, 0], [2, 0, 0]), seg([0, 1, 0], [0, 1, 2])])
+    assert line_precision_recall(gt, gt) == (1.0, 1.0)
+    shifted = gt + np.array([0, 0.03, 0.0])  # 3 cm off: still within 5 cm
+    assert line_precision_recall(shifted, gt) == (1.0, 1.0)
+    far = gt + np.array([0.0, 0.0, 0.08])  # x-line 8 cm away; z-line slides along itself
+    p, r = line_precision_recall(far, gt)
+    assert (p, r) == (0.5, 0.5)
+    # A prediction covering 60 % of the first edge: precise but the edge is not found.
+    part = np.stack([seg([0, 0, 0], [1.2, 0, 0])])
+    assert line_precision_recall(part, gt[:1]) == (1.0, 0.0)
+    assert line_precision_recall(part, gt[:1], min_cover=0.5) == (1.0, 1.0)
+    # Two pieces covering 80 % together find the edge.
+    pieces = np.stack([seg([0, 0, 0], [0.9, 0, 0]), seg([1.3, 0, 0], [2.0, 0, 0])])
+    assert line_precision_recall(pieces, gt[:1]) == (1.0, 1.0)
+    # Close but rotated by 10 degrees: wrong direction.
+    a = np.radians(10)
+    rot = np.stack([seg([1 - np.cos(a), -np.sin(a), 0], [1 + np.cos(a), np.sin(a), 0])])
+    assert line_precision_recall(rot, gt[:1]) == (0.0, 0.0)
+    assert line_precision_recall(np.zeros((0, 2, 3)), gt) == (0.0, 0.0)
+
+
+def test_precision_recall_matches_brute_force():
+    rng = np.random.default_rng(3)
+    gt = rng.uniform(0, 2, size=(12, 2, 3))
+    pred = gt + rng.normal(scale=0.03, size=gt.shape)
+    p, r = line_precision_recall(pred, gt, step=0.01)
+
+    def brute(A, B):
+        found = []
+        for a in A:
+            da = (a[1] - a[0]) / np.linalg.norm(a[1] - a[0])
+            n = max(2, int(np.ceil(np.linalg.norm(a[1] - a[0]) / 0.01)) + 1)
+            hits = 0
+            for f in (np.arange(n) + 0.5) / n:
+                x = a[0] + f * (a[1] - a[0])
+                ok = False
+                for b in B:
+                    v = b[1] - b[0]
+                    if abs(da @ v) / np.linalg.norm(v) < np.cos(np.radians(5)):
+                        continue
+                    t = np.clip((x - b[0]) @ v / (v @ v), 0, 1)
+                    ok |= np.linalg.norm(x - b[0] - t * v) <= 0.05
+                hits += ok
+            found.append(hits / n >= 0.7)
+        return float(np.mean(found))
+
+    assert p == pytest.approx(brute(pred, gt))
+    assert r == pytest.approx(brute(gt, pred))
+
+
+# ------------------------------------------------------------------------------------ merge
+
+
+def test_merge_collinear():
+    lines = np.stack([
+        seg([0, 0, 0], [1, 0, 0]),
+        seg([0.8, 0.01, 0], [2, 0.01, 0]),  # overlaps the first, 1 cm off
+        seg([2.5, 0, 0], [3, 0, 0]),  # 50 cm gap: separate
+        seg([0, 0.2, 0], [2, 0.2, 0]),  # parallel, 20 cm away: separate
+        seg([0, 0, 0], [0, 0, 1]),  # perpendicular: separate
+    ])
+    out = merge_collinear(lines)
+    assert len(out) == 4
+    lens = sorted(np.round(np.linalg.norm(out[:, 1] - out[:, 0], axis=1), 3))
+    assert lens == pytest.approx([0.5, 1.0, 2.0, 2.0], abs=1e-3)
+    # The heavier member fixes the position of the merged line.
+    w = np.array([5.0, 1.0, 1, 1, 1])
+    out = merge_collinear(lines, w)
+    merged = out[np.argmax(np.linalg.norm(out[:, 1] - out[:, 0], axis=1) * (np.abs(out[:, 0, 1]) < 0.05))]
+    assert np.allclose(merged[:, 1], 0.0, atol=1e-9)
+
+
+# ------------------------------------------------------------------------------------ extraction
+
+
+@pytest.fixture(scope="module")
+def room():
+    return box_room(seed=1, size=(5.0, 4.0, 2.6), n_boxes=2, density=3000.0, noise=0.005, yaw_deg=23.0)
+
+
+def test_extract_lines_box_room_precision_recall(room):
+    P, E = room
+    lines, stats = extract_lines_with_stats(P)
+    assert lines.ndim == 3 and lines.shape[1:] == (2, 3)
+    assert stats["planes"] >= 6 + 2 * 5 - 2  # room faces and most box faces
+    kept, mask, thr = filter_by_length(lines, P.min(0), P.max(0))
+    assert mask.mean() < 1.0
+    gt_long = E[np.linalg.norm(E[:, 1] - E[:, 0], axis=1) >= thr]
+    precision, _ = line_precision_recall(kept, E)
+    _, recall = line_precision_recall(kept, gt_long)
+    assert recall >= 0.7 and precision >= 0.7, (precision, recall)
+
+
+def test_extract_lines_bad_input():
+    with pytest.raises(InputError):
+        extract_lines(np.zeros((0, 3)))
+    with pytest.raises(InputError):
+        extract_lines(np.zeros((10, 2)))
+    P = np.random.default_rng(0).random((100, 3))
+    P[5, 1] = np.nan
+    with pytest.raises(InputError):
+        extract_lines(P)
+    with pytest.raises(InputError):
+        extract_lines(np.zeros((5, 3)), params=Lines3DParams(voxel_size=0))
