@@ -1,0 +1,75 @@
+"""Principal 3D directions by voting and line grouping."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from ldlmap.errors import InputError
+from ldlmap.geometry import rotation_from_axis_angle
+from ldlmap.lines3d import extract_lines, filter_by_length
+from ldlmap.principal3d import assign_line_groups, principal_directions_3d
+from tests._room_cloud import box_room
+
+
+def _angle_to_axes(P: np.ndarray, axes: np.ndarray) -> np.ndarray:
+    """For each true axis (rows), angle in degrees to the closest estimated direction (sign-free)."""
+    c = np.abs(axes @ P.T).max(axis=1)
+    return np.degrees(np.arccos(np.clip(c, -1, 1)))
+
+
+def _lines_along(axes, rng, n_per=(40, 25, 15), noise_deg=1.0):
+    out = []
+    for a, n in zip(axes, n_per):
+        d = a + rng.normal(scale=np.radians(noise_deg), size=(n, 3))
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        s = rng.uniform(-3, 3, size=(n, 3))
+        out.append(np.stack([s, s + rng.uniform(0.5, 2.0, (n, 1)) * d], 1))
+    return np.concatenate(out)
+
+
+def test_principal_directions_recover_rotated_frame_with_clutter():
+    rng = np.random.default_rng(0)
+    R = rotation_from_axis_angle(rng.normal(size=3), 1.1)
+    axes = R.T  # rows: the rotated frame's axes
+    lines = _lines_along(axes, rng)
+    clutter = rng.uniform(-3, 3, size=(30, 2, 3)) * np.array([1, 1, 1])
+    clutter[:, 1] = clutter[:, 0] + 0.3 * (clutter[:, 1] - clutter[:, 0]) / np.linalg.norm(clutter[:, 1] - clutter[:, 0], axis=1, keepdims=True)
+    P = principal_directions_3d(np.concatenate([lines, clutter]), k=3)
+    assert P.shape == (3, 3)
+    assert np.allclose(np.linalg.norm(P, axis=1), 1.0)
+    assert np.linalg.det(P) > 0
+    # Ordered by total length: axis 0 has the most lines.
+    assert abs(P[0] @ axes[0]) > np.cos(np.radians(1.0))
+    assert np.all(_angle_to_axes(P, axes) < 1.0)
+
+
+def test_principal_directions_complete_missing_and_bad_input():
+    lines = np.array([[[0, 0, 0], [1, 0, 0]], [[0, 1, 0], [0, 2.5, 0]]], dtype=float)
+    P = principal_directions_3d(lines)
+    assert np.allclose(np.abs(P), np.eye(3)[[1, 0, 2]], atol=1e-9)
+    assert np.linalg.det(P) > 0
+    with pytest.raises(InputError):
+        principal_directions_3d(np.zeros((0, 2, 3)))
+    with pytest.raises(InputError):
+        principal_directions_3d(np.zeros((4, 3)))
+
+
+def test_assign_line_groups():
+    P = np.eye(3)
+    d = np.array([[1, 0.1, 0], [0, -1, 0], [0.7, 0.7, 0], [0, 0.2, -1], [0, 0, 0]], dtype=float)
+    g = assign_line_groups(d, P)
+    assert g.tolist() == [0, 1, -1, 2, -1]
+
+
+def test_principal_directions_of_extracted_lines_in_rotated_room():
+    yaw = float(np.random.default_rng(7).uniform(0, 360))
+    pts, _ = box_room(seed=2, size=(5.0, 4.0, 2.6), n_boxes=2, density=2500.0, yaw_deg=yaw)
+    lines = extract_lines(pts)
+    kept, _, _ = filter_by_length(lines, pts.min(0), pts.max(0))
+    P = principal_directions_3d(kept)
+    c, s = np.cos(np.radians(yaw)), np.sin(np.radians(yaw))
+    axes = np.array([[c, s, 0], [-s, c, 0], [0, 0, 1]])
+    err = _angle_to_axes(P, axes)
+    assert np.all(err < 2.0), err
+    assert np.linalg.det(P) > 0
