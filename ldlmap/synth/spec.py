@@ -1,0 +1,756 @@
+"""Synthetic scene specification: dataclasses, TOML I/O, validation, random presets.
+
+A scene is one room: a footprint polygon extruded to ``ceiling_height`` (floor at z = 0), with
+furniture (``objects``), doors and windows (``openings``) and ``posters`` on the walls, plus the
+capture (``capture``: panorama splits) and scanner (``scan``) parameters. ``datasets/synthetic/
+SPEC.md`` documents every field; ``datasets/synthetic/l_room.toml`` is a complete example.
+
+Walls are numbered by footprint edge: wall ``i`` runs from vertex ``i`` to vertex ``i + 1``
+(counter-clockwise; a clockwise footprint is reversed on load and its wall indices and offsets
+remapped). Positions along a wall (``offset``) are measured from the wall's start vertex to the
+near side of the opening or poster.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import os
+import tomllib
+import typing
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+
+from ldlmap.errors import InputError, require_file
+from ldlmap.synth import polygon as pg
+
+OBJECT_KINDS = ("box", "table", "shelf", "cabinet", "sofa")
+OPENING_KINDS = ("door", "window")
+MATERIALS = ("plaster", "wallpaper", "brick", "concrete", "ceiling", "parquet", "tiles", "carpet",
+             "wood", "dark_wood", "painted", "fabric", "marble", "metal")
+DEFAULT_OBJECT_MATERIAL = {"box": "painted", "table": "wood", "shelf": "dark_wood",
+                           "cabinet": "painted", "sofa": "fabric"}
+DEFAULT_SILL = {"door": 0.0, "window": 0.9}
+
+FRAME_WIDTH = 0.07  # m, width of door/window frames around the opening (in the wall plane)
+FRAME_DEPTH = 0.04  # m, how far frames stand out of the wall
+PANEL_OFFSET = 0.01  # m, door/window panel in front of the wall
+POSTER_OFFSET = 0.005  # m, posters in front of the wall
+
+
+# --------------------------------------------------------------------------------- dataclasses
+
+
+@dataclass(frozen=True)
+class ObjectSpec:
+    """A piece of furniture standing on the floor."""
+
+    kind: str  # one of OBJECT_KINDS
+    center: tuple[float, float]  # m, centre of the footprint on the floor
+    size: tuple[float, float, float]  # m, (sx, sy, sz): width, depth, height before yaw
+    yaw_deg: float = 0.0  # rotation about +z, counter-clockwise; the front faces local -y
+    material: str = ""  # one of MATERIALS; "" = the kind's default
+
+
+@dataclass(frozen=True)
+class OpeningSpec:
+    """A door or window: a frame standing out of the wall around a textured panel."""
+
+    kind: str  # "door" or "window"
+    wall: int  # footprint edge index
+    offset: float  # m, from the wall's start vertex to the opening's near side
+    width: float  # m
+    height: float  # m
+    sill: float = -1.0  # m above the floor; < 0 = default (door 0, window 0.9)
+
+
+@dataclass(frozen=True)
+class PosterSpec:
+    """A flat textured rectangle just in front of a wall."""
+
+    wall: int  # footprint edge index
+    offset: float  # m, from the wall's start vertex to the poster's near side
+    bottom: float  # m, height of the lower edge above the floor
+    width: float  # m
+    height: float  # m
+
+
+@dataclass(frozen=True)
+class ViewSpec:
+    """Pose sampling of one split."""
+
+    count: int = 3  # panoramas in the split
+    camera_height: float = 1.0  # m, mean camera height
+    height_jitter: float = 0.05  # m, uniform +- around camera_height
+    max_tilt_deg: float = 2.0  # deg, tilt of the up axis (180 = any rotation)
+    blur_px: float = 0.0  # px, motion blur length (0 = none)
+
+
+@dataclass(frozen=True)
+class ChangeSpec:
+    """Scene changes between the scan and the change_* splits."""
+
+    count: int = 3  # panoramas per change split (change_robot, change_handheld)
+    moved: int = 1  # objects moved
+    removed: int = 1  # objects removed
+    added: int = 1  # objects added
+    max_shift: float = 0.8  # m, largest move of a moved object
+    max_turn_deg: float = 45.0  # deg, largest turn of a moved object
+
+
+@dataclass(frozen=True)
+class IlluminationSpec:
+    """The paper's color variations (supplementary): extra splits when enabled."""
+
+    enabled: bool = True
+    intensity: float = 0.75  # multiply every pixel by this (-25 %)
+    gamma: float = 0.2  # image gamma
+    white_balance: tuple[float, float, float] = (0.7, 0.9, 0.8)  # diagonal RGB gains
+
+
+@dataclass(frozen=True)
+class CaptureSpec:
+    """Panorama rendering and the splits (mirroring OmniScenes)."""
+
+    width: int = 1024  # px, equirectangular width (= 2 x height)
+    height: int = 512  # px
+    min_clearance: float = 0.3  # m, minimum distance of the camera from any surface
+    robot: ViewSpec = ViewSpec(3, 1.0, 0.05, 2.0, 0.0)
+    handheld: ViewSpec = ViewSpec(3, 1.5, 0.15, 10.0, 0.0)
+    extreme: ViewSpec = ViewSpec(3, 1.3, 0.3, 180.0, 8.0)
+    change: ChangeSpec = ChangeSpec()
+    illumination: IlluminationSpec = IlluminationSpec()
+
+
+@dataclass(frozen=True)
+class ScanSpec:
+    """The simulated laser scan (colored point cloud of the unchanged scene)."""
+
+    noise_std: float = 0.005  # m, Gaussian position noise per axis (0 = exact)
+    density: float = 2000.0  # points per m^2 of surface (mean)
+    max_points: int = 1_000_000  # cap on the point count
+    uneven: float = 0.5  # 0..1, relative amplitude of smooth density variations
+    holes: int = 6  # number of circular holes (missing data)
+    hole_radius: float = 0.15  # m
+    stations: int = 2  # scanner stations (surfaces seen from none of them are not sampled)
+
+
+@dataclass(frozen=True)
+class SceneSpec:
+    """One synthetic room."""
+
+    name: str
+    footprint: tuple[tuple[float, float], ...]  # m, polygon vertices (x, y), counter-clockwise
+    ceiling_height: float  # m
+    objects: tuple[ObjectSpec, ...] = ()
+    openings: tuple[OpeningSpec, ...] = ()
+    posters: tuple[PosterSpec, ...] = ()
+    seed: int = 0  # texture seed (also seeds poses and the scan in the generator)
+    wall_material: str = "plaster"
+    floor_material: str = "parquet"
+    ceiling_material: str = "ceiling"
+    capture: CaptureSpec = CaptureSpec()
+    scan: ScanSpec = ScanSpec()
+
+    def wall_lengths(self) -> np.ndarray:
+        p = np.asarray(self.footprint, dtype=np.float64)
+        return np.linalg.norm(np.roll(p, -1, axis=0) - p, axis=1)
+
+
+# ------------------------------------------------------------------------------ dict -> spec
+
+
+def _type_name(tp: Any) -> str:
+    origin = typing.get_origin(tp)
+    if origin is tuple:
+        args = typing.get_args(tp)
+        if len(args) == 2 and args[1] is Ellipsis:
+            return f"list of {_type_name(args[0])}"
+        return f"list of {len(args)} {_type_name(args[0])}s"
+    if dataclasses.is_dataclass(tp):
+        return "table"
+    return getattr(tp, "__name__", str(tp))
+
+
+def _convert(value: Any, tp: Any, path: str) -> Any:
+    origin = typing.get_origin(tp)
+    if dataclasses.is_dataclass(tp):
+        if isinstance(value, tp):
+            return value
+        if not isinstance(value, dict):
+            raise InputError(f"spec field '{path}' must be a table, got {type(value).__name__}")
+        return _from_dict(tp, value, path)
+    if origin is tuple:
+        args = typing.get_args(tp)
+        if not isinstance(value, (list, tuple)):
+            raise InputError(f"spec field '{path}' must be a {_type_name(tp)}, got {type(value).__name__}")
+        if len(args) == 2 and args[1] is Ellipsis:
+            return tuple(_convert(v, args[0], f"{path}[{i}]") for i, v in enumerate(value))
+        if len(value) != len(args):
+            raise InputError(f"spec field '{path}' must have {len(args)} values, got {len(value)}")
+        return tuple(_convert(v, a, f"{path}[{i}]") for i, (v, a) in enumerate(zip(value, args)))
+    if tp is bool:
+        if not isinstance(value, (bool, np.bool_)):
+            raise InputError(f"spec field '{path}' must be true or false, got {value!r}")
+        return bool(value)
+    if tp is int:
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+            raise InputError(f"spec field '{path}' must be an integer, got {value!r}")
+        return int(value)
+    if tp is float:
+        if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+            raise InputError(f"spec field '{path}' must be a number, got {value!r}")
+        if not math.isfinite(float(value)):
+            raise InputError(f"spec field '{path}' must be finite, got {value!r}")
+        return float(value)
+    if tp is str:
+        if not isinstance(value, str):
+            raise InputError(f"spec field '{path}' must be a string, got {value!r}")
+        return value
+    raise TypeError(f"unsupported spec type {tp!r}")  # programming error
+
+
+def _from_dict(cls: type, d: dict, path: str) -> Any:
+    hints = typing.get_type_hints(cls)
+    names = [f.name for f in dataclasses.fields(cls)]
+    prefix = f"{path}." if path else ""
+    unknown = [k for k in d if k not in names]
+    if unknown:
+        raise InputError(f"unknown spec field '{prefix}{unknown[0]}' (valid: {', '.join(names)})")
+    kwargs = {}
+    for f in dataclasses.fields(cls):
+        if f.name in d:
+            kwargs[f.name] = _convert(d[f.name], hints[f.name], prefix + f.name)
+        elif f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
+            raise InputError(f"missing required spec field '{prefix}{f.name}'")
+    return cls(**kwargs)
+
+
+def spec_from_dict(d: dict) -> SceneSpec:
+    """Parse and validate a scene spec from plain data (as loaded from TOML)."""
+    if not isinstance(d, dict):
+        raise InputError(f"a scene spec must be a table, got {type(d).__name__}")
+    spec = _from_dict(SceneSpec, d, "")
+    spec = _resolve_defaults(_make_ccw(spec))
+    validate_spec(spec)
+    return spec
+
+
+def load_spec(path: str | os.PathLike) -> SceneSpec:
+    """Read and validate a TOML scene spec."""
+    p = require_file(path, "scene spec")
+    try:
+        with open(p, "rb") as fh:
+            data = tomllib.load(fh)
+    except tomllib.TOMLDecodeError as exc:
+        raise InputError(f"invalid TOML in {p}: {exc}") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"cannot read scene spec {p}: {exc}") from None
+    try:
+        return spec_from_dict(data)
+    except InputError as exc:
+        raise InputError(f"{p}: {exc}") from None
+
+
+def _make_ccw(spec: SceneSpec) -> SceneSpec:
+    """Reverse a clockwise footprint, remapping wall indices and offsets."""
+    fp = np.asarray(spec.footprint, dtype=np.float64)
+    if len(fp) < 3 or pg.simple_polygon_problem(fp) is not None or pg.signed_area(fp) > 0:
+        return spec  # validation reports problems; counter-clockwise needs nothing
+    k = len(fp)
+    lengths = spec.wall_lengths()
+
+    def remap(wall: int, offset: float, width: float) -> tuple[int, float]:
+        if not 0 <= wall < k:
+            return wall, offset
+        return (k - 2 - wall) % k, float(lengths[wall] - offset - width)
+
+    openings = tuple(replace(o, wall=remap(o.wall, o.offset, o.width)[0],
+                             offset=remap(o.wall, o.offset, o.width)[1]) for o in spec.openings)
+    posters = tuple(replace(o, wall=remap(o.wall, o.offset, o.width)[0],
+                            offset=remap(o.wall, o.offset, o.width)[1]) for o in spec.posters)
+    return replace(spec, footprint=tuple(spec.footprint[::-1]), openings=openings, posters=posters)
+
+
+def _resolve_defaults(spec: SceneSpec) -> SceneSpec:
+    objects = tuple(replace(o, material=o.material or DEFAULT_OBJECT_MATERIAL.get(o.kind, "painted"))
+                    for o in spec.objects)
+    openings = tuple(replace(o, sill=DEFAULT_SILL.get(o.kind, 0.0) if o.sill < 0 else o.sill)
+                     for o in spec.openings)
+    return replace(spec, objects=objects, openings=openings)
+
+
+# ---------------------------------------------------------------------------------- validation
+
+
+def object_footprint(obj: ObjectSpec) -> np.ndarray:
+    """Rotated footprint rectangle (4, 2), counter-clockwise, of an object."""
+    hx, hy = obj.size[0] / 2.0, obj.size[1] / 2.0
+    local = np.array([[-hx, -hy], [hx, -hy], [hx, hy], [-hx, hy]])
+    a = math.radians(obj.yaw_deg)
+    rot = np.array([[math.cos(a), -math.sin(a)], [math.sin(a), math.cos(a)]])
+    return local @ rot.T + np.asarray(obj.center, dtype=np.float64)
+
+
+def _positive(value: float, path: str) -> None:
+    if not value > 0:
+        raise InputError(f"spec field '{path}' must be positive, got {value}")
+
+
+def _non_negative(value: float, path: str) -> None:
+    if not value >= 0:
+        raise InputError(f"spec field '{path}' must be >= 0, got {value}")
+
+
+def validate_spec(spec: SceneSpec) -> None:
+    """Raise :class:`InputError` naming the field when ``spec`` is not a valid scene."""
+    if not spec.name or any(c in spec.name for c in "/\\ \t\n") or spec.name in (".", ".."):
+        raise InputError(f"spec field 'name' must be a non-empty name without spaces or slashes, got {spec.name!r}")
+    fp = np.asarray(spec.footprint, dtype=np.float64).reshape(-1, 2)
+    problem = pg.simple_polygon_problem(fp)
+    if problem is not None:
+        raise InputError(f"spec field 'footprint' {problem}")
+    _positive(spec.ceiling_height, "ceiling_height")
+    for key in ("wall_material", "floor_material", "ceiling_material"):
+        if getattr(spec, key) not in MATERIALS:
+            raise InputError(f"spec field '{key}' must be one of {', '.join(MATERIALS)}, got {getattr(spec, key)!r}")
+    h = spec.ceiling_height
+    rects = []
+    for i, obj in enumerate(spec.objects):
+        path = f"objects[{i}]"
+        if obj.kind not in OBJECT_KINDS:
+            raise InputError(f"spec field '{path}.kind' must be one of {', '.join(OBJECT_KINDS)}, got {obj.kind!r}")
+        if obj.material not in MATERIALS:
+            raise InputError(f"spec field '{path}.material' must be one of {', '.join(MATERIALS)}, got {obj.material!r}")
+        for j, s in enumerate(obj.size):
+            _positive(s, f"{path}.size[{j}]")
+        if min(obj.size) < 0.1:
+            raise InputError(f"spec field '{path}.size' must be at least 0.1 m on every side, got {list(obj.size)}")
+        if obj.size[2] > h:
+            raise InputError(f"spec field '{path}.size' is taller ({obj.size[2]} m) than the ceiling ({h} m)")
+        rect = object_footprint(obj)
+        if not pg.convex_inside_polygon(rect, fp, eps=1e-6):
+            raise InputError(f"spec field '{path}' ({obj.kind} at {list(obj.center)}) is not inside the room footprint")
+        for j, other in enumerate(rects):
+            if pg.convex_overlap(rect, other, eps=1e-6):
+                raise InputError(f"spec field '{path}' overlaps objects[{j}]")
+        rects.append(rect)
+    lengths = spec.wall_lengths()
+    spans: dict[int, list[tuple[float, float, float, float, str]]] = {}
+    for i, op in enumerate(spec.openings):
+        path = f"openings[{i}]"
+        if op.kind not in OPENING_KINDS:
+            raise InputError(f"spec field '{path}.kind' must be door or window, got {op.kind!r}")
+        _check_on_wall(path, op.wall, op.offset, op.width, op.height, op.sill, lengths, h, FRAME_WIDTH,
+                       bottom_frame=op.kind == "window")
+        lo = op.sill - (FRAME_WIDTH if op.kind == "window" else 0.0)
+        box = (op.offset - FRAME_WIDTH, op.offset + op.width + FRAME_WIDTH, lo, op.sill + op.height + FRAME_WIDTH, path)
+        _check_no_overlap_on_wall(spans.setdefault(op.wall, []), box)
+    for i, po in enumerate(spec.posters):
+        path = f"posters[{i}]"
+        _check_on_wall(path, po.wall, po.offset, po.width, po.height, po.bottom, lengths, h, 0.0, bottom_frame=False)
+        box = (po.offset, po.offset + po.width, po.bottom, po.bottom + po.height, path)
+        _check_no_overlap_on_wall(spans.setdefault(po.wall, []), box)
+    _validate_capture(spec.capture)
+    _validate_scan(spec.scan)
+
+
+def _check_on_wall(path: str, wall: int, offset: float, width: float, height: float, bottom: float,
+                   lengths: np.ndarray, ceiling: float, frame: float, bottom_frame: bool) -> None:
+    if not 0 <= wall < len(lengths):
+        raise InputError(f"spec field '{path}.wall' must be a wall index in 0..{len(lengths) - 1}, got {wall}")
+    _positive(width, f"{path}.width")
+    _positive(height, f"{path}.height")
+    _non_negative(bottom, f"{path}.{'sill' if frame else 'bottom'}")
+    _non_negative(offset - frame, f"{path}.offset (minus the {frame} m frame)" if frame else f"{path}.offset")
+    if offset + width + frame > lengths[wall] + 1e-9:
+        raise InputError(f"spec field '{path}' does not fit on wall {wall}: offset {offset} + width {width}"
+                         f"{f' + frame {frame}' if frame else ''} > wall length {lengths[wall]:.3f} m")
+    low = bottom - (frame if bottom_frame else 0.0)
+    if low < -1e-9:
+        raise InputError(f"spec field '{path}.sill' leaves no room for the {frame} m frame below the window")
+    if bottom + height + frame > ceiling + 1e-9:
+        raise InputError(f"spec field '{path}' does not fit on wall {wall}: top at {bottom + height + frame:.3f} m"
+                         f" is above the ceiling ({ceiling} m)")
+
+
+def _check_no_overlap_on_wall(spans: list, box: tuple[float, float, float, float, str]) -> None:
+    for other in spans:
+        if box[0] < other[1] - 1e-9 and other[0] < box[1] - 1e-9 and box[2] < other[3] - 1e-9 and other[2] < box[3] - 1e-9:
+            raise InputError(f"spec field '{box[4]}' overlaps {other[4]} on the same wall")
+    spans.append(box)
+
+
+def _validate_capture(c: CaptureSpec) -> None:
+    _positive(c.width, "capture.width")
+    _positive(c.height, "capture.height")
+    if c.width != 2 * c.height:
+        raise InputError(f"spec field 'capture.width' must be twice capture.height, got {c.width}x{c.height}")
+    _non_negative(c.min_clearance, "capture.min_clearance")
+    for name in ("robot", "handheld", "extreme"):
+        v: ViewSpec = getattr(c, name)
+        _non_negative(v.count, f"capture.{name}.count")
+        _positive(v.camera_height, f"capture.{name}.camera_height")
+        _non_negative(v.height_jitter, f"capture.{name}.height_jitter")
+        _non_negative(v.blur_px, f"capture.{name}.blur_px")
+        if not 0 <= v.max_tilt_deg <= 180:
+            raise InputError(f"spec field 'capture.{name}.max_tilt_deg' must be in [0, 180], got {v.max_tilt_deg}")
+    ch = c.change
+    for key in ("count", "moved", "removed", "added"):
+        _non_negative(getattr(ch, key), f"capture.change.{key}")
+    _non_negative(ch.max_shift, "capture.change.max_shift")
+    _non_negative(ch.max_turn_deg, "capture.change.max_turn_deg")
+    il = c.illumination
+    _positive(il.intensity, "capture.illumination.intensity")
+    _positive(il.gamma, "capture.illumination.gamma")
+    for j, g in enumerate(il.white_balance):
+        _positive(g, f"capture.illumination.white_balance[{j}]")
+
+
+def _validate_scan(s: ScanSpec) -> None:
+    _non_negative(s.noise_std, "scan.noise_std")
+    _positive(s.density, "scan.density")
+    _positive(s.max_points, "scan.max_points")
+    if not 0 <= s.uneven <= 1:
+        raise InputError(f"spec field 'scan.uneven' must be in [0, 1], got {s.uneven}")
+    _non_negative(s.holes, "scan.holes")
+    _non_negative(s.hole_radius, "scan.hole_radius")
+    _positive(s.stations, "scan.stations")
+
+
+# ------------------------------------------------------------------------------ spec -> TOML
+
+
+def _plain(value: Any) -> Any:
+    if dataclasses.is_dataclass(value):
+        return {f.name: _plain(getattr(value, f.name)) for f in dataclasses.fields(value)}
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
+
+
+def spec_to_dict(spec: SceneSpec) -> dict:
+    """Plain nested dict/list data of ``spec`` (inverse of :func:`spec_from_dict`)."""
+    return _plain(spec)
+
+
+def _toml_value(v: Any) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, int):
+        return str(v)
+    if isinstance(v, float):
+        if not math.isfinite(v):
+            raise ValueError(f"cannot write non-finite number {v} to TOML")
+        return repr(v)
+    if isinstance(v, str):
+        return json.dumps(v, ensure_ascii=False)  # JSON string escapes are valid TOML basic strings
+    if isinstance(v, list):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    raise TypeError(f"cannot write {type(v).__name__} to TOML")
+
+
+def _toml_table(d: dict, prefix: str, out: list[str]) -> None:
+    def is_table_array(v: Any) -> bool:
+        return isinstance(v, list) and len(v) > 0 and all(isinstance(x, dict) for x in v)
+
+    for k, v in d.items():
+        if not isinstance(v, dict) and not is_table_array(v):
+            out.append(f"{k} = {_toml_value(v)}")
+    for k, v in d.items():
+        if isinstance(v, dict):
+            out.append("")
+            out.append(f"[{prefix}{k}]")
+            _toml_table(v, f"{prefix}{k}.", out)
+    for k, v in d.items():
+        if is_table_array(v):
+            for item in v:
+                out.append("")
+                out.append(f"[[{prefix}{k}]]")
+                _toml_table(item, f"{prefix}{k}.", out)
+
+
+def dump_spec_toml(spec: SceneSpec) -> str:
+    """The spec as TOML text that :func:`load_spec` reads back to an equal spec."""
+    out = ["# ldl synthetic scene spec (see datasets/synthetic/SPEC.md)"]
+    _toml_table(spec_to_dict(spec), "", out)
+    return "\n".join(out) + "\n"
+
+
+# ------------------------------------------------------------------------------------- presets
+
+PRESETS: dict[str, dict] = {
+    # Small rooms, few panoramas: the whole dataset renders in well under 2 minutes on 2 cores.
+    "demo": {
+        "scenes": 2,
+        "size": (4.0, 6.0),  # m, room extent range
+        "ceiling": (2.5, 3.0),  # m
+        "objects": (3, 5),
+        "doors": (1, 2),
+        "windows": (1, 2),
+        "posters": (1, 3),
+        "non_orthogonal": 0.35,  # probability of a chamfered (non-orthogonal) corner
+        "capture": {"width": 1024, "height": 512,
+                    "robot": {"count": 3}, "handheld": {"count": 3}, "extreme": {"count": 3},
+                    "change": {"count": 3}},
+        "scan": {"density": 1500.0},
+    },
+    "standard": {
+        "scenes": 6,
+        "size": (4.5, 8.0),
+        "ceiling": (2.5, 3.2),
+        "objects": (3, 7),
+        "doors": (1, 2),
+        "windows": (1, 3),
+        "posters": (1, 4),
+        "non_orthogonal": 0.35,
+        "capture": {"width": 1024, "height": 512,
+                    "robot": {"count": 10}, "handheld": {"count": 10}, "extreme": {"count": 10},
+                    "change": {"count": 8}},
+        "scan": {"density": 2500.0},
+    },
+}
+
+_OBJECT_SIZES = {  # kind -> (min (sx, sy, sz), max (sx, sy, sz)) in m
+    "box": ((0.35, 0.35, 0.3), (0.8, 0.8, 0.9)),
+    "table": ((0.9, 0.6, 0.7), (1.8, 1.0, 0.8)),
+    "shelf": ((0.7, 0.3, 1.2), (1.4, 0.45, 2.0)),
+    "cabinet": ((0.6, 0.4, 0.7), (1.4, 0.6, 1.1)),
+    "sofa": ((1.4, 0.8, 0.75), (2.2, 1.0, 0.9)),
+}
+_AGAINST_WALL = {"shelf", "cabinet", "sofa"}
+
+
+def get_preset(preset: str) -> dict:
+    """The preset named ``preset``; unknown names raise :class:`InputError` listing valid ones."""
+    if preset not in PRESETS:
+        raise InputError(f"unknown preset {preset!r} (valid: {', '.join(sorted(PRESETS))})")
+    return PRESETS[preset]
+
+
+def _footprint(rng: np.random.Generator, size: tuple[float, float], p_chamfer: float) -> np.ndarray:
+    lo, hi = size
+    w, d = rng.uniform(lo, hi), rng.uniform(lo, hi)
+    shape = rng.choice(["rect", "L", "T", "U", "Z"], p=[0.2, 0.35, 0.15, 0.15, 0.15])
+    f = lambda a, b: rng.uniform(a, b)  # noqa: E731
+    if shape == "rect":
+        poly = [(0, 0), (w, 0), (w, d), (0, d)]
+    elif shape == "L":
+        cw, cd = w * f(0.35, 0.55), d * f(0.35, 0.55)
+        poly = [(0, 0), (w, 0), (w, d - cd), (w - cw, d - cd), (w - cw, d), (0, d)]
+    elif shape == "T":  # wide top bar, narrower stem
+        sw, sd = w * f(0.45, 0.6), d * f(0.35, 0.5)
+        x0 = (w - sw) * f(0.3, 0.7)
+        poly = [(x0, 0), (x0 + sw, 0), (x0 + sw, sd), (w, sd), (w, d), (0, d), (0, sd), (x0, sd)]
+    elif shape == "U":  # notch in the middle of the top wall
+        nw, nd = w * f(0.25, 0.4), d * f(0.2, 0.35)
+        x0 = (w - nw) * f(0.35, 0.65)
+        poly = [(0, 0), (w, 0), (w, d), (x0 + nw, d), (x0 + nw, d - nd), (x0, d - nd), (x0, d), (0, d)]
+    else:  # "Z": two offset rectangles
+        cw, cd1, cd2 = w * f(0.3, 0.45), d * f(0.25, 0.4), d * f(0.25, 0.4)
+        poly = [(0, 0), (w - cw, 0), (w - cw, cd1), (w, cd1), (w, d), (cw, d), (cw, d - cd2), (0, d - cd2)]
+    p = np.asarray(poly, dtype=np.float64)
+    if rng.random() < p_chamfer:  # cut a convex corner with a diagonal wall
+        k = len(p)
+        e_in = p - np.roll(p, 1, axis=0)
+        e_out = np.roll(p, -1, axis=0) - p
+        convex = np.flatnonzero(e_in[:, 0] * e_out[:, 1] - e_in[:, 1] * e_out[:, 0] > 0)
+        lens_in, lens_out = np.linalg.norm(e_in, axis=1), np.linalg.norm(e_out, axis=1)
+        ok = [i for i in convex if min(lens_in[i], lens_out[i]) > 1.6]
+        if ok:
+            i = int(rng.choice(ok))
+            c1, c2 = f(0.5, 0.45 * lens_in[i]), f(0.5, 0.45 * lens_out[i])
+            a = p[i] - e_in[i] / lens_in[i] * c1
+            b = p[i] + e_out[i] / lens_out[i] * c2
+            p = np.concatenate([p[:i], [a, b], p[i + 1:]])
+            assert len(p) == k + 1
+    return np.round(p, 3)
+
+
+def _place_object(rng: np.random.Generator, kind: str, fp: np.ndarray, ceiling: float,
+                  placed: list[ObjectSpec], keep_out: list[np.ndarray], tries: int = 300) -> ObjectSpec | None:
+    lo, hi = _OBJECT_SIZES[kind]
+    size = tuple(float(np.round(rng.uniform(a, b), 2)) for a, b in zip(lo, hi))
+    size = (size[0], size[1], min(size[2], round(ceiling - 0.3, 2)))
+    xmin, ymin = fp.min(axis=0)
+    xmax, ymax = fp.max(axis=0)
+    edges = np.roll(fp, -1, axis=0) - fp
+    material = str(rng.choice({"box": ["painted", "wood", "metal"], "table": ["wood", "dark_wood", "marble"],
+                               "shelf": ["wood", "dark_wood", "painted"], "cabinet": ["painted", "wood", "metal"],
+                               "sofa": ["fabric", "fabric", "carpet"]}[kind]))
+    for _ in range(tries):
+        if kind in _AGAINST_WALL and rng.random() < 0.8:
+            # Back against a random wall, facing into the room (front = local -y).
+            i = int(rng.integers(len(fp)))
+            length = float(np.linalg.norm(edges[i]))
+            if length < size[0] + 0.4:
+                continue
+            t = rng.uniform(0.2 + size[0] / 2, length - 0.2 - size[0] / 2)
+            tangent = edges[i] / length
+            inward = np.array([-tangent[1], tangent[0]])
+            center = fp[i] + tangent * t + inward * (size[1] / 2 + 0.06)
+            yaw = math.degrees(math.atan2(tangent[1], tangent[0])) + 180.0
+        else:
+            center = np.array([rng.uniform(xmin, xmax), rng.uniform(ymin, ymax)])
+            yaw = float(rng.choice([0.0, 90.0])) + (rng.uniform(-30, 30) if rng.random() < 0.4 else 0.0)
+        obj = ObjectSpec(kind, (round(float(center[0]), 3), round(float(center[1]), 3)), size,
+                         round(float(yaw) % 360.0, 2), material)
+        rect = object_footprint(obj)
+        if not pg.convex_inside_polygon(_inflate(rect, 0.05), fp):
+            continue
+        walk = _inflate(rect, 0.35)  # keep walking space between objects
+        if any(pg.convex_overlap(walk, object_footprint(o)) for o in placed):
+            continue
+        if any(pg.convex_overlap(rect, k) for k in keep_out):
+            continue
+        return obj
+    return None
+
+
+def _inflate(rect: np.ndarray, d: float) -> np.ndarray:
+    c = rect.mean(axis=0)
+    ex = rect[1] - rect[0]
+    ey = rect[3] - rect[0]
+    ux, uy = ex / np.linalg.norm(ex), ey / np.linalg.norm(ey)
+    signs = np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]], dtype=np.float64)
+    hx, hy = np.linalg.norm(ex) / 2 + d, np.linalg.norm(ey) / 2 + d
+    return c + signs[:, :1] * ux * hx + signs[:, 1:] * uy * hy
+
+
+def _wall_items(rng: np.random.Generator, fp: np.ndarray, ceiling: float, counts: dict[str, int]
+                ) -> tuple[list[OpeningSpec], list[PosterSpec]]:
+    lengths = np.linalg.norm(np.roll(fp, -1, axis=0) - fp, axis=1)
+    used: dict[int, list[tuple[float, float, float, float]]] = {}
+    openings: list[OpeningSpec] = []
+    posters: list[PosterSpec] = []
+    for kind in ("door", "window", "poster"):
+        for _ in range(counts[kind]):
+            for _ in range(100):
+                wall = int(rng.integers(len(fp)))
+                if kind == "door":
+                    w, h = rng.uniform(0.8, 1.0), min(rng.uniform(2.0, 2.2), ceiling - 0.25)
+                    bottom, frame = 0.0, FRAME_WIDTH
+                elif kind == "window":
+                    w, h = rng.uniform(0.7, 1.6), rng.uniform(0.8, 1.3)
+                    bottom = rng.uniform(0.8, 1.0)
+                    h = min(h, ceiling - 0.25 - bottom)
+                    frame = FRAME_WIDTH
+                else:
+                    w, h = rng.uniform(0.4, 1.0), rng.uniform(0.5, 1.0)
+                    bottom = rng.uniform(1.0, 1.4)
+                    h = min(h, ceiling - 0.15 - bottom)
+                    frame = 0.0
+                w, h, bottom = round(float(w), 2), round(float(h), 2), round(float(bottom), 2)
+                room = lengths[wall] - w - 2 * frame - 0.3
+                if room <= 0 or h < 0.3:
+                    continue
+                off = round(float(frame + 0.15 + rng.uniform(0, room)), 3)
+                box = (off - frame - 0.1, off + w + frame + 0.1, bottom - frame, bottom + h + frame)
+                if any(box[0] < o[1] and o[0] < box[1] and box[2] < o[3] and o[2] < box[3]
+                       for o in used.get(wall, [])):
+                    continue
+                used.setdefault(wall, []).append(box)
+                if kind == "poster":
+                    posters.append(PosterSpec(wall, off, bottom, w, h))
+                else:
+                    openings.append(OpeningSpec(kind, wall, off, w, h, bottom))
+                break
+    return openings, posters
+
+
+def _door_keep_out(fp: np.ndarray, openings: list[OpeningSpec]) -> list[np.ndarray]:
+    out = []
+    for op in openings:
+        if op.kind != "door":
+            continue
+        a, b = fp[op.wall], fp[(op.wall + 1) % len(fp)]
+        t = (b - a) / np.linalg.norm(b - a)
+        n = np.array([-t[1], t[0]])
+        p0 = a + t * (op.offset - 0.1)
+        p1 = a + t * (op.offset + op.width + 0.1)
+        out.append(np.array([p0, p1, p1 + n * 0.9, p0 + n * 0.9]))
+    return out
+
+
+def _capture_from_preset(cfg: dict) -> CaptureSpec:
+    return _from_dict(CaptureSpec, cfg.get("capture", {}), "capture")
+
+
+def random_spec(preset: str, seed: int, index: int = 0) -> SceneSpec:
+    """A random but reproducible room for ``preset``; ``(seed, index)`` selects the layout."""
+    cfg = get_preset(preset)
+    rng = np.random.default_rng([int(seed) & 0xFFFFFFFF, int(index), 0x1D1])
+    for _attempt in range(50):
+        fp = _footprint(rng, cfg["size"], cfg["non_orthogonal"])
+        if pg.simple_polygon_problem(fp) is None:
+            break
+    ceiling = round(float(rng.uniform(*cfg["ceiling"])), 2)
+    counts = {"door": int(rng.integers(cfg["doors"][0], cfg["doors"][1] + 1)),
+              "window": int(rng.integers(cfg["windows"][0], cfg["windows"][1] + 1)),
+              "poster": int(rng.integers(cfg["posters"][0], cfg["posters"][1] + 1))}
+    openings, posters = _wall_items(rng, fp, ceiling, counts)
+    keep_out = _door_keep_out(fp, openings)
+    n_obj = int(rng.integers(cfg["objects"][0], cfg["objects"][1] + 1))
+    kinds = list(OBJECT_KINDS)
+    objects: list[ObjectSpec] = []
+    for j in range(n_obj):
+        kind = ("table", "shelf", "box")[j] if j < 3 else str(rng.choice(kinds))  # variety first
+        obj = _place_object(rng, kind, fp, ceiling, objects, keep_out)
+        if obj is not None:
+            objects.append(obj)
+    walls = ["plaster", "plaster", "wallpaper", "concrete", "brick"]
+    floors = ["parquet", "parquet", "tiles", "carpet"]
+    spec = SceneSpec(
+        name=f"{preset}{index:02d}",
+        footprint=tuple((float(x), float(y)) for x, y in fp),
+        ceiling_height=ceiling,
+        objects=tuple(objects),
+        openings=tuple(openings),
+        posters=tuple(posters),
+        seed=int(rng.integers(0, 2**31 - 1)),
+        wall_material=str(rng.choice(walls)),
+        floor_material=str(rng.choice(floors)),
+        ceiling_material="ceiling",
+        capture=_capture_from_preset(cfg),
+        scan=_from_dict(ScanSpec, cfg.get("scan", {}), "scan"),
+    )
+    validate_spec(spec)
+    return spec
+
+
+def changed_spec(spec: SceneSpec, rng: np.random.Generator) -> SceneSpec:
+    """``spec`` with some furniture moved, removed and added (``spec.capture.change``); still valid."""
+    ch = spec.capture.change
+    fp = np.asarray(spec.footprint, dtype=np.float64)
+    objects = list(spec.objects)
+    keep_out = _door_keep_out(fp, list(spec.openings))
+    order = rng.permutation(len(objects))
+    n_move = min(ch.moved, len(objects))
+    for i in order[:n_move]:
+        others = [o for j, o in enumerate(objects) if j != i]
+        for _ in range(200):
+            a = rng.uniform(0, 2 * math.pi)
+            r = rng.uniform(0.3 * ch.max_shift, ch.max_shift) if ch.max_shift > 0 else 0.0
+            o = objects[i]
+            cand = replace(o, center=(round(o.center[0] + r * math.cos(a), 3), round(o.center[1] + r * math.sin(a), 3)),
+                           yaw_deg=round((o.yaw_deg + rng.uniform(-ch.max_turn_deg, ch.max_turn_deg)) % 360.0, 2))
+            rect = object_footprint(cand)
+            if pg.convex_inside_polygon(rect, fp) and not any(pg.convex_overlap(rect, object_footprint(x)) for x in others):
+                objects[i] = cand
+                break
+    removable = [int(i) for i in order[n_move:]] or [int(i) for i in order]
+    remove = set(removable[:min(ch.removed, len(objects))])
+    objects = [o for j, o in enumerate(objects) if j not in remove]
+    for _ in range(ch.added):
+        obj = _place_object(rng, str(rng.choice(["box", "box", "cabinet", "table"])), fp, spec.ceiling_height,
+                            objects, keep_out)
+        if obj is not None:
+            objects.append(obj)
+    out = replace(spec, objects=tuple(objects))
+    validate_spec(out)
+    return out
