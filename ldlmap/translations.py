@@ -1,0 +1,222 @@
+"""Candidate translations for pose search (DESIGN.md 5.3, paper supp. "Hyperparameter Setup").
+
+Both methods first build the *free space* of the scan on a voxel grid:
+
+* inside: the voxel's column lies in the scan's 2D footprint (xy occupancy, closed and
+  hole-filled) and its height lies between the floor and the ceiling (robust z percentiles);
+* clear: the voxel centre is at least ``clearance`` from every occupied voxel (Euclidean
+  distance transform);
+* connected: it belongs to one of the large connected components of such voxels, so that the
+  closed interiors of furniture (free of points but walled in) are not used.
+
+Then
+
+* ``grid`` (Stanford 2D-3D-S): a regular lattice whose spacing is found by bisection so that the
+  number of free lattice points is close to ``num``;
+* ``octree`` (OmniScenes; Rodenberg et al. 2016 represent free space by octree cells of the
+  cloud): an octree over the voxel grid is refined level by level, largest cells first and cells
+  that touch occupied space first (where views change fastest), until ``num`` leaves hold free
+  space; each leaf gives the centroid of its free voxels (snapped to the nearest free voxel
+  when the centroid is not free).
+
+Every candidate is finally checked against the raw points with a KD-tree (distance >=
+``clearance``). Optional ``prior_centers`` (e.g. COLMAP camera centres) are appended unchanged.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+
+from ldlmap.errors import InputError
+
+
+@dataclass(frozen=True)
+class TranslationParams:
+    """Parameters of :func:`candidate_translations`."""
+
+    voxel: float = 0.1  # free-space voxel size (grown for large scenes, see max_cells)
+    max_cells: int = 128  # at most this many voxels along the longest side
+    footprint_close: int = 3  # closing radius (voxels) of the xy footprint
+    z_percentiles: tuple[float, float] = (0.5, 99.5)  # floor / ceiling from the z distribution
+    min_component: float = 0.2  # keep free components with at least this fraction of the largest
+
+
+def _free_space(P: np.ndarray, clearance: float, params: TranslationParams):
+    """Free voxel mask (X, Y, Z) bool, grid origin (3,) and voxel size."""
+    from scipy import ndimage
+
+    lo, hi = P.min(0), P.max(0)
+    extent = float((hi - lo).max())
+    h = max(params.voxel, extent / params.max_cells)
+    dims = np.maximum(np.ceil((hi - lo) / h).astype(np.int64), 1) + 1
+    idx = np.minimum(np.floor((P - lo) / h).astype(np.int64), dims - 1)
+    occ = np.zeros(dims, bool)
+    occ[idx[:, 0], idx[:, 1], idx[:, 2]] = True
+    # Footprint in xy: occupied columns, closed and hole-filled.
+    r = params.footprint_close
+    foot = occ.any(axis=2)
+    foot = np.pad(foot, r)
+    st = np.ones((2 * r + 1, 2 * r + 1), bool)
+    foot = ndimage.binary_closing(foot, structure=st)[r:-r, r:-r]
+    foot = ndimage.binary_fill_holes(foot)
+    z0, z1 = np.percentile(P[:, 2], params.z_percentiles)
+    zc = lo[2] + (np.arange(dims[2]) + 0.5) * h
+    zok = (zc >= z0 + clearance) & (zc <= z1 - clearance)
+    dist = ndimage.distance_transform_edt(~occ) * h
+    # The occupied voxel may hold a point anywhere inside it: subtract half a diagonal.
+    free = foot[:, :, None] & zok[None, None, :] & (dist - 0.87 * h >= clearance)
+    lab, n = ndimage.label(free)
+    if n > 1:
+        sizes = np.bincount(lab.ravel())[1:]
+        keep = np.concatenate([[False], sizes >= params.min_component * sizes.max()])
+        free = keep[lab]
+    return free, lo, h
+
+
+def _check_clear(C: np.ndarray, P: np.ndarray, clearance: float) -> np.ndarray:
+    from scipy.spatial import cKDTree
+
+    if len(C) == 0:
+        return C
+    d, _ = cKDTree(P).query(C, k=1, workers=-1)
+    return C[d >= clearance]
+
+
+def _grid(free: np.ndarray, lo: np.ndarray, h: float, num: int) -> np.ndarray:
+    shape = np.array(free.shape)
+    size = shape * h
+
+    def lattice(s: float) -> np.ndarray:
+        axes = [np.arange(s / 2, size[i], s) for i in range(3)]
+        G = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
+        ij = np.minimum((G / h).astype(np.int64), shape - 1)
+        return lo + G[free[ij[:, 0], ij[:, 1], ij[:, 2]]]
+
+    vol = free.sum() * h ** 3
+    s_lo, s_hi = h * 0.5, max(float(size.max()), h)
+    s = (vol / max(num, 1)) ** (1 / 3)
+    best = lattice(s)
+    for _ in range(30):  # bisection on the spacing: the count decreases with it (roughly)
+        n = len(best)
+        if n > num:
+            s_lo = s
+        else:
+            s_hi = s
+        if abs(n - num) <= max(1, 0.02 * num) or s_hi - s_lo < 1e-4:
+            break
+        s = 0.5 * (s_lo + s_hi)
+        cur = lattice(s)
+        if abs(len(cur) - num) < abs(len(best) - num) or len(best) == 0:
+            best = cur
+    return best
+
+
+def _octree(free: np.ndarray, lo: np.ndarray, h: float, num: int) -> np.ndarray:
+    from scipy.spatial import cKDTree
+
+    depth = int(np.ceil(np.log2(max(free.shape))))
+    n = 2 ** depth
+    cube = np.zeros((n, n, n), bool)
+    cube[: free.shape[0], : free.shape[1], : free.shape[2]] = free
+    occupied = np.zeros((n, n, n), bool)  # non-free space inside the bounding box of the scan
+    occupied[: free.shape[0], : free.shape[1], : free.shape[2]] = ~free
+    ii = np.indices((n, n, n)).reshape(3, -1).T.astype(np.float64)
+    f = cube.reshape(-1).astype(np.float64)
+    # Pyramids per level: free voxel count, non-free count, sums of free voxel coordinates.
+    pyr = []
+    for lev in range(depth + 1):
+        c = n >> lev  # cells per side at this level
+        b = n // c  # voxels per cell side
+
+        def red(a: np.ndarray) -> np.ndarray:
+            return a.reshape(c, b, c, b, c, b).sum(axis=(1, 3, 5)).reshape(-1)
+
+        fc = red(cube.astype(np.int64))
+        oc = red(occupied.astype(np.int64))
+        sums = np.stack([red((ii[:, k] * f).reshape(n, n, n)) for k in range(3)], 1)
+        pyr.append((c, fc, oc, sums))
+    pyr = pyr[::-1]  # pyr[l]: level l, 2**l cells per side (l = 0 root)
+    # Best-first refinement, level by level.
+    leaves: list[tuple[int, np.ndarray]] = []  # (level, flat cell ids)
+    active = np.array([0]) if pyr[0][1][0] > 0 else np.zeros(0, np.int64)
+    count = len(active)
+    for lev in range(depth):
+        c, fc, oc, _ = pyr[lev]
+        c2, fc2, _, _ = pyr[lev + 1]
+        x, y, z = np.unravel_index(active, (c, c, c))
+        kids = np.stack([np.ravel_multi_index((2 * x + dx, 2 * y + dy, 2 * z + dz), (c2, c2, c2))
+                         for dx in (0, 1) for dy in (0, 1) for dz in (0, 1)], 1)  # (A, 8)
+        gain = (fc2[kids] > 0).sum(1) - 1  # leaves added by splitting
+        # Mixed cells (free and occupied) first, then the cells with most free space.
+        order = np.lexsort((-fc[active], -(oc[active] > 0).astype(np.int64)))
+        budget = num - count
+        cum = np.cumsum(gain[order])
+        nsplit = int(np.searchsorted(cum, budget, side="right")) if budget > 0 else 0
+        below = cum[nsplit - 1] if nsplit else 0
+        if budget > 0 and nsplit < len(order) and cum[nsplit] - budget < budget - below:
+            nsplit += 1  # overshooting by one split lands closer to num
+        split = order[:nsplit]
+        stay = np.setdiff1d(np.arange(len(active)), split)
+        leaves.append((lev, active[stay]))
+        new = kids[split].ravel()
+        active = new[fc2[new] > 0]
+        count = sum(len(a) for _, a in leaves) + len(active)
+        if nsplit == 0:
+            active = np.zeros(0, np.int64)
+            break
+    leaves.append((depth, active))
+    cents = []
+    for lev, cells in leaves:
+        if len(cells):
+            _, fc, _, sums = pyr[lev]
+            cents.append(sums[cells] / fc[cells][:, None])
+    if not cents:
+        return np.zeros((0, 3))
+    C = np.concatenate(cents)  # voxel index coordinates
+    fidx = np.argwhere(free)
+    ci = np.round(C).astype(np.int64)
+    ok = np.all((ci >= 0) & (ci < free.shape), axis=1)
+    ok[ok] = free[ci[ok, 0], ci[ok, 1], ci[ok, 2]]
+    if (~ok).any():
+        _, j = cKDTree(fidx).query(C[~ok], k=1)
+        C[~ok] = fidx[j]
+    return lo + (C + 0.5) * h
+
+
+def candidate_translations(points: np.ndarray, num: int = 800, method: Literal["octree", "grid"] = "octree",
+                           clearance: float = 0.25, prior_centers: np.ndarray | None = None,
+                           params: TranslationParams = TranslationParams()) -> np.ndarray:
+    """Candidate camera centres (N_t, 3) in the free space of a scan (N_t ~ ``num``).
+
+    ``num`` is N_t of the paper (800 OmniScenes with ``octree``, 1700 Stanford 2D-3D-S with
+    ``grid``). ``clearance`` (metres) is the minimum distance to any scan point.
+    """
+    P = np.asarray(points)
+    if P.ndim != 2 or P.shape[1] != 3 or len(P) == 0:
+        raise InputError(f"point cloud must be a non-empty (N, 3) array, got shape {P.shape}")
+    P = P.astype(np.float64, copy=False)
+    if not np.all(np.isfinite(P)):
+        raise InputError("point cloud contains NaN or infinite coordinates")
+    if num < 1:
+        raise InputError(f"number of translations must be >= 1, got {num}")
+    if method not in ("octree", "grid"):
+        raise InputError(f"unknown translation method {method!r}: use 'octree' or 'grid'")
+    free, lo, h = _free_space(P, clearance, params)
+    if not free.any():
+        C = np.zeros((0, 3))
+    elif method == "grid":
+        C = _grid(free, lo, h, num)
+    else:
+        C = _octree(free, lo, h, num)
+    C = _check_clear(C, P, clearance)
+    if prior_centers is not None:
+        pc = np.asarray(prior_centers, dtype=np.float64).reshape(-1, 3)
+        if not np.all(np.isfinite(pc)):
+            raise InputError("prior camera centres contain NaN or infinite values")
+        C = np.concatenate([C, pc])
+    if len(C) == 0:
+        raise InputError(f"no free space found for candidate translations (clearance {clearance} m)")
+    return C
