@@ -1,0 +1,376 @@
+"""Line distance functions and pose losses (paper section 3.3, DESIGN.md 5.7-5.8), in torch.
+
+All functions run on CPU or CUDA, batched, in the dtype of their inputs (float32 by default
+when numpy arrays are given; pass float64 tensors for reference-quality values).
+
+Spherical point-to-arc distance (paper eq. 2). For a unit point ``x`` and an arc ``(s, e)``
+(the minor great-circle arc from ``s`` to ``e``) with unit normal ``n = s x e / |s x e|``::
+
+    D = asin(|x . n|)                 if x.s - (s.e)(x.e) > 0 and x.e - (s.e)(x.s) > 0
+    D = min(acos(x.s), acos(x.e))     otherwise
+
+The two conditions say that the projection of ``x`` onto the arc's plane is a positive
+combination of ``s`` and ``e`` (``x`` lies in the spherical quadrilateral / lune of the arc), so
+the nearest point of the great circle lies on the arc; this holds for arcs of any length below
+180 degrees. Degenerate arcs (``|s x e| < 1e-9``: zero length, or antipodal ends whose great
+circle is undefined) use the endpoint branch only.
+
+Empty line sets (an empty principal group, or all lines masked out) give the distance
+:data:`EMPTY_DISTANCE` = pi, the largest possible spherical distance ("no line anywhere").
+
+Precision: the endpoint branch uses ``acos`` of a dot product, which in float32 is accurate to
+about 5e-4 rad within a milliradian of an endpoint and to ~1e-6 rad elsewhere; the
+great-circle branch is accurate everywhere. This is far below the inlier threshold tau = 0.1.
+
+3D distance functions use rotation invariance: ``f3D(x; R, t) = f3D(R^T x; I, t)``. Lines are
+projected once per translation (``normalize(X - t)``) and the query points are rotated by
+``R^T`` for each candidate rotation instead of projecting lines per rotation.
+
+Shapes used below: ``N_t`` translations, ``N_r`` rotations, ``Q`` query points, ``L`` lines,
+``G`` groups (3 for the decomposed functions).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Literal, Sequence
+
+import numpy as np
+
+from ldlmap.errors import InputError
+
+if TYPE_CHECKING:  # pragma: no cover
+    import torch
+
+EMPTY_DISTANCE = math.pi  # value of a distance function over an empty set of lines
+_DEGENERATE_EPS = 1e-9  # |s x e| below this: the arc's great circle is undefined
+
+LossKind = Literal["inlier", "l1", "l2", "huber", "median"]
+LOSS_KINDS: tuple[str, ...] = ("inlier", "l1", "l2", "huber", "median")
+
+
+@dataclass(frozen=True)
+class LdfParams:
+    """Parameters of the pose-ranking loss (paper eq. 4-5)."""
+
+    tau: float = 0.1  # tau: inlier threshold on |f2D - f3D| (radians)
+    query_level: int = 1  # Q = icosphere(level) vertices; level 1 -> |Q| = 42
+    loss: LossKind = "inlier"  # paper's inlier count; l1/l2/huber/median are ablations
+    decompose: bool = True  # decompose by principal direction (eq. 5) or not (eq. 4)
+    chunk_translations: int = 32  # translations per batch in ldf_3d (bounds memory)
+
+
+# ------------------------------------------------------------------------------------- helpers
+
+
+def _as_tensor(a, device=None, dtype=None) -> "torch.Tensor":
+    import torch
+
+    if isinstance(a, torch.Tensor):
+        t = a
+        if dtype is not None and t.dtype != dtype:
+            t = t.to(dtype)
+        if device is not None:
+            t = t.to(device)
+        return t
+    arr = np.array(a)  # a copy: numpy inputs may be read-only
+    return torch.as_tensor(arr, dtype=dtype or torch.float32, device=device)
+
+
+def _check_finite(name: str, t: "torch.Tensor") -> None:
+    import torch
+
+    if t.numel() and not bool(torch.isfinite(t).all()):
+        raise InputError(f"{name} contains NaN or infinite values")
+
+
+def _check_last(name: str, t: "torch.Tensor", dims: Sequence[int]) -> None:
+    k = len(dims)
+    if t.dim() < k or tuple(t.shape[-k:]) != tuple(dims):
+        want = "(..., " + ", ".join(map(str, dims)) + ")"
+        raise InputError(f"{name} must have shape {want}, got {tuple(t.shape)}")
+
+
+def query_points(level: int = 1, device=None, dtype=None) -> "torch.Tensor":
+    """The query points Q: vertices of a level-``level`` icosphere (level 1: 42 points)."""
+    from ldlmap.geometry import icosphere_points
+
+    return _as_tensor(np.array(icosphere_points(level)), device, dtype)
+
+
+# ---------------------------------------------------------------------------- point-arc distance
+
+
+def point_arc_distance(x, s, e) -> "torch.Tensor":
+    """Spherical distance (radians) from points to arcs, paper eq. 2.
+
+    Args:
+        x: (..., Q, 3) unit points.
+        s, e: (..., L, 3) unit arc start and end points (leading dims broadcast with ``x``).
+
+    Returns:
+        (..., Q, L) distances in [0, pi].
+    """
+    import torch
+
+    x = _as_tensor(x)
+    s = _as_tensor(s, x.device, x.dtype)
+    e = _as_tensor(e, x.device, x.dtype)
+    _check_last("points", x, (3,))
+    _check_last("arc starts", s, (3,))
+    if s.shape != e.shape:
+        raise InputError(f"arc starts and ends differ in shape: {tuple(s.shape)} vs {tuple(e.shape)}")
+    n = torch.linalg.cross(s, e, dim=-1)
+    nn = torch.linalg.vector_norm(n, dim=-1)  # (..., L)
+    ok = nn > _DEGENERATE_EPS
+    n = n / torch.where(ok, nn, torch.ones_like(nn)).unsqueeze(-1)
+    c = (s * e).sum(-1).unsqueeze(-2)  # (..., 1, L)
+    st = s.transpose(-1, -2)
+    xs = torch.matmul(x, st)  # (..., Q, L)
+    xe = torch.matmul(x, e.transpose(-1, -2))
+    xn = torch.matmul(x, n.transpose(-1, -2))
+    inside = (xs - c * xe > 0) & (xe - c * xs > 0) & ok.unsqueeze(-2)
+    d_circle = torch.asin(xn.abs().clamp(max=1.0))
+    d_end = torch.acos(torch.maximum(xs, xe).clamp(-1.0, 1.0))
+    return torch.where(inside, d_circle, d_end)
+
+
+def distance_function(x, arcs, mask=None) -> "torch.Tensor":
+    """Line distance function ``f(x) = min over arcs D(x, l)`` (paper eq. 1).
+
+    Args:
+        x: (..., Q, 3) unit points.
+        arcs: (..., L, 2, 3) arcs as start/end unit vectors.
+        mask: optional (..., L) bool, True for arcs to use.
+
+    Returns:
+        (..., Q); :data:`EMPTY_DISTANCE` (pi) where no arc is used.
+    """
+    import torch
+
+    x = _as_tensor(x)
+    arcs = _as_tensor(arcs, x.device, x.dtype)
+    _check_last("arcs", arcs, (2, 3))
+    if arcs.shape[-3] == 0:
+        return torch.full(x.shape[:-1], EMPTY_DISTANCE, dtype=x.dtype, device=x.device)
+    d = point_arc_distance(x, arcs[..., 0, :], arcs[..., 1, :])
+    if mask is not None:
+        mask = _as_tensor(mask, x.device, torch.bool)
+        d = d.masked_fill(~mask.unsqueeze(-2), EMPTY_DISTANCE)
+    return d.amin(-1).clamp(max=EMPTY_DISTANCE)
+
+
+def _group_min(d: "torch.Tensor", labels: "torch.Tensor", num_groups: int) -> "torch.Tensor":
+    """Min of ``d`` (..., Q, L) over the lines of each group -> (..., G, Q).
+
+    ``labels`` broadcasts against (..., L); lines labelled outside 0..G-1 are ignored.
+    """
+    import torch
+
+    outs = []
+    for g in range(num_groups):  # G = 3: a loop over groups, not over data
+        m = (labels == g).unsqueeze(-2)
+        outs.append(d.masked_fill(~m, EMPTY_DISTANCE).amin(-1) if d.shape[-1] else
+                    torch.full(d.shape[:-1], EMPTY_DISTANCE, dtype=d.dtype, device=d.device))
+    return torch.stack(outs, dim=-2)
+
+
+def decomposed_distance_2d(x, arcs, labels, num_groups: int = 3) -> "torch.Tensor":
+    """Decomposed 2D distance functions ``f2D(x; L_2D^i)``, one per principal group.
+
+    Args:
+        x: (Q, 3) query points.
+        arcs: (L, 2, 3) 2D arcs (camera frame).
+        labels: (L,) or (N_r, L) int group of each arc (-1: none). For rotation candidates use
+            :func:`ldlloc.principal.labels_for_rotations` so that 2D group ``i`` is the group
+            paired with 3D principal direction ``i`` by that rotation.
+
+    Returns:
+        (G, Q) or (N_r, G, Q).
+    """
+    import torch
+
+    x = _as_tensor(x)
+    _check_last("query points", x, (3,))
+    arcs = _as_tensor(arcs, x.device, x.dtype)
+    _check_last("arcs", arcs, (2, 3))
+    labels = _as_tensor(labels, x.device, torch.long)
+    if labels.shape[-1] != arcs.shape[0]:
+        raise InputError(f"labels have {labels.shape[-1]} entries for {arcs.shape[0]} arcs")
+    d = point_arc_distance(x, arcs[:, 0], arcs[:, 1])  # (Q, L)
+    if labels.dim() == 1:
+        return _group_min(d, labels, num_groups)
+    return _group_min(d.unsqueeze(0), labels, num_groups)
+
+
+def ldf_3d(x, rotations, translations, lines3d, groups, num_groups: int = 3,
+           chunk: int = 32, device=None, dtype=None) -> "torch.Tensor":
+    """Decomposed 3D line distance functions for all poses.
+
+    ``f3D_g(q; R, t) = min over lines l in group g of D(q, Pi_L(l; R, t))`` computed as
+    ``D(R^T q, normalize(l - t))`` (rotation invariance): lines are projected once per
+    translation and the query points are rotated per rotation.
+
+    Args:
+        x: (Q, 3) query points (camera frame).
+        rotations: (N_r, 3, 3) world-to-camera rotations R.
+        translations: (N_t, 3) camera centres t (world).
+        lines3d: (L, 2, 3) 3D segment endpoints (world).
+        groups: (L,) int principal group of each line (-1: none, ignored).
+        chunk: translations per batch (peak memory ~ chunk * N_r * Q * L * 4 bytes * ~6).
+
+    Returns:
+        (N_t, N_r, G, Q) distances.
+    """
+    import torch
+
+    x = _as_tensor(x, device, dtype)
+    dev, dt = x.device, x.dtype
+    R = _as_tensor(rotations, dev, dt)
+    T = _as_tensor(translations, dev, dt)
+    lines = _as_tensor(lines3d, dev, dt)
+    grp = _as_tensor(groups, dev, torch.long)
+    _check_last("query points", x, (3,))
+    if R.dim() != 3 or R.shape[1:] != (3, 3):
+        raise InputError(f"rotations must have shape (N_r, 3, 3), got {tuple(R.shape)}")
+    if T.dim() != 2 or T.shape[1] != 3:
+        raise InputError(f"translations must have shape (N_t, 3), got {tuple(T.shape)}")
+    if lines.dim() != 3 or lines.shape[1:] != (2, 3):
+        raise InputError(f"3D lines must have shape (L, 2, 3), got {tuple(lines.shape)}")
+    if grp.shape != (lines.shape[0],):
+        raise InputError(f"groups must have shape ({lines.shape[0]},), got {tuple(grp.shape)}")
+    for name, t in (("query points", x), ("rotations", R), ("translations", T), ("3D lines", lines)):
+        _check_finite(name, t)
+    n_t, n_r, q = T.shape[0], R.shape[0], x.shape[0]
+    out = torch.full((n_t, n_r, num_groups, q), EMPTY_DISTANCE, dtype=dt, device=dev)
+    # Keep only grouped lines, sorted by group, so each group is a contiguous slice.
+    keep = (grp >= 0) & (grp < num_groups)
+    order = torch.argsort(grp[keep], stable=True)
+    lines = lines[keep][order]
+    grp = grp[keep][order]
+    if lines.shape[0] == 0 or n_t == 0 or n_r == 0:
+        return out
+    counts = torch.bincount(grp, minlength=num_groups).tolist()
+    bounds = np.concatenate([[0], np.cumsum(counts)]).tolist()
+    # R^T q for every rotation: (R^T q)_j = sum_i R_ij q_i -> q @ R.
+    xr = torch.einsum("qi,rij->rqj", x, R).reshape(n_r * q, 3)
+    step = max(1, int(chunk))
+    for a in range(0, n_t, step):  # loop over chunks of translations, vectorized inside
+        t = T[a:a + step]  # (c, 3)
+        s = lines[None, :, 0, :] - t[:, None, :]
+        e = lines[None, :, 1, :] - t[:, None, :]
+        s = s / torch.linalg.vector_norm(s, dim=-1, keepdim=True).clamp_min(1e-12)
+        e = e / torch.linalg.vector_norm(e, dim=-1, keepdim=True).clamp_min(1e-12)
+        p = _arc_distance_proxy(xr, s, e)  # (c, N_r*Q, L)
+        for g in range(num_groups):
+            lo, hi = bounds[g], bounds[g + 1]
+            if hi > lo:
+                out[a:a + step, :, g, :] = _proxy_to_distance(p[..., lo:hi].amin(-1)).reshape(-1, n_r, q)
+    return out
+
+
+def _arc_distance_proxy(x: "torch.Tensor", s: "torch.Tensor", e: "torch.Tensor") -> "torch.Tensor":
+    """Monotone proxy of :func:`point_arc_distance` for fast minima, (c, Q, L).
+
+    ``proxy = sin D`` for ``D <= pi/2`` and ``2 - sin D`` beyond: increasing in D, exact (no
+    transcendental) to evaluate, and as precise as eq. 2 on the great-circle branch. Convert a
+    minimum back with :func:`_proxy_to_distance`. ``x`` (Q, 3); ``s, e`` (c, L, 3) unit.
+    """
+    import torch
+
+    n = torch.linalg.cross(s, e, dim=-1)
+    nn = torch.linalg.vector_norm(n, dim=-1, keepdim=True)
+    ok = nn > _DEGENERATE_EPS
+    n = torch.where(ok, n / nn.clamp_min(_DEGENERATE_EPS), torch.zeros_like(n))
+    c = (s * e).sum(-1, keepdim=True)  # (c, L, 1)
+    # One batched matmul for the three dot products: (c, 3L, 3) @ (3, Q) -> (c, 3L, Q).
+    dots = torch.matmul(torch.cat([s, e, n], dim=1), x.T)
+    L = s.shape[1]
+    xs, xe, xn = dots[:, :L], dots[:, L:2 * L], dots[:, 2 * L:]
+    inside = (xs - c * xe > 0) & (xe - c * xs > 0) & ok
+    m = torch.maximum(xs, xe)
+    sin_end = (1.0 - m * m).clamp_min_(0.0).sqrt_()
+    prox = torch.where(m >= 0, sin_end, 2.0 - sin_end)
+    prox = torch.where(inside, xn.abs_(), prox)
+    return prox.transpose(-1, -2)
+
+
+def _proxy_to_distance(p: "torch.Tensor") -> "torch.Tensor":
+    """Inverse of the proxy of :func:`_arc_distance_proxy`: distance in [0, pi]."""
+    import torch
+
+    p = p.clamp(0.0, 2.0)
+    return torch.where(p <= 1.0, torch.asin(p.clamp(max=1.0)), math.pi - torch.asin((2.0 - p).clamp(max=1.0)))
+
+
+# ------------------------------------------------------------------------------------- losses
+
+
+def pose_loss(f2d, f3d, kind: str = "inlier", tau: float = 0.1, decompose: bool = True,
+              huber_delta: float | None = None) -> "torch.Tensor":
+    """Loss of every pose from its 2D and 3D distance functions (lower is better).
+
+    Args:
+        f2d: (G, Q) or (N_r, G, Q) 2D distance functions (per rotation when the 2D grouping
+            depends on the rotation's triplet, see :func:`decomposed_distance_2d`).
+        f3d: (N_t, N_r, G, Q) 3D distance functions from :func:`ldf_3d`.
+        kind: ``inlier`` (paper eq. 5: minus the count of ``|f2D - f3D| < tau`` over groups
+            and query points), or the ablations ``l1`` (sum of ``|diff|``), ``l2`` (sum of
+            squares), ``huber`` (sum of Huber with ``delta = huber_delta or tau``), ``median``
+            (median of ``|diff|``).
+        decompose: when False, each side is first reduced to the undecomposed function by a
+            min over groups (eq. 4: equal to the function of all grouped lines). To use every
+            line, pass G = 1 functions computed with all lines in one group.
+
+    Returns:
+        (N_t, N_r) losses.
+    """
+    import torch
+
+    f3d = _as_tensor(f3d)
+    f2d = _as_tensor(f2d, f3d.device, f3d.dtype)
+    if f3d.dim() != 4:
+        raise InputError(f"f3d must have shape (N_t, N_r, G, Q), got {tuple(f3d.shape)}")
+    if f2d.dim() == 2:
+        f2d = f2d.unsqueeze(0)
+    if f2d.dim() != 3 or f2d.shape[-2:] != f3d.shape[-2:] or f2d.shape[0] not in (1, f3d.shape[1]):
+        raise InputError(f"f2d shape {tuple(f2d.shape)} does not match f3d shape {tuple(f3d.shape)}")
+    if not decompose:
+        f2d = f2d.amin(-2, keepdim=True)
+        f3d = f3d.amin(-2, keepdim=True)
+    diff = (f2d.unsqueeze(0) - f3d).abs().flatten(-2)  # (N_t, N_r, G*Q)
+    if kind == "inlier":
+        return -(diff < tau).sum(-1).to(f3d.dtype)
+    if kind == "l1":
+        return diff.sum(-1)
+    if kind == "l2":
+        return (diff * diff).sum(-1)
+    if kind == "huber":
+        delta = tau if huber_delta is None else huber_delta
+        quad = 0.5 * diff * diff
+        lin = delta * (diff - 0.5 * delta)
+        return torch.where(diff <= delta, quad, lin).sum(-1)
+    if kind == "median":
+        return diff.median(-1).values
+    raise InputError(f"unknown loss {kind!r}; choose one of {', '.join(LOSS_KINDS)}")
+
+
+def inlier_loss(f2d, f3d, tau: float = 0.1, decompose: bool = True) -> "torch.Tensor":
+    """Paper eq. 5 (eq. 4 without decomposition): negative inlier count, (N_t, N_r)."""
+    return pose_loss(f2d, f3d, kind="inlier", tau=tau, decompose=decompose)
+
+
+def top_k_poses(loss, k: int = 20) -> tuple["torch.Tensor", "torch.Tensor", "torch.Tensor"]:
+    """Indices (translation, rotation) and losses of the ``k`` lowest losses of an (N_t, N_r) grid.
+
+    Ties keep the lower flat index (translation-major) first.
+    """
+    import torch
+
+    loss = _as_tensor(loss)
+    flat = loss.reshape(-1)
+    k = min(int(k), flat.numel())
+    # Stable sort so equal losses keep a deterministic order.
+    order = torch.sort(flat, stable=True).indices[:k]
+    return order // loss.shape[1], order % loss.shape[1], flat[order]
