@@ -1,0 +1,105 @@
+"""COLMAP models as map inputs: colored sparse points, registered camera centres, dense cloud.
+
+A sparse model folder (``cameras``/``images``/``points3D`` ``.bin`` or ``.txt``, with or without
+the newer ``rigs``/``frames`` files) is read with ``pycolmap.Reconstruction``. A dense cloud
+``fused.ply`` (COLMAP's ``stereo_fusion`` output) in the model folder, its parent, or the usual
+``<workspace>/dense/fused.ply`` / ``dense/0/fused.ply`` next to ``sparse/0`` is used when present:
+it is what the map should be built from, the sparse points being too few for rendering.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ldlmap.errors import InputError
+from ldlmap.io.pointcloud import PointCloud, read_point_cloud
+
+MODEL_FILES: tuple[str, ...] = ("cameras", "images", "points3D")
+
+
+@dataclass(frozen=True, eq=False)
+class ColmapScene:
+    """What a COLMAP reconstruction contributes to an LDL map."""
+
+    points: PointCloud  # sparse 3D points with their RGB colors
+    camera_centers: np.ndarray  # (M, 3) registered image centres in world coordinates (our t)
+    dense: PointCloud | None = None  # fused.ply when found
+    image_names: tuple[str, ...] = field(default=())  # names of the registered images, same order
+    dense_path: Path | None = None
+
+    @property
+    def cloud(self) -> PointCloud:
+        """The cloud to build a map from: the dense one when present, else the sparse points."""
+        return self.dense if self.dense is not None else self.points
+
+
+def is_colmap_model(path: str | os.PathLike) -> bool:
+    """True when ``path`` is a folder holding a COLMAP sparse model (binary or text)."""
+    p = Path(path)
+    return p.is_dir() and any(all((p / f"{n}{ext}").is_file() for n in MODEL_FILES) for ext in (".bin", ".txt"))
+
+
+def find_fused_ply(model_dir: str | os.PathLike) -> Path | None:
+    """``fused.ply`` beside a sparse model: in it, its parent, or ``dense[/0]`` of the workspace."""
+    p = Path(model_dir)
+    candidates = [p / "fused.ply", p.parent / "fused.ply"]
+    for root in (p.parent, p.parent.parent):
+        candidates += [root / "dense" / "fused.ply", root / "dense" / "0" / "fused.ply"]
+    if p.name.isdigit():  # sparse/<k> -> dense/<k>
+        candidates.append(p.parent.parent / "dense" / p.name / "fused.ply")
+    return next((c for c in candidates if c.is_file()), None)
+
+
+def resolve_model_dir(path: str | os.PathLike) -> Path | None:
+    """The model folder for ``path``: itself, or ``sparse/0`` / ``sparse`` of a COLMAP workspace."""
+    p = Path(path)
+    for cand in (p, p / "sparse" / "0", p / "sparse"):
+        if is_colmap_model(cand):
+            return cand
+    return None
+
+
+def read_colmap_model(path: str | os.PathLike, use_dense: bool = True) -> ColmapScene:
+    """Read a COLMAP sparse model folder (or a workspace with ``sparse/0``), and ``fused.ply``
+    beside it when ``use_dense``.
+
+    Raises :class:`InputError` when the folder is missing, is not a COLMAP model, cannot be
+    parsed, or has no 3D points and no dense cloud.
+    """
+    import pycolmap
+
+    p = Path(path)
+    if not p.exists():
+        raise InputError(f"COLMAP model folder not found: {p}")
+    model = resolve_model_dir(p)
+    if model is None:
+        raise InputError(f"not a COLMAP sparse model (expected cameras, images, points3D .bin or .txt): {p}")
+    p = model
+    try:
+        rec = pycolmap.Reconstruction(str(p))
+    except (ValueError, RuntimeError) as exc:
+        detail = str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__
+        raise InputError(f"cannot read COLMAP model {p}: {detail}") from None
+
+    pts3d = list(rec.points3D.values())
+    xyz = np.array([q.xyz for q in pts3d], dtype=np.float64).reshape(-1, 3)
+    rgb = np.array([q.color for q in pts3d], dtype=np.uint8).reshape(-1, 3)
+    images = sorted((im for im in rec.images.values() if im.has_pose), key=lambda im: im.name)
+    centers = np.array([im.projection_center() for im in images], dtype=np.float64).reshape(-1, 3)
+
+    dense, dense_path = None, None
+    if use_dense:
+        dense_path = find_fused_ply(p)
+        if dense_path is not None:
+            dense = read_point_cloud(dense_path)
+    sparse = PointCloud(xyz, rgb)
+    if len(sparse) == 0 and dense is None:
+        raise InputError(f"COLMAP model has no 3D points and no fused.ply beside it: {p}")
+    if len(sparse):
+        sparse.validate(p)
+    return ColmapScene(points=sparse, camera_centers=centers, dense=dense,
+                       image_names=tuple(im.name for im in images), dense_path=dense_path)
