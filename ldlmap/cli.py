@@ -50,3 +50,35 @@ def info(map_path: Path = typer.Argument(..., help="An LDL map (.h5) written by 
     for k, v in rows:
         table.add_row(k, v)
     console.print(table)
+
+
+@app.command()
+def lines(
+    input_path: Path = typer.Argument(..., metavar="INPUT", help="Point cloud (.ply/.pcd/.txt) or mesh (.obj/.ply)."),
+    output: Path = typer.Option(..., "-o", "--output", help="Output .obj; a .txt with the same stem is written too."),
+    lam: float = typer.Option(0.1, "--lambda", help="Length filter: drop lines shorter than lambda (bx+by+bz)/3."),
+    no_filter: bool = typer.Option(False, "--no-filter", help="Write all extracted lines (no length filter)."),
+    png: Optional[Path] = typer.Option(None, "--png", help="Also write a top-view picture of the lines."),
+) -> None:
+    """Extract 3D line segments from a point cloud and write them as .obj and .txt."""
+    from ldlmap.errors import LdlError
+    from ldlmap.io.pointcloud import read_point_cloud
+    from ldlmap.lines3d import draw_top_view, extract_lines_with_stats, filter_by_length, write_line_files
+    from ldlmap.principal3d import principal_directions_3d
+
+    pc = read_point_cloud(input_path)
+    raw, stats = extract_lines_with_stats(pc.points)
+    lo, hi = pc.bounds()
+    kept, mask, thr = filter_by_length(raw, lo, hi, lam=lam)
+    out_lines = raw if no_filter else kept
+    if len(out_lines) == 0:
+        raise LdlError(f"no 3D lines found in {input_path}")
+    paths = write_line_files(output, out_lines)
+    console.print(f"{len(pc)} points -> {stats['planes']} planes -> {len(raw)} lines; length threshold "
+                  f"{thr:.3f} m keeps {len(kept)} (kept ratio {mask.mean():.3f})"
+                  + (" [filter off: all lines written]" if no_filter else ""), soft_wrap=True)
+    console.print("wrote " + ", ".join(str(p) for p in paths), soft_wrap=True)
+    if png is not None:
+        principal = principal_directions_3d(out_lines) if len(out_lines) else None
+        draw_top_view(out_lines, png, principal=principal, dropped=None if no_filter else raw[~mask])
+        console.print(f"wrote {png}", soft_wrap=True)

@@ -502,3 +502,79 @@ def line_precision_recall(pred: np.ndarray, gt: np.ndarray, dist: float = 0.05, 
     precision = float(np.mean(frac(P, G) >= min_cover))
     recall = float(np.mean(frac(G, P) >= min_cover))
     return precision, recall
+
+
+# ------------------------------------------------------------------------------- outputs (CLI)
+
+
+def write_line_files(path: str, lines: np.ndarray) -> list:
+    """Write ``lines`` as ``.obj`` and ``.txt`` (same stem as ``path``); returns the paths.
+
+    Uses :func:`ldlmap.io.linefiles.write_lines` (the toolkit's line formats); until that module
+    exists a minimal writer is used: OBJ ``v``/``l`` records and the 3DLineDetection text layout
+    (``x y z line_id``, the two ends of each line).
+    """
+    from pathlib import Path
+
+    from ldlmap.errors import atomic_file
+
+    L = _check_lines(lines)
+    base = Path(path)
+    targets = [base.with_suffix(".obj"), base.with_suffix(".txt")]
+    try:
+        from ldlmap.io.linefiles import write_lines  # type: ignore[attr-defined]
+    except ImportError:
+        write_lines = None
+    for t in targets:
+        if write_lines is not None:
+            write_lines(t, L)
+            continue
+        with atomic_file(t) as tmp:
+            if t.suffix == ".obj":
+                v = "\n".join(f"v {x:.6f} {y:.6f} {z:.6f}" for x, y, z in L.reshape(-1, 3))
+                e = "\n".join(f"l {2 * i + 1} {2 * i + 2}" for i in range(len(L)))
+                tmp.write_text(f"# {len(L)} 3D lines (ldlmap)\n{v}\n{e}\n")
+            else:
+                ids = np.repeat(np.arange(len(L)), 2)[:, None]
+                np.savetxt(tmp, np.hstack([L.reshape(-1, 3), ids]), fmt=["%.6f"] * 3 + ["%d"])
+    return targets
+
+
+def draw_top_view(lines: np.ndarray, path: str, size: int = 1000, principal: np.ndarray | None = None,
+                  dropped: np.ndarray | None = None) -> None:
+    """PNG top view (x right, y up) of 3D lines, colored by principal-direction group.
+
+    Lines of the three groups are red, green and blue, others grey; ``dropped`` lines (e.g.
+    removed by the length filter) are drawn thin and dark. Drawn with OpenCV, written atomically.
+    """
+    import cv2
+
+    from ldlmap.errors import atomic_file
+
+    L = _check_lines(lines)
+    D = _check_lines(dropped) if dropped is not None else np.zeros((0, 2, 3))
+    allp = np.concatenate([L, D]).reshape(-1, 3)
+    img = np.full((size, size, 3), 255, np.uint8)
+    if len(allp):
+        lo, hi = allp[:, :2].min(0), allp[:, :2].max(0)
+        margin = 20
+        scale = (size - 2 * margin) / max(float((hi - lo).max()), 1e-6)
+
+        def px(X: np.ndarray) -> np.ndarray:
+            xy = (X[..., :2] - lo) * scale + margin
+            return np.stack([xy[..., 0], size - 1 - xy[..., 1]], -1).round().astype(np.int32)
+
+        for a, b in px(D):
+            cv2.line(img, tuple(map(int, a)), tuple(map(int, b)), (200, 200, 200), 1, cv2.LINE_AA)
+        groups = np.full(len(L), -1)
+        if principal is not None and len(L):
+            from ldlmap.principal3d import assign_line_groups
+
+            v = L[:, 1] - L[:, 0]
+            groups = assign_line_groups(v, principal)
+        colors = {0: (40, 40, 220), 1: (40, 170, 40), 2: (220, 80, 40), -1: (90, 90, 90)}  # BGR
+        for (a, b), g in zip(px(L), groups):
+            cv2.line(img, tuple(map(int, a)), tuple(map(int, b)), colors.get(int(g), (90, 90, 90)), 2, cv2.LINE_AA)
+    with atomic_file(path, suffix=".png") as tmp:
+        if not cv2.imwrite(str(tmp), img):
+            raise InputError(f"could not write PNG {path}")

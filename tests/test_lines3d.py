@@ -144,3 +144,26 @@ def test_extract_lines_bad_input():
         extract_lines(P)
     with pytest.raises(InputError):
         extract_lines(np.zeros((5, 3)), params=Lines3DParams(voxel_size=0))
+
+
+# ------------------------------------------------------------------------------------ CLI
+
+
+def test_cli_lines_writes_obj_txt_png(tmp_path, room):
+    from typer.testing import CliRunner
+
+    from ldlmap.cli import app
+    from ldlmap.io.pointcloud import PointCloud, write_point_cloud
+
+    P, _ = room
+    src = tmp_path / "room.ply"
+    write_point_cloud(src, PointCloud(P))
+    out = tmp_path / "out" / "lines.obj"
+    res = CliRunner().invoke(app, ["lines", str(src), "-o", str(out), "--png", str(tmp_path / "top.png")])
+    assert res.exit_code == 0, res.output
+    assert "kept ratio" in res.output
+    assert out.exists() and out.with_suffix(".txt").exists() and (tmp_path / "top.png").exists()
+    n_obj_lines = sum(1 for row in out.read_text().splitlines() if row.startswith("l "))
+    assert n_obj_lines >= 12
+    res = CliRunner().invoke(app, ["lines", str(tmp_path / "missing.ply"), "-o", str(tmp_path / "x.obj")])
+    assert res.exit_code == 1 and "error" in res.output and not (tmp_path / "x.obj").exists()
