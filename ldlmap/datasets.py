@@ -312,6 +312,14 @@ class OmniScenes:
         """The distributed 3D line file ``pcd_line/<scene>lines.txt`` (or ``<scene>.txt/.obj``)."""
         return _find_file(self.root / "pcd_line", [f"{scene}lines", f"{scene}_lines", scene], (".txt", ".obj"))
 
+    def mesh_file(self, scene: str) -> Path | None:
+        """Textured mesh ``mesh/<scene>.obj`` (or ``.ply``) of a synthetic scene, when present."""
+        return _find_file(self.root / "mesh", [scene], (".obj", ".ply"))
+
+    def gt_line_file(self, scene: str) -> Path | None:
+        """Ground-truth 3D edges ``gt_lines/<scene>.obj`` (or ``.txt``) of a synthetic scene, when present."""
+        return _find_file(self.root / "gt_lines", [scene], (".obj", ".txt"))
+
 
 # ----------------------------------------------------------------------------- Stanford 2D-3D-S
 

@@ -94,6 +94,10 @@ def test_omniscenes_reader_returns_written_poses_exactly(tmp_path: Path) -> None
     assert ds.point_cloud("room_2").name == "room_2.txt"
     assert ds.line_file("room_1").name == "room_1lines.txt"
     assert ds.line_file("room_2") is None
+    assert ds.mesh_file("room_1") is None and ds.gt_line_file("room_1") is None
+    _touch(tmp_path / "mesh" / "room_1.obj", b"v 0 0 0\n")
+    _touch(tmp_path / "gt_lines" / "room_1.obj", b"v 0 0 0\n")
+    assert ds.mesh_file("room_1").name == "room_1.obj" and ds.gt_line_file("room_1").parent.name == "gt_lines"
 
 
 def test_omniscenes_bad_inputs(tmp_path: Path) -> None:
