@@ -25,6 +25,9 @@ class SceneMesh:
     ceiling_height: float  # metres; the floor is at z = 0
     name: str = "room"
     object_boxes: list[np.ndarray] = field(default_factory=list)  # per object: (8, 3) oriented box corners
+    # (F,) int32 or None: index of the planar-faced part (closed solid, or flat quad for panels and
+    # posters) each triangle belongs to; the room shell (floor, ceiling, walls) is part 0.
+    tri_part: np.ndarray | None = None
 
     @property
     def num_triangles(self) -> int:
