@@ -37,6 +37,7 @@ class Lines3DParams:
     """Parameters of :func:`extract_lines` (metres and degrees)."""
 
     voxel_size: float = 0.02  # downsampling grid; 0 disables it
+    max_points: int = 250_000  # the grid grows (surfaces: ~ 1 / voxel^2) until at most this many remain
     normal_k: int = 20  # neighbours for normals and surface variation
     graph_k: int = 10  # neighbours linked by region growing
     normal_angle_deg: float = 12.0  # max normal difference of linked neighbours
@@ -50,6 +51,8 @@ class Lines3DParams:
     min_segment: float = 0.08  # raw pieces shorter than this are dropped before merging
     min_plane_angle_deg: float = 20.0  # planes meeting at a smaller angle give no intersection
     support_dist: float = 0.06  # points this close to an intersection line support it
+    support_bin: float = 0.05  # bins along an intersection line that need support from both planes
+    support_gap: float = 0.25  # unsupported stretches up to this long are bridged (sparse scans)
     min_adjacent_links: int = 5  # kNN links needed between two planes to call them adjacent
     merge_angle_deg: float = 5.0  # collinear pieces: direction difference ...
     merge_dist: float = 0.04  # ... distance between the lines ...
@@ -150,6 +153,7 @@ class PlaneRegions:
     centroids: np.ndarray  # (L, 3)
     normals: np.ndarray  # (L, 3)
     neighbours: np.ndarray  # (N, k) kNN indices used for growing
+    spacing: float = 0.0  # voxel size actually used (0: no downsampling)
 
 
 def segment_planes(points: np.ndarray, params: Lines3DParams = Lines3DParams()) -> PlaneRegions:
@@ -158,11 +162,18 @@ def segment_planes(points: np.ndarray, params: Lines3DParams = Lines3DParams()) 
     from scipy.sparse.csgraph import connected_components
 
     P = _check_points(points)
+    v = 0.0
     if params.voxel_size > 0:
         import open3d as o3d
 
         pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(P))
-        P = np.asarray(pcd.voxel_down_sample(params.voxel_size).points)
+        v = params.voxel_size
+        P = np.asarray(pcd.voxel_down_sample(v).points)
+        for _ in range(3):
+            if len(P) <= params.max_points:
+                break
+            v *= 1.05 * np.sqrt(len(P) / params.max_points)
+            P = np.asarray(pcd.voxel_down_sample(v).points)
     if len(P) < max(params.normal_k, 10):
         raise InputError(f"point cloud too small for line extraction ({len(P)} points)")
     normals, curv = _normals_and_curvature(P, params.normal_k)
@@ -188,7 +199,7 @@ def segment_planes(points: np.ndarray, params: Lines3DParams = Lines3DParams()) 
     labels = np.where(comp >= 0, remap[np.maximum(comp, 0)], -1)
     L = int(big.sum())
     if L == 0:
-        return PlaneRegions(P, labels, np.zeros((0, 3)), np.zeros((0, 3)), nbr)
+        return PlaneRegions(P, labels, np.zeros((0, 3)), np.zeros((0, 3)), nbr, v)
     sel = labels >= 0
     c, nrm, rms, _ = _plane_fits(P[sel], labels[sel], L)
     good = rms <= params.max_plane_rms
@@ -211,7 +222,7 @@ def segment_planes(points: np.ndarray, params: Lines3DParams = Lines3DParams()) 
         labels[free[take]] = cand[np.arange(len(free)), best][take]
     if len(c):
         c, nrm, _, _ = _plane_fits(P[labels >= 0], labels[labels >= 0], len(c))
-    return PlaneRegions(P, labels, c, nrm, nbr)
+    return PlaneRegions(P, labels, c, nrm, nbr, v)
 
 
 # ---------------------------------------------------------------------------- per-plane segments
@@ -283,7 +294,7 @@ def _intersection_segments(reg: PlaneRegions, params: Lines3DParams) -> np.ndarr
     starts = np.searchsorted(lab[order], np.arange(L + 1))
     members = [order[starts[i]:starts[i + 1]] for i in range(L)]
     sin_min = np.sin(np.radians(params.min_plane_angle_deg))
-    cs = params.cell_size
+    cs = params.support_bin
     out = []
     for key in pairs:
         i, j = divmod(int(key), L)
@@ -313,7 +324,7 @@ def _intersection_segments(reg: PlaneRegions, params: Lines3DParams) -> np.ndarr
             tb = np.floor((t[(t >= t0) & (t <= t1)] - t0) / cs).astype(np.int64)
             hit = np.bincount(tb, minlength=nb)[:nb] > 0
             # Close gaps of up to ``close_cells`` bins (sampling holes, not real gaps).
-            gap = params.close_cells
+            gap = int(round(params.support_gap / cs))
             run = _runs(~hit)
             for s0, s1 in run[(run[:, 1] - run[:, 0] <= gap) & (run[:, 0] > 0) & (run[:, 1] < nb)]:
                 hit[s0:s1] = True
@@ -416,7 +427,10 @@ def extract_lines_with_stats(points: np.ndarray, params: Lines3DParams = Lines3D
     lab = reg.labels
     order = np.argsort(lab, kind="stable")
     starts = np.searchsorted(lab[order], np.arange(len(reg.normals) + 1))
-    bnd = [_boundary_segments(reg.points[order[starts[i]:starts[i + 1]]], reg.centroids[i], reg.normals[i], params)
+    from dataclasses import replace
+
+    bparams = replace(params, cell_size=max(params.cell_size, reg.spacing))
+    bnd = [_boundary_segments(reg.points[order[starts[i]:starts[i + 1]]], reg.centroids[i], reg.normals[i], bparams)
            for i in range(len(reg.normals))]
     B = np.concatenate(bnd) if bnd else np.zeros((0, 2, 3))
     stats["boundary_s"] = time.perf_counter() - t
