@@ -1,0 +1,1 @@
+"""Readers and writers of external file formats (point clouds, meshes, COLMAP models, 3D line files)."""

@@ -11,13 +11,6 @@ from ldlmap.errors import LdlError, atomic_file
 from ldlmap.synth.types import SceneMesh
 
 
-def _rows(fmt: str, arr: np.ndarray) -> str:
-    if len(arr) == 0:
-        return ""
-    lines = np.char.mod(fmt, np.ascontiguousarray(arr))
-    return "\n".join(lines) + "\n" if lines.ndim == 1 else "\n".join(" ".join(r) for r in lines) + "\n"
-
-
 def write_textured_obj(mesh: SceneMesh, path_obj: str | os.PathLike) -> Path:
     """Write ``path_obj``, ``<stem>.mtl`` and ``<stem>.png`` beside it (each atomically); return the OBJ path.
 

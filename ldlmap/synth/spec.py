@@ -19,7 +19,7 @@ import math
 import os
 import tomllib
 import typing
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
