@@ -1,0 +1,40 @@
+"""Local-feature backends behind one protocol (:class:`FeatureBackend`) and a registry.
+
+``get_backend("sift")`` needs no weights; ``get_backend("superpoint", weights=PATH)`` loads the
+network (weights resolution in :mod:`ldlmap.features.weights`). Heavy libraries (OpenCV, torch)
+are imported only when a backend is built or used.
+"""
+
+from __future__ import annotations
+
+from importlib import import_module
+
+from ldlmap.errors import InputError
+from ldlmap.features.base import FeatureBackend, Features, mutual_nn_match
+
+# name -> (module, class): imported on demand.
+_BACKENDS: dict[str, tuple[str, str]] = {
+    "sift": ("ldlmap.features.sift", "SiftBackend"),
+    "superpoint": ("ldlmap.features.superpoint", "SuperPointBackend"),
+}
+
+
+def available_backends() -> list[str]:
+    """Registered backend names."""
+    return sorted(_BACKENDS)
+
+
+def get_backend(name: str, **opts) -> FeatureBackend:
+    """Build the backend ``name`` with options ``opts`` (its config dataclass fields).
+
+    Unknown names raise :class:`InputError` listing the valid ones; a backend that cannot be
+    built (e.g. SuperPoint without weights) raises its own error, never falls back to another.
+    """
+    key = str(name).strip().lower()
+    if key not in _BACKENDS:
+        raise InputError(f"unknown feature backend {name!r}; valid: {', '.join(available_backends())}")
+    module, cls = _BACKENDS[key]
+    return getattr(import_module(module), cls)(**opts)
+
+
+__all__ = ["FeatureBackend", "Features", "available_backends", "get_backend", "mutual_nn_match"]

@@ -1,0 +1,100 @@
+"""Where network weights come from: explicit path, environment variable, cache, first-use download.
+
+Resolution order for a network ``name`` (see :data:`WEIGHTS`):
+
+1. an explicit path (``--weights PATH``); it must exist;
+2. the environment variable of the network (``LDL_SUPERPOINT_WEIGHTS``); it must exist when set;
+3. the cache folder (``$LDL_CACHE_DIR``, else ``~/.cache/ldl``) under the versioned file name;
+4. a download into the cache from the table's URL (written atomically, hash checked when the
+   table has one).
+
+When everything fails, :class:`~ldlmap.errors.InputError` says which routes exist and why the
+download failed. Nothing here falls back to another backend.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+from ldlmap.errors import InputError, atomic_file
+
+
+@dataclass(frozen=True)
+class WeightSpec:
+    """One downloadable checkpoint."""
+
+    filename: str  # versioned cache file name
+    url: str  # first-use download location
+    env_var: str  # environment variable holding a path to the checkpoint
+    version: str  # recorded in maps next to the backend name
+    sha256: str | None = None  # full hex digest to verify downloads (None: not checked)
+
+
+# The official MagicLeap SuperPoint checkpoint (a plain state dict; keys conv1a.weight ... convDb.bias).
+WEIGHTS: dict[str, WeightSpec] = {
+    "superpoint": WeightSpec(
+        filename="superpoint_v1.pth",
+        url="https://github.com/magicleap/SuperPointPretrainedNetwork/raw/master/superpoint_v1.pth",
+        env_var="LDL_SUPERPOINT_WEIGHTS",
+        version="v1",
+    ),
+}
+
+
+def cache_dir() -> Path:
+    """The weights cache folder: ``$LDL_CACHE_DIR`` or ``~/.cache/ldl``."""
+    env = os.environ.get("LDL_CACHE_DIR")
+    return Path(env).expanduser() if env else Path.home() / ".cache" / "ldl"
+
+
+def download(url: str, dst: Path) -> None:
+    """Fetch ``url`` to ``dst`` (``torch.hub.download_url_to_file``; ``file://`` works too)."""
+    import torch.hub
+
+    torch.hub.download_url_to_file(url, str(dst), progress=False)
+
+
+def _sha256(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def resolve_weights(name: str, path: str | os.PathLike | None = None, *, allow_download: bool = True) -> Path:
+    """Path of the checkpoint of network ``name`` (resolution order in the module docstring)."""
+    if name not in WEIGHTS:
+        raise InputError(f"no weights known for {name!r}; known: {', '.join(sorted(WEIGHTS))}")
+    spec = WEIGHTS[name]
+    if path is not None and str(path) != "":
+        p = Path(path).expanduser()
+        if not p.is_file():
+            raise InputError(f"{name} weights not found: {p}")
+        return p
+    env = os.environ.get(spec.env_var)
+    if env:
+        p = Path(env).expanduser()
+        if not p.is_file():
+            raise InputError(f"{name} weights not found: {p} (from ${spec.env_var})")
+        return p
+    folder = cache_dir()
+    cached = folder / spec.filename
+    if cached.is_file():
+        return cached
+    reason = "downloads disabled"
+    if allow_download:
+        try:
+            with atomic_file(cached) as tmp:
+                download(spec.url, tmp)
+                if spec.sha256 and _sha256(tmp) != spec.sha256:
+                    raise InputError(f"checksum mismatch for {spec.url}")
+            return cached
+        except Exception as exc:  # noqa: BLE001 - any network/file failure becomes one line
+            reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+    pretty = "SuperPoint" if name == "superpoint" else name
+    raise InputError(f"{pretty} weights not found: pass --weights PATH, set {spec.env_var}, or put "
+                     f"{spec.filename} in {folder}; download from {spec.url} failed: {reason}")
