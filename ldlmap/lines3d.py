@@ -54,6 +54,8 @@ class Lines3DParams:
     support_bin: float = 0.05  # bins along an intersection line that need support from both planes
     support_gap: float = 0.25  # unsupported stretches up to this long are bridged (sparse scans)
     min_adjacent_links: int = 5  # kNN links needed between two planes to call them adjacent
+    min_linearity: float = 0.7  # thin structures (legs, rails, frames): 1 - lambda_1 / lambda_2 above this
+    min_linear_points: int = 12  # smallest cluster of linear points that gives a segment
     merge_angle_deg: float = 5.0  # collinear pieces: direction difference ...
     merge_dist: float = 0.04  # ... distance between the lines ...
     merge_gap: float = 0.03  # ... and largest gap along the line to still merge
@@ -119,7 +121,8 @@ def _neighbours(P: np.ndarray, k: int) -> np.ndarray:
     return idx[:, 1:] if k > 1 else idx[:, :0]
 
 
-def _normals_and_curvature(P: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+def _normals_and_curvature(P: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Per point: normal, surface variation, main axis and linearity ``1 - lambda_1 / lambda_2``."""
     import open3d as o3d
 
     pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(P))
@@ -127,7 +130,7 @@ def _normals_and_curvature(P: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarra
     C = np.asarray(pcd.covariances)
     w, V = np.linalg.eigh(C)  # ascending eigenvalues
     curv = w[:, 0] / np.maximum(w.sum(axis=1), 1e-18)
-    return V[:, :, 0], curv
+    return V[:, :, 0], curv, V[:, :, 2], 1.0 - w[:, 1] / np.maximum(w[:, 2], 1e-18)
 
 
 def _plane_fits(P: np.ndarray, labels: np.ndarray, n_labels: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -154,6 +157,8 @@ class PlaneRegions:
     normals: np.ndarray  # (L, 3)
     neighbours: np.ndarray  # (N, k) kNN indices used for growing
     spacing: float = 0.0  # voxel size actually used (0: no downsampling)
+    axes: np.ndarray | None = None  # (N, 3) main axis of each point's neighbourhood
+    linearity: np.ndarray | None = None  # (N,) 1 - lambda_1 / lambda_2 (1: points along a line)
 
 
 def segment_planes(points: np.ndarray, params: Lines3DParams = Lines3DParams()) -> PlaneRegions:
@@ -176,7 +181,7 @@ def segment_planes(points: np.ndarray, params: Lines3DParams = Lines3DParams()) 
             P = np.asarray(pcd.voxel_down_sample(v).points)
     if len(P) < max(params.normal_k, 10):
         raise InputError(f"point cloud too small for line extraction ({len(P)} points)")
-    normals, curv = _normals_and_curvature(P, params.normal_k)
+    normals, curv, axes, linearity = _normals_and_curvature(P, params.normal_k)
     nbr = _neighbours(P, params.graph_k)
     n, k = nbr.shape
     i = np.repeat(np.arange(n), k)
@@ -199,7 +204,7 @@ def segment_planes(points: np.ndarray, params: Lines3DParams = Lines3DParams()) 
     labels = np.where(comp >= 0, remap[np.maximum(comp, 0)], -1)
     L = int(big.sum())
     if L == 0:
-        return PlaneRegions(P, labels, np.zeros((0, 3)), np.zeros((0, 3)), nbr, v)
+        return PlaneRegions(P, labels, np.zeros((0, 3)), np.zeros((0, 3)), nbr, v, axes, linearity)
     sel = labels >= 0
     c, nrm, rms, _ = _plane_fits(P[sel], labels[sel], L)
     good = rms <= params.max_plane_rms
@@ -222,7 +227,7 @@ def segment_planes(points: np.ndarray, params: Lines3DParams = Lines3DParams()) 
         labels[free[take]] = cand[np.arange(len(free)), best][take]
     if len(c):
         c, nrm, _, _ = _plane_fits(P[labels >= 0], labels[labels >= 0], len(c))
-    return PlaneRegions(P, labels, c, nrm, nbr, v)
+    return PlaneRegions(P, labels, c, nrm, nbr, v, axes, linearity)
 
 
 # ---------------------------------------------------------------------------- per-plane segments
@@ -336,6 +341,52 @@ def _intersection_segments(reg: PlaneRegions, params: Lines3DParams) -> np.ndarr
     return np.asarray(out, dtype=np.float64).reshape(-1, 2, 3)
 
 
+def _linear_segments(reg: PlaneRegions, params: Lines3DParams) -> np.ndarray:
+    """Segments (M, 2, 3) along thin structures: clusters of points whose neighbourhood is linear.
+
+    Plane boundaries miss rods and strips narrower than the normal neighbourhood (table legs,
+    frames); their points have one dominant covariance axis. Linear neighbours with agreeing axes
+    that lie along each other's axis are linked; each connected cluster gives the segment of its
+    principal axis between the 1st and 99th percentile of the projections.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    if reg.axes is None or reg.linearity is None:
+        return np.zeros((0, 2, 3))
+    P, nbr, ax = reg.points, reg.neighbours, reg.axes
+    lin = reg.linearity >= params.min_linearity
+    idx = np.flatnonzero(lin)
+    if len(idx) < params.min_linear_points:
+        return np.zeros((0, 2, 3))
+    n, k = nbr.shape
+    i = np.repeat(idx, k)
+    j = nbr[idx].ravel()
+    d = P[j] - P[i]
+    dn = np.linalg.norm(d, axis=1)
+    cos_t = np.cos(np.radians(params.normal_angle_deg))
+    along = np.linalg.norm(d - np.einsum("ij,ij->i", d, ax[i])[:, None] * ax[i], axis=1)
+    ok = lin[j] & (np.abs(np.einsum("ij,ij->i", ax[i], ax[j])) >= cos_t) & (along <= params.plane_tol + 0.0 * dn)
+    g = coo_matrix((np.ones(ok.sum(), np.int8), (i[ok], j[ok])), shape=(n, n))
+    _, comp = connected_components(g, directed=False)
+    comp = np.where(lin, comp, -1)
+    ids, cnt = np.unique(comp[comp >= 0], return_counts=True)
+    out = []
+    for cid in ids[cnt >= params.min_linear_points]:
+        Q = P[comp == cid]
+        c = Q.mean(0)
+        _, _, Vt = np.linalg.svd(Q - c, full_matrices=False)
+        u = Vt[0]
+        t = (Q - c) @ u
+        off = np.linalg.norm((Q - c) - t[:, None] * u, axis=1)
+        if np.percentile(off, 90) > 2 * params.plane_tol:
+            continue  # not a thin straight structure
+        t0, t1 = np.percentile(t, [1, 99])
+        if t1 - t0 >= params.min_segment:
+            out.append([c + t0 * u, c + t1 * u])
+    return np.asarray(out, dtype=np.float64).reshape(-1, 2, 3)
+
+
 # ----------------------------------------------------------------------------------------- merge
 
 
@@ -439,8 +490,12 @@ def extract_lines_with_stats(points: np.ndarray, params: Lines3DParams = Lines3D
     stats["intersections_s"] = time.perf_counter() - t
     stats["boundary_segments"], stats["intersection_segments"] = len(B), len(X)
     t = time.perf_counter()
-    raw = np.concatenate([X, B])
-    w = np.concatenate([np.full(len(X), 2.0), np.ones(len(B))])
+    T = _linear_segments(reg, params)
+    stats["linear_s"] = time.perf_counter() - t
+    stats["linear_segments"] = len(T)
+    t = time.perf_counter()
+    raw = np.concatenate([X, B, T])
+    w = np.concatenate([np.full(len(X), 2.0), np.ones(len(B) + len(T))])
     out = merge_collinear(raw, w, params.merge_angle_deg, params.merge_dist, params.merge_gap)
     out = out[np.linalg.norm(out[:, 1] - out[:, 0], axis=1) >= params.min_segment]
     stats["merge_s"] = time.perf_counter() - t
