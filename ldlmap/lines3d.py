@@ -577,35 +577,17 @@ def line_precision_recall(pred: np.ndarray, gt: np.ndarray, dist: float = 0.05, 
 
 
 def write_line_files(path: str, lines: np.ndarray) -> list:
-    """Write ``lines`` as ``.obj`` and ``.txt`` (same stem as ``path``); returns the paths.
-
-    Uses :func:`ldlmap.io.linefiles.write_lines` (the toolkit's line formats); until that module
-    exists a minimal writer is used: OBJ ``v``/``l`` records and the 3DLineDetection text layout
-    (``x y z line_id``, the two ends of each line).
-    """
+    """Write ``lines`` as ``.obj`` and ``.txt`` (same stem as ``path``, via
+    :func:`ldlmap.io.linefiles.write_lines`, atomically); returns the two paths."""
     from pathlib import Path
 
-    from ldlmap.errors import atomic_file
+    from ldlmap.io.linefiles import write_lines
 
     L = _check_lines(lines)
     base = Path(path)
     targets = [base.with_suffix(".obj"), base.with_suffix(".txt")]
-    try:
-        from ldlmap.io.linefiles import write_lines  # type: ignore[attr-defined]
-    except ImportError:
-        write_lines = None
     for t in targets:
-        if write_lines is not None:
-            write_lines(t, L)
-            continue
-        with atomic_file(t) as tmp:
-            if t.suffix == ".obj":
-                v = "\n".join(f"v {x:.6f} {y:.6f} {z:.6f}" for x, y, z in L.reshape(-1, 3))
-                e = "\n".join(f"l {2 * i + 1} {2 * i + 2}" for i in range(len(L)))
-                tmp.write_text(f"# {len(L)} 3D lines (ldlmap)\n{v}\n{e}\n")
-            else:
-                ids = np.repeat(np.arange(len(L)), 2)[:, None]
-                np.savetxt(tmp, np.hstack([L.reshape(-1, 3), ids]), fmt=["%.6f"] * 3 + ["%d"])
+        write_lines(t, L)
     return targets
 
 
