@@ -24,7 +24,9 @@ MESH_FORMATS: tuple[str, ...] = (".obj", ".ply", ".off", ".stl")
 class MeshSampling:
     """How a mesh is turned into points."""
 
-    method: Literal["montecarlo", "poisson"] = "montecarlo"  # area-uniform random (seeded), or pymeshlab Poisson-disk
+    # area-uniform random (seeded; ~1 s per 10^6 points), or pymeshlab Poisson-disk (even spacing,
+    # but minutes for 10^5 points: meant for small counts)
+    method: Literal["montecarlo", "poisson"] = "montecarlo"
     seed: int = 0  # Monte-Carlo seed; Poisson-disk uses pymeshlab's own unseeded generator
 
 
