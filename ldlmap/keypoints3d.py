@@ -74,19 +74,24 @@ def backproject_keypoints(keypoints: np.ndarray, xyz_image: np.ndarray, search_r
 
 def view_features(points: np.ndarray, colors: np.ndarray, center: np.ndarray, backend, width: int = 1024,
                   height: int = 512, *, mask: np.ndarray | None = None, max_keypoints: int | None = None,
-                  renderer=None, device: str = "cpu") -> ViewFeatures:
+                  renderer=None, device: str = "cpu", mask_erosion_px: int = 3) -> ViewFeatures:
     """Render the cloud at translation ``center`` (identity rotation), extract features, lift to 3D.
 
     ``backend`` is a :class:`~ldlmap.features.FeatureBackend`. Pass a prepared
     :class:`~ldlmap.render.PointRenderer` as ``renderer`` when rendering many views of one cloud
-    (``points`` and ``colors`` are then ignored). Keypoints that fall on empty pixels are dropped.
+    (``points`` and ``colors`` are then ignored). Keypoints within ``mask_erosion_px`` pixels of
+    empty pixels, or on them, are dropped.
     """
     from ldlmap.render import PointRenderer, RenderParams
 
     if renderer is None:
         renderer = PointRenderer(points, colors, RenderParams(width=int(width), height=int(height)), device=device)
+    import cv2
+
     view = renderer.render(np.eye(3), center)
-    valid_px = np.isfinite(view.depth)
+    # Keypoints only well inside rendered content: not on the rim of holes (unscanned areas).
+    valid_px = cv2.erode(np.isfinite(view.depth).astype(np.uint8), np.ones((3, 3), np.uint8),
+                         iterations=int(mask_erosion_px)).astype(bool) if mask_erosion_px > 0 else np.isfinite(view.depth)
     m = valid_px if mask is None else (valid_px & np.asarray(mask, bool))
     feats = backend.extract(view.rgb, mask=m, max_keypoints=max_keypoints)
     xyz, valid = backproject_keypoints(feats.keypoints, view.xyz)

@@ -15,7 +15,10 @@ Algorithm (all vectorized):
 3. resolve visibility with one ``scatter_reduce(amin)`` over a packed 64-bit key
    ``(float32 range bits << 32) | point index`` (non-negative float32 bit patterns sort like the
    floats), which gives both the nearest range and the winning point per pixel;
-4. fill remaining small holes: an empty pixel takes the nearest of its 3x3 neighbours,
+4. soft z-buffer (``depth_tolerance``): among the candidates of a pixel within a few percent of
+   its nearest range (the same surface), keep the one projecting closest to the pixel centre,
+   so colors stay sharp and the 3D point lies near the pixel's ray;
+5. fill remaining small holes: an empty pixel takes the nearest of its 3x3 neighbours,
    repeated ``fill_iterations`` times, so that SIFT does not fire on speckle.
 
 Outputs: an RGB image, a world-coordinate image (the 3D point seen at each pixel; NaN where
@@ -45,10 +48,12 @@ class RenderParams:
     width: int = 1024  # panorama width W (= 2 H)
     height: int = 512  # panorama height H
     point_spacing_m: float | None = None  # surface sample spacing; None: estimated from the cloud
+    local_spacing: bool = True  # size footprints by the local density (when the spacing is estimated)
     splat_scale: float = 2.0  # footprint width / projected spacing (> 1 closes random-sampling gaps)
     point_radius_px: int = 0  # minimum footprint half-width in pixels (0: one pixel)
-    max_radius_px: int = 6  # cap on the footprint half-width in v (u: the same angle / sin(theta))
+    max_radius_px: int = 6  # cap on the footprint half-width in v (u: twice that)
     fill_iterations: int = 2  # 3x3 nearest-neighbour hole-filling passes
+    depth_tolerance: float = 0.05  # soft z-buffer: relative range band treated as one surface (0: off)
     min_range_m: float = 1e-3  # points closer than this to the centre are ignored
     background: int = 0  # gray level of empty pixels in the RGB image
 
@@ -119,6 +124,24 @@ def estimate_point_spacing(points: np.ndarray, sample: int = 20000, seed: int = 
     return float(np.median(nn) * math.sqrt(s / n) / math.sqrt(math.log(2.0) / math.pi))
 
 
+def local_point_spacing(points: np.ndarray, global_spacing: float, voxel_factor: float = 6.0,
+                        clip: tuple[float, float] = (0.5, 4.0)) -> np.ndarray:
+    """Per-point mean sample spacing from the point count of its voxel, in metres (N,) float32.
+
+    Voxels of edge ``v = voxel_factor * global_spacing`` hold about ``v^2`` of surface, so a
+    voxel with ``n`` points has spacing ``v / sqrt(n)``. Clipped to ``clip`` times the global
+    spacing so that voxels clipped by a surface corner do not produce huge footprints.
+    """
+    pts = np.asarray(points, dtype=np.float64)
+    v = max(voxel_factor * global_spacing, 1e-6)
+    cell = np.floor((pts - pts.min(axis=0)) / v).astype(np.int64)
+    dims = cell.max(axis=0) + 1
+    key = (cell[:, 0] * dims[1] + cell[:, 1]) * dims[2] + cell[:, 2]
+    _, inverse, counts = np.unique(key, return_inverse=True, return_counts=True)
+    spacing = v / np.sqrt(counts[inverse].astype(np.float64))
+    return np.clip(spacing, clip[0] * global_spacing, clip[1] * global_spacing).astype(np.float32)
+
+
 # ------------------------------------------------------------------------------------ renderer
 
 
@@ -147,6 +170,9 @@ class PointRenderer:
         self.colors = torch.from_numpy(np.ascontiguousarray(colors)).to(self.device)
         spacing = params.point_spacing_m
         self.spacing = float(spacing) if spacing is not None else estimate_point_spacing(points)
+        use_local = params.local_spacing and spacing is None  # an explicit spacing is used as given
+        local = local_point_spacing(points, self.spacing) if use_local else None
+        self.point_spacing = None if local is None else torch.from_numpy(local).to(self.device)
 
     def render(self, rot_cam_from_world: np.ndarray, center: np.ndarray) -> RenderedView:
         """Render the panorama seen from pose ``(R, t)`` (``R`` world -> camera, ``t`` centre)."""
@@ -191,8 +217,14 @@ class PointRenderer:
             win = zbuf[zbuf != _EMPTY_KEY] & 0xFFFFFFFF
             px_per_rad = H / math.pi
             w_min = 2.0 * p.point_radius_px + 1.0 if p.point_radius_px > 0 else 0.0
-            w_v = (p.splat_scale * self.spacing * px_per_rad / rng[win]).clamp(w_min, 2.0 * p.max_radius_px + 1.0)
-            w_u = (w_v / torch.sin(theta[win]).clamp_min(1e-6)).clamp_max(W - 1.0)
+            spacing = self.spacing if self.point_spacing is None else self.point_spacing[idx[win]]
+            w_max = 2.0 * p.max_radius_px + 1.0
+            w_v = (p.splat_scale * spacing * px_per_rad / rng[win]).clamp(w_min, w_max)
+            # Near the poles every pixel of a row has its own winner: cap the u stretch at 2x.
+            w_u = (w_v / torch.sin(theta[win]).clamp_min(1e-6)).clamp_max(2.0 * w_max)
+            # Sub-pixel footprints stay in the point's own pixel (no straddling of pixel borders).
+            w_v = torch.where(w_v < 1.0, torch.zeros_like(w_v), w_v)
+            w_u = torch.where(w_u < 1.0, torch.zeros_like(w_u), w_u)
             uw, vw = u[win], v[win]
             v0 = torch.floor(vw - 0.5 * w_v).long()
             u0 = torch.floor(uw - 0.5 * w_u).long()
@@ -201,15 +233,23 @@ class PointRenderer:
             count = nu * nv
             big = torch.nonzero(count > 1).squeeze(1)
             if len(big):
-                u0, v0, nu, count, kb = u0[big], v0[big], nu[big], count[big], key[win[big]]
-                owner = torch.repeat_interleave(torch.arange(len(big), device=dev), count)
+                count = count[big]
                 starts = torch.cumsum(count, 0) - count
-                local = torch.arange(len(owner), device=dev) - starts[owner]
-                nu_o = nu[owner]
-                rr = (v0[owner] + torch.div(local, nu_o, rounding_mode="floor")).clamp_(0, H - 1)
-                cc = (u0[owner] + local.remainder(nu_o)).remainder_(W)
+                # One gather per footprint pixel: (v0, u0, nu, start, key) of its owner.
+                table = torch.stack([v0[big], u0[big], nu[big], starts, key[win[big]]], dim=1)
+                owner = torch.repeat_interleave(torch.arange(len(big), device=dev), count)
+                v0_o, u0_o, nu_o, st_o, key_o = table.index_select(0, owner).unbind(1)
+                local = torch.arange(len(owner), device=dev) - st_o
+                rr = (v0_o + torch.div(local, nu_o, rounding_mode="floor")).clamp_(0, H - 1)
+                cc = (u0_o + local.remainder(nu_o)).remainder_(W)
                 # Rows beyond a pole are clamped onto the pole row (they are near it).
-                zbuf.scatter_reduce_(0, rr * W + cc, kb[owner], reduce="amin", include_self=True)
+                flat2 = rr * W + cc
+                zbuf.scatter_reduce_(0, flat2, key_o, reduce="amin", include_self=True)
+                pos2 = key_o & 0xFFFFFFFF
+            else:
+                flat2 = pos2 = torch.zeros(0, dtype=torch.int64, device=dev)
+            if p.depth_tolerance > 0:
+                zbuf = self._select_surface_points(zbuf, rng, u, v, row * W + col, flat2, pos2)
             zbuf = zbuf.view(H, W)
             for _ in range(p.fill_iterations):
                 zbuf = _fill_holes_once(zbuf)
@@ -226,6 +266,31 @@ class PointRenderer:
         xyz_np[~valid.cpu().numpy()] = np.nan
         return RenderedView(rgb=rgb.cpu().numpy(), xyz=xyz_np.astype(np.float32), depth=depth.cpu().numpy(),
                             center=t, rot_cam_from_world=R)
+
+    def _select_surface_points(self, zbuf: "torch.Tensor", rng: "torch.Tensor", u: "torch.Tensor",
+                               v: "torch.Tensor", flat1: "torch.Tensor", flat2: "torch.Tensor",
+                               pos2: "torch.Tensor") -> "torch.Tensor":
+        """Soft z-buffer: per pixel, of the candidates within ``depth_tolerance`` of the nearest
+        range, keep the one projecting closest to the pixel centre (sharper images and 3D points
+        on the pixel's ray instead of the nearest footprint's centre). Returns range-keyed keys."""
+        import torch
+
+        W = self.params.width
+        n = len(rng)
+        flat = torch.cat([flat1, flat2])
+        pos = torch.cat([torch.arange(n, device=flat.device), pos2])
+        has = zbuf != _EMPTY_KEY
+        min_rng = torch.where(has, zbuf >> 32, torch.zeros_like(zbuf)).int().view(torch.float32)
+        ok = rng[pos] <= min_rng[flat] * (1.0 + self.params.depth_tolerance)
+        flat, pos = flat[ok], pos[ok]
+        du = torch.remainder(torch.remainder(flat, W) + 0.5 - u[pos] + 0.5 * W, W) - 0.5 * W
+        dv = torch.div(flat, W, rounding_mode="floor") + 0.5 - v[pos]
+        d2 = (du * du + dv * dv).float()
+        sel = torch.full_like(zbuf, _EMPTY_KEY)
+        sel.scatter_reduce_(0, flat, (d2.view(torch.int32).long() << 32) | pos, reduce="amin", include_self=True)
+        chosen = sel & 0xFFFFFFFF
+        out = (rng[torch.where(has, chosen, torch.zeros_like(chosen))].view(torch.int32).long() << 32) | chosen
+        return torch.where(has, out, zbuf)
 
 
 def _fill_holes_once(zbuf: "torch.Tensor") -> "torch.Tensor":
@@ -252,7 +317,7 @@ def render_points_panorama(points: np.ndarray, colors: np.ndarray, rot_cam_from_
                            device: str = "cpu", point_radius_px: int = 0,
                            point_spacing_m: float | None = None, splat_scale: float = 2.0,
                            max_radius_px: int = 6, fill_iterations: int = 2,
-                           ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                           depth_tolerance: float = 0.05) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Render a colored point cloud as an equirectangular panorama at pose ``(R, t)``.
 
     Args:
@@ -262,7 +327,7 @@ def render_points_panorama(points: np.ndarray, colors: np.ndarray, rot_cam_from_
         device: torch device ("cpu", "cuda").
         point_radius_px: minimum footprint half-width (0 = one pixel).
         point_spacing_m: surface sample spacing that sizes the footprints (None: estimated).
-        splat_scale, max_radius_px, fill_iterations: see :class:`RenderParams`.
+        splat_scale, max_radius_px, fill_iterations, depth_tolerance: see :class:`RenderParams`.
 
     Returns:
         ``rgb`` (H, W, 3) uint8, ``xyz`` (H, W, 3) float32 world coordinates of the visible point
@@ -270,7 +335,8 @@ def render_points_panorama(points: np.ndarray, colors: np.ndarray, rot_cam_from_
     """
     params = RenderParams(width=int(width), height=int(height), point_spacing_m=point_spacing_m,
                           splat_scale=splat_scale, point_radius_px=point_radius_px,
-                          max_radius_px=max_radius_px, fill_iterations=fill_iterations)
+                          max_radius_px=max_radius_px, fill_iterations=fill_iterations,
+                          depth_tolerance=depth_tolerance)
     view = PointRenderer(points, colors, params, device=device).render(rot_cam_from_world, center)
     return view.rgb, view.xyz, view.depth
 

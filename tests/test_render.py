@@ -25,7 +25,7 @@ def _decode(rgb: np.ndarray) -> np.ndarray:
 
 def _sparse(points, colors, R=np.eye(3), t=np.zeros(3)):
     """Single-pixel footprints, no hole filling."""
-    return render_points_panorama(points, colors, R, t, W, H, point_spacing_m=1e-6, fill_iterations=0)
+    return render_points_panorama(points, colors, R, t, W, H, point_spacing_m=1e-6, fill_iterations=0, depth_tolerance=0.0)
 
 
 def test_few_points_land_on_projected_pixels():
