@@ -262,46 +262,46 @@ def ldf_3d(x, rotations, translations, lines3d, groups, num_groups: int = 3,
         e = lines[None, :, 1, :] - t[:, None, :]
         s = s / torch.linalg.vector_norm(s, dim=-1, keepdim=True).clamp_min(1e-12)
         e = e / torch.linalg.vector_norm(e, dim=-1, keepdim=True).clamp_min(1e-12)
-        p = _arc_distance_proxy(xr, s, e)  # (c, N_r*Q, L)
-        for g in range(num_groups):
-            lo, hi = bounds[g], bounds[g + 1]
-            if hi > lo:
-                out[a:a + step, :, g, :] = _proxy_to_distance(p[..., lo:hi].amin(-1)).reshape(-1, n_r, q)
+        out[a:a + step] = _grouped_min_distance(xr, s, e, bounds).reshape(-1, num_groups, n_r, q).transpose(1, 2)
     return out
 
 
-def _arc_distance_proxy(x: "torch.Tensor", s: "torch.Tensor", e: "torch.Tensor") -> "torch.Tensor":
-    """Monotone proxy of :func:`point_arc_distance` for fast minima, (c, Q, L).
+def _grouped_min_distance(x: "torch.Tensor", s: "torch.Tensor", e: "torch.Tensor",
+                          bounds: Sequence[int]) -> "torch.Tensor":
+    """``min over lines of group g`` of eq. 2 for points ``x`` (P, 3) and arcs ``s, e`` (c, L, 3).
 
-    ``proxy = sin D`` for ``D <= pi/2`` and ``2 - sin D`` beyond: increasing in D, exact (no
-    transcendental) to evaluate, and as precise as eq. 2 on the great-circle branch. Convert a
-    minimum back with :func:`_proxy_to_distance`. ``x`` (Q, 3); ``s, e`` (c, L, 3) unit.
+    Lines are sorted by group (``bounds``: G + 1 offsets). Uses two facts to stay cheap:
+    (1) the endpoint distance ``min(acos x.s, acos x.e)`` is never below the true distance, so
+    ``min_l D_l = min(min over inside l of asin|x.n_l|, min over all endpoints acos(x.p))``: the
+    endpoint term needs no masking; (2) ``x`` is inside the lune of ``(s, e)`` iff
+    ``x . (n x s) > 0`` and ``x . (e x n) > 0`` (the same conditions as eq. 2 up to positive
+    factors), so all five dot products come from one batched matmul. Returns (c, G, P).
     """
     import torch
 
     n = torch.linalg.cross(s, e, dim=-1)
     nn = torch.linalg.vector_norm(n, dim=-1, keepdim=True)
-    ok = nn > _DEGENERATE_EPS
-    n = torch.where(ok, n / nn.clamp_min(_DEGENERATE_EPS), torch.zeros_like(n))
-    c = (s * e).sum(-1, keepdim=True)  # (c, L, 1)
-    # One batched matmul for the three dot products: (c, 3L, 3) @ (3, Q) -> (c, 3L, Q).
-    dots = torch.matmul(torch.cat([s, e, n], dim=1), x.T)
-    L = s.shape[1]
-    xs, xe, xn = dots[:, :L], dots[:, L:2 * L], dots[:, 2 * L:]
-    inside = (xs - c * xe > 0) & (xe - c * xs > 0) & ok
-    m = torch.maximum(xs, xe)
-    sin_end = (1.0 - m * m).clamp_min_(0.0).sqrt_()
-    prox = torch.where(m >= 0, sin_end, 2.0 - sin_end)
-    prox = torch.where(inside, xn.abs_(), prox)
-    return prox.transpose(-1, -2)
-
-
-def _proxy_to_distance(p: "torch.Tensor") -> "torch.Tensor":
-    """Inverse of the proxy of :func:`_arc_distance_proxy`: distance in [0, pi]."""
-    import torch
-
-    p = p.clamp(0.0, 2.0)
-    return torch.where(p <= 1.0, torch.asin(p.clamp(max=1.0)), math.pi - torch.asin((2.0 - p).clamp(max=1.0)))
+    n = torch.where(nn > _DEGENERATE_EPS, n / nn.clamp_min(_DEGENERATE_EPS), torch.zeros_like(n))
+    a_side = torch.linalg.cross(n, s, dim=-1)  # x . (n x s) > 0: x on e's side of the s-plane
+    b_side = torch.linalg.cross(e, n, dim=-1)  # x . (e x n) > 0: x on s's side of the e-plane
+    c, L = s.shape[0], s.shape[1]
+    V = torch.cat([s, e, n, a_side, b_side], dim=1)  # (c, 5L, 3)
+    dots = torch.matmul(V, x.T)  # (c, 5L, P): one matmul for all dot products
+    xs, xe, xn, xa, xb = dots.split(L, dim=1)
+    inside = torch.minimum(xa, xb) > 0
+    circ = xn.abs_().masked_fill_(~inside, 2.0)  # sin of the great-circle distance, or 2 (none)
+    end = torch.maximum(xs, xe)  # cos of the nearest endpoint distance
+    outs = []
+    for g in range(len(bounds) - 1):  # G = 3 groups: contiguous slices of the sorted lines
+        lo, hi = bounds[g], bounds[g + 1]
+        if hi == lo:
+            outs.append(torch.full((c, x.shape[0]), EMPTY_DISTANCE, dtype=x.dtype, device=x.device))
+            continue
+        d_circ = torch.asin(circ[:, lo:hi].amin(1).clamp(max=1.0))  # (c, P); 2 -> pi/2 (ignored below)
+        d_circ = torch.where(circ[:, lo:hi].amin(1) <= 1.0, d_circ, torch.full_like(d_circ, EMPTY_DISTANCE))
+        d_end = torch.acos(end[:, lo:hi].amax(1).clamp(-1.0, 1.0))
+        outs.append(torch.minimum(d_circ, d_end))
+    return torch.stack(outs, dim=1)
 
 
 # ------------------------------------------------------------------------------------- losses
