@@ -7,7 +7,8 @@ import pytest
 
 from ldlmap import geometry as geo
 from ldlmap.errors import InputError
-from ldlmap.render import PointRenderer, RenderParams, estimate_point_spacing, render_points_panorama, render_views
+from ldlmap.render import (PointRenderer, RenderParams, estimate_point_spacing, local_point_spacing,
+                           render_points_panorama, render_views)
 
 W, H = 256, 128
 
@@ -139,3 +140,13 @@ def test_render_views_and_bad_input():
         list(render_views(pts, cols, np.zeros(3)))
     with pytest.raises(InputError, match="device"):
         PointRenderer(pts, cols, device="nonsense")
+
+
+def test_local_spacing_follows_density():
+    rng = np.random.default_rng(6)
+    dense = np.column_stack([rng.uniform(0, 1, (40000, 2)), np.zeros(40000)])  # 0.5 cm spacing
+    sparse = np.column_stack([rng.uniform(2, 3, (2500, 2)), np.zeros(2500)])  # 2 cm spacing
+    pts = np.concatenate([dense, sparse])
+    loc = local_point_spacing(pts, 0.01, clip=(0.1, 10.0))
+    assert np.median(loc[:40000]) == pytest.approx(0.005, rel=0.25)
+    assert np.median(loc[40000:]) == pytest.approx(0.02, rel=0.25)
