@@ -8,8 +8,8 @@ Centres are drawn uniformly inside the room footprint, rejected when closer than
 any surface (open3d ``compute_distance``) or when above / inside an object's box footprint.
 Rotations per split (:data:`SPLIT_POSES`):
 
-* ``robot``: height about 1.0 m, roll and pitch within 2 degrees, any yaw;
-* ``handheld``: height about 1.5 m, roll and pitch within 10 degrees, any yaw;
+* ``robot``: height about 1.0 m, up axis tilted at most 2 degrees (so roll, pitch <= 2), any yaw;
+* ``handheld``: height about 1.5 m, tilted at most 10 degrees, any yaw;
 * ``extreme``: height 0.8-1.8 m, rotation uniform on SO(3) (the split also gets motion blur);
 * ``change_robot`` / ``change_handheld``: as robot / handheld (rendered in the changed scene).
 """
@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from ldlmap.errors import InputError
+from ldlmap.geometry import rotation_from_axis_angle
 from ldlmap.synth.render import Renderer, points_in_polygon
 from ldlmap.synth.types import SceneMesh
 
@@ -34,41 +35,42 @@ class PoseParams:
 
     height_min: float  # metres above the floor (camera centre)
     height_max: float
-    max_tilt_deg: float  # bound on roll and pitch (each); ignored when any_rotation
+    max_tilt_deg: float  # bound on the tilt of the camera's up axis; ignored when any_rotation
     any_rotation: bool = False  # uniform on SO(3)
-    clearance: float = 0.35  # metres from any surface
+    clearance: float = 0.3  # metres from any surface
     object_margin: float = 0.15  # metres around an object's box footprint that stay free
 
 
 SPLIT_POSES: dict[str, PoseParams] = {
     "robot": PoseParams(0.95, 1.05, 2.0),
-    "handheld": PoseParams(1.4, 1.6, 10.0),
+    "handheld": PoseParams(1.35, 1.65, 10.0),
     "extreme": PoseParams(0.8, 1.8, 180.0, any_rotation=True),
 }
 
 
 def split_pose_params(split: str, capture: Any = None) -> PoseParams:
-    """Pose parameters of ``split`` (``change_*`` share their base split), with overrides taken
-    from a capture spec when it has matching fields (``<base>_height`` as a number or a
-    ``(min, max)`` pair, ``<base>_max_tilt_deg``, ``clearance``)."""
+    """Pose parameters of ``split`` (``change_*`` share their base split).
+
+    ``capture`` (a :class:`~ldlmap.synth.spec.CaptureSpec`) overrides the defaults: its view of
+    the base split gives ``camera_height +- height_jitter`` and ``max_tilt_deg`` (180 = any
+    rotation), and ``min_clearance`` the clearance.
+    """
     base = split.removeprefix("change_")
     if base not in SPLIT_POSES:
         raise InputError(f"unknown split {split!r}; valid: {', '.join(SPLITS)}")
     p = SPLIT_POSES[base]
     if capture is None:
         return p
-    h = getattr(capture, f"{base}_height", None)
-    if h is not None:
-        lo, hi = (float(h), float(h)) if np.isscalar(h) else (float(h[0]), float(h[1]))
-        if np.isscalar(h) and base != "extreme":  # a nominal height: keep a small spread
-            lo, hi = lo - 0.05, hi + 0.05
-        p = replace(p, height_min=lo, height_max=hi)
-    tilt = getattr(capture, f"{base}_max_tilt_deg", None)
-    if tilt is not None and not p.any_rotation:
-        p = replace(p, max_tilt_deg=float(tilt))
-    clearance = getattr(capture, "clearance", None)
+    view = getattr(capture, base, None)
+    if view is not None:
+        h, jitter, tilt = float(view.camera_height), float(view.height_jitter), float(view.max_tilt_deg)
+        p = replace(p, height_min=h - jitter, height_max=h + jitter, max_tilt_deg=min(tilt, 180.0),
+                    any_rotation=tilt >= 180.0)
+    clearance = getattr(capture, "min_clearance", None)
     if clearance is not None:
         p = replace(p, clearance=float(clearance))
+    if not (p.height_min > 0 and p.height_max >= p.height_min and p.clearance >= 0 and p.max_tilt_deg >= 0):
+        raise InputError(f"invalid pose parameters for split {split!r}: {p}")
     return p
 
 
@@ -124,16 +126,6 @@ def _rot_z(a: float) -> np.ndarray:
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
-def _rot_y(a: float) -> np.ndarray:
-    c, s = np.cos(a), np.sin(a)
-    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
-
-
-def _rot_x(a: float) -> np.ndarray:
-    c, s = np.cos(a), np.sin(a)
-    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
-
-
 def random_rotation(rng: np.random.Generator) -> np.ndarray:
     """A rotation matrix uniform on SO(3) (normalised Gaussian quaternion)."""
     q = rng.normal(size=4)
@@ -144,10 +136,13 @@ def random_rotation(rng: np.random.Generator) -> np.ndarray:
 
 
 def tilted_rotation(rng: np.random.Generator, max_tilt_deg: float) -> np.ndarray:
-    """World->camera rotation: any yaw, roll and pitch uniform within ``max_tilt_deg``."""
+    """World->camera rotation with any yaw whose up axis (camera +z) is tilted from world +z by
+    at most ``max_tilt_deg`` (tilt direction uniform, uniform over the spherical cap)."""
     yaw = rng.uniform(0.0, 2.0 * np.pi)
-    pitch, roll = np.radians(rng.uniform(-max_tilt_deg, max_tilt_deg, 2))
-    world_from_cam = _rot_z(yaw) @ _rot_y(pitch) @ _rot_x(roll)
+    cos_tilt = rng.uniform(np.cos(np.radians(max_tilt_deg)), 1.0)
+    azimuth = rng.uniform(0.0, 2.0 * np.pi)
+    tilt = rotation_from_axis_angle(np.array([np.cos(azimuth), np.sin(azimuth), 0.0]), float(np.arccos(cos_tilt)))
+    world_from_cam = _rot_z(yaw) @ tilt
     return world_from_cam.T
 
 

@@ -4,8 +4,9 @@ Like a terrestrial scanner, a few stations inside the room each shoot rays in un
 directions; every first hit becomes a point. This gives what real scans look like:
 
 * only surfaces visible from some station are scanned (nothing under furniture, behind boxes);
-* density falls with distance (``1 / d^2``) and incidence (``cos``), and grazing returns are
-  dropped with probability rising as the incidence angle nears 90 degrees;
+* density falls with distance (``1 / d^2``) and incidence (``cos``), grazing returns are
+  dropped with probability rising as the incidence angle nears 90 degrees, and a smooth random
+  field (``uneven``) modulates it further; the count is ``density x mesh area`` (capped);
 * Gaussian position noise (``noise_std``, default 5 mm, 0 allowed) and a few small holes.
 
 Colors come from :meth:`Renderer.surface_color` at the exact hit (before noise), i.e. the same
@@ -28,17 +29,18 @@ from ldlmap.synth.types import SceneMesh
 
 @dataclass(frozen=True)
 class ScanParams:
-    """Scanner simulation parameters (a :class:`ScanSpec` with the same field names overrides)."""
+    """Scanner simulation parameters; the first fields mirror :class:`~ldlmap.synth.spec.ScanSpec`."""
 
-    num_points: int = 1_500_000  # target number of points (before holes)
-    num_stations: int = 4  # scanner positions inside the room
+    noise_std: float = 0.005  # metres, Gaussian position noise per axis (0 = exact)
+    density: float = 2000.0  # mean points per m^2 of mesh surface
+    max_points: int = 1_000_000  # cap on the point count
+    uneven: float = 0.5  # 0..1, amplitude of smooth density variations on top of the 1/d^2 falloff
+    holes: int = 6  # small circular holes (missing data)
+    hole_radius: float = 0.15  # metres, largest hole radius (radii uniform in [r/2, r])
+    stations: int = 2  # scanner positions inside the room
     station_height: float = 1.3  # metres (tripod), +-0.15 m
     station_clearance: float = 0.4  # metres from any surface
-    noise_std: float = 0.005  # metres, Gaussian per coordinate
     grazing_cos: float = 0.25  # below this |cos(incidence)| returns are dropped proportionally
-    num_holes: int = 6  # small holes (missing returns)
-    hole_radius_min: float = 0.04  # metres
-    hole_radius_max: float = 0.12
 
 
 def scan_params(scan_spec: Any = None) -> ScanParams:
@@ -48,12 +50,21 @@ def scan_params(scan_spec: Any = None) -> ScanParams:
     if isinstance(scan_spec, ScanParams):
         return scan_spec
     fields = {k: getattr(scan_spec, k) for k in ScanParams.__dataclass_fields__ if hasattr(scan_spec, k)}
-    aliases = {"points": "num_points", "stations": "num_stations", "noise": "noise_std",
-               "holes": "num_holes"}
-    for alias, name in aliases.items():
-        if name not in fields and hasattr(scan_spec, alias):
-            fields[name] = getattr(scan_spec, alias)
     return ScanParams(**fields)
+
+
+def mesh_area(mesh: SceneMesh) -> float:
+    """Total triangle area of ``mesh`` in m^2."""
+    tri = np.asarray(mesh.vertices, dtype=np.float64)[np.asarray(mesh.triangles, dtype=np.int64)]
+    return float(0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1).sum())
+
+
+def _smooth_field(points: np.ndarray, rng: np.random.Generator, wavelength: float = 1.5) -> np.ndarray:
+    """A smooth random field in [0, 1]: the mean of three random plane waves."""
+    k = rng.normal(size=(3, 3))
+    k *= (2.0 * np.pi / wavelength) / np.linalg.norm(k, axis=1, keepdims=True)
+    phase = rng.uniform(0.0, 2.0 * np.pi, 3)
+    return 0.5 + 0.5 * np.mean(np.cos(points @ k.T + phase), axis=1)
 
 
 def _sphere_directions(n: int, rng: np.random.Generator) -> np.ndarray:
@@ -67,32 +78,35 @@ def sample_scan(mesh: SceneMesh, scan_spec: Any = None, rng: np.random.Generator
     from ldlmap.synth.poses import sample_positions
 
     p = scan_params(scan_spec)
-    if p.num_points <= 0 or p.num_stations <= 0:
-        raise InputError("scan needs num_points > 0 and num_stations > 0")
-    if p.noise_std < 0:
-        raise InputError(f"scan noise_std must be >= 0, got {p.noise_std}")
+    if p.density <= 0 or p.max_points <= 0 or p.stations <= 0:
+        raise InputError("scan needs density > 0, max_points > 0 and stations > 0")
+    if p.noise_std < 0 or not 0 <= p.uneven <= 1 or p.holes < 0 or p.hole_radius < 0:
+        raise InputError("scan needs noise_std >= 0, 0 <= uneven <= 1, holes >= 0 and hole_radius >= 0")
     rng = rng if rng is not None else np.random.default_rng(0)
     renderer = renderer or Renderer(mesh)
-    stations = sample_positions(mesh, p.num_stations, rng, p.station_height - 0.15, p.station_height + 0.15,
+    target = int(min(p.max_points, round(p.density * mesh_area(mesh))))
+    stations = sample_positions(mesh, p.stations, rng, p.station_height - 0.15, p.station_height + 0.15,
                                 p.station_clearance, renderer=renderer)
-    # Expected keep rate of the grazing dropout is ~0.9; shoot a few more rays than points.
-    per_station = int(np.ceil(p.num_points / p.num_stations / 0.9))
+    # The dropouts keep about (1 - uneven / 2) * 0.9 of the returns: shoot enough rays.
+    per_station = int(np.ceil(target / p.stations / (0.9 * (1.0 - 0.5 * p.uneven))))
     origins = np.repeat(stations, per_station, axis=0)
     dirs = _sphere_directions(len(origins), rng)
     hits = renderer.cast(origins, dirs)
     ok = hits["tri"] >= 0
     origins, dirs, t, tri, bary = origins[ok], dirs[ok], hits["t"][ok], hits["tri"][ok], hits["bary"][ok]
+    points = origins + dirs * t[:, None]
     cos = np.abs(np.einsum("nc,nc->n", dirs, renderer.face_normals[tri]))
-    keep = rng.random(len(cos)) < np.clip(cos / p.grazing_cos, 0.0, 1.0)
-    if np.count_nonzero(keep) > p.num_points:
+    keep_prob = np.clip(cos / p.grazing_cos, 0.0, 1.0) * (1.0 - p.uneven * _smooth_field(points, rng))
+    keep = rng.random(len(cos)) < keep_prob
+    if np.count_nonzero(keep) > target:
         idx = np.flatnonzero(keep)
         keep[:] = False
-        keep[rng.choice(idx, p.num_points, replace=False)] = True
-    points = origins[keep] + dirs[keep] * t[keep, None]
+        keep[np.sort(rng.choice(idx, target, replace=False))] = True
+    points = points[keep]
     colors = renderer.surface_color(tri[keep], bary[keep], points)
-    if p.num_holes > 0 and len(points):
-        centres = points[rng.choice(len(points), p.num_holes, replace=False)]
-        radii = rng.uniform(p.hole_radius_min, p.hole_radius_max, p.num_holes)
+    if p.holes > 0 and len(points):
+        centres = points[rng.choice(len(points), p.holes, replace=False)]
+        radii = rng.uniform(0.5 * p.hole_radius, p.hole_radius, p.holes)
         alive = np.ones(len(points), dtype=bool)
         for c, r in zip(centres, radii):
             alive &= np.einsum("nc,nc->n", points - c, points - c) > r * r
