@@ -38,6 +38,8 @@ class Lines2DParams:
     merge_angle_deg: float = 1.0  # great circles closer than this are the same line
     merge_gap_deg: float = 0.5  # arcs on one circle closer than this along it are joined
     lsd_refine: int = 1  # cv2.LSD_REFINE_* (0 none, 1 standard, 2 advanced)
+    normalize_contrast: bool = True  # stretch the grey levels (1st-99th percentile) before LSD,
+    # so that washed-out or dark panoramas (gamma, exposure changes) keep their gradients
 
 
 # ------------------------------------------------------------------------------------- views
@@ -125,6 +127,10 @@ def crops(image_rgb: np.ndarray, params: Lines2DParams = Lines2DParams()) -> np.
 
     img = _check_image(image_rgb)
     gray = img if img.ndim == 2 else cv2.cvtColor(img[..., :3], cv2.COLOR_RGB2GRAY)
+    if params.normalize_contrast:
+        from ldlmap.imageproc import stretch_contrast
+
+        gray = stretch_contrast(gray)
     h, w = gray.shape
     cs = _crop_set(w, h, params)
     padded = np.concatenate([gray[:, -1:], gray, gray[:, :1]], axis=1)

@@ -106,9 +106,6 @@ def test_ground_truth_poses_on_the_written_files(demo):
     assert checked_vertices > 200
 
 
-@pytest.mark.xfail(reason="spec.py: preset/TOML sub-tables like capture.extreme = {count = 3} reset the other "
-                          "ViewSpec fields to the class defaults (2 deg tilt, no blur) instead of the split's",
-                   strict=False)
 def test_extreme_split_rotations_are_not_upright_and_robot_ones_are(demo):
     tilts = {}
     for split in ("robot", "extreme"):

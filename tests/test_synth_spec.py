@@ -191,3 +191,13 @@ def test_changed_spec():
     kept = set(spec.objects) & set(changed.objects)
     ch = spec.capture.change
     assert len(kept) <= len(spec.objects) - ch.removed
+
+
+def test_partial_sub_table_keeps_the_split_defaults():
+    from ldlmap.synth.spec import CaptureSpec, random_spec
+
+    spec = random_spec("demo", 3)
+    assert spec.capture.extreme.count == 3
+    assert spec.capture.extreme.max_tilt_deg == CaptureSpec().extreme.max_tilt_deg == 180.0
+    assert spec.capture.extreme.blur_px > 0
+    assert spec.capture.handheld.camera_height == CaptureSpec().handheld.camera_height

@@ -23,6 +23,7 @@ class SiftConfig:
     edge_threshold: float = 10.0  # OpenCV edgeThreshold
     n_octave_layers: int = 3  # OpenCV nOctaveLayers
     root_sift: bool = True  # match Hellinger-normalised descriptors (RootSIFT, Arandjelovic 2012)
+    normalize_contrast: bool = True  # stretch grey levels (1st-99th percentile) before detection
     device: str = "cpu"  # torch device of the matcher
 
 
@@ -48,6 +49,10 @@ class SiftBackend:
         c = self.config
         k = c.max_keypoints if max_keypoints is None else max_keypoints
         gray = cv2.cvtColor(np.ascontiguousarray(img), cv2.COLOR_RGB2GRAY)
+        if c.normalize_contrast:
+            from ldlmap.imageproc import stretch_contrast
+
+            gray = stretch_contrast(gray)
         sift = cv2.SIFT_create(nfeatures=0, nOctaveLayers=c.n_octave_layers,
                                contrastThreshold=c.contrast_threshold, edgeThreshold=c.edge_threshold)
         cv_mask = None if mask is None else mask.astype(np.uint8) * 255

@@ -213,7 +213,12 @@ def _convert(value: Any, tp: Any, path: str) -> Any:
     raise TypeError(f"unsupported spec type {tp!r}")  # programming error
 
 
-def _from_dict(cls: type, d: dict, path: str) -> Any:
+def _from_dict(cls: type, d: dict, path: str, base: Any = None) -> Any:
+    """Build ``cls`` from ``d``; fields missing from ``d`` come from ``base`` (or the defaults).
+
+    A nested table that sets only some fields keeps the other fields of the enclosing default
+    (e.g. ``[capture.extreme] count = 5`` keeps the extreme split's tilt and blur).
+    """
     hints = typing.get_type_hints(cls)
     names = [f.name for f in dataclasses.fields(cls)]
     prefix = f"{path}." if path else ""
@@ -222,8 +227,16 @@ def _from_dict(cls: type, d: dict, path: str) -> Any:
         raise InputError(f"unknown spec field '{prefix}{unknown[0]}' (valid: {', '.join(names)})")
     kwargs = {}
     for f in dataclasses.fields(cls):
+        inherited = getattr(base, f.name) if base is not None else (
+            f.default if f.default is not dataclasses.MISSING else None)
         if f.name in d:
-            kwargs[f.name] = _convert(d[f.name], hints[f.name], prefix + f.name)
+            tp = hints[f.name]
+            if dataclasses.is_dataclass(tp) and isinstance(d[f.name], dict) and dataclasses.is_dataclass(inherited):
+                kwargs[f.name] = _from_dict(tp, d[f.name], prefix + f.name, base=inherited)
+            else:
+                kwargs[f.name] = _convert(d[f.name], tp, prefix + f.name)
+        elif base is not None:
+            kwargs[f.name] = inherited
         elif f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
             raise InputError(f"missing required spec field '{prefix}{f.name}'")
     return cls(**kwargs)
@@ -703,8 +716,10 @@ def random_spec(preset: str, seed: int, index: int = 0) -> SceneSpec:
         obj = _place_object(rng, kind, fp, ceiling, objects, keep_out)
         if obj is not None:
             objects.append(obj)
-    walls = ["plaster", "plaster", "wallpaper", "concrete", "brick"]
-    floors = ["parquet", "parquet", "tiles", "carpet"]
+    # Random rooms avoid strongly line-patterned large surfaces (brick): long texture lines
+    # would outnumber the structural lines that a 3D scan can give (specs may still use brick).
+    walls = ["plaster", "plaster", "wallpaper", "concrete"]
+    floors = ["parquet", "carpet", "tiles", "carpet"]
     spec = SceneSpec(
         name=f"{preset}{index:02d}",
         footprint=tuple((float(x), float(y)) for x, y in fp),

@@ -143,8 +143,10 @@ def material_texture(material: str, h: int, w: int, texel_m: float, rng: np.rand
         grain = _grain(h, w, texel_m, rng, ring_m=rng.uniform(0.008, 0.02))
         shade = 0.82 + 0.3 * per - 0.22 * grain + 0.08 * fbm(h, w, px(0.5), rng, aspect=3.0)
         if material == "parquet":
+            # Subtle seams: real parquet joints are faint; dark seams every plank would flood
+            # the panorama with long texture lines that no 3D scan contains.
             seam = ((y % plank_w) < 1.0) | (((x + off) % plank_l) < 1.0)
-            shade = np.where(seam, 0.45, shade)
+            shade = np.where(seam, shade * 0.9, shade)
         shade -= 0.2 * spots(h, w, px(0.03), rng, 0.04)  # knots
     elif material == "tiles":
         size = px(rng.choice([0.3, 0.4, 0.5]))
@@ -153,7 +155,7 @@ def material_texture(material: str, h: int, w: int, texel_m: float, rng: np.rand
         per = _hash01(ids, int(rng.integers(1 << 30)))
         veins = np.abs(np.sin((x + y) / px(0.2) + 4.0 * fbm(h, w, px(0.3), rng)))
         shade = 0.85 + 0.25 * per + 0.12 * fbm(h, w, px(0.15), rng) - 0.25 * (veins < 0.08)
-        shade = np.where(((y % size) < grout) | ((x % size) < grout), 1.5, shade)
+        shade = np.where(((y % size) < grout) | ((x % size) < grout), shade * 1.1, shade)
     elif material == "carpet":
         shade += 0.22 * fbm(h, w, px(0.25), rng, octaves=6)
         tint += 0.12 * fbm(h, w, px(0.5), rng)[..., None] * np.array([1.0, -0.5, 0.3], np.float32)

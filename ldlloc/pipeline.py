@@ -1,0 +1,158 @@
+"""Localize one panorama against an LDL map: ``Localizer(map).localize(image) -> Localization``.
+
+Stages (timed): ``lines2d`` (LSD on crops, arcs, adaptive length filter), ``rotation``
+(vanishing points and candidate rotations), ``search`` (line distance functions over
+N_t x N_r poses, top K), ``refine`` (query features, matching, spherical PnP), ``total``.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ldlmap.errors import InputError
+from ldlloc.lines2d import Lines2DParams
+from ldlloc.principal import PrincipalParams
+from ldlloc.refine import RefineParams
+from ldlloc.search import SearchParams
+
+
+@dataclass(frozen=True)
+class LocalizeParams:
+    """All localization parameters (each stage's own dataclass holds the paper's defaults)."""
+
+    lines2d: Lines2DParams = field(default_factory=Lines2DParams)
+    principal: PrincipalParams = field(default_factory=PrincipalParams)
+    search: SearchParams = field(default_factory=SearchParams)
+    refine: RefineParams = field(default_factory=RefineParams)
+    features: str | None = None  # feature backend; None: the map's backend
+    weights: str | None = None  # SuperPoint checkpoint (path)
+    do_refine: bool = True  # False: stop after pose search (always so for lines-only maps)
+    privacy: bool = False  # refine only with query features near principal-direction lines
+    max_keypoints: int = 8192  # query features
+
+
+@dataclass
+class Localization:
+    """The result of localizing one panorama."""
+
+    rot_cam_from_world: np.ndarray
+    center: np.ndarray
+    coarse_rot: np.ndarray  # best pose of the search alone
+    coarse_center: np.ndarray
+    candidates_rot: np.ndarray  # (K, 3, 3) top-K poses
+    candidates_center: np.ndarray  # (K, 3)
+    seconds: dict[str, float]
+    num_rotations: int
+    num_lines: int
+    refined: bool
+    num_matches: int = 0
+    num_inliers: int = 0
+    message: str = ""
+    arcs: np.ndarray | None = None  # the filtered 2D arcs used (camera frame)
+    arc_groups: np.ndarray | None = None  # principal group of each arc under the chosen rotation
+
+    @property
+    def status(self) -> str:
+        return "ok" if self.refined else "coarse"
+
+
+def load_image(path: str | Path) -> np.ndarray:
+    """Read an RGB panorama (uint8, W = 2 H); one-line errors for missing or broken images."""
+    import cv2
+
+    from ldlmap.errors import require_file
+
+    p = require_file(path, "image")
+    img = cv2.imread(str(p), cv2.IMREAD_COLOR)
+    if img is None:
+        raise InputError(f"cannot decode image (corrupt or unsupported format): {p}")
+    h, w = img.shape[:2]
+    if w != 2 * h:
+        raise InputError(f"not an equirectangular panorama (width must be 2 x height): {p} is {w}x{h}")
+    return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+
+
+class Localizer:
+    """Holds one map (and its feature backend) and localizes panoramas against it."""
+
+    def __init__(self, ldl_map, params: LocalizeParams = LocalizeParams(), device: str = "cpu"):
+        self.map = ldl_map
+        self.params = params
+        self.device = device
+        self.backend = None
+        map_backend = ldl_map.features.backend if ldl_map.features is not None else None
+        want = params.features or map_backend
+        if params.features and map_backend and params.features != map_backend:
+            raise InputError(f"map {ldl_map.name} was built with {map_backend} features, "
+                             f"not {params.features}: rebuild it or drop --features")
+        self.refine_enabled = params.do_refine and map_backend is not None
+        if self.refine_enabled:
+            from ldlmap.features import get_backend
+
+            opts = {"weights": params.weights, "device": device} if want == "superpoint" else {}
+            self.backend = get_backend(want, **opts)
+
+    @property
+    def feature_backend(self) -> str | None:
+        return self.backend.name if self.backend is not None else None
+
+    def localize(self, image_rgb: np.ndarray) -> Localization:
+        """Localize an RGB panorama (H, W, 3) uint8; raises InputError when it cannot even search."""
+        from ldlloc.lines2d import detect_lines, filter_by_length
+        from ldlloc.principal import candidate_rotations, labels_for_rotations, vanishing_points
+        from ldlloc.refine import keep_near_lines, refine_candidates
+        from ldlloc.search import search_poses
+
+        p, m = self.params, self.map
+        img = np.asarray(image_rgb)
+        if img.ndim != 3 or img.shape[2] != 3 or img.dtype != np.uint8 or img.shape[1] != 2 * img.shape[0]:
+            raise InputError(f"panorama must be uint8 (H, 2H, 3), got {img.dtype} {img.shape}")
+        secs: dict[str, float] = {}
+        t0 = tick = time.perf_counter()
+
+        def lap(name: str) -> None:
+            nonlocal tick
+            now = time.perf_counter()
+            secs[name] = now - tick
+            tick = now
+
+        arcs_all = detect_lines(img, p.lines2d)
+        if len(arcs_all) < 3:
+            raise InputError(f"too few lines in the panorama ({len(arcs_all)} detected): a flat or empty image?")
+        arcs = filter_by_length(arcs_all, m.kept_ratio)
+        lap("lines2d")
+        vps = vanishing_points(arcs, p.principal.k_2d, p.principal)
+        rots = candidate_rotations(vps, m.principal_directions, params=p.principal)
+        if len(rots) == 0:
+            raise InputError("no candidate rotation: the panorama's vanishing points do not match the map's")
+        labels = labels_for_rotations(arcs, vps, rots.triplets, p.principal.group_tol)
+        lap("rotation")
+        res = search_poses(arcs, labels, rots.rotations, m.lines, m.line_groups, m.translations,
+                           p.search, self.device)
+        lap("search")
+        best_r, best_t = res.rotations[0], res.centers[0]
+        out = Localization(best_r, best_t, best_r, best_t, res.rotations, res.centers, secs,
+                           num_rotations=len(rots), num_lines=len(arcs), refined=False, arcs=arcs,
+                           arc_groups=labels[res.rotation_index[0]])
+        if self.refine_enabled:
+            feats = self.backend.extract(img, max_keypoints=p.max_keypoints)
+            if p.privacy:
+                near = keep_near_lines(feats.keypoints, arcs[out.arc_groups >= 0], img.shape[1], img.shape[0],
+                                       p.refine.privacy_radius)
+                feats = feats.subset(near)
+            ref = refine_candidates(feats, (img.shape[1], img.shape[0]), res.rotations, res.centers,
+                                    res.translation_index, m.features, self.backend, p.refine)
+            out.rot_cam_from_world, out.center = ref.rot_cam_from_world, ref.center
+            out.coarse_rot, out.coarse_center = res.rotations[ref.candidate], res.centers[ref.candidate]
+            out.arc_groups = labels[res.rotation_index[ref.candidate]]
+            out.refined, out.num_matches, out.num_inliers, out.message = (
+                ref.refined, ref.num_matches, ref.num_inliers, ref.message)
+        else:
+            out.message = "pose search only (no refinement)" if m.features is not None else "lines-only map: pose search only"
+        lap("refine")
+        secs["total"] = time.perf_counter() - t0
+        return out

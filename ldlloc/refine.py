@@ -1,0 +1,114 @@
+"""Refinement of the top-K poses with local features (paper section 3.4, DESIGN.md 5.9-5.10).
+
+For each candidate pose, the map keypoints of the rendered view serving its translation are
+matched with the query's features (mutual nearest neighbour + ratio test, batched in torch; one
+matching per distinct view). A match supports a candidate when the 3D point, seen from the
+candidate pose, lies within ``support_angle`` of the query keypoint's bearing; the candidate with
+the most supporting matches wins (ties: more raw matches, then the better search rank). Its
+view's matches go to spherical PnP-RANSAC (pycolmap ``EQUIRECTANGULAR``). When PnP fails, or
+moves the pose further than ``max_shift_m`` / ``max_turn_deg`` from the coarse pose, the coarse
+pose is kept and flagged.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ldlmap.geometry import bearing_from_pixel, cam_from_world, normalize, rotation_error_deg
+from ldlloc.pnp import PnPParams, estimate_pose_spherical
+
+
+@dataclass(frozen=True)
+class RefineParams:
+    """Feature-based refinement parameters."""
+
+    ratio: float = 0.8  # Lowe's ratio test
+    support_angle_deg: float = 6.0  # a match supports a candidate when it reprojects this close
+    max_shift_m: float = 1.0  # refined pose further than this from the coarse one: implausible
+    max_turn_deg: float = 30.0  # ... or turned more than this
+    privacy_radius: float = 0.05  # privacy mode: keep features within this (rad) of principal lines
+    pnp: PnPParams = field(default_factory=PnPParams)
+
+
+@dataclass
+class Refinement:
+    """The refined pose (or the coarse one, flagged) and match statistics."""
+
+    rot_cam_from_world: np.ndarray
+    center: np.ndarray
+    refined: bool
+    candidate: int  # index of the chosen top-K candidate
+    num_matches: int
+    num_inliers: int
+    message: str = ""
+
+
+def keep_near_lines(keypoints_uv: np.ndarray, arcs: np.ndarray, width: int, height: int,
+                    radius: float = 0.05) -> np.ndarray:
+    """Boolean mask of keypoints within ``radius`` radians of any of ``arcs`` (privacy mode)."""
+    import torch
+
+    from ldlloc.ldf import distance_function
+
+    if len(keypoints_uv) == 0 or len(arcs) == 0:
+        return np.zeros(len(keypoints_uv), dtype=bool)
+    x = torch.as_tensor(bearing_from_pixel(keypoints_uv, width, height), dtype=torch.float32)
+    d = distance_function(x, torch.as_tensor(np.asarray(arcs), dtype=torch.float32))
+    return (d < radius).cpu().numpy()
+
+
+def refine_candidates(query_feats, query_size: tuple[int, int], rotations: np.ndarray, centers: np.ndarray,
+                      translation_index: np.ndarray, map_features, backend,
+                      params: RefineParams = RefineParams()) -> Refinement:
+    """Pick the best of the K candidate poses by feature matches and refine it with PnP.
+
+    ``query_feats``: :class:`ldlmap.features.Features` of the query (possibly privacy-filtered);
+    ``rotations`` (K, 3, 3), ``centers`` (K, 3), ``translation_index`` (K,) of the search result;
+    ``map_features``: :class:`ldlmap.mapfile.MapFeatures`; ``backend`` matches descriptors.
+    """
+    W, H = query_size
+    K = len(rotations)
+    coarse = Refinement(rotations[0], centers[0], False, 0, 0, 0)
+    if K == 0:
+        return coarse
+    if len(query_feats) == 0:
+        coarse.message = "no query features"
+        return coarse
+    bearings = bearing_from_pixel(query_feats.keypoints, W, H)  # (Nq, 3)
+    views = map_features.translation_view[np.asarray(translation_index)]
+    cos_support = np.cos(np.radians(params.support_angle_deg))
+    matches_by_view: dict[int, np.ndarray] = {}
+    support = np.zeros(K, dtype=np.int64)
+    raw = np.zeros(K, dtype=np.int64)
+    for k in range(K):  # K = 20 candidates, at most K distinct views matched
+        v = int(views[k])
+        if v not in matches_by_view:
+            sl = map_features.view_slice(v)
+            m = backend.match(query_feats.descriptors, map_features.descriptors[sl], ratio=params.ratio)
+            matches_by_view[v] = m + np.array([0, sl.start])
+        m = matches_by_view[v]
+        raw[k] = len(m)
+        if len(m):
+            p = normalize(cam_from_world(map_features.xyz[m[:, 1]].astype(np.float64), rotations[k], centers[k]))
+            support[k] = int(np.sum(np.einsum("ij,ij->i", p, bearings[m[:, 0]]) > cos_support))
+    order = np.lexsort((np.arange(K), -raw, -support))
+    best = int(order[0])
+    m = matches_by_view[int(views[best])]
+    out = Refinement(rotations[best], centers[best], False, best, int(len(m)), 0)
+    if len(m) < params.pnp.min_inliers:
+        out.message = f"too few matches ({len(m)})"
+        return out
+    res = estimate_pose_spherical(query_feats.keypoints[m[:, 0]], map_features.xyz[m[:, 1]], W, H, params.pnp)
+    if res is None:
+        out.message = "PnP-RANSAC failed"
+        return out
+    shift = float(np.linalg.norm(res.center - centers[best]))
+    turn = rotation_error_deg(res.rot_cam_from_world, rotations[best])
+    out.num_inliers = int(res.inliers.sum())
+    if shift > params.max_shift_m or turn > params.max_turn_deg:
+        out.message = f"refinement moved the pose implausibly far ({shift:.2f} m, {turn:.1f} deg)"
+        return out
+    out.rot_cam_from_world, out.center, out.refined = res.rot_cam_from_world, res.center, True
+    return out

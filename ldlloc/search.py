@@ -1,0 +1,77 @@
+"""Pose search: rank all N_t x N_r poses by line distance functions and keep the top K.
+
+Paper section 3.3, DESIGN.md 5.7-5.8. The 3D lines keep the principal group the map assigned
+them (index j of ``map.principal_directions``); under a candidate rotation, 2D group ``j`` holds
+the arcs through the vanishing point that the rotation matched to 3D direction ``j``, so group
+``j`` in 2D always pairs with group ``j`` in 3D.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ldlmap.errors import InputError
+
+
+@dataclass(frozen=True)
+class SearchParams:
+    """Parameters of the pose search (paper defaults)."""
+
+    top_k: int = 20  # K: poses kept for refinement
+    tau: float = 0.1  # tau: inlier threshold of the loss (radians)
+    loss: str = "inlier"  # inlier (paper) | l1 | l2 | huber | median (ablations)
+    decompose: bool = True  # decomposed distance functions (eq. 5) or not (eq. 4)
+    query_level: int = 1  # |Q| = 42 icosphere points
+    chunk_translations: int = 64  # translations per batch (memory bound)
+
+
+@dataclass
+class SearchResult:
+    """Top-K poses, best first."""
+
+    rotations: np.ndarray  # (K, 3, 3) world -> camera
+    centers: np.ndarray  # (K, 3)
+    translation_index: np.ndarray  # (K,) index into the map's translations
+    rotation_index: np.ndarray  # (K,) index into the candidate rotations
+    losses: np.ndarray  # (K,)
+
+
+def search_poses(arcs2d: np.ndarray, labels2d: np.ndarray, rotations: np.ndarray, lines3d: np.ndarray,
+                 line_groups: np.ndarray, translations: np.ndarray, params: SearchParams = SearchParams(),
+                 device: str = "cpu") -> SearchResult:
+    """Rank every (translation, rotation) pair and return the ``top_k`` poses, best first.
+
+    ``arcs2d`` (N, 2, 3) are the query's (length-filtered) arcs in the camera frame and
+    ``labels2d`` (N_r, N) their principal group under each rotation
+    (:func:`ldlloc.principal.labels_for_rotations`); ``rotations`` (N_r, 3, 3) the candidate
+    rotations; ``lines3d`` (L, 2, 3) with ``line_groups`` (L,) from the map; ``translations``
+    (N_t, 3).
+    """
+    import torch
+
+    from ldlloc import ldf
+
+    if len(rotations) == 0:
+        raise InputError("no candidate rotations (too few lines in the panorama?)")
+    if len(arcs2d) == 0:
+        raise InputError("no 2D lines detected in the panorama")
+    dt = torch.float32
+    Q = ldf.query_points(params.query_level, device=device, dtype=dt)
+    arcs_t = torch.as_tensor(np.asarray(arcs2d), dtype=dt, device=device)
+    if params.decompose:
+        f2d = ldf.decomposed_distance_2d(Q, arcs_t, torch.as_tensor(np.asarray(labels2d), device=device), 3)
+        groups3d = np.asarray(line_groups)
+        num_groups = 3
+    else:  # eq. 4: one distance function over all lines
+        f2d = ldf.decomposed_distance_2d(Q, arcs_t, torch.zeros(len(arcs2d), dtype=torch.long, device=device), 1)
+        groups3d = np.zeros(len(lines3d), dtype=np.int64)
+        num_groups = 1
+    f3d = ldf.ldf_3d(Q, rotations, translations, lines3d, groups3d, num_groups=num_groups,
+                     chunk=params.chunk_translations, device=device, dtype=dt)
+    loss = ldf.pose_loss(f2d, f3d, kind=params.loss, tau=params.tau, decompose=True)
+    ti, ri, lv = ldf.top_k_poses(loss, params.top_k)
+    ti, ri = ti.cpu().numpy(), ri.cpu().numpy()
+    return SearchResult(rotations=np.asarray(rotations)[ri], centers=np.asarray(translations)[ti],
+                        translation_index=ti, rotation_index=ri, losses=lv.cpu().numpy())

@@ -1,0 +1,258 @@
+"""Build one LDL map from a scan: ``build_map(input, output, params) -> Path``.
+
+Stages (paper section 3.1, DESIGN.md 5.1-5.4), each timed:
+
+1. ``load``: a colored point cloud (.ply/.pcd/.txt), a mesh (sampled with its texture colors),
+   a COLMAP model folder (dense ``fused.ply`` when present, camera centres as translation
+   priors), or only a 3D line file (a lines-only map).
+2. ``lines``: 3D lines from the cloud (or the ``--lines`` file), then the length filter
+   ``lambda (b_x + b_y + b_z) / 3``.
+3. ``principal``: the 3 principal directions by voting, and each kept line's group.
+4. ``translations``: N_t candidate camera centres in the free space of the scan.
+5. ``features``: views rendered at ``num_views`` of the candidate translations (farthest-point
+   sampled), local features extracted and lifted to 3D; every candidate translation is served
+   by its nearest rendered view during refinement.
+6. ``write``: the HDF5 map (atomically).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from ldlmap.errors import InputError
+
+LINE_SUFFIXES = (".obj", ".txt")
+
+
+@dataclass(frozen=True)
+class BuildParams:
+    """Map-building parameters (paper defaults where the paper gives one)."""
+
+    lam: float = 0.1  # lambda: 3D length filter ratio
+    num_translations: int = 800  # N_t (800 OmniScenes, 1700 Stanford 2D-3D-S)
+    translation_method: str = "octree"  # octree (OmniScenes) | grid (Stanford)
+    clearance: float = 0.25  # candidate translations keep this distance (m) from the scan
+    features: str = "sift"  # sift | superpoint | none
+    weights: str | None = None  # SuperPoint checkpoint path (else env var / cache / download)
+    num_views: int = 40  # views rendered for features; each translation uses its nearest view
+    width: int = 1024  # rendered view size (the queries' size)
+    height: int = 512
+    max_keypoints: int = 4096  # per rendered view
+    stored_cloud_points: int = 200_000  # subsampled colored cloud kept in the map for pictures
+    mesh_samples: int = 1_000_000  # points sampled from a mesh input
+    device: str = "cpu"  # torch device for rendering and SuperPoint
+    seed: int = 0
+
+
+@dataclass
+class BuildReport:
+    """What a build did: the output path, per-stage seconds and counts."""
+
+    path: Path
+    seconds: dict[str, float] = field(default_factory=dict)
+    counts: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass
+class SceneInput:
+    """The loaded input of a map: a cloud (maybe None), lines (maybe None), translation priors."""
+
+    points: np.ndarray | None
+    colors: np.ndarray | None
+    lines: np.ndarray | None
+    prior_centers: np.ndarray | None
+    source: str
+
+
+def load_input(path: str | Path, lines_path: str | Path | None, mesh_samples: int) -> SceneInput:
+    """Read any supported input (cloud, mesh, COLMAP model, or a line file alone)."""
+    from ldlmap.io.colmap import is_colmap_model, read_colmap_model, resolve_model_dir
+    from ldlmap.io.linefiles import read_lines
+    from ldlmap.io.pointcloud import SUPPORTED_SUFFIXES, read_point_cloud
+
+    p = Path(path)
+    if not p.exists():
+        raise InputError(f"input not found: {p}")
+    lines = read_lines(lines_path) if lines_path is not None else None
+    model_dir = resolve_model_dir(p) if p.is_dir() else None
+    if model_dir is not None and is_colmap_model(model_dir):
+        scene = read_colmap_model(model_dir)
+        cloud = scene.cloud
+        return SceneInput(cloud.points, cloud.colors, lines, scene.camera_centers, f"colmap:{model_dir}")
+    if p.is_dir():
+        raise InputError(f"{p} is a folder but not a COLMAP model (cameras/images/points3D .bin or .txt)")
+    suffix = p.suffix.lower()
+    if suffix in SUPPORTED_SUFFIXES:
+        try:
+            cloud = read_point_cloud(p, mesh_samples=mesh_samples)
+        except InputError:
+            # A .txt/.obj may be a line file rather than a cloud/mesh: try that before failing.
+            if suffix in LINE_SUFFIXES and lines is None:
+                try:
+                    return SceneInput(None, None, read_lines(p), None, f"lines:{p}")
+                except InputError:
+                    pass
+            raise
+        return SceneInput(cloud.points, cloud.colors, lines, None, str(p))
+    raise InputError(f"unsupported input {p.name}: use a point cloud, mesh, COLMAP model folder or line file "
+                     f"({', '.join(SUPPORTED_SUFFIXES)})")
+
+
+def _farthest_point_indices(P: np.ndarray, k: int, seed: int) -> np.ndarray:
+    """Indices of ``k`` points spread over ``P`` by farthest-point sampling (vectorized per step)."""
+    n = len(P)
+    if k >= n:
+        return np.arange(n)
+    idx = np.empty(k, dtype=np.int64)
+    idx[0] = int(np.argmin(np.linalg.norm(P - P.mean(0), axis=1)))
+    d = np.linalg.norm(P - P[idx[0]], axis=1)
+    for i in range(1, k):  # k steps, each vectorized over the N_t candidates
+        idx[i] = int(np.argmax(d))
+        d = np.minimum(d, np.linalg.norm(P - P[idx[i]], axis=1))
+    return idx
+
+
+def _lines_as_points(lines: np.ndarray, step: float = 0.05) -> np.ndarray:
+    """Points sampled along segments: stands in for a cloud when only lines are given."""
+    v = lines[:, 1] - lines[:, 0]
+    n = np.maximum(np.ceil(np.linalg.norm(v, axis=1) / step).astype(np.int64), 1) + 1
+    seg = np.repeat(np.arange(len(lines)), n)
+    t = (np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)) / np.repeat(n - 1, n)
+    return lines[seg, 0] + t[:, None] * v[seg]
+
+
+def compute_features(points: np.ndarray, colors: np.ndarray, translations: np.ndarray, params: BuildParams,
+                     progress: Callable[[int, int], None] | None = None):
+    """Render ``num_views`` views, extract and lift features; returns a MapFeatures."""
+    from ldlmap.features import get_backend
+    from ldlmap.keypoints3d import view_features
+    from ldlmap.mapfile import MapFeatures
+    from ldlmap.render import PointRenderer, RenderParams
+
+    opts = {"weights": params.weights, "device": params.device} if params.features == "superpoint" else {}
+    backend = get_backend(params.features, **opts)
+    renderer = PointRenderer(points, colors, RenderParams(width=params.width, height=params.height),
+                             device=params.device)
+    vidx = _farthest_point_indices(translations, max(1, params.num_views), params.seed)
+    centers = translations[vidx]
+    views = []
+    for i, c in enumerate(centers):
+        views.append(view_features(None, None, c, backend, params.width, params.height, renderer=renderer,
+                                   max_keypoints=params.max_keypoints))
+        if progress:
+            progress(i + 1, len(centers))
+    counts = np.array([len(v.xyz) for v in views])
+    d = np.linalg.norm(translations[:, None, :] - centers[None, :, :], axis=2)
+    return MapFeatures(
+        backend=backend.name,
+        view_centers=centers,
+        offsets=np.concatenate([[0], np.cumsum(counts)]).astype(np.int64),
+        xyz=np.concatenate([v.xyz for v in views]).astype(np.float32),
+        keypoints=np.concatenate([v.keypoints for v in views]).astype(np.float32),
+        scores=np.concatenate([v.scores for v in views]).astype(np.float16),
+        descriptors=np.concatenate([v.descriptors for v in views]),
+        translation_view=d.argmin(1).astype(np.int32),
+        width=params.width,
+        height=params.height,
+    )
+
+
+def build_map(input_path: str | Path, output: str | Path | None = None, lines_path: str | Path | None = None,
+              params: BuildParams = BuildParams(), name: str | None = None,
+              progress: Callable[[str, int, int], None] | None = None) -> BuildReport:
+    """Build the LDL map of one scene and write it to ``output`` (default: input with ``.h5``).
+
+    ``progress(stage, done, total)`` is called as stages advance (for a progress bar).
+    """
+    from ldlmap.lines3d import Lines3DParams, extract_lines, filter_by_length
+    from ldlmap.mapfile import LdlMap, write_map
+    from ldlmap.principal3d import assign_line_groups, line_directions, principal_directions_3d
+    from ldlmap.translations import candidate_translations
+
+    input_path = Path(input_path)
+    output = Path(output) if output is not None else input_path.with_suffix(".h5")
+    if params.features not in ("sift", "superpoint", "none"):
+        raise InputError(f"unknown feature backend {params.features!r}; valid: sift, superpoint, none")
+    report = BuildReport(output)
+    tick = time.perf_counter()
+
+    def stage(name_: str) -> None:
+        nonlocal tick
+        now = time.perf_counter()
+        report.seconds[name_] = now - tick
+        tick = now
+        if progress:
+            progress(name_, 1, 1)
+
+    src = load_input(input_path, lines_path, params.mesh_samples)
+    stage("load")
+    if src.points is not None and len(src.points) < 100:
+        raise InputError(f"point cloud has only {len(src.points)} points: too few to build a map")
+    if src.lines is not None:
+        lines_raw = src.lines
+    else:
+        lines_raw = extract_lines(src.points, src.colors, Lines3DParams(lam=params.lam))
+    if len(lines_raw) == 0:
+        raise InputError("no 3D lines found in the input")
+    pts_for_bounds = src.points if src.points is not None else lines_raw.reshape(-1, 3)
+    bmin, bmax = pts_for_bounds.min(0), pts_for_bounds.max(0)
+    lines, kept, threshold = filter_by_length(lines_raw, bmin, bmax, params.lam)
+    if len(lines) == 0:
+        raise InputError(f"no 3D line is longer than the length threshold {threshold:.3f} m")
+    stage("lines")
+    principal = principal_directions_3d(lines)
+    groups = assign_line_groups(line_directions(lines)[0], principal)
+    stage("principal")
+    free_space_points = src.points if src.points is not None else _lines_as_points(lines_raw)
+    translations = candidate_translations(free_space_points, params.num_translations, params.translation_method,
+                                          params.clearance, prior_centers=src.prior_centers)
+    if len(translations) == 0:
+        raise InputError("no candidate translation found in the free space of the scan")
+    stage("translations")
+    features = None
+    if params.features != "none" and src.points is not None:
+        if src.colors is None:
+            raise InputError("the point cloud has no colors: features need a colored cloud (or use --features none)")
+        cb = (lambda d, t: progress("features", d, t)) if progress else None
+        features = compute_features(src.points, src.colors, translations, params, cb)
+    stage("features")
+    cloud_pts = cloud_cols = None
+    if src.points is not None:
+        rng = np.random.default_rng(params.seed)
+        keep = rng.permutation(len(src.points))[: params.stored_cloud_points]
+        keep.sort()
+        cloud_pts = src.points[keep]
+        cloud_cols = src.colors[keep] if src.colors is not None else None
+    config = {**asdict(params), "input": str(input_path), "source": src.source,
+              "lines_file": str(lines_path) if lines_path else None}
+    if params.features == "none" or src.points is None:
+        config["features"] = "none"
+    m = LdlMap(
+        name=name or input_path.stem,
+        bounds_min=bmin, bounds_max=bmax,
+        lines_raw=lines_raw, lines=lines, line_groups=groups,
+        length_threshold=threshold, kept_ratio=float(kept.mean()), line_lambda=params.lam,
+        principal_directions=principal, translations=translations,
+        cloud_points=cloud_pts, cloud_colors=cloud_cols, features=features, config=config,
+    )
+    write_map(output, m)
+    stage("write")
+    report.seconds["total"] = sum(report.seconds.values())
+    report.counts = {
+        "lines_raw": int(len(lines_raw)), "lines": int(len(lines)), "kept_ratio": float(kept.mean()),
+        "translations": int(len(translations)),
+        "views": features.num_views if features else 0,
+        "keypoints": int(len(features.xyz)) if features else 0,
+        "size_mb": output.stat().st_size / 1e6,
+    }
+    return report
+
+
+def params_with(params: BuildParams, **changes: Any) -> BuildParams:
+    """A copy of ``params`` with the non-None ``changes`` applied (for CLI options)."""
+    return replace(params, **{k: v for k, v in changes.items() if v is not None})

@@ -1,0 +1,92 @@
+"""Pictures people would rather see than read: panoramas with lines drawn on them.
+
+Colors by principal group (BGR for OpenCV): group 0 red, 1 green, 2 blue, none grey.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from ldlmap.errors import InputError, atomic_file
+from ldlmap.geometry import cam_from_world, normalize, pixel_from_bearing
+
+GROUP_COLORS_BGR = {0: (40, 40, 230), 1: (40, 180, 40), 2: (230, 90, 40), -1: (150, 150, 150)}
+
+
+def arc_polylines(arcs_cam: np.ndarray, width: int, height: int, samples: int = 48) -> list[np.ndarray]:
+    """Pixel polylines of great-circle arcs (N, 2, 3), split where they cross the u seam."""
+    arcs = np.asarray(arcs_cam, dtype=np.float64).reshape(-1, 2, 3)
+    if len(arcs) == 0:
+        return []
+    t = np.linspace(0.0, 1.0, samples)[None, :, None]
+    s, e = normalize(arcs[:, 0])[:, None], normalize(arcs[:, 1])[:, None]
+    pts = normalize(s * (1 - t) + e * t)  # (N, S, 3): chord points projected to the sphere
+    uv = pixel_from_bearing(pts, width, height)
+    out = []
+    for line in uv:  # one polyline per arc (drawing, not a hot path)
+        jumps = np.nonzero(np.abs(np.diff(line[:, 0])) > width / 2)[0] + 1
+        out.extend(p for p in np.split(line, jumps) if len(p) > 1)
+    return out
+
+
+def draw_arcs(image_bgr: np.ndarray, arcs_cam: np.ndarray, groups: np.ndarray | None = None,
+              thickness: int = 2, color: tuple[int, int, int] | None = None) -> np.ndarray:
+    """Draw arcs (camera frame) on a copy of an equirectangular BGR image."""
+    import cv2
+
+    img = np.ascontiguousarray(image_bgr).copy()
+    h, w = img.shape[:2]
+    groups = np.full(len(arcs_cam), -1) if groups is None else np.asarray(groups)
+    arcs = np.asarray(arcs_cam).reshape(-1, 2, 3)
+    for i in range(len(arcs)):  # per arc, for drawing
+        c = color or GROUP_COLORS_BGR.get(int(groups[i]), GROUP_COLORS_BGR[-1])
+        for pl in arc_polylines(arcs[i:i + 1], w, h):
+            cv2.polylines(img, [np.round(pl).astype(np.int32)], False, c, thickness, cv2.LINE_AA)
+    return img
+
+
+def project_lines(lines_world: np.ndarray, rot_cam_from_world: np.ndarray, center: np.ndarray) -> np.ndarray:
+    """3D segments (L, 2, 3) as camera-frame arcs seen from pose ``(R, t)``."""
+    return normalize(cam_from_world(np.asarray(lines_world).reshape(-1, 2, 3), rot_cam_from_world, center))
+
+
+def write_png(path: str | Path, image_bgr: np.ndarray) -> Path:
+    """Write a PNG atomically."""
+    import cv2
+
+    with atomic_file(path, suffix=".png") as tmp:
+        if not cv2.imwrite(str(tmp), image_bgr):
+            raise InputError(f"could not write PNG {path}")
+    return Path(path)
+
+
+def map_picture(ldl_map, path: str | Path, width: int = 1024) -> Path:
+    """A picture of a map: its top view beside a panorama of the stored cloud with projected lines.
+
+    The panorama is rendered at the candidate translation closest to the cloud's centre.
+    """
+    import cv2
+
+    from ldlmap.lines3d import draw_top_view
+
+    height = width // 2
+    centre = (ldl_map.bounds_min + ldl_map.bounds_max) / 2
+    t = ldl_map.translations[np.argmin(np.linalg.norm(ldl_map.translations - centre, axis=1))]
+    if ldl_map.cloud_points is not None and ldl_map.cloud_colors is not None:
+        from ldlmap.render import render_points_panorama
+
+        rgb, _, _ = render_points_panorama(ldl_map.cloud_points, ldl_map.cloud_colors, np.eye(3), t, width, height)
+        pano = cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR)
+    else:
+        pano = np.full((height, width, 3), 255, np.uint8)
+    pano = draw_arcs(pano, project_lines(ldl_map.lines, np.eye(3), t), ldl_map.line_groups)
+    top_path = Path(path).with_suffix(".top.tmp.png")
+    try:
+        draw_top_view(ldl_map.lines, str(top_path), size=height, principal=ldl_map.principal_directions,
+                      dropped=ldl_map.lines_raw)
+        top = cv2.imread(str(top_path))
+    finally:
+        top_path.unlink(missing_ok=True)
+    return write_png(path, np.concatenate([top, pano], axis=1))
