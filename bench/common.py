@@ -1,0 +1,277 @@
+"""Shared helpers of the benchmarks: cached synthetic data, cached maps, query loops, machine info.
+
+Everything generated lands in ``bench/.cache/`` (gitignored) and is reused by later runs:
+
+- ``demo_s<seed>/``: the synthetic demo dataset (``generate_dataset(..., 'demo', seed)``,
+  OmniScenes layout, 2 scenes, 3 panoramas per split, 1024 x 512);
+- ``ablation_s<seed>_n<per>_k<scenes>/``: demo-preset rooms with only an extreme split of
+  ``per`` panoramas per scene (the pose-search ablation);
+- ``scan_<points>_s<seed>.ply``: a room-sized simulated scan of a "standard"-preset room;
+- ``maps/<dataset>/<scene>_<tag>.h5``: maps built from those scans.
+
+The helpers never time anything themselves; the ``bench_*.py`` scripts do.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+import sys
+import time
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any, Callable, Sequence
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT) not in sys.path:  # `python bench/x.py` from anywhere imports the working tree
+    sys.path.insert(0, str(ROOT))
+
+CACHE = Path(os.environ.get("LDL_BENCH_CACHE", ROOT / "bench" / ".cache"))
+
+# The paper's runtime table (OmniScenes, seconds per query): stage -> (CPU, GPU).
+PAPER_SECONDS: dict[str, tuple[float, float]] = {
+    "lines2d": (0.141, 0.141),
+    "rotation": (1.124, 0.009),
+    "search": (0.052, 0.001),
+    "refine": (5.573, 0.587),
+    "total": (6.890, 0.738),
+}
+PAPER_STAGE_NAMES = {
+    "lines2d": "line extraction",
+    "rotation": "rotation estimation",
+    "search": "distance functions",
+    "refine": "refinement",
+    "total": "total",
+}
+
+
+def console():
+    """A Rich console for the tables (wide enough not to wrap them in logs)."""
+    from rich.console import Console
+
+    return Console(width=max(120, int(os.environ.get("COLUMNS", 0) or 0)))
+
+
+# ------------------------------------------------------------------------------------ data
+
+
+def demo_dataset(seed: int = 1) -> Path:
+    """The synthetic demo dataset for ``seed`` (generated once, then reused)."""
+    from ldlmap.synth.generate import generate_dataset
+
+    out = CACHE / f"demo_s{seed}"
+    if not (out / "dataset.json").exists():
+        out.parent.mkdir(parents=True, exist_ok=True)
+        generate_dataset(out, "demo", [], seed, overwrite=True, progress=False)
+    return out
+
+
+def extreme_dataset(seed: int = 7, per_split: int = 10, scenes: int = 3) -> Path:
+    """Demo-preset rooms whose only split is ``extreme`` with ``per_split`` panoramas each.
+
+    The specs are the demo preset's random rooms (``random_spec('demo', seed, i)``) with the
+    other splits' counts set to 0 and the illumination variants off, written as TOML and
+    passed to the generator (so the dataset records the exact specs it used).
+    """
+    from ldlmap.synth.generate import generate_dataset
+    from ldlmap.synth.spec import dump_spec_toml, random_spec
+
+    out = CACHE / f"ablation_s{seed}_n{per_split}_k{scenes}"
+    if (out / "dataset.json").exists():
+        return out
+    spec_dir = CACHE / f"ablation_specs_s{seed}_n{per_split}_k{scenes}"
+    spec_dir.mkdir(parents=True, exist_ok=True)
+    paths = []
+    for i in range(1, scenes + 1):
+        spec = random_spec("demo", seed, i)
+        cap = spec.capture
+        cap = replace(cap, robot=replace(cap.robot, count=0), handheld=replace(cap.handheld, count=0),
+                      extreme=replace(cap.extreme, count=per_split), change=replace(cap.change, count=0),
+                      illumination=replace(cap.illumination, enabled=False))
+        spec = replace(spec, name=f"abl{i:02d}", capture=cap)
+        p = spec_dir / f"abl{i:02d}.toml"
+        p.write_text(dump_spec_toml(spec))
+        paths.append(p)
+    generate_dataset(out, None, paths, seed, overwrite=True, progress=False, illumination=False)
+    return out
+
+
+def room_scan(points: int = 1_000_000, seed: int = 0) -> tuple[Path, dict[str, Any]]:
+    """A simulated scan of about ``points`` points of a "standard"-preset room, as a PLY.
+
+    The scan density is raised so that the room's surface yields ``points`` samples (the
+    scanner simulation then drops unseen and grazing returns, so the count lands a little
+    below). Returns the path and a small description (points, room extent).
+    """
+    from ldlmap.synth.scan import ScanParams, mesh_area, sample_scan, write_ply
+    from ldlmap.synth.scene import build_scene
+    from ldlmap.synth.spec import random_spec
+
+    out = CACHE / f"scan_{points}_s{seed}.ply"
+    meta_path = out.with_suffix(".json")
+    if out.exists() and meta_path.exists():
+        return out, json.loads(meta_path.read_text())
+    mesh = build_scene(random_spec("standard", seed, 1))
+    params = ScanParams(density=1.25 * points / mesh_area(mesh), max_points=points)
+    P, C = sample_scan(mesh, params, np.random.default_rng(seed))
+    out.parent.mkdir(parents=True, exist_ok=True)
+    write_ply(out, P, C)
+    ext = P.max(0) - P.min(0)
+    meta = {"points": int(len(P)), "extent_m": [round(float(x), 2) for x in ext], "preset": "standard",
+            "seed": seed}
+    meta_path.write_text(json.dumps(meta))
+    return out, meta
+
+
+def cached_map(dataset: Path, scene: str, num_views: int = 40, features: str = "sift",
+               **params: Any) -> Path:
+    """The map of ``scene`` of ``dataset`` built with ``num_views`` views (built once, reused)."""
+    from ldlmap.build import BuildParams, build_map
+    from ldlmap.datasets import open_dataset
+
+    tag = f"{features}_v{num_views}" + "".join(f"_{k}{v}" for k, v in sorted(params.items()))
+    out = CACHE / "maps" / dataset.name / f"{scene}_{tag}.h5"
+    if not out.exists():
+        out.parent.mkdir(parents=True, exist_ok=True)
+        ds = open_dataset(dataset, "omniscenes")
+        build_map(ds.point_cloud(scene), out, params=BuildParams(num_views=num_views, features=features, **params),
+                  name=scene)
+    return out
+
+
+def subset_views(ldl_map, num_views: int):
+    """A copy of ``ldl_map`` keeping only its first ``num_views`` rendered views.
+
+    Views are chosen by farthest-point sampling from a fixed start, so the first ``k`` views of
+    a map built with ``V >= k`` views are exactly the views a ``k``-view build renders; each
+    candidate translation is re-served by its nearest kept view, as ``build_map`` does.
+    """
+    from ldlmap.mapfile import MapFeatures
+
+    f = ldl_map.features
+    k = min(int(num_views), f.num_views)
+    end = int(f.offsets[k])
+    centers = f.view_centers[:k]
+    d = np.linalg.norm(ldl_map.translations[:, None, :] - centers[None, :, :], axis=2)
+    feats = MapFeatures(backend=f.backend, view_centers=centers, offsets=f.offsets[: k + 1].copy(),
+                        xyz=f.xyz[:end], keypoints=f.keypoints[:end], scores=f.scores[:end],
+                        descriptors=f.descriptors[:end], translation_view=d.argmin(1).astype(np.int32),
+                        width=f.width, height=f.height)
+    return replace(ldl_map, features=feats)
+
+
+# ------------------------------------------------------------------------------- localization
+
+
+@dataclass
+class QueryOutcome:
+    """One localized query: the evaluate record plus the pose-search candidates (for recall)."""
+
+    result: Any  # ldlloc.evaluate.QueryResult
+    loc: Any  # ldlloc.pipeline.Localization or None when it failed
+
+
+def localize_queries(localizer, queries: Sequence[Any], on_done: Callable[[int, int], None] | None = None
+                     ) -> list[QueryOutcome]:
+    """Localize ``queries`` (``ldlmap.datasets.Query``) with ``localizer``; failures are recorded."""
+    from ldlloc.evaluate import QueryResult
+    from ldlloc.pipeline import load_image
+    from ldlmap.errors import InputError
+    from ldlmap.geometry import rotation_error_deg, translation_error
+
+    out = []
+    for i, q in enumerate(queries):
+        rec = QueryResult(image=str(q.image), scene=q.scene, split=q.split, name=q.name)
+        loc = None
+        try:
+            loc = localizer.localize(load_image(q.image))
+        except InputError as exc:
+            rec.status, rec.message = "failed", str(exc)
+        if loc is not None:
+            rec.R, rec.t = loc.rot_cam_from_world.tolist(), loc.center.tolist()
+            rec.t_error_m = translation_error(loc.center, q.center)
+            rec.r_error_deg = rotation_error_deg(loc.rot_cam_from_world, q.rot_cam_from_world)
+            rec.seconds = dict(loc.seconds)
+            rec.num_rotations, rec.num_matches, rec.num_inliers = loc.num_rotations, loc.num_matches, loc.num_inliers
+            rec.refined, rec.status, rec.message = loc.refined, loc.status, loc.message
+        out.append(QueryOutcome(rec, loc))
+        if on_done:
+            on_done(i + 1, len(queries))
+    return out
+
+
+def candidate_errors(loc, query) -> tuple[np.ndarray, np.ndarray]:
+    """Translation (m) and rotation (deg) errors of every top-K candidate of a localization."""
+    from ldlmap.geometry import rotation_error_deg
+
+    terr = np.linalg.norm(loc.candidates_center - query.center[None], axis=1)
+    rerr = np.array([rotation_error_deg(R, query.rot_cam_from_world) for R in loc.candidates_rot])
+    return terr, rerr
+
+
+# ---------------------------------------------------------------------------------- machine
+
+
+def machine_info(device: str = "cpu") -> dict[str, Any]:
+    """CPU count, torch threads, load average and versions: the context of a timing."""
+    import torch
+
+    info: dict[str, Any] = {
+        "cpu_count": os.cpu_count(),
+        "torch_threads": torch.get_num_threads(),
+        "load_average": [round(x, 2) for x in os.getloadavg()],
+        "platform": platform.platform(),
+        "python": platform.python_version(),
+        "torch": torch.__version__,
+        "device": device,
+    }
+    if device.startswith("cuda") and torch.cuda.is_available():
+        info["cuda_device"] = torch.cuda.get_device_name(0)
+    return info
+
+
+def set_threads(threads: int | None) -> None:
+    """Set torch's intra-op threads when ``threads`` is given (> 0); else keep torch's default.
+
+    On a shared, oversubscribed machine torch's OpenMP workers spin at every barrier while
+    their cores run other processes: the many small ops of the pose search then slow down
+    by an order of magnitude, so benchmarks there should run with ``--threads 1``.
+    """
+    if threads:
+        import torch
+
+        torch.set_num_threads(int(threads))
+
+
+def load_line(info: dict[str, Any]) -> str:
+    """A one-line description of the machine and its load, printed under each table."""
+    la = info.get("load_average", [])
+    return (f"{info.get('cpu_count')} CPUs, torch threads {info.get('torch_threads')}, "
+            f"load average {' / '.join(f'{x:.2f}' for x in la)} (1/5/15 min), device {info.get('device')}")
+
+
+def write_json(path: Path, data: dict[str, Any]) -> None:
+    """Write ``data`` to ``path`` atomically (through ``ldlmap.errors.atomic_file``)."""
+    from ldlmap.errors import atomic_file
+
+    with atomic_file(path) as tmp:
+        Path(tmp).write_text(json.dumps(data, indent=1) + "\n")
+
+
+def fmt(x: float | None, spec: str = ".3f") -> str:
+    """Format a number for a table cell; ``-`` for missing or non-finite values."""
+    return "-" if x is None or not np.isfinite(x) else format(x, spec)
+
+
+class Stopwatch:
+    """``with Stopwatch() as sw: ...`` then ``sw.seconds``."""
+
+    def __enter__(self) -> "Stopwatch":
+        self.t0 = time.perf_counter()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.seconds = time.perf_counter() - self.t0

@@ -1,0 +1,86 @@
+"""Run the benchmarks in sequence and print their tables (``make bench``).
+
+Run: ``python bench/run_all.py [--only build,localize] [--quick] [--device cuda]``.
+
+Benchmarks (in this order; names for ``--only``):
+
+- ``lines3d``: 3D line extraction stages on a ~1 M point cloud (bench_lines3d.py)
+- ``render``: view rendering, features and back-projection per view (bench_render_features.py)
+- ``ldf``: 2D lines, rotations and ldf_3d + loss on a fixed workload (bench_ldf.py)
+- ``build``: map building per stage, map size, peak memory, views vs accuracy (bench_build.py)
+- ``localize``: per-stage localization time beside the paper's, accuracy per split; writes
+  ``bench/results.json`` (bench_localize.py)
+- ``ablation``: decomposition and losses on the synthetic extreme split; writes
+  ``bench/ablation.json`` (bench_ablation.py)
+
+Each runs in its own Python process (so one's memory and threads do not skew the next). Data
+and maps are cached under ``bench/.cache/``; the first run generates them. ``--quick`` runs
+every benchmark on small inputs (a smoke test of the scripts, not a measurement).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+
+# name -> (script, full-run arguments, quick-run arguments)
+BENCHES: dict[str, tuple[str, list[str], list[str]]] = {
+    "lines3d": ("bench_lines3d.py", [], ["--points", "200000"]),
+    "render": ("bench_render_features.py", [], ["--points", "200000", "--views", "2"]),
+    "ldf": ("bench_ldf.py", [], ["--repeat", "2"]),
+    "build": ("bench_build.py", [], ["--quick"]),
+    "localize": ("bench_localize.py", [], ["--quick"]),
+    "ablation": ("bench_ablation.py", [], ["--quick"]),
+}
+DEVICE_AWARE = {"render", "ldf", "localize", "ablation"}
+THREAD_AWARE = {"render", "ldf", "build", "localize", "ablation"}
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--only", default=None, help=f"comma-separated subset of: {', '.join(BENCHES)}")
+    ap.add_argument("--quick", action="store_true", help="small smoke run of every benchmark")
+    ap.add_argument("--device", default=None, help="torch device for the device-aware benchmarks")
+    ap.add_argument("--threads", type=int, default=None,
+                    help="torch intra-op threads for every benchmark (default: each script's default); "
+                         "use 1 on a shared, oversubscribed machine")
+    ap.add_argument("--keep-going", action="store_true", help="run the others when one fails")
+    args = ap.parse_args(argv)
+
+    names = list(BENCHES) if not args.only else [n.strip() for n in args.only.split(",") if n.strip()]
+    unknown = [n for n in names if n not in BENCHES]
+    if unknown:
+        print(f"error: unknown benchmark(s) {', '.join(unknown)}; valid: {', '.join(BENCHES)}", file=sys.stderr)
+        return 2
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(HERE.parent), os.environ.get("PYTHONPATH")]))}
+    failed, times = [], {}
+    for name in names:
+        script, full, quick = BENCHES[name]
+        cmd = [sys.executable, str(HERE / script), *(quick if args.quick else full)]
+        if args.device and name in DEVICE_AWARE:
+            cmd += ["--device", args.device]
+        if args.threads is not None and name in THREAD_AWARE:
+            cmd += ["--threads", str(args.threads)]
+        load = " / ".join(f"{x:.2f}" for x in os.getloadavg())
+        print(f"\n=== {name}: {' '.join(cmd[1:])} (load average {load})", flush=True)
+        t0 = time.perf_counter()
+        rc = subprocess.call(cmd, env=env, cwd=HERE.parent)
+        times[name] = time.perf_counter() - t0
+        if rc != 0:
+            failed.append(name)
+            print(f"=== {name} FAILED (exit {rc})", file=sys.stderr, flush=True)
+            if not args.keep_going:
+                break
+    print("\n=== summary: " + ", ".join(f"{n} {s:.0f} s" for n, s in times.items())
+          + (f"; FAILED: {', '.join(failed)}" if failed else ""))
+    return 1 if failed else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
