@@ -17,3 +17,142 @@ def run() -> None:  # console-script entry point
 
 
 # Commands are added below, one function each. Keep each one short: parse, call, print.
+
+
+def _params(top_k: int, loss: str, no_decompose: bool, no_refine: bool, privacy: bool,
+            features: Optional[str], weights: Optional[Path]):
+    from ldlloc.ldf import LOSS_KINDS
+    from ldlloc.pipeline import LocalizeParams
+    from ldlloc.search import SearchParams
+    from ldlmap.errors import InputError
+
+    if loss not in LOSS_KINDS:
+        raise InputError(f"unknown loss {loss!r}; valid: {', '.join(LOSS_KINDS)}")
+    if top_k < 1:
+        raise InputError(f"--top-k must be at least 1, got {top_k}")
+    return LocalizeParams(search=SearchParams(top_k=top_k, loss=loss, decompose=not no_decompose),
+                          features=features, weights=str(weights) if weights else None,
+                          do_refine=not no_refine, privacy=privacy)
+
+
+@app.command()
+def localize(
+    map_path: Path = typer.Argument(..., metavar="MAP", help="LDL map (.h5) of the scene."),
+    pano: Path = typer.Argument(..., metavar="PANO", help="Equirectangular panorama (W = 2H)."),
+    as_json: bool = typer.Option(False, "--json", help="Print the result as JSON."),
+    device: str = typer.Option("cpu", "--device", help="cpu | cuda."),
+    top_k: int = typer.Option(20, "--top-k", help="K poses kept by the search for refinement."),
+    loss: str = typer.Option("inlier", "--loss", help="inlier (paper) | l1 | l2 | huber | median."),
+    no_decompose: bool = typer.Option(False, "--no-decompose", help="Do not decompose the distance functions."),
+    no_refine: bool = typer.Option(False, "--no-refine", help="Stop after pose search."),
+    privacy: bool = typer.Option(False, "--privacy", help="Refine only with features near principal-direction lines."),
+    features: Optional[str] = typer.Option(None, "--features", help="Feature backend (must match the map's)."),
+    weights: Optional[Path] = typer.Option(None, "--weights", help="SuperPoint checkpoint."),
+    vis: Optional[Path] = typer.Option(None, "--vis", help="Write a picture of the lines and the estimated pose (.jpg/.png)."),
+) -> None:
+    """Localize one panorama: prints R (world to camera) and t (camera centre, metres)."""
+    import json
+
+    import numpy as np
+
+    from ldlloc.pipeline import Localizer, load_image
+    from ldlmap.mapfile import read_map
+
+    params = _params(top_k, loss, no_decompose, no_refine, privacy, features, weights)
+    m = read_map(map_path, load_cloud=False)
+    img = load_image(pano)
+    loc = Localizer(m, params, device).localize(img)
+    out = {"image": str(pano), "map": str(map_path), "R": np.round(loc.rot_cam_from_world, 8).tolist(),
+           "t": np.round(loc.center, 6).tolist(), "status": loc.status, "refined": loc.refined,
+           "message": loc.message, "num_rotations": loc.num_rotations, "num_lines": loc.num_lines,
+           "num_matches": loc.num_matches, "num_inliers": loc.num_inliers,
+           "seconds": {k: round(v, 4) for k, v in loc.seconds.items()}}
+    if vis is not None:
+        from ldlloc.visualize import save_localization_picture
+
+        save_localization_picture(img, loc, m, vis)
+    if as_json:
+        typer.echo(json.dumps(out, indent=1))
+        return
+    R, t = loc.rot_cam_from_world, loc.center
+    console.print(f"[bold]{pano.name}[/]: {loc.status}" + (f" ({loc.message})" if loc.message else ""), soft_wrap=True)
+    console.print(f"t = [{t[0]:.4f}, {t[1]:.4f}, {t[2]:.4f}] m (camera centre, world)", soft_wrap=True)
+    console.print("R (world to camera) =\n" + "\n".join("  [" + ", ".join(f"{x: .6f}" for x in row) + "]" for row in R))
+    console.print(f"{loc.num_lines} lines, {loc.num_rotations} candidate rotations, {loc.num_matches} matches, "
+                  f"{loc.num_inliers} inliers; " + ", ".join(f"{k} {v:.3f} s" for k, v in loc.seconds.items()),
+                  soft_wrap=True)
+    if vis is not None:
+        console.print(f"wrote {vis}", soft_wrap=True)
+
+
+@app.command()
+def run(
+    root: Optional[Path] = typer.Option(None, "--root", help="Dataset root (default ./data/<dataset>)."),
+    dataset: Optional[str] = typer.Option(None, "--dataset", help="omniscenes | stanford (default: detected)."),
+    split: Optional[list[str]] = typer.Option(None, "--split", help="Split(s) to run (repeatable; default all)."),
+    scene: Optional[str] = typer.Option(None, "--scene", help="Only queries of this scene."),
+    maps: Optional[Path] = typer.Option(None, "--maps", help="Folder of the maps (default ROOT/maps)."),
+    output: Optional[Path] = typer.Option(None, "--output", "-o", help="Results JSON (a CSV is written beside it)."),
+    device: str = typer.Option("cpu", "--device", help="cpu | cuda."),
+    top_k: int = typer.Option(20, "--top-k", help="K poses kept for refinement."),
+    loss: str = typer.Option("inlier", "--loss", help="inlier | l1 | l2 | huber | median."),
+    no_decompose: bool = typer.Option(False, "--no-decompose", help="No distance-function decomposition."),
+    no_refine: bool = typer.Option(False, "--no-refine", help="Stop after pose search."),
+    privacy: bool = typer.Option(False, "--privacy", help="Privacy mode: refine with features near lines only."),
+    features: Optional[str] = typer.Option(None, "--features", help="Feature backend (must match the maps')."),
+    weights: Optional[Path] = typer.Option(None, "--weights", help="SuperPoint checkpoint."),
+    resume: bool = typer.Option(False, "--resume", help="Skip queries already in the results file."),
+    save_vis: Optional[Path] = typer.Option(None, "--save-vis", help="Write a picture per query into this folder."),
+) -> None:
+    """Localize every query of a dataset split (or all splits) and print accuracy tables."""
+    from ldlloc.evaluate import summary_table, timing_table
+    from ldlloc.run import run_queries
+    from ldlmap.datasets import DEFAULT_ROOTS, detect_kind, open_dataset
+    from ldlmap.errors import InputError
+
+    if root is None:
+        kind0 = dataset or "omniscenes"
+        if kind0 not in DEFAULT_ROOTS:
+            raise InputError(f"unknown dataset {kind0!r}; valid: {', '.join(DEFAULT_ROOTS)}")
+        root = DEFAULT_ROOTS[kind0]
+    kind = dataset or detect_kind(root)
+    ds = open_dataset(root, kind)
+    queries = ds.queries(split or None, scene)
+    if not queries:
+        raise InputError(f"no queries in {root} for split(s) {', '.join(split or ['all'])}")
+    params = _params(top_k, loss, no_decompose, no_refine, privacy, features, weights)
+    tag = "-".join(split) if split else "all"
+    output = output or Path("results") / f"{kind}_{tag}.json"
+    maps = maps or Path(root) / "maps"
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(),
+                  console=console) as bar:
+        task = bar.add_task("localizing", total=len(queries))
+
+        def progress(r) -> None:
+            err = "failed" if r.status == "failed" else f"{r.t_error_m:.3f} m {r.r_error_deg:.2f} deg"
+            bar.update(task, advance=1, description=f"{r.split} {r.scene}: {err}")
+
+        results = run_queries(queries, maps, output, params, device, resume, save_vis,
+                              meta={"dataset": kind, "root": str(root), "splits": split or "all"}, progress=progress)
+    console.print(summary_table(results, "scene", f"{kind} by scene"))
+    console.print(summary_table(results, "split", f"{kind} by split"))
+    console.print(timing_table(results))
+    failed = [r for r in results if r.status == "failed"]
+    for r in failed[:10]:
+        console.print(f"[yellow]failed[/] {r.name}: {r.message}", soft_wrap=True)
+    if len(failed) > 10:
+        console.print(f"... and {len(failed) - 10} more failures (see {output})", soft_wrap=True)
+    console.print(f"wrote {output} and {output.with_suffix('.csv')}", soft_wrap=True)
+
+
+@app.command()
+def report(results: Path = typer.Argument(..., help="Results JSON written by `ldlloc run`.")) -> None:
+    """Print the accuracy and timing tables of a results file again."""
+    from ldlloc.evaluate import load_results, summary_table, timing_table
+
+    rs, meta = load_results(results)
+    console.print(summary_table(rs, "scene", f"{results} by scene"))
+    console.print(summary_table(rs, "split", f"{results} by split"))
+    console.print(timing_table(rs))

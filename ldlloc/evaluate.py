@@ -161,22 +161,33 @@ def _fmt(x: float | None, spec: str) -> str:
 
 
 def summary_table(results: list[QueryResult], by: str, title: str):
-    """A Rich table with one row per group (scene or split) and a total row."""
+    """A Rich table of errors and accuracies, one row per group (scene or split) and a total row."""
     from rich.table import Table
 
-    table = Table(title=title)
-    table.add_column(by)
-    for col in ("n", "t err (m)", "R err (deg)", *[name.replace("_", " / ") for name, _, _ in THRESHOLDS],
-                "lines2d s", "rotation s", "search s", "refine s", "total s"):
-        table.add_column(col, justify="right")
     groups = group_by(results, by)
+    table = Table(title=title, caption="accuracy: fraction of queries within (t, R) error; errors are medians")
+    table.add_column(by, no_wrap=True, min_width=max([len(k) for k in groups] + [3]))
+    for col in ("n", "fail", "t m", "R °", "5cm,5°", "10cm,5°", "20cm,10°", "s"):
+        table.add_column(col, justify="right", no_wrap=True)
     rows = list(groups.items()) + ([("all", results)] if len(groups) > 1 else [])
     for name, rs in rows:
         s = summarize(rs)
         table.add_row(
-            name, str(s["count"]), _fmt(s["median_t_error_m"], ".3f"), _fmt(s["median_r_error_deg"], ".2f"),
-            *[_fmt(s["accuracy"][k], ".2f") for k, _, _ in THRESHOLDS],
-            *[_fmt(s["median_seconds"].get(st), ".3f") for st in STAGES],
-            style="bold" if name == "all" else None,
+            name, str(s["count"]), str(s["failed"]), _fmt(s["median_t_error_m"], ".3f"),
+            _fmt(s["median_r_error_deg"], ".2f"), *[_fmt(s["accuracy"][k], ".2f") for k, _, _ in THRESHOLDS],
+            _fmt(s["median_seconds"].get("total"), ".2f"), style="bold" if name == "all" else None,
         )
+    return table
+
+
+def timing_table(results: list[QueryResult], title: str = "median seconds per stage"):
+    """A Rich table of the median seconds of each stage (successful queries)."""
+    from rich.table import Table
+
+    ok = [r for r in results if r.status != "failed"]
+    s = summarize(ok)["median_seconds"] if ok else {}
+    table = Table(title=title)
+    for st in STAGES:
+        table.add_column(st, justify="right")
+    table.add_row(*[_fmt(s.get(st), ".3f") for st in STAGES])
     return table

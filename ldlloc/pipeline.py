@@ -54,6 +54,7 @@ class Localization:
     message: str = ""
     arcs: np.ndarray | None = None  # the filtered 2D arcs used (camera frame)
     arc_groups: np.ndarray | None = None  # principal group of each arc under the chosen rotation
+    rotations: np.ndarray | None = None  # (N_r, 3, 3) all candidate rotations
 
     @property
     def status(self) -> str:
@@ -89,6 +90,11 @@ class Localizer:
         if params.features and map_backend and params.features != map_backend:
             raise InputError(f"map {ldl_map.name} was built with {map_backend} features, "
                              f"not {params.features}: rebuild it or drop --features")
+        self.fields = None  # the map's distance fields, prepared once for the fast pose search
+        if params.search.use_fields is not False:
+            from ldlloc.fields import DistanceFields
+
+            self.fields = DistanceFields.from_map(ldl_map, device)
         self.refine_enabled = params.do_refine and map_backend is not None
         if self.refine_enabled:
             from ldlmap.features import get_backend
@@ -132,12 +138,12 @@ class Localizer:
         labels = labels_for_rotations(arcs, vps, rots.triplets, p.principal.group_tol)
         lap("rotation")
         res = search_poses(arcs, labels, rots.rotations, m.lines, m.line_groups, m.translations,
-                           p.search, self.device)
+                           p.search, self.device, fields=self.fields)
         lap("search")
         best_r, best_t = res.rotations[0], res.centers[0]
         out = Localization(best_r, best_t, best_r, best_t, res.rotations, res.centers, secs,
                            num_rotations=len(rots), num_lines=len(arcs), refined=False, arcs=arcs,
-                           arc_groups=labels[res.rotation_index[0]])
+                           arc_groups=labels[res.rotation_index[0]], rotations=rots.rotations)
         if self.refine_enabled:
             feats = self.backend.extract(img, max_keypoints=p.max_keypoints)
             if p.privacy:

@@ -4,10 +4,11 @@ For each candidate pose, the map keypoints of the rendered view serving its tran
 matched with the query's features (mutual nearest neighbour + ratio test, batched in torch; one
 matching per distinct view). A match supports a candidate when the 3D point, seen from the
 candidate pose, lies within ``support_angle`` of the query keypoint's bearing; the candidate with
-the most supporting matches wins (ties: more raw matches, then the better search rank). Its
-view's matches go to spherical PnP-RANSAC (pycolmap ``EQUIRECTANGULAR``). When PnP fails, or
-moves the pose further than ``max_shift_m`` / ``max_turn_deg`` from the coarse pose, the coarse
-pose is kept and flagged.
+the most supporting matches wins (ties: more raw matches, then the better search rank). The
+matches of the best-supported distinct views (``pnp_views``) go to spherical PnP-RANSAC (pycolmap
+``EQUIRECTANGULAR``) and the pose with the most inliers is kept. When PnP fails, or its pose is
+far (``max_shift_m`` / ``max_turn_deg``) from every one of the K candidates without strong
+support (``strong_inliers``, ``strong_ratio``), the coarse pose is kept and flagged.
 """
 
 from __future__ import annotations
@@ -28,6 +29,9 @@ class RefineParams:
     support_angle_deg: float = 6.0  # a match supports a candidate when it reprojects this close
     max_shift_m: float = 1.0  # refined pose further than this from the coarse one: implausible
     max_turn_deg: float = 30.0  # ... or turned more than this
+    strong_inliers: int = 60  # ... unless PnP has at least this many inliers
+    strong_ratio: float = 0.5  # ... making up at least this fraction of the matches
+    pnp_views: int = 3  # PnP is tried on the matches of this many best-supported distinct views
     privacy_radius: float = 0.05  # privacy mode: keep features within this (rad) of principal lines
     pnp: PnPParams = field(default_factory=PnPParams)
 
@@ -95,20 +99,35 @@ def refine_candidates(query_feats, query_size: tuple[int, int], rotations: np.nd
             support[k] = int(np.sum(np.einsum("ij,ij->i", p, bearings[m[:, 0]]) > cos_support))
     order = np.lexsort((np.arange(K), -raw, -support))
     best = int(order[0])
-    m = matches_by_view[int(views[best])]
-    out = Refinement(rotations[best], centers[best], False, best, int(len(m)), 0)
-    if len(m) < params.pnp.min_inliers:
-        out.message = f"too few matches ({len(m)})"
+    out = Refinement(rotations[best], centers[best], False, best, int(raw[best]), 0)
+    # PnP on the matches of the best-supported distinct views; keep the pose with most inliers.
+    tried, results = set(), []
+    for k in order:
+        v = int(views[k])
+        if v in tried or len(tried) >= params.pnp_views:
+            continue
+        tried.add(v)
+        m = matches_by_view[v]
+        if len(m) < params.pnp.min_inliers:
+            continue
+        res = estimate_pose_spherical(query_feats.keypoints[m[:, 0]], map_features.xyz[m[:, 1]], W, H, params.pnp)
+        if res is not None:
+            results.append((int(res.inliers.sum()), int(k), len(m), res))
+    if not results:
+        out.message = f"too few matches ({raw[best]})" if raw[best] < params.pnp.min_inliers else "PnP-RANSAC failed"
         return out
-    res = estimate_pose_spherical(query_feats.keypoints[m[:, 0]], map_features.xyz[m[:, 1]], W, H, params.pnp)
-    if res is None:
-        out.message = "PnP-RANSAC failed"
+    inliers, k, n_matches, res = max(results, key=lambda r: (r[0], -r[1]))
+    out.num_inliers, out.num_matches = inliers, n_matches
+    # Plausible: close to one of the search's K poses, or so strongly supported that the search
+    # itself must have missed (a well-supported PnP pose beats a wrong coarse one).
+    shift = np.linalg.norm(centers - res.center, axis=1)
+    turn = np.array([rotation_error_deg(res.rot_cam_from_world, R) for R in rotations])
+    near = (shift <= params.max_shift_m) & (turn <= params.max_turn_deg)
+    strong = inliers >= params.strong_inliers and inliers >= params.strong_ratio * n_matches
+    if not near.any() and not strong:
+        out.message = (f"refinement moved the pose implausibly far ({shift.min():.2f} m from the nearest candidate) "
+                       f"with only {inliers} inliers")
         return out
-    shift = float(np.linalg.norm(res.center - centers[best]))
-    turn = rotation_error_deg(res.rot_cam_from_world, rotations[best])
-    out.num_inliers = int(res.inliers.sum())
-    if shift > params.max_shift_m or turn > params.max_turn_deg:
-        out.message = f"refinement moved the pose implausibly far ({shift:.2f} m, {turn:.1f} deg)"
-        return out
+    out.candidate = int(np.argmax(near)) if near.any() else k
     out.rot_cam_from_world, out.center, out.refined = res.rot_cam_from_world, res.center, True
     return out

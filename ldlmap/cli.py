@@ -115,3 +115,113 @@ def synth(
     console.print(table)
     console.print("scenes: " + ", ".join(f"{name} ({s.points[name]:,} scan points)" for name in s.scenes), soft_wrap=True)
     console.print(f"done in {s.seconds:.1f} s", soft_wrap=True)
+
+
+def _progress_bar():
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    return Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                    console=console, transient=False)
+
+
+@app.command()
+def build(
+    input_path: Path = typer.Argument(..., metavar="INPUT", help="Colored point cloud (.ply/.pcd/.txt), mesh (.obj/.ply), "
+                                      "COLMAP model folder, or a 3D line file alone (lines-only map)."),
+    output: Optional[Path] = typer.Option(None, "-o", "--output", help="Map file (default: INPUT with .h5)."),
+    lines_file: Optional[Path] = typer.Option(None, "--lines", help="3D line file to use instead of extracting lines "
+                                              "(Line3D++ .txt/.obj, 3DLineDetection .txt, ours)."),
+    features: str = typer.Option("sift", "--features", help="Local features for refinement: sift | superpoint | none."),
+    weights: Optional[Path] = typer.Option(None, "--weights", help="SuperPoint checkpoint (else $LDL_SUPERPOINT_WEIGHTS, cache, download)."),
+    num_trans: Optional[int] = typer.Option(None, "--num-trans", help="N_t candidate translations (default 800)."),
+    method: Optional[str] = typer.Option(None, "--translations", help="octree (OmniScenes) | grid (Stanford)."),
+    num_views: Optional[int] = typer.Option(None, "--num-views", help="Views rendered for features (default 40)."),
+    lam: Optional[float] = typer.Option(None, "--lambda", help="Length filter ratio lambda (default 0.1)."),
+    device: str = typer.Option("cpu", "--device", help="Torch device for rendering and SuperPoint: cpu | cuda."),
+    png: Optional[Path] = typer.Option(None, "--png", help="Also write a picture of the map (top view + panorama with lines)."),
+) -> None:
+    """Build an LDL map (3D lines, principal directions, translations, features) from a scan."""
+    from rich.table import Table
+
+    from ldlmap.build import BuildParams, build_map, params_with
+
+    params = params_with(BuildParams(), features=features, weights=str(weights) if weights else None,
+                         num_translations=num_trans, translation_method=method, num_views=num_views, lam=lam,
+                         device=device)
+    with _progress_bar() as bar:
+        task = bar.add_task(f"building map of {input_path.name}", total=None)
+
+        def progress(stage: str, done: int, total: int) -> None:
+            bar.update(task, description=f"{input_path.name}: {stage}", completed=done, total=total)
+
+        report = build_map(input_path, output, lines_file, params, progress=progress)
+    table = Table(title=f"map {report.path}")
+    table.add_column("stage")
+    table.add_column("seconds", justify="right")
+    for k, v in report.seconds.items():
+        table.add_row(k, f"{v:.2f}")
+    console.print(table)
+    c = report.counts
+    console.print(f"{c['lines_raw']} lines -> {c['lines']} kept (ratio {c['kept_ratio']:.3f}), "
+                  f"{c['translations']} translations, {c['keypoints']} keypoints in {c['views']} views "
+                  f"({params.features if c['views'] else 'no features'}), {c['size_mb']:.1f} MB", soft_wrap=True)
+    if png is not None:
+        from ldlmap.mapfile import read_map
+        from ldlmap.pictures import map_picture
+
+        map_picture(read_map(report.path), png)
+        console.print(f"wrote {png}", soft_wrap=True)
+
+
+@app.command()
+def prepare(
+    root: Optional[Path] = typer.Argument(None, help="Dataset root (default ./data/<dataset>)."),
+    dataset: Optional[str] = typer.Option(None, "--dataset", help="omniscenes | stanford (default: detected from the layout)."),
+    maps: Optional[Path] = typer.Option(None, "--maps", help="Folder for the maps (default ROOT/maps)."),
+    features: str = typer.Option("sift", "--features", help="sift | superpoint | none."),
+    weights: Optional[Path] = typer.Option(None, "--weights", help="SuperPoint checkpoint."),
+    num_trans: Optional[int] = typer.Option(None, "--num-trans", help="N_t (default: 800 OmniScenes, 1700 Stanford)."),
+    num_views: Optional[int] = typer.Option(None, "--num-views", help="Views rendered for features (default 40)."),
+    scene: Optional[list[str]] = typer.Option(None, "--scene", help="Only these scenes (repeatable)."),
+    line_files: bool = typer.Option(False, "--line-files", help="Use the dataset's 3D line files instead of extracting lines."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Rebuild maps that are up to date."),
+    device: str = typer.Option("cpu", "--device", help="cpu | cuda."),
+) -> None:
+    """Build one map per scene of a dataset root, skipping maps that are up to date."""
+    from rich.table import Table
+
+    from ldlmap.build import params_with
+    from ldlmap.datasets import DEFAULT_ROOTS, detect_kind
+    from ldlmap.errors import InputError
+    from ldlmap.prepare import default_params, prepare_dataset
+
+    if root is None:
+        kind = dataset or "omniscenes"
+        if kind not in DEFAULT_ROOTS:
+            raise InputError(f"unknown dataset {kind!r}; valid: {', '.join(DEFAULT_ROOTS)}")
+        root = DEFAULT_ROOTS[kind]
+    kind = dataset or detect_kind(root)
+    params = params_with(default_params(kind), features=features, weights=str(weights) if weights else None,
+                         num_translations=num_trans, num_views=num_views, device=device)
+    with _progress_bar() as bar:
+        task = bar.add_task("scenes", total=None)
+        done_scenes: set[str] = set()
+
+        def progress(scene_name: str, stage: str, done: int, total: int) -> None:
+            if stage in ("write", "up-to-date", "failed"):
+                done_scenes.add(scene_name)
+            bar.update(task, description=f"{scene_name}: {stage}", completed=len(done_scenes))
+
+        outcomes = prepare_dataset(root, kind, maps, params, overwrite=overwrite, use_line_files=line_files,
+                                   scenes=scene or None, progress=progress)
+        bar.update(task, total=len(outcomes), completed=len(outcomes), description="scenes")
+    table = Table(title=f"maps of {root} ({kind})")
+    for col in ("scene", "status", "map", "seconds", "note"):
+        table.add_column(col)
+    for o in outcomes:
+        secs = f"{o.report.seconds['total']:.1f}" if o.report else "-"
+        table.add_row(o.scene, o.status, str(o.map_path), secs, o.message)
+    console.print(table)
+    failed = [o for o in outcomes if o.status == "failed"]
+    if failed:
+        raise InputError(f"{len(failed)} of {len(outcomes)} scene(s) failed: " + "; ".join(f"{o.scene}: {o.message}" for o in failed))

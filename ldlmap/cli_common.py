@@ -9,14 +9,16 @@ Both programs are Typer apps made by :func:`make_app`; its click group turns
 from __future__ import annotations
 
 import os
+import sys
 
 import click
 import typer
 from rich.console import Console
 from typer.core import TyperGroup
 
-console = Console()
-err_console = Console(stderr=True)
+# When output goes to a file or a CI log, Rich would assume 80 columns and squeeze the tables.
+console = Console(width=None if sys.stdout.isatty() or os.environ.get("COLUMNS") else 132)
+err_console = Console(stderr=True, width=None if sys.stderr.isatty() or os.environ.get("COLUMNS") else 400)
 
 
 def fail(message: str, code: int = 1) -> None:

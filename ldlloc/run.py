@@ -1,0 +1,90 @@
+"""Batch localization over dataset splits: ``run_split(...) -> list[QueryResult]``.
+
+Each query is localized against the map of its scene (``<maps>/<scene>.h5``, as written by
+``ldlmap prepare``). A query that cannot be localized (missing map or image, corrupt image, no
+lines, wrong feature backend) becomes a ``failed`` record with its message, and the run goes on.
+Results are written after every query (:class:`ldlloc.evaluate.ResultsWriter`), so an
+interrupted run loses nothing and ``resume`` skips the queries already done.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import asdict
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from ldlmap.errors import InputError, LdlError
+from ldlmap.geometry import rotation_error_deg, translation_error
+from ldlloc.evaluate import QueryResult, ResultsWriter
+from ldlloc.pipeline import Localization, LocalizeParams, Localizer, load_image
+
+
+def result_from_localization(q, loc: Localization) -> QueryResult:
+    """A results record for dataset query ``q`` (with ground truth) and its localization."""
+    return QueryResult(
+        image=str(q.image), scene=q.scene, split=q.split, name=q.name,
+        R=np.asarray(loc.rot_cam_from_world).tolist(), t=np.asarray(loc.center).tolist(),
+        t_error_m=translation_error(loc.center, q.center),
+        r_error_deg=rotation_error_deg(loc.rot_cam_from_world, q.rot_cam_from_world),
+        seconds={k: float(v) for k, v in loc.seconds.items()},
+        num_rotations=int(loc.num_rotations), num_matches=int(loc.num_matches), num_inliers=int(loc.num_inliers),
+        refined=bool(loc.refined), status=loc.status, message=loc.message,
+    )
+
+
+class MapCache:
+    """Loads each scene's map (and its Localizer) once; remembers maps that failed to load."""
+
+    def __init__(self, maps_dir: Path, params: LocalizeParams, device: str):
+        self.maps_dir, self.params, self.device = Path(maps_dir), params, device
+        self._loaded: dict[str, Localizer | LdlError] = {}
+
+    def get(self, scene: str) -> Localizer:
+        from ldlmap.mapfile import read_map
+
+        if scene not in self._loaded:
+            path = self.maps_dir / f"{scene}.h5"
+            try:
+                if not path.exists():
+                    raise InputError(f"map not found: {path} (build it with `ldlmap prepare`)")
+                # Keep one scene in memory at a time: queries are sorted by scene.
+                self._loaded = {k: v for k, v in self._loaded.items() if isinstance(v, LdlError)}
+                self._loaded[scene] = Localizer(read_map(path, load_cloud=False), self.params, self.device)
+            except LdlError as exc:
+                self._loaded[scene] = exc
+        got = self._loaded[scene]
+        if isinstance(got, LdlError):
+            raise got
+        return got
+
+
+def run_queries(queries: list, maps_dir: str | Path, output: str | Path, params: LocalizeParams = LocalizeParams(),
+                device: str = "cpu", resume: bool = False, save_vis: str | Path | None = None,
+                meta: dict | None = None, progress: Callable[[QueryResult], None] | None = None) -> list[QueryResult]:
+    """Localize ``queries`` (from :mod:`ldlmap.datasets`) and write results as they finish."""
+    writer = ResultsWriter(output, meta={**(meta or {}), "device": device, "params": asdict(params)}, resume=resume)
+    done = writer.done()
+    cache = MapCache(Path(maps_dir), params, device)
+    for q in sorted(queries, key=lambda q: (q.scene, q.split, q.name)):
+        if q.name in done:
+            continue
+        t0 = time.perf_counter()
+        try:
+            loc = cache.get(q.scene)
+            img = load_image(q.image)
+            res = loc.localize(img)
+            r = result_from_localization(q, res)
+            if save_vis is not None:
+                from ldlloc.visualize import save_localization_picture
+
+                save_localization_picture(img, res, loc.map, Path(save_vis) / q.split / f"{q.scene}_{Path(q.image).stem}.jpg")
+        except LdlError as exc:
+            r = QueryResult(image=str(q.image), scene=q.scene, split=q.split, name=q.name, status="failed",
+                            message=str(exc), seconds={"total": time.perf_counter() - t0})
+        writer.add(r)
+        if progress:
+            progress(r)
+    return writer.results

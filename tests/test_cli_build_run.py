@@ -1,0 +1,171 @@
+"""`ldlmap build/prepare` and `ldlloc localize/run/report` through Typer's CliRunner.
+
+Uses the shared synthetic demo dataset (``demo_dataset`` fixture); the maps in it were made by
+``ldlmap prepare``. Bad input gives one ``error:`` line and exit code 1, or a flagged failure
+per query in batch runs.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import cv2
+import h5py
+import numpy as np
+from typer.testing import CliRunner
+
+from ldlloc.cli import app as loc_app
+from ldlmap.cli import app as map_app
+from ldlmap.mapfile import FORMAT_VERSION, read_map
+
+runner = CliRunner()
+
+
+def one_error_line(res) -> str:
+    lines = [line for line in res.output.splitlines() if line.strip()]
+    assert res.exit_code == 1, res.output
+    assert "Traceback" not in res.output
+    assert len(lines) == 1 and lines[0].startswith("error:"), res.output
+    return lines[0]
+
+
+def test_prepare_skips_up_to_date_maps(demo_dataset):
+    res = runner.invoke(map_app, ["prepare", str(demo_dataset)])
+    assert res.exit_code == 0, res.output
+    assert res.output.count("up-to-date") == 2
+
+
+def test_demo_map_contents(demo_dataset):
+    """Principal directions match the room axes, translations are inside, keypoints on surfaces."""
+    from scipy.spatial import cKDTree
+
+    from ldlmap.io.pointcloud import read_point_cloud
+    from ldlmap.synth.spec import load_spec
+
+    m = read_map(demo_dataset / "maps" / "synthroom_1.h5")
+    P = m.principal_directions
+    np.testing.assert_allclose(P @ P.T, np.eye(3), atol=np.sin(np.radians(2)))
+    # Room axes: the footprint's first wall direction, its normal and z.
+    spec = load_spec(demo_dataset / "specs" / "synthroom_1.toml")
+    fp = np.array(spec.footprint)
+    d = fp[1] - fp[0]
+    d /= np.linalg.norm(d)
+    axes = np.array([[d[0], d[1], 0], [-d[1], d[0], 0], [0, 0, 1]])
+    angles = np.degrees(np.arccos(np.clip(np.abs(P @ axes.T).max(axis=1), -1, 1)))
+    assert angles.max() < 2.0, angles
+    # Translations inside the footprint and between floor and ceiling.
+    from ldlmap.synth.polygon import points_in_polygon
+
+    assert points_in_polygon(m.translations[:, :2], fp).all()
+    assert (m.translations[:, 2] > 0).all() and (m.translations[:, 2] < spec.ceiling_height).all()
+    # Keypoints lie on the scanned surfaces.
+    cloud = read_point_cloud(demo_dataset / "pcd" / "synthroom_1.ply")
+    dist, _ = cKDTree(cloud.points).query(m.features.xyz.astype(np.float64))
+    assert np.median(dist) < 0.02
+    assert m.features.descriptors.dtype == np.uint8 and m.features.backend == "sift"
+
+
+def test_build_writes_map_and_picture(demo_dataset, tmp_path):
+    src = tmp_path / "room.ply"
+    shutil.copy(demo_dataset / "pcd" / "synthroom_2.ply", src)
+    res = runner.invoke(map_app, ["build", str(src), "--num-views", "4", "--num-trans", "200",
+                                  "--png", str(tmp_path / "room.png")])
+    assert res.exit_code == 0, res.output
+    m = read_map(tmp_path / "room.h5")
+    assert m.features.num_views == 4 and abs(len(m.translations) - 200) < 40
+    assert cv2.imread(str(tmp_path / "room.png")) is not None
+    res = runner.invoke(map_app, ["info", str(tmp_path / "room.h5")])
+    assert res.exit_code == 0 and "sift" in res.output
+
+
+def test_lines_only_map_from_a_line_file(demo_dataset, tmp_path):
+    res = runner.invoke(map_app, ["build", str(demo_dataset / "gt_lines" / "synthroom_1.obj"),
+                                  "-o", str(tmp_path / "lines.h5")])
+    assert res.exit_code == 0, res.output
+    m = read_map(tmp_path / "lines.h5")
+    assert m.lines_only and len(m.lines) > 10
+    img = next((demo_dataset / "robot_pano").rglob("*.jpg"))
+    res = runner.invoke(loc_app, ["localize", str(tmp_path / "lines.h5"), str(img), "--json"])
+    assert res.exit_code == 0, res.output
+    out = json.loads(res.output)
+    assert out["status"] == "coarse" and "lines-only" in out["message"]
+
+
+def test_build_bad_inputs(tmp_path):
+    one_error_line(runner.invoke(map_app, ["build", str(tmp_path / "missing.ply")]))
+    (tmp_path / "cloud.xyzw").write_text("1 2 3\n")
+    assert "unsupported" in one_error_line(runner.invoke(map_app, ["build", str(tmp_path / "cloud.xyzw")]))
+    (tmp_path / "empty.txt").write_text("")
+    one_error_line(runner.invoke(map_app, ["build", str(tmp_path / "empty.txt")]))
+    pts = np.random.default_rng(0).uniform(0, 3, size=(500, 6))
+    pts[10, 1] = np.nan
+    np.savetxt(tmp_path / "nan.txt", pts)
+    assert "NaN" in one_error_line(runner.invoke(map_app, ["build", str(tmp_path / "nan.txt")]))
+    one_error_line(runner.invoke(map_app, ["build", str(tmp_path / "nan.txt"), "--features", "orb"]))
+    # No partial map files are left behind.
+    assert not list(tmp_path.glob("*.h5")) and not list(tmp_path.glob(".*tmp*"))
+
+
+def test_unreachable_superpoint_weights(demo_dataset, tmp_path, monkeypatch):
+    monkeypatch.setenv("LDL_CACHE_DIR", str(tmp_path / "cache"))
+    monkeypatch.delenv("LDL_SUPERPOINT_WEIGHTS", raising=False)
+    src = tmp_path / "room.ply"
+    shutil.copy(demo_dataset / "pcd" / "synthroom_2.ply", src)
+    line = one_error_line(runner.invoke(map_app, ["build", str(src), "--features", "superpoint",
+                                                  "--weights", str(tmp_path / "nope.pth")]))
+    assert "SuperPoint" in line or "weights" in line
+    assert not (tmp_path / "room.h5").exists()
+
+
+def test_localize_and_bad_maps(demo_dataset, tmp_path):
+    map_path = demo_dataset / "maps" / "synthroom_1.h5"
+    img = sorted((demo_dataset / "robot_pano" / "robot_synthroom_1_scene_1").glob("*.jpg"))[0]
+    res = runner.invoke(loc_app, ["localize", str(map_path), str(img), "--json", "--vis", str(tmp_path / "v.jpg")])
+    assert res.exit_code == 0, res.output
+    out = json.loads(res.output)
+    pose = np.loadtxt(str(img).replace("_pano", "_pose").replace(".jpg", ".txt"))
+    assert np.linalg.norm(np.array(out["t"]) - pose[:, 3]) < 0.1
+    assert cv2.imread(str(tmp_path / "v.jpg")).shape == (1024, 1024, 3)
+    # Wrong backend, other format version, corrupt map, missing or broken image.
+    assert "built with sift" in one_error_line(runner.invoke(loc_app, ["localize", str(map_path), str(img),
+                                                                       "--features", "superpoint"]))
+    old = tmp_path / "old.h5"
+    shutil.copy(map_path, old)
+    with h5py.File(old, "a") as h5:
+        h5.attrs["format_version"] = FORMAT_VERSION + 1
+    assert "format version" in one_error_line(runner.invoke(loc_app, ["localize", str(old), str(img)]))
+    (tmp_path / "bad.h5").write_bytes(b"\x89HDF garbage")
+    one_error_line(runner.invoke(loc_app, ["localize", str(tmp_path / "bad.h5"), str(img)]))
+    one_error_line(runner.invoke(loc_app, ["localize", str(map_path), str(tmp_path / "none.jpg")]))
+    (tmp_path / "broken.jpg").write_bytes(b"not a jpeg")
+    assert "decode" in one_error_line(runner.invoke(loc_app, ["localize", str(map_path), str(tmp_path / "broken.jpg")]))
+    cv2.imwrite(str(tmp_path / "grey.png"), np.full((256, 512, 3), 128, np.uint8))
+    assert "lines" in one_error_line(runner.invoke(loc_app, ["localize", str(map_path), str(tmp_path / "grey.png")]))
+
+
+def test_run_flags_failures_and_resumes(demo_dataset, tmp_path):
+    """A batch run over one split, with a grey image and a missing map among the queries."""
+    root = tmp_path / "data"
+    shutil.copytree(demo_dataset, root, ignore=shutil.ignore_patterns("*_gamma_*", "*_intensity_*", "*white*"))
+    grey = sorted((root / "robot_pano" / "robot_synthroom_1_scene_1").glob("*.jpg"))[0]
+    cv2.imwrite(str(grey), np.full((512, 1024, 3), 128, np.uint8))
+    (root / "maps" / "synthroom_2.h5").unlink()
+    out = tmp_path / "res.json"
+    res = runner.invoke(loc_app, ["run", "--root", str(root), "--split", "robot", "--output", str(out), "--no-refine"])
+    assert res.exit_code == 0, res.output
+    data = json.loads(out.read_text())
+    status = {q["name"]: q for q in data["queries"]}
+    assert len(status) == 10 and data["summary"]["count"] == 10
+    assert sum(q["status"] == "failed" for q in status.values()) == 6  # 1 grey image + 5 without a map
+    assert any("map not found" in q["message"] for q in status.values())
+    assert out.with_suffix(".csv").read_text().count("\n") == 11
+    ok = [q for q in status.values() if q["status"] != "failed"]
+    assert all(q["t_error_m"] < 0.5 for q in ok)
+    # --resume does not redo finished queries; report prints the tables again.
+    mtime = out.stat().st_mtime_ns
+    res = runner.invoke(loc_app, ["run", "--root", str(root), "--split", "robot", "--output", str(out), "--resume",
+                                  "--no-refine"])
+    assert res.exit_code == 0 and out.stat().st_mtime_ns == mtime
+    res = runner.invoke(loc_app, ["report", str(out)])
+    assert res.exit_code == 0 and "robot" in res.output and "synthroom_1" in res.output

@@ -1,0 +1,70 @@
+"""End to end on a synthetic demo dataset: accuracy of pose search and of the full pipeline.
+
+The dataset comes from ``ldlmap synth --preset demo`` and the maps from ``ldlmap prepare`` with
+SIFT (fixture ``demo_dataset``); every query is localized with the library pipeline that
+``ldlloc run`` uses, and the issue's targets are asserted per split.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from ldlmap.datasets import open_dataset
+from ldlmap.geometry import rotation_error_deg, translation_error
+from ldlmap.mapfile import read_map
+from ldlloc.pipeline import Localizer, load_image
+
+MAIN_SPLITS = ("robot", "handheld", "extreme")
+OTHER_SPLITS = ("change_robot", "change_handheld", "extreme_intensity", "extreme_gamma", "extreme_white_balance")
+
+
+@pytest.fixture(scope="module")
+def localized(demo_dataset):
+    ds = open_dataset(demo_dataset, "omniscenes")
+    rows = []
+    for scene in ds.scenes():
+        loc = Localizer(read_map(demo_dataset / "maps" / f"{scene}.h5", load_cloud=False))
+        for q in ds.queries(scene=scene):
+            r = loc.localize(load_image(q.image))
+            cand_t = np.linalg.norm(r.candidates_center - q.center, axis=1)
+            cand_r = np.array([rotation_error_deg(R, q.rot_cam_from_world) for R in r.candidates_rot])
+            rows.append({
+                "split": q.split, "name": q.name,
+                "t_err": translation_error(r.center, q.center),
+                "r_err": rotation_error_deg(r.rot_cam_from_world, q.rot_cam_from_world),
+                "top20_ok": bool(np.any((cand_t < 0.5) & (cand_r < 10.0))),
+                "rot_best": min(rotation_error_deg(R, q.rot_cam_from_world) for R in r.rotations),
+                "num_rotations": r.num_rotations,
+            })
+    return rows
+
+
+def accuracy(rows, split):
+    sel = [r for r in rows if r["split"] == split]
+    assert len(sel) == 10
+    return float(np.mean([(r["t_err"] < 0.1) and (r["r_err"] < 5.0) for r in sel]))
+
+
+@pytest.mark.parametrize("split", MAIN_SPLITS)
+def test_accuracy_main_splits(localized, split):
+    assert accuracy(localized, split) >= 0.9
+
+
+@pytest.mark.parametrize("split", OTHER_SPLITS)
+def test_accuracy_change_and_illumination_splits(localized, split):
+    assert accuracy(localized, split) >= 0.85
+
+
+def test_median_translation_error(localized):
+    assert np.median([r["t_err"] for r in localized]) <= 0.05
+
+
+def test_pose_search_top20_contains_the_truth(localized):
+    # Before refinement: the best of the top-20 lies within 0.5 m and 10 degrees.
+    assert np.mean([r["top20_ok"] for r in localized]) >= 0.95
+
+
+def test_rotation_candidates_contain_the_truth(localized):
+    assert np.mean([r["rot_best"] < 3.0 for r in localized]) >= 0.95
+    assert max(r["num_rotations"] for r in localized) <= 200
