@@ -26,25 +26,37 @@ great-circle branch is accurate everywhere. This is far below the inlier thresho
 projected once per translation (``normalize(X - t)``) and the query points are rotated by
 ``R^T`` for each candidate rotation instead of projecting lines per rotation.
 
+The 3D functions can also come from the map's precomputed distance fields (bilinear look-ups,
+:mod:`ldlloc.fields`); :func:`ldf_3d` stays the exact reference that the fast path is tested
+against (:mod:`ldlloc.search` selects the path).
+
 Shapes used below: ``N_t`` translations, ``N_r`` rotations, ``Q`` query points, ``L`` lines,
 ``G`` groups (3 for the decomposed functions).
 """
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Literal, Sequence
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 
 from ldlmap.errors import InputError
+# Shared with the map side (ldlmap never imports ldlloc): the torch point-arc distance and its
+# helpers live in ldlmap.sphere_distance; these names keep ldlloc.ldf's public API.
+from ldlmap.sphere_distance import (
+    EMPTY_DISTANCE,
+    as_tensor as _as_tensor,
+    check_finite as _check_finite,
+    check_last as _check_last,
+    grouped_min_distance as _grouped_min_distance,
+    point_arc_distance,
+    project_lines as _project_lines,
+    sort_by_group as _sort_by_group,
+)
 
 if TYPE_CHECKING:  # pragma: no cover
     import torch
-
-EMPTY_DISTANCE = math.pi  # value of a distance function over an empty set of lines
-_DEGENERATE_EPS = 1e-9  # |s x e| below this: the arc's great circle is undefined
 
 LossKind = Literal["inlier", "l1", "l2", "huber", "median"]
 LOSS_KINDS: tuple[str, ...] = ("inlier", "l1", "l2", "huber", "median")
@@ -64,33 +76,6 @@ class LdfParams:
 # ------------------------------------------------------------------------------------- helpers
 
 
-def _as_tensor(a, device=None, dtype=None) -> "torch.Tensor":
-    import torch
-
-    if isinstance(a, torch.Tensor):
-        t = a
-        if dtype is not None and t.dtype != dtype:
-            t = t.to(dtype)
-        if device is not None:
-            t = t.to(device)
-        return t
-    arr = np.array(a)  # a copy: numpy inputs may be read-only
-    return torch.as_tensor(arr, dtype=dtype or torch.float32, device=device)
-
-
-def _check_finite(name: str, t: "torch.Tensor") -> None:
-    import torch
-
-    if t.numel() and not bool(torch.isfinite(t).all()):
-        raise InputError(f"{name} contains NaN or infinite values")
-
-
-def _check_last(name: str, t: "torch.Tensor", dims: Sequence[int]) -> None:
-    k = len(dims)
-    if t.dim() < k or tuple(t.shape[-k:]) != tuple(dims):
-        want = "(..., " + ", ".join(map(str, dims)) + ")"
-        raise InputError(f"{name} must have shape {want}, got {tuple(t.shape)}")
-
 
 def query_points(level: int = 1, device=None, dtype=None) -> "torch.Tensor":
     """The query points Q: vertices of a level-``level`` icosphere (level 1: 42 points)."""
@@ -99,41 +84,7 @@ def query_points(level: int = 1, device=None, dtype=None) -> "torch.Tensor":
     return _as_tensor(np.array(icosphere_points(level)), device, dtype)
 
 
-# ---------------------------------------------------------------------------- point-arc distance
-
-
-def point_arc_distance(x, s, e) -> "torch.Tensor":
-    """Spherical distance (radians) from points to arcs, paper eq. 2.
-
-    Args:
-        x: (..., Q, 3) unit points.
-        s, e: (..., L, 3) unit arc start and end points (leading dims broadcast with ``x``).
-
-    Returns:
-        (..., Q, L) distances in [0, pi].
-    """
-    import torch
-
-    x = _as_tensor(x)
-    s = _as_tensor(s, x.device, x.dtype)
-    e = _as_tensor(e, x.device, x.dtype)
-    _check_last("points", x, (3,))
-    _check_last("arc starts", s, (3,))
-    if s.shape != e.shape:
-        raise InputError(f"arc starts and ends differ in shape: {tuple(s.shape)} vs {tuple(e.shape)}")
-    n = torch.linalg.cross(s, e, dim=-1)
-    nn = torch.linalg.vector_norm(n, dim=-1)  # (..., L)
-    ok = nn > _DEGENERATE_EPS
-    n = n / torch.where(ok, nn, torch.ones_like(nn)).unsqueeze(-1)
-    c = (s * e).sum(-1).unsqueeze(-2)  # (..., 1, L)
-    st = s.transpose(-1, -2)
-    xs = torch.matmul(x, st)  # (..., Q, L)
-    xe = torch.matmul(x, e.transpose(-1, -2))
-    xn = torch.matmul(x, n.transpose(-1, -2))
-    inside = (xs - c * xe > 0) & (xe - c * xs > 0) & ok.unsqueeze(-2)
-    d_circle = torch.asin(xn.abs().clamp(max=1.0))
-    d_end = torch.acos(torch.maximum(xs, xe).clamp(-1.0, 1.0))
-    return torch.where(inside, d_circle, d_end)
+# ---------------------------------------------------------------------------- distance functions
 
 
 def distance_function(x, arcs, mask=None) -> "torch.Tensor":
@@ -246,63 +197,16 @@ def ldf_3d(x, rotations, translations, lines3d, groups, num_groups: int = 3,
     n_t, n_r, q = T.shape[0], R.shape[0], x.shape[0]
     out = torch.full((n_t, n_r, num_groups, q), EMPTY_DISTANCE, dtype=dt, device=dev)
     # Keep only grouped lines, sorted by group, so each group is a contiguous slice.
-    keep = (grp >= 0) & (grp < num_groups)
-    order = torch.argsort(grp[keep], stable=True)
-    lines = lines[keep][order]
-    grp = grp[keep][order]
+    lines, bounds = _sort_by_group(lines, grp, num_groups)
     if lines.shape[0] == 0 or n_t == 0 or n_r == 0:
         return out
-    counts = torch.bincount(grp, minlength=num_groups).tolist()
-    bounds = np.concatenate([[0], np.cumsum(counts)]).tolist()
     # R^T q for every rotation: (R^T q)_j = sum_i R_ij q_i -> q @ R.
     xr = torch.einsum("qi,rij->rqj", x, R).reshape(n_r * q, 3)
     step = max(1, int(chunk))
     for a in range(0, n_t, step):  # loop over chunks of translations, vectorized inside
-        t = T[a:a + step]  # (c, 3)
-        s = lines[None, :, 0, :] - t[:, None, :]
-        e = lines[None, :, 1, :] - t[:, None, :]
-        s = s / torch.linalg.vector_norm(s, dim=-1, keepdim=True).clamp_min(1e-12)
-        e = e / torch.linalg.vector_norm(e, dim=-1, keepdim=True).clamp_min(1e-12)
+        s, e = _project_lines(lines, T[a:a + step])
         out[a:a + step] = _grouped_min_distance(xr, s, e, bounds).reshape(-1, num_groups, n_r, q).transpose(1, 2)
     return out
-
-
-def _grouped_min_distance(x: "torch.Tensor", s: "torch.Tensor", e: "torch.Tensor",
-                          bounds: Sequence[int]) -> "torch.Tensor":
-    """``min over lines of group g`` of eq. 2 for points ``x`` (P, 3) and arcs ``s, e`` (c, L, 3).
-
-    Lines are sorted by group (``bounds``: G + 1 offsets). Uses two facts to stay cheap:
-    (1) the endpoint distance ``min(acos x.s, acos x.e)`` is never below the true distance, so
-    ``min_l D_l = min(min over inside l of asin|x.n_l|, min over all endpoints acos(x.p))``: the
-    endpoint term needs no masking; (2) ``x`` is inside the lune of ``(s, e)`` iff
-    ``x . (n x s) > 0`` and ``x . (e x n) > 0`` (the same conditions as eq. 2 up to positive
-    factors), so all five dot products come from one batched matmul. Returns (c, G, P).
-    """
-    import torch
-
-    n = torch.linalg.cross(s, e, dim=-1)
-    nn = torch.linalg.vector_norm(n, dim=-1, keepdim=True)
-    n = torch.where(nn > _DEGENERATE_EPS, n / nn.clamp_min(_DEGENERATE_EPS), torch.zeros_like(n))
-    a_side = torch.linalg.cross(n, s, dim=-1)  # x . (n x s) > 0: x on e's side of the s-plane
-    b_side = torch.linalg.cross(e, n, dim=-1)  # x . (e x n) > 0: x on s's side of the e-plane
-    c, L = s.shape[0], s.shape[1]
-    V = torch.cat([s, e, n, a_side, b_side], dim=1)  # (c, 5L, 3)
-    dots = torch.matmul(V, x.T)  # (c, 5L, P): one matmul for all dot products
-    xs, xe, xn, xa, xb = dots.split(L, dim=1)
-    inside = torch.minimum(xa, xb) > 0
-    circ = xn.abs_().masked_fill_(~inside, 2.0)  # sin of the great-circle distance, or 2 (none)
-    end = torch.maximum(xs, xe)  # cos of the nearest endpoint distance
-    outs = []
-    for g in range(len(bounds) - 1):  # G = 3 groups: contiguous slices of the sorted lines
-        lo, hi = bounds[g], bounds[g + 1]
-        if hi == lo:
-            outs.append(torch.full((c, x.shape[0]), EMPTY_DISTANCE, dtype=x.dtype, device=x.device))
-            continue
-        d_circ = torch.asin(circ[:, lo:hi].amin(1).clamp(max=1.0))  # (c, P); 2 -> pi/2 (ignored below)
-        d_circ = torch.where(circ[:, lo:hi].amin(1) <= 1.0, d_circ, torch.full_like(d_circ, EMPTY_DISTANCE))
-        d_end = torch.acos(end[:, lo:hi].amax(1).clamp(-1.0, 1.0))
-        outs.append(torch.minimum(d_circ, d_end))
-    return torch.stack(outs, dim=1)
 
 
 # ------------------------------------------------------------------------------------- losses

@@ -40,6 +40,8 @@ class Lines2DParams:
     lsd_refine: int = 1  # cv2.LSD_REFINE_* (0 none, 1 standard, 2 advanced)
     normalize_contrast: bool = True  # stretch the grey levels (1st-99th percentile) before LSD,
     # so that washed-out or dark panoramas (gamma, exposure changes) keep their gradients
+    lsd_threads: int = 0  # threads running LSD over the crops (OpenCV releases the GIL); 0: auto
+    # (up to 4, at most the CPU count). The result does not depend on it.
 
 
 # ------------------------------------------------------------------------------------- views
@@ -138,6 +140,50 @@ def crops(image_rgb: np.ndarray, params: Lines2DParams = Lines2DParams()) -> np.
     return out.reshape(-1, cs.size, cs.size)
 
 
+def _lsd_threads(requested: int) -> int:
+    import os
+
+    if requested > 0:
+        return int(requested)
+    return max(1, min(4, os.cpu_count() or 1))
+
+
+@lru_cache(maxsize=4)
+def _executor(workers: int):
+    from concurrent.futures import ThreadPoolExecutor
+
+    return ThreadPoolExecutor(max_workers=workers, thread_name_prefix="ldl-lsd")
+
+
+def _detect_all(views: np.ndarray, refine: int, threads: int) -> list:
+    """LSD on every crop, (V,) list of (n, 1, 4) arrays or None, split over ``threads`` threads.
+
+    Each thread has its own detector (one crop after another, interleaved so that the threads
+    get similar work); OpenCV releases the GIL inside ``detect``.
+    """
+    import cv2
+
+    def run(k: int) -> list:
+        lsd = cv2.createLineSegmentDetector(refine)
+        return [lsd.detect(views[v])[0] for v in range(k, len(views), threads)]
+
+    if threads <= 1 or len(views) < 2:
+        return _detect_single(views, refine)
+    parts = list(_executor(threads).map(run, range(threads)))
+    out: list = [None] * len(views)
+    for k, part in enumerate(parts):
+        out[k::threads] = part
+    return out
+
+
+def _detect_single(views: np.ndarray, refine: int) -> list:
+    """LSD on every crop in the calling thread."""
+    import cv2
+
+    lsd = cv2.createLineSegmentDetector(refine)
+    return [lsd.detect(c)[0] for c in views]
+
+
 def detect_lines(image_rgb: np.ndarray, params: Lines2DParams = Lines2DParams()) -> np.ndarray:
     """Great-circle arcs (N, 2, 3) of the panorama's line segments (camera-frame unit bearings).
 
@@ -149,12 +195,11 @@ def detect_lines(image_rgb: np.ndarray, params: Lines2DParams = Lines2DParams())
     views = crops(image_rgb, params)
     h, w = np.asarray(image_rgb).shape[:2]
     cs = _crop_set(w, h, params)
-    lsd = cv2.createLineSegmentDetector(int(params.lsd_refine))
+    found = _detect_all(views, int(params.lsd_refine), _lsd_threads(params.lsd_threads))
     segs, owner = [], []
-    for v, crop in enumerate(views):  # one LSD call per crop (V = 26)
-        found = lsd.detect(crop)[0]
-        if found is not None and len(found):
-            segs.append(found.reshape(-1, 4))
+    for v, f in enumerate(found):  # in view order, whatever the threads did
+        if f is not None and len(f):
+            segs.append(f.reshape(-1, 4))
             owner.append(np.full(len(segs[-1]), v))
     if not segs:
         return np.zeros((0, 2, 3))

@@ -9,6 +9,8 @@ Stages (paper section 3.1, DESIGN.md 5.1-5.4), each timed:
    ``lambda (b_x + b_y + b_z) / 3``.
 3. ``principal``: the 3 principal directions by voting, and each kept line's group.
 4. ``translations``: N_t candidate camera centres in the free space of the scan.
+   ``fields``: when ``distance_fields``, each translation's 3 decomposed 3D line distance
+   functions sampled on a spherical grid (:mod:`ldlmap.fields3d`) for the fast pose search.
 5. ``features``: views rendered at ``num_views`` of the candidate translations (farthest-point
    sampled), local features extracted and lifted to 3D; every candidate translation is served
    by its nearest rendered view during refinement.
@@ -47,6 +49,7 @@ class BuildParams:
     mesh_samples: int = 1_000_000  # points sampled from a mesh input
     device: str = "cpu"  # torch device for rendering and SuperPoint
     seed: int = 0
+    distance_fields: bool = True  # precompute 3D distance fields (fast pose search, ldlmap.fields3d)
 
 
 @dataclass
@@ -214,6 +217,13 @@ def build_map(input_path: str | Path, output: str | Path | None = None, lines_pa
     if len(translations) == 0:
         raise InputError("no candidate translation found in the free space of the scan")
     stage("translations")
+    fields, fields_attrs = {}, {}
+    if params.distance_fields:
+        from ldlmap.fields3d import compute_fields
+
+        dist, fields_attrs = compute_fields(lines, groups, translations, device=params.device)
+        fields = {"distances": dist}
+    stage("fields")
     features = None
     if params.features != "none" and src.points is not None:
         if src.colors is None:
@@ -239,6 +249,7 @@ def build_map(input_path: str | Path, output: str | Path | None = None, lines_pa
         length_threshold=threshold, kept_ratio=float(kept.mean()), line_lambda=params.lam,
         principal_directions=principal, translations=translations,
         cloud_points=cloud_pts, cloud_colors=cloud_cols, features=features, config=config,
+        fields=fields, fields_attrs=fields_attrs,
     )
     write_map(output, m)
     stage("write")

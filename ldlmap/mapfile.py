@@ -24,7 +24,11 @@ datasets are readable with plain h5py::
     /features/keypoints     (K, 2) float32  pixel coordinates in the rendered view
     /features/scores        (K,) float16
     /features/descriptors   (K, D) uint8 (SIFT) or float16 (SuperPoint)
-    /fields/...             optional precomputed distance fields (see ``fields`` below)
+    /fields/distances       (N_t, 3, G + 1, 2G) float16  optional precomputed 3D distance fields:
+                            f3D_g (radians) of each translation on an equirectangular node grid
+                            (theta_i = i pi / G from +z, phi_j = -pi + j pi / G), world-aligned
+                            attrs: kind ('equirect_nodes'), rows (G), num_groups, version
+                            (layout and accuracy: ``ldlmap.fields3d``)
 
 A lines-only map (built from a line file) has no ``/cloud/points``, no ``/features`` group
 and is enough for pose search without refinement.

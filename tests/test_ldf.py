@@ -241,3 +241,44 @@ def test_pose_loss_ranks_true_pose_first(kind):
     others = loss.clone()
     others[np.argmin(perm_t), np.argmin(perm_r)] = float("inf")
     assert true_loss < others.min()
+
+
+def test_point_arc_distance_shared_with_the_map_side():
+    from ldlmap import sphere_distance
+
+    assert ldf.point_arc_distance is sphere_distance.point_arc_distance
+    assert ldf.EMPTY_DISTANCE == sphere_distance.EMPTY_DISTANCE == np.pi
+
+
+def test_grouped_min_distance_equals_per_group_brute_force():
+    """The kernel behind ldf_3d and the map's distance fields, on many points and chunks."""
+    from ldlmap.sphere_distance import grouped_min_distance, project_lines, sort_by_group
+
+    rng = np.random.default_rng(11)
+    lines = rng.uniform(-3, 3, size=(30, 2, 3))
+    groups = rng.integers(-1, 4, 30)  # -1 and 3 are outside the 3 groups: ignored
+    groups[:3] = [0, 1, 1]  # group 2 may be empty or not; groups 0 and 1 are not
+    T = rng.uniform(-1, 1, size=(3, 3))
+    x = _random_unit(rng, 500)
+    L, bounds = sort_by_group(torch.tensor(lines), torch.tensor(groups), 3)
+    assert bounds[0] == 0 and bounds[-1] == int(np.sum((groups >= 0) & (groups < 3)))
+    s, e = project_lines(L, torch.tensor(T))
+    got = grouped_min_distance(torch.tensor(x), s, e, bounds).numpy()  # (3, G, P)
+    for i, t in enumerate(T):
+        arcs = normalize(cam_from_world(lines, np.eye(3), t))
+        d = ldf.point_arc_distance(torch.tensor(x), torch.tensor(arcs[:, 0]), torch.tensor(arcs[:, 1])).numpy()
+        for g in range(3):
+            ref = d[:, groups == g].min(1) if np.any(groups == g) else np.full(len(x), np.pi)
+            np.testing.assert_allclose(got[i, g], ref, atol=1e-9)
+
+
+def test_ldf_3d_is_invariant_to_chunking():
+    rng = np.random.default_rng(12)
+    lines = rng.uniform(-3, 3, size=(40, 2, 3))
+    groups = rng.integers(0, 3, 40)
+    R = _random_rotations(rng, 3)
+    T = rng.uniform(-1, 1, size=(9, 3))
+    x = np.array(icosphere_points(1))
+    a = ldf.ldf_3d(torch.tensor(x), torch.tensor(R), torch.tensor(T), torch.tensor(lines), torch.tensor(groups), chunk=1)
+    b = ldf.ldf_3d(torch.tensor(x), torch.tensor(R), torch.tensor(T), torch.tensor(lines), torch.tensor(groups), chunk=64)
+    np.testing.assert_array_equal(a.numpy(), b.numpy())

@@ -1,0 +1,214 @@
+"""Benchmark of the pose search: exact line distance functions vs. precomputed distance fields.
+
+Over the queries of a synthetic demo dataset (1024 x 512, every split), prints the median seconds
+per stage (2D lines, rotation estimation, search exact, search fast, pose search = rotation +
+fast search) beside the paper's CPU / GPU columns, and how well the fast path keeps the exact
+ranking (is the exact path's best pose in the fast path's top 20; top-1 agreement; accuracy of
+the best of the top 20 against the ground truth for both paths), the interpolation error of the
+fields against ``ldf_3d`` at the queries' own rotations, the memory of the look-up table and the
+growth of the map file.
+
+Run: ``python bench/bench_search.py [--root DATASET] [--threads N] [--max-queries N]
+[--json out.json]``. Without ``--root`` the demo dataset (seed 1) is generated once under
+``bench/.cache/search/`` and lines-only maps (no rendered features: the search does not use
+them) are built there with the default ``BuildParams`` (distance fields on).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT) not in sys.path:  # `python bench/bench_search.py` from anywhere imports the working tree
+    sys.path.insert(0, str(ROOT))
+
+PAPER = {"lines2d": (0.141, 0.141), "rotation": (1.124, 0.009), "search": (0.052, 0.001)}
+
+
+def _prepare(root: Path | None, cache: Path, seed: int) -> tuple[Path, dict[str, Path], dict[str, float]]:
+    """Dataset root and one map per scene (built when missing); build seconds of the fields stage."""
+    from ldlmap.build import BuildParams, build_map
+    from ldlmap.datasets import open_dataset
+
+    if root is None:
+        root = cache / f"demo_s{seed}"
+        if not (root / "dataset.json").exists():
+            from ldlmap.synth.generate import generate_dataset
+
+            print(f"generating the demo dataset (seed {seed}) in {root} ...", flush=True)
+            generate_dataset(root, "demo", [], seed)
+    ds = open_dataset(root, "omniscenes")
+    maps, field_secs = {}, {}
+    for scene in ds.scenes():
+        out = cache / "maps" / f"{root.name}_{scene}.h5"
+        if not out.exists():
+            print(f"building the lines-only map of {scene} ...", flush=True)
+            out.parent.mkdir(parents=True, exist_ok=True)
+            rep = build_map(ds.point_cloud(scene), out, params=BuildParams(features="none"), name=scene)
+            field_secs[scene] = rep.seconds.get("fields", float("nan"))
+        maps[scene] = out
+    return root, maps, field_secs
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--root", type=Path, default=None, help="OmniScenes-layout dataset (default: demo, cached)")
+    ap.add_argument("--seed", type=int, default=1, help="seed of the generated demo dataset")
+    ap.add_argument("--threads", type=int, default=0, help="torch threads (0: torch's default)")
+    ap.add_argument("--max-queries", type=int, default=0, help="stop after this many queries (0: all)")
+    ap.add_argument("--json", type=Path, default=None, help="write the numbers here")
+    args = ap.parse_args()
+
+    import torch
+
+    from ldlmap.datasets import open_dataset
+    from ldlmap.fields3d import field_bytes
+    from ldlmap.geometry import rotation_error_deg, translation_error
+    from ldlmap.mapfile import read_map
+    from ldlloc import ldf
+    from ldlloc.fields import DistanceFields
+    from ldlloc.lines2d import detect_lines, filter_by_length
+    from ldlloc.pipeline import load_image
+    from ldlloc.principal import PrincipalParams, candidate_rotations, labels_for_rotations, vanishing_points
+    from ldlloc.search import SearchParams, search_poses
+
+    if args.threads > 0:
+        torch.set_num_threads(args.threads)
+    cache = Path(os.environ.get("LDL_BENCH_CACHE", ROOT / "bench" / ".cache")) / "search"
+    root, map_paths, field_secs = _prepare(args.root, cache, args.seed)
+    ds = open_dataset(root, "omniscenes")
+    maps = {s: read_map(p, load_cloud=False) for s, p in map_paths.items()}
+    t0 = time.perf_counter()
+    fields = {s: DistanceFields.from_map(m) for s, m in maps.items()}
+    prep_s = (time.perf_counter() - t0) / max(1, len(maps))
+    if any(f is None for f in fields.values()):
+        sys.exit("a map has no distance fields: delete bench/.cache/search/maps and rerun")
+    pp = PrincipalParams()
+    rows: list[dict] = []
+    errs: list[np.ndarray] = []
+    n_done = 0
+    for split in ds.splits():
+        for scene in ds.scenes():
+            m, F = maps[scene], fields[scene]
+            for q in ds.queries(split, scene):
+                if args.max_queries and n_done >= args.max_queries:
+                    break
+                img = load_image(q.image)
+                a = time.perf_counter()
+                arcs = filter_by_length(detect_lines(img), m.kept_ratio)
+                b = time.perf_counter()
+                vps = vanishing_points(arcs, pp.k_2d, pp)
+                rots = candidate_rotations(vps, m.principal_directions, params=pp)
+                labels = labels_for_rotations(arcs, vps, rots.triplets, pp.group_tol)
+                c = time.perf_counter()
+                if len(rots) == 0:
+                    continue
+                exact = search_poses(arcs, labels, rots.rotations, m.lines, m.line_groups, m.translations,
+                                     SearchParams(use_fields=False))
+                d = time.perf_counter()
+                fast = search_poses(arcs, labels, rots.rotations, m.lines, m.line_groups, m.translations,
+                                    SearchParams(), fields=F)
+                e = time.perf_counter()
+                best = (int(exact.translation_index[0]), int(exact.rotation_index[0]))
+                top = list(zip(fast.translation_index.tolist(), fast.rotation_index.tolist()))
+
+                def best_of(res) -> tuple[float, float]:
+                    te = np.array([translation_error(t, q.center) for t in res.centers])
+                    re = np.array([rotation_error_deg(R, q.rot_cam_from_world) for R in res.rotations])
+                    ok = (te < 0.5) & (re < 10.0)
+                    return float(ok.any()), float(te[0] < 0.5 and re[0] < 10.0)
+
+                ex_top, ex_first = best_of(exact)
+                fa_top, fa_first = best_of(fast)
+                rows.append(dict(split=split, scene=scene, query=q.name, lines=len(arcs), rotations=len(rots),
+                                 lines2d=b - a, rotation=c - b, search_exact=d - c, search_fast=e - d,
+                                 pose_search=(c - b) + (e - d), exact_best_in_fast_top20=best in top,
+                                 same_top1=best == top[0], exact_top20_ok=ex_top, fast_top20_ok=fa_top,
+                                 exact_top1_ok=ex_first, fast_top1_ok=fa_first))
+                if len(errs) < 24:  # interpolation error at this query's rotations
+                    x = ldf.query_points(1)
+                    sel = np.linspace(0, len(m.translations) - 1, 100).astype(int)
+                    ref = ldf.ldf_3d(x, rots.rotations, m.translations[sel], m.lines, m.line_groups)
+                    got = F.ldf_3d(x, rots.rotations).permute(3, 0, 2, 1).float()[sel]
+                    errs.append((got - ref).abs().flatten().numpy())
+                n_done += 1
+    if not rows:
+        sys.exit("no query could be searched")
+    err = np.concatenate(errs)
+    med = {k: float(np.median([r[k] for r in rows])) for k in
+           ("lines2d", "rotation", "search_exact", "search_fast", "pose_search")}
+    p90 = {k: float(np.percentile([r[k] for r in rows], 90)) for k in med}
+    n_t = int(np.median([len(m.translations) for m in maps.values()]))
+    any_map = next(iter(maps.values()))
+    rows_g = int(any_map.fields_attrs.get("rows", 64))
+    sizes = {s: Path(p).stat().st_size / 1e6 for s, p in map_paths.items()}
+    stored = {s: maps[s].fields["distances"].nbytes / 1e6 for s in maps}
+
+    from rich.console import Console
+    from rich.table import Table
+
+    con = Console(width=120)
+    t = Table(title=f"Pose search over {len(rows)} synthetic queries (1024x512), N_t ~ {n_t}, "
+                    f"median N_r = {int(np.median([r['rotations'] for r in rows]))}, |Q| = 42")
+    for col in ("stage", "median s", "p90 s", "paper CPU s", "paper GPU s"):
+        t.add_column(col, justify="right" if col != "stage" else "left")
+    names = [("lines2d", "2D lines (LSD, arcs, filter)", "lines2d"),
+             ("rotation", "rotation estimation", "rotation"),
+             ("search_exact", "search, exact ldf_3d", "search"),
+             ("search_fast", "search, distance fields", "search"),
+             ("pose_search", "pose search = rotation + fast search", None)]
+    for key, label, paper in names:
+        pc, pg = PAPER[paper] if paper else (PAPER["rotation"][0] + PAPER["search"][0],
+                                              PAPER["rotation"][1] + PAPER["search"][1])
+        t.add_row(label, f"{med[key]:.4f}", f"{p90[key]:.4f}", f"{pc:.3f}", f"{pg:.3f}")
+    con.print(t)
+    agree = float(np.mean([r["exact_best_in_fast_top20"] for r in rows]))
+    same1 = float(np.mean([r["same_top1"] for r in rows]))
+    a = Table(title="Fast vs exact ranking")
+    a.add_column("measure")
+    a.add_column("value", justify="right")
+    a.add_row("exact best pose in fast top 20", f"{agree:.3f}")
+    a.add_row("same top-1 pose", f"{same1:.3f}")
+    for k, lab in (("exact_top20_ok", "exact: a top-20 pose within 0.5 m, 10 deg"),
+                   ("fast_top20_ok", "fast: a top-20 pose within 0.5 m, 10 deg"),
+                   ("exact_top1_ok", "exact: top-1 pose within 0.5 m, 10 deg"),
+                   ("fast_top1_ok", "fast: top-1 pose within 0.5 m, 10 deg")):
+        a.add_row(lab, f"{np.mean([r[k] for r in rows]):.3f}")
+    a.add_row("interpolation error mean / p95 / p99 / max (rad)",
+              f"{err.mean():.4f} / {np.percentile(err, 95):.4f} / {np.percentile(err, 99):.4f} / {err.max():.4f}")
+    con.print(a)
+    mem = Table(title=f"Memory and map size (grid G = {rows_g}: {rows_g + 1} x {2 * rows_g} nodes, float16)")
+    mem.add_column("measure")
+    mem.add_column("value", justify="right")
+    mem.add_row(f"look-up table, N_t = {n_t}", f"{field_bytes(n_t, rows_g) / 1e6:.1f} MB")
+    mem.add_row("look-up table, N_t = 1700", f"{field_bytes(1700, rows_g) / 1e6:.1f} MB")
+    mem.add_row("fields in the map file (uncompressed / whole map gzip)",
+                f"{np.mean(list(stored.values())):.1f} MB / {np.mean(list(sizes.values())):.1f} MB")
+    mem.add_row("fields build stage (s per map, when built now)",
+                ", ".join(f"{v:.1f}" for v in field_secs.values()) or "cached")
+    mem.add_row("table preparation at map load (s)", f"{prep_s:.3f}")
+    con.print(mem)
+    try:
+        load = os.getloadavg()
+    except OSError:
+        load = (float("nan"),) * 3
+    con.print(f"torch threads {torch.get_num_threads()}, CPU count {os.cpu_count()}, "
+              f"load average {load[0]:.2f} {load[1]:.2f} {load[2]:.2f}")
+    if args.json:
+        args.json.write_text(json.dumps({
+            "median_seconds": med, "p90_seconds": p90, "exact_best_in_fast_top20": agree, "same_top1": same1,
+            "interpolation_error": {"mean": float(err.mean()), "p95": float(np.percentile(err, 95)),
+                                    "p99": float(np.percentile(err, 99)), "max": float(err.max())},
+            "table_mb": {str(n_t): field_bytes(n_t, rows_g) / 1e6, "1700": field_bytes(1700, rows_g) / 1e6},
+            "map_mb": sizes, "threads": torch.get_num_threads(), "load": load, "queries": rows}, indent=1))
+
+
+if __name__ == "__main__":
+    main()

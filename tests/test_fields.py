@@ -1,0 +1,231 @@
+"""Precomputed 3D distance fields (ldlmap.fields3d) and the fast pose search (ldlloc.fields).
+
+The scene is an analytic box room (walls, posters, a table-sized box): lines, their principal
+groups and candidate translations are known in closed form, so the tests need neither the
+scene generator nor images.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from ldlmap.errors import InputError
+from ldlmap.fields3d import FieldParams, compute_fields, field_bytes, grid_directions
+from ldlmap.geometry import cam_from_world, normalize, rotation_from_axis_angle
+from ldlmap.mapfile import LdlMap, read_map, write_map
+from ldlloc import ldf
+from ldlloc.fields import DistanceFields, inlier_loss_from_fields
+from ldlloc.principal import assign_arcs_to_principal
+from ldlloc.search import SearchParams, search_poses
+
+LO, HI = np.array([-3.0, -2.0, 0.0]), np.array([3.0, 2.0, 3.0])
+
+
+def _box_edges(lo, hi):
+    c = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+    return [[c[i], c[j]] for i in range(8) for j in range(i + 1, 8) if np.sum(c[i] != c[j]) == 1]
+
+
+def _room_lines(seed=0):
+    """Box room edges, 12 wall rectangles and a box: (L, 2, 3) lines and their axis groups."""
+    rng = np.random.default_rng(seed)
+    lines = _box_edges(LO, HI) + _box_edges(np.array([0.5, -1.2, 0.0]), np.array([1.7, -0.4, 0.8]))
+    for _ in range(12):
+        ax = rng.integers(0, 2)  # a wall normal to x or y
+        side = rng.integers(0, 2)
+        a, b = [k for k in range(3) if k != ax]
+        half = rng.uniform(0.2, 0.6, 2)
+        c = rng.uniform(LO + 0.7, HI - 0.7)
+        corner = np.zeros((4, 3))
+        corner[:, ax] = (LO, HI)[side][ax]
+        corner[:, a] = c[a] + half[0] * np.array([-1, 1, 1, -1])
+        corner[:, b] = c[b] + half[1] * np.array([-1, -1, 1, 1])
+        lines += [[corner[k], corner[(k + 1) % 4]] for k in range(4)]
+    lines = np.array(lines, dtype=np.float64)
+    groups = np.argmax(np.abs(lines[:, 1] - lines[:, 0]), axis=1)
+    return lines, groups
+
+
+def _translations():
+    g = np.meshgrid(np.linspace(-2.4, 2.4, 7), np.linspace(-1.5, 1.5, 5), np.linspace(0.6, 2.2, 3), indexing="ij")
+    return np.stack(g, -1).reshape(-1, 3)
+
+
+@pytest.fixture(scope="module")
+def room():
+    lines, groups = _room_lines()
+    T = _translations()
+    dist, attrs = compute_fields(lines, groups, T)
+    return lines, groups, T, DistanceFields.from_arrays(dist, attrs), dist, attrs
+
+
+def _random_rotations(rng, n):
+    return np.stack([rotation_from_axis_angle(rng.normal(size=3), rng.uniform(0, np.pi)) for _ in range(n)])
+
+
+def test_grid_directions_and_sizes():
+    d = grid_directions(8)
+    assert d.shape == (9, 16, 3)
+    np.testing.assert_allclose(np.linalg.norm(d, axis=-1), 1.0, atol=1e-12)
+    np.testing.assert_allclose(d[0], np.broadcast_to([0, 0, 1], (16, 3)), atol=1e-12)  # north pole row
+    np.testing.assert_allclose(d[-1], np.broadcast_to([0, 0, -1], (16, 3)), atol=1e-12)
+    np.testing.assert_allclose(d[4, 0], [-1, 0, 0], atol=1e-12)  # equator, phi = -pi
+    assert field_bytes(800) == 800 * 3 * 65 * 128 * 2 and field_bytes(1700) / 1e6 < 90
+    with pytest.raises(InputError):
+        grid_directions(1)
+
+
+def test_fields_equal_exact_function_at_nodes(room):
+    lines, groups, T, _, dist, attrs = room
+    assert dist.shape == (len(T), 3, 65, 128) and dist.dtype == np.float16
+    assert attrs == {"kind": "equirect_nodes", "rows": 64, "num_groups": 3, "version": 1}
+    x = grid_directions(64).reshape(-1, 3)
+    for i in (0, 17, len(T) - 1):  # the world-aligned frame: identity rotation at T[i]
+        arcs = normalize(cam_from_world(lines, np.eye(3), T[i]))
+        ref = ldf.decomposed_distance_2d(torch.tensor(x), torch.tensor(arcs), torch.tensor(groups)).numpy()
+        np.testing.assert_allclose(dist[i].reshape(3, -1).astype(np.float64), ref, atol=2e-3)  # float16
+
+
+def test_interpolation_error_against_exact(room):
+    lines, groups, T, fields, _, _ = room
+    rng = np.random.default_rng(1)
+    R = _random_rotations(rng, 12)
+    x = ldf.query_points(1, dtype=torch.float64)
+    exact = ldf.ldf_3d(x, torch.tensor(R), torch.tensor(T), torch.tensor(lines), torch.tensor(groups)).numpy()
+    fast = fields.ldf_3d(x, R).permute(3, 0, 2, 1).double().numpy()
+    assert fast.shape == exact.shape
+    err = np.abs(fast - exact)
+    assert err.mean() < 0.005 and np.percentile(err, 95) < 0.01
+    # f is 1-Lipschitz: a convex combination of the 4 corner values is within the cell
+    # diagonal (sqrt(2) pi / G at the equator) of the true value, plus float16 rounding.
+    assert err.max() < np.sqrt(2) * np.pi / 64 + 2e-3
+
+
+def test_lookup_continuous_across_seam_and_poles(room):
+    *_, fields, _, _ = room
+    eps = 1e-6
+    a = normalize(np.array([[-1.0, eps, 0.3], [-1.0, -eps, 0.3], [eps, 0.0, 1.0], [0.0, eps, 1.0],
+                            [-eps, -eps, -1.0], [eps, -eps, -1.0]]))
+    v = fields.lookup(torch.tensor(a, dtype=torch.float32)).float().numpy()  # (6, 3, N_t)
+    np.testing.assert_allclose(v[0], v[1], atol=2e-3)  # phi = +pi and -pi
+    np.testing.assert_allclose(v[2], v[3], atol=2e-3)  # north pole from two azimuths
+    np.testing.assert_allclose(v[4], v[5], atol=2e-3)  # south pole
+    idx, w = fields.corners(torch.tensor(a, dtype=torch.float32))
+    assert int(idx.min()) >= 0 and int(idx.max()) < 65 * 128
+    np.testing.assert_allclose(w.sum(1).numpy(), 1.0, atol=1e-6)
+
+
+def test_inlier_loss_layout_matches_pose_loss(room):
+    *_, fields, _, _ = room
+    rng = np.random.default_rng(2)
+    R = _random_rotations(rng, 5)
+    x = ldf.query_points(1)
+    f3d = fields.ldf_3d(x, R).float()  # (N_r, Q, G, N_t)
+    f2d = torch.rand(5, 3, 42) * 1.5
+    ref = ldf.pose_loss(f2d, f3d.permute(3, 0, 2, 1), kind="inlier", tau=0.1)
+    np.testing.assert_array_equal(inlier_loss_from_fields(f2d, f3d, 0.1).numpy(), ref.numpy())
+    np.testing.assert_array_equal(inlier_loss_from_fields(f2d[0], f3d, 0.1).numpy(),
+                                  ldf.pose_loss(f2d[0], f3d.permute(3, 0, 2, 1)).numpy())
+
+
+def _synthetic_query(rng, lines, num_spurious=8):
+    """2D arcs of the room seen at a random pose: partial, noisy, some missed, some spurious."""
+    t = rng.uniform(LO + [0.8, 0.8, 0.8], HI - [0.8, 0.8, 0.8])
+    R = rotation_from_axis_angle(rng.normal(size=3), rng.uniform(0, np.pi))
+    keep = rng.random(len(lines)) > 0.2
+    a = rng.uniform(0.0, 0.2, (len(lines), 1))
+    b = rng.uniform(0.8, 1.0, (len(lines), 1))
+    seg = np.stack([lines[:, 0] + a * (lines[:, 1] - lines[:, 0]), lines[:, 0] + b * (lines[:, 1] - lines[:, 0])], 1)
+    arcs = normalize(cam_from_world(seg[keep], R, t) + rng.normal(scale=0.005, size=(keep.sum(), 2, 3)))
+    s = normalize(rng.normal(size=(num_spurious, 3)))
+    e = normalize(s + 0.15 * normalize(rng.normal(size=(num_spurious, 3))))
+    return np.concatenate([arcs, np.stack([s, e], 1)]), R, t
+
+
+def _manhattan_candidates(rng, R):
+    """The 24 rotations mapping the world axes onto the true camera-frame axes (up to labels),
+    each perturbed by ~1 degree, as the vanishing-point stage would produce them."""
+    out = []
+    for perm in ((0, 1, 2), (1, 2, 0), (2, 0, 1), (0, 2, 1), (2, 1, 0), (1, 0, 2)):
+        for sx in (1, -1):
+            for sy in (1, -1):
+                P = np.eye(3)[list(perm)] * np.array([sx, sy, 1.0])[:, None]
+                P[2] *= np.linalg.det(P)  # proper
+                noise = rotation_from_axis_angle(rng.normal(size=3), np.radians(rng.uniform(0, 1.0)))
+                out.append(noise @ R @ P)
+    return np.stack(out)
+
+
+def test_fast_search_keeps_the_exact_best_pose_in_its_top20(room):
+    lines, groups, T, fields, _, _ = room
+    rng = np.random.default_rng(5)
+    hits, n = 0, 40
+    for _ in range(n):
+        arcs, R_true, t_true = _synthetic_query(rng, lines)
+        rots = _manhattan_candidates(rng, R_true)
+        # Under rotation r, 2D group j holds the arcs through R_r e_j (3D group j = axis j).
+        labels = np.stack([assign_arcs_to_principal(arcs, r.T) for r in rots])
+        exact = search_poses(arcs, labels, rots, lines, groups, T, SearchParams(use_fields=False))
+        fast = search_poses(arcs, labels, rots, lines, groups, T, SearchParams(), fields=fields)
+        best = (exact.translation_index[0], exact.rotation_index[0])
+        hits += best in set(zip(fast.translation_index.tolist(), fast.rotation_index.tolist()))
+        assert abs(fast.losses[0] - exact.losses[0]) <= 3  # inlier counts of 126 terms
+    assert hits >= 0.99 * n
+
+
+def test_search_path_selection(room):
+    lines, groups, T, fields, _, _ = room
+    rng = np.random.default_rng(6)
+    arcs, R_true, _ = _synthetic_query(rng, lines)
+    rots = _manhattan_candidates(rng, R_true)[:4]
+    labels = np.stack([assign_arcs_to_principal(arcs, r.T) for r in rots])
+    args = (arcs, labels, rots, lines, groups, T)
+    with pytest.raises(InputError, match="no distance fields"):
+        search_poses(*args, SearchParams(use_fields=True))
+    with pytest.raises(InputError, match="undecomposed"):
+        search_poses(*args, SearchParams(use_fields=True, decompose=False), fields=fields)
+    with pytest.raises(InputError, match="translations"):
+        search_poses(*args[:-1], T[:-1], SearchParams(use_fields=True), fields=fields)
+    # decompose=False with fields present silently runs the exact path: same as use_fields=False.
+    a = search_poses(*args, SearchParams(decompose=False), fields=fields)
+    b = search_poses(*args, SearchParams(decompose=False, use_fields=False))
+    np.testing.assert_array_equal(a.losses, b.losses)
+    # Other losses go through ldf.pose_loss on the looked-up values.
+    c = search_poses(*args, SearchParams(loss="l1"), fields=fields)
+    d = search_poses(*args, SearchParams(loss="l1", use_fields=False))
+    assert c.losses[0] == pytest.approx(d.losses[0], rel=0.05)
+
+
+def test_fields_round_trip_through_the_map_file(room, tmp_path):
+    lines, groups, T, _, dist, attrs = room
+    m = LdlMap(name="box", bounds_min=LO, bounds_max=HI, lines_raw=lines, lines=lines, line_groups=groups,
+               length_threshold=0.5, kept_ratio=1.0, principal_directions=np.eye(3), translations=T,
+               fields={"distances": dist}, fields_attrs=attrs)
+    write_map(tmp_path / "box.h5", m)
+    back = read_map(tmp_path / "box.h5")
+    f = DistanceFields.from_map(back)
+    assert f.num_translations == len(T) and f.rows == 64 and f.nbytes == dist.nbytes
+    np.testing.assert_array_equal(back.fields["distances"], dist)
+    back.translations = T[:-1]
+    with pytest.raises(InputError, match="rebuild"):
+        DistanceFields.from_map(back)
+    back.fields = {}
+    assert DistanceFields.from_map(back) is None
+    with pytest.raises(InputError, match="kind"):
+        DistanceFields.from_arrays(dist, {**attrs, "kind": "cubemap"})
+    with pytest.raises(InputError, match="shape"):
+        DistanceFields.from_arrays(dist[:, :, :, :-1], attrs)
+
+
+def test_compute_fields_bad_input_and_empty_groups():
+    with pytest.raises(InputError, match="NaN"):
+        compute_fields(np.full((1, 2, 3), np.nan), np.zeros(1, int), np.zeros((1, 3)))
+    with pytest.raises(InputError, match="groups"):
+        compute_fields(np.ones((2, 2, 3)), np.zeros(3, int), np.zeros((1, 3)))
+    lines = np.array([[[1.0, -1.0, 0.0], [1.0, 1.0, 0.0]]])
+    d, _ = compute_fields(lines, np.array([1]), np.zeros((2, 3)), FieldParams(rows=8))
+    assert d.shape == (2, 3, 9, 16)
+    assert np.all(d[:, [0, 2]] == np.float16(np.pi))  # empty groups: pi everywhere
+    assert d[0, 1, 4, 8] == 0.0  # equator, phi = 0 looks at the line's midpoint (1, 0, 0)
