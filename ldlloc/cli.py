@@ -107,16 +107,11 @@ def run(
     """Localize every query of a dataset split (or all splits) and print accuracy tables."""
     from ldlloc.evaluate import summary_table, timing_table
     from ldlloc.run import run_queries
-    from ldlmap.datasets import DEFAULT_ROOTS, detect_kind, open_dataset
+    from ldlmap.datasets import open_dataset
     from ldlmap.errors import InputError
 
-    if root is None:
-        kind0 = dataset or "omniscenes"
-        if kind0 not in DEFAULT_ROOTS:
-            raise InputError(f"unknown dataset {kind0!r}; valid: {', '.join(DEFAULT_ROOTS)}")
-        root = DEFAULT_ROOTS[kind0]
-    kind = dataset or detect_kind(root)
-    ds = open_dataset(root, kind)
+    ds = open_dataset(root, dataset or (None if root else "omniscenes"))
+    root, kind = Path(ds.root), ds.kind
     queries = ds.queries(split or None, scene)
     if not queries:
         raise InputError(f"no queries in {root} for split(s) {', '.join(split or ['all'])}")

@@ -33,6 +33,10 @@ class LocalizeParams:
     do_refine: bool = True  # False: stop after pose search (always so for lines-only maps)
     privacy: bool = False  # refine only with query features near principal-direction lines
     max_keypoints: int = 8192  # query features
+    vp_keep_ratio: float = 0.2  # vanishing points are voted by the longest max(kept ratio, this)
+    # fraction of the 2D lines (then 0.5, then all, until candidate rotations exist): the map's
+    # kept ratio (often ~5 %) can leave a principal direction without any line in a close-up
+    # view, while the distance functions keep the paper's adaptive filter
 
 
 @dataclass
@@ -131,8 +135,13 @@ class Localizer:
             raise InputError(f"too few lines in the panorama ({len(arcs_all)} detected): a flat or empty image?")
         arcs = filter_by_length(arcs_all, m.kept_ratio)
         lap("lines2d")
-        vps = vanishing_points(arcs, p.principal.k_2d, p.principal)
-        rots = candidate_rotations(vps, m.principal_directions, params=p.principal)
+        # Vanishing points from the longest lines first; more (shorter) lines only when those
+        # do not give 3 directions that match the map's.
+        for ratio in sorted({max(m.kept_ratio, p.vp_keep_ratio), 0.5, 1.0}):
+            vps = vanishing_points(filter_by_length(arcs_all, ratio), p.principal.k_2d, p.principal)
+            rots = candidate_rotations(vps, m.principal_directions, params=p.principal)
+            if len(rots):
+                break
         if len(rots) == 0:
             raise InputError("no candidate rotation: the panorama's vanishing points do not match the map's")
         labels = labels_for_rotations(arcs, vps, rots.triplets, p.principal.group_tol)

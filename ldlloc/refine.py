@@ -31,7 +31,7 @@ class RefineParams:
     max_turn_deg: float = 30.0  # ... or turned more than this
     strong_inliers: int = 60  # ... unless PnP has at least this many inliers
     strong_ratio: float = 0.5  # ... making up at least this fraction of the matches
-    pnp_views: int = 3  # PnP is tried on the matches of this many best-supported distinct views
+    pnp_views: int = 5  # PnP is tried on the matches of this many best-supported distinct views
     privacy_radius: float = 0.05  # privacy mode: keep features within this (rad) of principal lines
     pnp: PnPParams = field(default_factory=PnPParams)
 

@@ -191,16 +191,12 @@ def prepare(
     from rich.table import Table
 
     from ldlmap.build import params_with
-    from ldlmap.datasets import DEFAULT_ROOTS, detect_kind
+    from ldlmap.datasets import open_dataset
     from ldlmap.errors import InputError
     from ldlmap.prepare import default_params, prepare_dataset
 
-    if root is None:
-        kind = dataset or "omniscenes"
-        if kind not in DEFAULT_ROOTS:
-            raise InputError(f"unknown dataset {kind!r}; valid: {', '.join(DEFAULT_ROOTS)}")
-        root = DEFAULT_ROOTS[kind]
-    kind = dataset or detect_kind(root)
+    ds = open_dataset(root, dataset or (None if root else "omniscenes"))
+    root, kind = Path(ds.root), ds.kind
     params = params_with(default_params(kind), features=features, weights=str(weights) if weights else None,
                          num_translations=num_trans, num_views=num_views, device=device)
     with _progress_bar() as bar:

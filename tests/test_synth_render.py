@@ -8,7 +8,8 @@ import pytest
 from ldlmap.errors import InputError
 from ldlmap.geometry import bearing_from_pixel, pixel_centers, project_to_pixels
 from ldlmap.synth.poses import random_rotation, sample_poses
-from ldlmap.synth.render import (Renderer, apply_illumination, bilinear_lookup, motion_blur, points_in_polygon)
+from ldlmap.synth.polygon import points_in_polygon
+from ldlmap.synth.render import Renderer, apply_illumination, bilinear_lookup, motion_blur
 from ldlmap.synth.scan import sample_scan, write_ply, write_txt
 from ldlmap.synth.types import SceneMesh
 

@@ -23,7 +23,8 @@ import numpy as np
 
 from ldlmap.errors import InputError
 from ldlmap.geometry import rotation_from_axis_angle
-from ldlmap.synth.render import Renderer, points_in_polygon
+from ldlmap.synth.polygon import points_in_polygon
+from ldlmap.synth.render import Renderer
 from ldlmap.synth.types import SceneMesh
 
 SPLITS = ("robot", "handheld", "extreme", "change_robot", "change_handheld")

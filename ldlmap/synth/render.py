@@ -26,6 +26,7 @@ from typing import Literal
 import numpy as np
 
 from ldlmap.geometry import bearing_from_pixel, normalize, pixel_centers
+from ldlmap.synth.polygon import points_in_polygon
 from ldlmap.synth.types import SceneMesh
 
 IlluminationKind = Literal["intensity", "gamma", "white_balance"]
@@ -60,18 +61,6 @@ class Panorama:
     rgb: np.ndarray  # (H, W, 3) uint8
     depth: np.ndarray  # (H, W) float32 ray length in metres, inf where no surface was hit
     tri_id: np.ndarray  # (H, W) int32 triangle index, -1 where no surface was hit
-
-
-def points_in_polygon(points: np.ndarray, polygon: np.ndarray) -> np.ndarray:
-    """Even-odd test: which 2D ``points`` (N, 2) lie inside ``polygon`` (K, 2)."""
-    pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
-    poly = np.asarray(polygon, dtype=np.float64)
-    a, b = poly, np.roll(poly, -1, axis=0)
-    x, y = pts[:, 0:1], pts[:, 1:2]  # (N, 1) against edges (K,)
-    crosses = (a[:, 1] > y) != (b[:, 1] > y)
-    dy = np.where(b[:, 1] == a[:, 1], 1.0, b[:, 1] - a[:, 1])
-    x_at = a[:, 0] + (y - a[:, 1]) * (b[:, 0] - a[:, 0]) / dy
-    return (np.count_nonzero(crosses & (x < x_at), axis=1) % 2) == 1
 
 
 def light_positions(mesh: SceneMesh, shading: Shading = Shading()) -> np.ndarray:
