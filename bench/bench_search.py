@@ -57,6 +57,28 @@ def _prepare(root: Path | None, cache: Path, seed: int) -> tuple[Path, dict[str,
     return root, maps, field_secs
 
 
+def _scaling_seconds(n_t: int, rows: int, n_r: int = 24, repeat: int = 7) -> float:
+    """Median seconds of the fast search's look-up, loss and top-K for a random table of N_t."""
+    import torch
+
+    from ldlloc import ldf
+    from ldlloc.fields import DistanceFields, inlier_loss_from_fields
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(0)
+    d = (rng.random((n_t, 3, rows + 1, 2 * rows), dtype=np.float32) * np.pi).astype(np.float16)
+    F = DistanceFields.from_arrays(d, {"rows": rows})
+    R = Rotation.random(n_r, random_state=0).as_matrix()
+    x = ldf.query_points(1)
+    f2d = torch.rand(n_r, 3, 42) * np.pi
+    ts = []
+    for _ in range(repeat):
+        a = time.perf_counter()
+        ldf.top_k_poses(inlier_loss_from_fields(f2d, F.ldf_3d(x, R)), 20)
+        ts.append(time.perf_counter() - a)
+    return float(np.median(ts))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--root", type=Path, default=None, help="OmniScenes-layout dataset (default: demo, cached)")
@@ -195,6 +217,14 @@ def main() -> None:
                 ", ".join(f"{v:.1f}" for v in field_secs.values()) or "cached")
     mem.add_row("table preparation at map load (s)", f"{prep_s:.3f}")
     con.print(mem)
+    sc = Table(title="Fast search scaling with N_t (look-up + inlier loss + top 20; N_r = 24, random tables)")
+    for col in ("N_t", "table MB", "median s"):
+        sc.add_column(col, justify="right")
+    scaling = {}
+    for n in (800, 1700, 5000):
+        scaling[n] = _scaling_seconds(n, rows_g)
+        sc.add_row(str(n), f"{field_bytes(n, rows_g) / 1e6:.0f}", f"{scaling[n]:.4f}")
+    con.print(sc)
     try:
         load = os.getloadavg()
     except OSError:
@@ -207,7 +237,7 @@ def main() -> None:
             "interpolation_error": {"mean": float(err.mean()), "p95": float(np.percentile(err, 95)),
                                     "p99": float(np.percentile(err, 99)), "max": float(err.max())},
             "table_mb": {str(n_t): field_bytes(n_t, rows_g) / 1e6, "1700": field_bytes(1700, rows_g) / 1e6},
-            "map_mb": sizes, "threads": torch.get_num_threads(), "load": load, "queries": rows}, indent=1))
+            "map_mb": sizes, "scaling_seconds": scaling, "threads": torch.get_num_threads(), "load": load, "queries": rows}, indent=1))
 
 
 if __name__ == "__main__":
