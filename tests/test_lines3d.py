@@ -167,3 +167,55 @@ def test_cli_lines_writes_obj_txt_png(tmp_path, room):
     assert n_obj_lines >= 12
     res = CliRunner().invoke(app, ["lines", str(tmp_path / "missing.ply"), "-o", str(tmp_path / "x.obj")])
     assert res.exit_code == 1 and "error" in res.output and not (tmp_path / "x.obj").exists()
+
+
+# ------------------------------------------------------------------------- synthetic rooms
+
+
+def _observable(edges: np.ndarray, points: np.ndarray, radius: float = 0.03) -> np.ndarray:
+    """Edges with >= 70 % of their length within ``radius`` of a scan point (seen by a station)."""
+    from scipy.spatial import cKDTree
+
+    t = np.linspace(0.0, 1.0, 41)
+    x = edges[:, None, 0] + t[None, :, None] * (edges[:, None, 1] - edges[:, None, 0])
+    d, _ = cKDTree(points).query(x.reshape(-1, 3), distance_upper_bound=radius)
+    return np.isfinite(d).reshape(len(edges), -1).mean(axis=1) >= 0.7
+
+
+RECALL_SEEN_FLOOR = 0.45  # measured 0.58 (seed 0) and 0.52 (seed 1)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_extract_lines_synthetic_demo_rooms(seed):
+    """Demo rooms of the generator, default scan (5 mm noise): lines against the true mesh edges.
+
+    Measured (bench/bench_lines3d.py): precision 0.95-0.97, recall 0.36-0.51 on all long edges;
+    the issue's 0.7 recall is not reached (see the module notes in the report): about a quarter of
+    the long edges is never seen by the scan, and frames / table legs / shelf boards are small.
+    The asserted floors guard against regressions.
+    """
+    from ldlmap.synth.edges import edges_longer_than, mesh_edges
+    from ldlmap.synth.scan import sample_scan
+    from ldlmap.synth.scene import build_scene
+    from ldlmap.synth.spec import random_spec
+
+    from dataclasses import replace
+
+    spec = random_spec("demo", seed)
+    assert spec.scan.noise_std == pytest.approx(0.005)
+    # A Matterport-like room scan: ~4000 points / m^2 from 6 stations (~0.5 M points per room).
+    spec = replace(spec, scan=replace(spec.scan, density=4000.0, stations=6))
+    mesh = build_scene(spec)
+    P, _ = sample_scan(mesh, spec.scan, np.random.default_rng(seed))
+    assert 350_000 <= len(P) <= 700_000  # a realistic-dense room scan
+    lines = extract_lines(P)
+    kept, _, thr = filter_by_length(lines, P.min(0), P.max(0))
+    E = mesh_edges(mesh)
+    gt_long = edges_longer_than(E, thr)
+    precision, _ = line_precision_recall(kept, E)
+    _, recall = line_precision_recall(kept, gt_long)
+    seen = _observable(gt_long, P)
+    _, recall_seen = line_precision_recall(kept, gt_long[seen])
+    assert precision >= 0.85, precision
+    assert recall >= 0.3, recall
+    assert recall_seen >= RECALL_SEEN_FLOOR, recall_seen
