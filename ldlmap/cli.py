@@ -87,7 +87,8 @@ def lines(
 @app.command()
 def synth(
     out: Path = typer.Argument(..., help="Output dataset folder (OmniScenes layout)."),
-    preset: Optional[str] = typer.Option(None, "--preset", help="Random-room preset (demo, standard); default demo."),
+    preset: Optional[str] = typer.Option(None, "--preset", help="Random-room preset (demo, standard; multiroom: 4 demo rooms "
+                                          "in one scan, one scene multiroom_1); default demo."),
     spec: Optional[list[Path]] = typer.Option(None, "--spec", help="Scene spec .toml (repeatable); replaces --preset."),
     seed: int = typer.Option(0, "--seed", help="Random seed: same seed, identical files."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace a non-empty OUT folder."),

@@ -1,0 +1,323 @@
+"""Several rooms in one scan: the synthetic counterpart of the paper's multi-room map (sec. 4.2).
+
+The paper localizes against the whole OmniScenes dataset as ONE map; here ``N`` random rooms
+(``random_spec(room_preset, seed, i)``, ``i = 1..N``: the same rooms as the first scenes of that
+preset's single-room dataset) are placed side by side in one world frame and written as a
+single OmniScenes scene ``multiroom_1``::
+
+    pcd/multiroom_1.txt, .ply                  union of the rooms' scans (room 1's points first)
+    mesh/multiroom_1.obj (+ .mtl, .png)        union of the rooms' meshes (one stacked atlas)
+    gt_lines/multiroom_1.obj, .txt             union of the rooms' ground-truth edges
+    specs/multiroom_1_room_<i>.toml            room i in world coordinates (scene_2: changed room)
+    <split>_pano/<split>_multiroom_1_scene_<k>/<id>.jpg   queries of all rooms, numbered on
+    <split>_pose/<split>_multiroom_1_scene_<k>/<id>.txt   (room 1's first), poses in the world frame
+    dataset.json                               as for one room, plus the room layout (below)
+
+Placement: rooms keep their orientation (real buildings share principal directions), so only
+offsets differ. The rooms' bounding boxes are laid out on a near-square grid
+(``ceil(sqrt(N))`` columns) with ``gap`` metres between neighbours, so they never overlap, and
+the scan's extent (which scales the 3D length filter, ``lambda * mean extent``) grows like
+``sqrt(N)`` rather than ``N``. The specs are translated themselves (footprint and furniture
+centres; walls, openings and posters are relative to the footprint), so every written spec
+builds its room directly in the world frame and ``build_scene(load_spec(...))`` reproduces it.
+
+Each room is scanned from its own stations and its panoramas rendered in the room alone (rooms
+are closed solids, so the other rooms could not be seen anyway), with the single-room
+generator's code and random streams (:func:`ldlmap.synth.generate.write_split_panoramas`).
+``dataset.json`` records per room its spec files, offset, bounds, the slice of the scan that is
+its own and the image stems of each split (:func:`read_layout` reads them back).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from dataclasses import asdict, dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ldlmap.errors import InputError, atomic_dir
+
+SCENE = "multiroom_1"
+
+# Multi-room presets (data, like ``spec.PRESETS``): rooms, the single-room preset they come
+# from, and the gap between neighbouring rooms' bounding boxes.
+MULTIROOM_PRESETS: dict[str, dict[str, Any]] = {
+    "multiroom": {"rooms": 4, "room_preset": "demo", "gap": 1.0},
+}
+
+
+@dataclass(frozen=True)
+class MultiRoomParams:
+    """How the rooms of a multi-room scene are chosen and placed."""
+
+    rooms: int = 4  # number of rooms N
+    room_preset: str = "demo"  # single-room preset of random_spec (demo, standard)
+    gap: float = 1.0  # m, free space between neighbouring rooms' bounding boxes
+    columns: int = 0  # rooms per grid row; 0 = ceil(sqrt(rooms))
+    scan_density: float = 0.0  # points per m^2 of each room's scan; 0 = the room preset's
+
+
+@dataclass(frozen=True)
+class RoomInfo:
+    """One room of a generated multi-room scene (see :func:`read_layout`)."""
+
+    index: int  # 1-based room index (its random streams)
+    spec: Path  # room spec in world coordinates
+    changed_spec: Path  # the changed room (change_* splits)
+    offset: np.ndarray  # (3,) m, translation applied to random_spec's room
+    bounds_min: np.ndarray  # (3,) m, bounding box of the room (footprint, floor to ceiling)
+    bounds_max: np.ndarray  # (3,)
+    points: tuple[int, int]  # [start, end) of the room's own points in the scene's scan
+    queries: dict[str, list[str]]  # split -> image stems of the room's panoramas
+
+    def contains(self, xyz: np.ndarray) -> np.ndarray:
+        """Whether points (N, 3) lie in the room's bounding box."""
+        p = np.atleast_2d(np.asarray(xyz, dtype=np.float64))
+        return np.all((p >= self.bounds_min) & (p <= self.bounds_max), axis=1)
+
+
+def is_multiroom_preset(preset: str | None) -> bool:
+    """Whether ``preset`` names a multi-room preset (routed here by ``generate_dataset``)."""
+    return preset in MULTIROOM_PRESETS
+
+
+def multiroom_params(preset: str = "multiroom", rooms: int | None = None) -> MultiRoomParams:
+    """The :class:`MultiRoomParams` of ``preset``, with ``rooms`` overriding its room count."""
+    if preset not in MULTIROOM_PRESETS:
+        raise InputError(f"unknown multi-room preset {preset!r}; valid: {', '.join(MULTIROOM_PRESETS)}")
+    params = MultiRoomParams(**MULTIROOM_PRESETS[preset])
+    return params if rooms is None else replace(params, rooms=int(rooms))
+
+
+def translate_spec(spec: Any, offset: tuple[float, float]) -> Any:
+    """``spec`` moved by ``offset`` (dx, dy) in metres: footprint vertices and object centres.
+
+    Openings and posters are placed along walls (relative to the footprint) and move with it;
+    coordinates are rounded to micrometres so that the TOML files stay readable.
+    """
+    dx, dy = float(offset[0]), float(offset[1])
+    footprint = tuple((round(x + dx, 6), round(y + dy, 6)) for x, y in spec.footprint)
+    objects = tuple(replace(o, center=(round(o.center[0] + dx, 6), round(o.center[1] + dy, 6))) for o in spec.objects)
+    return replace(spec, footprint=footprint, objects=objects)
+
+
+def layout_offsets(footprints: list[np.ndarray], gap: float, columns: int = 0) -> np.ndarray:
+    """(N, 2) offsets placing the footprints' bounding boxes on a grid, ``gap`` metres apart.
+
+    Row by row (``columns`` per row, 0 = ceil(sqrt(N))): each box starts ``gap`` after the
+    previous box of its row, and each row ``gap`` above the deepest box of the rows below.
+    """
+    n = len(footprints)
+    if n == 0:
+        return np.zeros((0, 2))
+    if gap < 0:
+        raise InputError(f"the gap between rooms must be >= 0 m, got {gap}")
+    cols = int(columns) if columns and columns > 0 else int(math.ceil(math.sqrt(n)))
+    lo = np.array([np.min(f, axis=0) for f in footprints])
+    hi = np.array([np.max(f, axis=0) for f in footprints])
+    size = hi - lo
+    out = np.zeros((n, 2))
+    y = 0.0
+    for r0 in range(0, n, cols):
+        x = 0.0
+        row = range(r0, min(n, r0 + cols))
+        for i in row:
+            out[i] = (x - lo[i, 0], y - lo[i, 1])
+            x += size[i, 0] + gap
+        y += max(size[i, 1] for i in row) + gap
+    return np.round(out, 6)
+
+
+def multiroom_specs(seed: int, params: MultiRoomParams = MultiRoomParams()) -> tuple[list[Any], np.ndarray]:
+    """The rooms' specs in world coordinates (named ``room<i>``) and their (N, 2) offsets."""
+    from ldlmap.synth.spec import random_spec, validate_spec
+
+    if params.rooms < 1:
+        raise InputError(f"a multi-room scene needs at least 1 room, got {params.rooms}")
+    rooms = [random_spec(params.room_preset, seed, i) for i in range(1, params.rooms + 1)]
+    offsets = layout_offsets([np.asarray(s.footprint, dtype=np.float64) for s in rooms], params.gap, params.columns)
+    specs = []
+    for i, (s, off) in enumerate(zip(rooms, offsets), start=1):
+        moved = replace(translate_spec(s, off), name=f"room{i}")
+        if params.scan_density > 0:
+            moved = replace(moved, scan=replace(moved.scan, density=float(params.scan_density)))
+        validate_spec(moved)
+        specs.append(moved)
+    return specs, offsets
+
+
+def merge_meshes(meshes: list[Any], name: str = SCENE) -> Any:
+    """One :class:`SceneMesh` holding all ``meshes`` (for the union OBJ).
+
+    Atlases are stacked vertically (left-aligned, zero padding) and texture coordinates remapped
+    into the stack; object and part indices are offset so that they stay unique. The footprint
+    of the union is the bounding rectangle of the rooms' footprints, the ceiling the highest.
+    """
+    from ldlmap.synth.types import SceneMesh
+
+    if not meshes:
+        raise InputError("no mesh to merge")
+    Wt = max(m.atlas.shape[1] for m in meshes)
+    Ht = sum(m.atlas.shape[0] for m in meshes)
+    atlas = np.zeros((Ht, Wt, 3), dtype=np.uint8)
+    verts, tris, uvs, objs, parts, boxes, fps = [], [], [], [], [], [], []
+    v0 = r0 = obj0 = part0 = 0
+    for m in meshes:
+        h, w = m.atlas.shape[:2]
+        atlas[r0:r0 + h, :w] = m.atlas
+        uv = np.asarray(m.tri_uvs, dtype=np.float64)
+        s = uv[..., 0] * (w / Wt)
+        t = 1.0 - ((1.0 - uv[..., 1]) * h + r0) / Ht  # rows are (1 - t) * height, counted from the top
+        uvs.append(np.stack([s, t], -1).astype(np.float32))
+        verts.append(np.asarray(m.vertices, dtype=np.float64))
+        tris.append(np.asarray(m.triangles, dtype=np.int64) + v0)
+        o = np.asarray(m.tri_object, dtype=np.int32)
+        objs.append(np.where(o >= 0, o + obj0, -1).astype(np.int32))
+        p = np.asarray(m.tri_part if m.tri_part is not None else np.zeros(len(m.triangles)), dtype=np.int32)
+        parts.append(p + part0)
+        boxes.extend(m.object_boxes)
+        fps.append(np.asarray(m.footprint, dtype=np.float64))
+        v0 += len(m.vertices)
+        r0 += h
+        obj0 += len(m.object_boxes)
+        part0 += int(p.max()) + 1 if len(p) else 0
+    allfp = np.concatenate(fps)
+    (x0, y0), (x1, y1) = allfp.min(0), allfp.max(0)
+    return SceneMesh(vertices=np.concatenate(verts), triangles=np.concatenate(tris), tri_uvs=np.concatenate(uvs),
+                     atlas=atlas, tri_object=np.concatenate(objs),
+                     footprint=np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]]),
+                     ceiling_height=float(max(m.ceiling_height for m in meshes)), name=name,
+                     object_boxes=boxes, tri_part=np.concatenate(parts))
+
+
+def generate_multiroom(out: Path, preset: str = "multiroom", seed: int = 0, rooms: int | None = None,
+                       overwrite: bool = False, progress: bool = True, illumination: bool = True,
+                       width: int | None = None, per_split: int | None = None,
+                       params: MultiRoomParams | None = None) -> Any:
+    """Generate a multi-room dataset into ``out`` (atomically); returns a ``DatasetSummary``.
+
+    ``params`` (default: the preset's, with ``rooms`` overriding its room count) places the
+    rooms; ``width`` and ``per_split`` (panoramas per split *per room*) override the specs.
+    Same seed, same bytes.
+    """
+    from ldlmap.io.linefiles import write_lines
+    from ldlmap.synth.edges import mesh_edges
+    from ldlmap.synth.generate import (BASE_SPLITS, GENERATOR_VERSION, ILLUMINATION_SPLITS, DatasetSummary,
+                                       _progress, _rng, capture_settings, write_split_panoramas)
+    from ldlmap.synth.meshio import write_textured_obj
+    from ldlmap.synth.render import Renderer
+    from ldlmap.synth.scan import sample_scan, write_ply, write_txt
+    from ldlmap.synth.scene import build_scene
+    from ldlmap.synth.spec import changed_spec, dump_spec_toml
+
+    start = time.perf_counter()
+    out = Path(out)
+    if params is None:
+        params = multiroom_params(preset, rooms)
+    elif rooms is not None:
+        params = replace(params, rooms=int(rooms))
+    specs, offsets = multiroom_specs(seed, params)  # bad settings fail before anything is written
+    settings = [capture_settings(s.capture, width, per_split, illumination) for s in specs]
+    if len({(c.width, c.height) for c in settings}) != 1:
+        raise InputError("the rooms of a multi-room scene must share one panorama size")
+    splits = list(BASE_SPLITS) + [v for v in ILLUMINATION_SPLITS if any(v in c.illumination for c in settings)]
+    split_counts = {s: 0 for s in splits}
+    total = sum(3 + sum(c.counts.values()) for c in settings) + 1
+    name = SCENE
+    meshes, edges, clouds, colors, rooms_info = [], [], [], [], []
+    first = {s: 0 for s in BASE_SPLITS}  # next image number of each split in the shared scene folder
+    n_points = 0
+
+    with atomic_dir(out, overwrite=overwrite) as tmp, _progress(progress, total) as tick:
+        (tmp / "specs").mkdir(parents=True)
+        for idx, (spec, cap, off) in enumerate(zip(specs, settings, offsets), start=1):
+            room = f"{name}_room_{idx}"
+            mesh = build_scene(spec)
+            renderer = Renderer(mesh)
+            (tmp / "specs" / f"{room}.toml").write_text(dump_spec_toml(spec))
+            meshes.append(mesh)
+            edges.append(mesh_edges(mesh))
+            tick(f"room {idx}: scan")
+            pts, cols = sample_scan(mesh, spec.scan, _rng(seed, spec, idx, "scan"), renderer=renderer)
+            clouds.append(pts)
+            colors.append(cols)
+            tick(f"room {idx}: changed room")
+            changed = changed_spec(spec, _rng(seed, spec, idx, "change"))
+            (tmp / "specs" / f"{room}_scene_2.toml").write_text(dump_spec_toml(changed))
+            changed_renderer = Renderer(build_scene(changed))
+            tick(f"room {idx}: panoramas")
+            # Every split is numbered on from the previous rooms' images (one stem, one image).
+            stems = write_split_panoramas(tmp, name, spec, idx, cap, seed, renderer, changed_renderer, split_counts,
+                                          tick, first_stem=first)
+            for split in BASE_SPLITS:
+                first[split] += len(stems.get(split, []))
+            z_top = float(spec.ceiling_height)
+            fp = np.asarray(spec.footprint, dtype=np.float64)
+            rooms_info.append({
+                "index": idx, "spec": f"specs/{room}.toml", "changed_spec": f"specs/{room}_scene_2.toml",
+                "offset": [float(off[0]), float(off[1]), 0.0],
+                "bounds_min": [float(x) for x in fp.min(0)] + [0.0],
+                "bounds_max": [float(x) for x in fp.max(0)] + [z_top],
+                "points": [n_points, n_points + int(len(pts))], "triangles": int(mesh.num_triangles),
+                "gt_lines": int(len(edges[-1])), "queries": stems})
+            n_points += int(len(pts))
+        tick(f"{name}: writing the union")
+        P, C = np.concatenate(clouds), np.concatenate(colors)
+        (tmp / "pcd").mkdir()
+        write_ply(tmp / "pcd" / f"{name}.ply", P, C)
+        write_txt(tmp / "pcd" / f"{name}.txt", P, C)
+        (tmp / "mesh").mkdir()
+        union = merge_meshes(meshes, name)
+        write_textured_obj(union, tmp / "mesh" / f"{name}.obj")
+        segs = np.concatenate(edges)
+        (tmp / "gt_lines").mkdir()
+        write_lines(tmp / "gt_lines" / f"{name}.obj", segs)
+        write_lines(tmp / "gt_lines" / f"{name}.txt", segs)
+        W, H = settings[0].width, settings[0].height
+        scene_info = {"name": name, "points": int(len(P)), "triangles": int(union.num_triangles),
+                      "gt_lines": int(len(segs)), "width": W, "height": H, "rooms": rooms_info}
+        meta = {"generator": "ldlmap.synth", "version": GENERATOR_VERSION, "seed": int(seed), "preset": preset,
+                "multiroom": asdict(params),
+                "illumination": sorted({v for c in settings for v in c.illumination}),
+                "layout": "omniscenes", "scenes": [scene_info],
+                "splits": {s: {"images": split_counts[s]} for s in splits}}
+        (tmp / "dataset.json").write_text(json.dumps(meta, indent=2) + "\n")
+
+    return DatasetSummary(out=out, seed=int(seed), scenes=[name], splits=split_counts, points={name: int(len(P))},
+                          width=W, height=H, seconds=time.perf_counter() - start)
+
+
+def read_layout(root: str | Path, scene: str = SCENE) -> list[RoomInfo]:
+    """The rooms of the multi-room ``scene`` of a generated dataset (from its ``dataset.json``)."""
+    root = Path(root)
+    path = root / "dataset.json"
+    if not path.is_file():
+        raise InputError(f"not a generated synthetic dataset (no dataset.json): {root}")
+    try:
+        meta = json.loads(path.read_text())
+    except (OSError, ValueError) as exc:
+        raise InputError(f"cannot read {path}: {exc}") from None
+    for s in meta.get("scenes", []):
+        if s.get("name") == scene:
+            if "rooms" not in s:
+                raise InputError(f"scene {scene} of {root} is not a multi-room scene")
+            return [RoomInfo(index=int(r["index"]), spec=root / r["spec"], changed_spec=root / r["changed_spec"],
+                             offset=np.asarray(r["offset"], dtype=np.float64),
+                             bounds_min=np.asarray(r["bounds_min"], dtype=np.float64),
+                             bounds_max=np.asarray(r["bounds_max"], dtype=np.float64),
+                             points=(int(r["points"][0]), int(r["points"][1])),
+                             queries={k: list(v) for k, v in r["queries"].items()})
+                    for r in s["rooms"]]
+    raise InputError(f"no scene {scene} in {path}")
+
+
+def room_meshes(root: str | Path, scene: str = SCENE, changed: bool = False) -> list[Any]:
+    """The rooms' meshes in the world frame, rebuilt from the written specs (``changed``: scene_2)."""
+    from ldlmap.synth.scene import build_scene
+    from ldlmap.synth.spec import load_spec
+
+    return [build_scene(load_spec(r.changed_spec if changed else r.spec)) for r in read_layout(root, scene)]
