@@ -125,7 +125,7 @@ def views_table(rows: list[dict[str, Any]], scene: str, info: dict[str, Any]):
 
     t = Table(title=f"Rendered views vs localization ({scene}, all splits; first k views of one build)")
     for col in ("views", "n", "acc 0.05m/5", "acc 0.1m/5", "acc 0.2m/10", "t err m", "R err deg",
-                "refine s (median)", "inliers (median)", "coarse only", "query-view dist m"):
+                "refine s (median)", "inliers (median)", "coarse only", "view dist m"):
         t.add_column(col, justify="right")
     for r in rows:
         a = r["accuracy"]

@@ -1,6 +1,8 @@
 """Shared helpers of the benchmarks: cached synthetic data, cached maps, query loops, machine info.
 
-Everything generated lands in ``bench/.cache/`` (gitignored) and is reused by later runs:
+Everything generated lands in ``bench/.cache/`` (gitignored) and is reused by later runs; each
+name ends with a hash of the code that made it (:func:`synth_tag`, :func:`map_tag`), so a change
+of the generator or of the map builder regenerates instead of reusing stale data:
 
 - ``demo_s<seed>/``: the synthetic demo dataset (``generate_dataset(..., 'demo', seed)``,
   OmniScenes layout, 2 scenes, 3 panoramas per split, 1024 x 512);
@@ -52,17 +54,43 @@ def console():
     """A Rich console for the tables (wide enough not to wrap them in logs)."""
     from rich.console import Console
 
-    return Console(width=max(120, int(os.environ.get("COLUMNS", 0) or 0)))
+    return Console(width=max(150, int(os.environ.get("COLUMNS", 0) or 0)))
 
 
 # ------------------------------------------------------------------------------------ data
+
+
+def source_hash(package: str, include: str = "**/*.py", exclude: tuple[str, ...] = ()) -> str:
+    """8 hex digits of the SHA-1 of a package's source files: cached data keyed by it is
+    regenerated when the code that made it changes (the working tree moves under the cache)."""
+    import hashlib
+
+    base = ROOT / package
+    h = hashlib.sha1()
+    for f in sorted(base.glob(include)):
+        rel = f.relative_to(base).as_posix()
+        if any(rel.startswith(e) for e in exclude):
+            continue
+        h.update(rel.encode())
+        h.update(f.read_bytes())
+    return h.hexdigest()[:8]
+
+
+def synth_tag() -> str:
+    """Version tag of the synthetic data generator's code."""
+    return source_hash("ldlmap", "synth/*.py")
+
+
+def map_tag() -> str:
+    """Version tag of the map-building code (everything in ``ldlmap`` but the generator and CLI)."""
+    return source_hash("ldlmap", exclude=("synth/", "cli"))
 
 
 def demo_dataset(seed: int = 1) -> Path:
     """The synthetic demo dataset for ``seed`` (generated once, then reused)."""
     from ldlmap.synth.generate import generate_dataset
 
-    out = CACHE / f"demo_s{seed}"
+    out = CACHE / f"demo_s{seed}_{synth_tag()}"
     if not (out / "dataset.json").exists():
         out.parent.mkdir(parents=True, exist_ok=True)
         generate_dataset(out, "demo", [], seed, overwrite=True, progress=False)
@@ -79,7 +107,7 @@ def extreme_dataset(seed: int = 7, per_split: int = 10, scenes: int = 3) -> Path
     from ldlmap.synth.generate import generate_dataset
     from ldlmap.synth.spec import dump_spec_toml, random_spec
 
-    out = CACHE / f"ablation_s{seed}_n{per_split}_k{scenes}"
+    out = CACHE / f"ablation_s{seed}_n{per_split}_k{scenes}_{synth_tag()}"
     if (out / "dataset.json").exists():
         return out
     spec_dir = CACHE / f"ablation_specs_s{seed}_n{per_split}_k{scenes}"
@@ -102,20 +130,22 @@ def extreme_dataset(seed: int = 7, per_split: int = 10, scenes: int = 3) -> Path
 def room_scan(points: int = 1_000_000, seed: int = 0) -> tuple[Path, dict[str, Any]]:
     """A simulated scan of about ``points`` points of a "standard"-preset room, as a PLY.
 
-    The scan density is raised so that the room's surface yields ``points`` samples (the
-    scanner simulation then drops unseen and grazing returns, so the count lands a little
-    below). Returns the path and a small description (points, room extent).
+    The preset's scanner settings (stations, noise, holes) are kept and the density raised so
+    that the room's surface yields ``points`` samples (the scanner simulation then drops unseen
+    and grazing returns, hence the 1.25 margin; the cap keeps it at most ``points``).
+    Returns the path and a small description (points, room extent).
     """
-    from ldlmap.synth.scan import ScanParams, mesh_area, sample_scan, write_ply
+    from ldlmap.synth.scan import mesh_area, sample_scan, scan_params, write_ply
     from ldlmap.synth.scene import build_scene
     from ldlmap.synth.spec import random_spec
 
-    out = CACHE / f"scan_{points}_s{seed}.ply"
+    out = CACHE / f"scan_{points}_s{seed}_{synth_tag()}.ply"
     meta_path = out.with_suffix(".json")
     if out.exists() and meta_path.exists():
         return out, json.loads(meta_path.read_text())
-    mesh = build_scene(random_spec("standard", seed, 1))
-    params = ScanParams(density=1.25 * points / mesh_area(mesh), max_points=points)
+    spec = random_spec("standard", seed, 1)
+    mesh = build_scene(spec)
+    params = replace(scan_params(spec.scan), density=1.25 * points / mesh_area(mesh), max_points=points)
     P, C = sample_scan(mesh, params, np.random.default_rng(seed))
     out.parent.mkdir(parents=True, exist_ok=True)
     write_ply(out, P, C)
@@ -132,7 +162,7 @@ def cached_map(dataset: Path, scene: str, num_views: int = 40, features: str = "
     from ldlmap.build import BuildParams, build_map
     from ldlmap.datasets import open_dataset
 
-    tag = f"{features}_v{num_views}" + "".join(f"_{k}{v}" for k, v in sorted(params.items()))
+    tag = f"{features}_v{num_views}" + "".join(f"_{k}{v}" for k, v in sorted(params.items())) + f"_{map_tag()}"
     out = CACHE / "maps" / dataset.name / f"{scene}_{tag}.h5"
     if not out.exists():
         out.parent.mkdir(parents=True, exist_ok=True)

@@ -4,7 +4,7 @@ Run: ``python bench/run_all.py [--only build,localize] [--quick] [--device cuda]
 
 Benchmarks (in this order; names for ``--only``):
 
-- ``lines3d``: 3D line extraction stages on a ~1 M point cloud (bench_lines3d.py)
+- ``lines3d``: 3D line extraction stages and precision / recall on synthetic rooms (bench_lines3d.py)
 - ``render``: view rendering, features and back-projection per view (bench_render_features.py)
 - ``ldf``: 2D lines, rotations and ldf_3d + loss on a fixed workload (bench_ldf.py)
 - ``build``: map building per stage, map size, peak memory, views vs accuracy (bench_build.py)
@@ -31,7 +31,7 @@ HERE = Path(__file__).resolve().parent
 
 # name -> (script, full-run arguments, quick-run arguments)
 BENCHES: dict[str, tuple[str, list[str], list[str]]] = {
-    "lines3d": ("bench_lines3d.py", [], ["--points", "200000"]),
+    "lines3d": ("bench_lines3d.py", [], ["--seeds", "0"]),
     "render": ("bench_render_features.py", [], ["--points", "200000", "--views", "2"]),
     "ldf": ("bench_ldf.py", [], ["--repeat", "2"]),
     "build": ("bench_build.py", [], ["--quick"]),
