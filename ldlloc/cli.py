@@ -122,7 +122,7 @@ def run(
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
     with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(),
-                  console=console) as bar:
+                  console=console, transient=True) as bar:
         task = bar.add_task("localizing", total=len(queries))
 
         def progress(r) -> None:

@@ -55,6 +55,7 @@ class Localization:
     refined: bool
     num_matches: int = 0
     num_inliers: int = 0
+    num_query_features: int = 0  # query features used for matching (fewer in privacy mode)
     message: str = ""
     arcs: np.ndarray | None = None  # the filtered 2D arcs used (camera frame)
     arc_groups: np.ndarray | None = None  # principal group of each arc under the chosen rotation
@@ -159,6 +160,7 @@ class Localizer:
                 near = keep_near_lines(feats.keypoints, arcs[out.arc_groups >= 0], img.shape[1], img.shape[0],
                                        p.refine.privacy_radius)
                 feats = feats.subset(near)
+            out.num_query_features = len(feats)
             ref = refine_candidates(feats, (img.shape[1], img.shape[0]), res.rotations, res.centers,
                                     res.translation_index, m.features, self.backend, p.refine)
             out.rot_cam_from_world, out.center = ref.rot_cam_from_world, ref.center

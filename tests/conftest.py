@@ -32,7 +32,10 @@ def demo_dataset(tmp_path_factory) -> Path:
 
     from ldlmap.cli import app
 
-    shared = _shared_dir(tmp_path_factory)
+    # LDL_TEST_DEMO_DIR keeps the dataset between runs while developing (CI leaves it unset).
+    keep = os.environ.get("LDL_TEST_DEMO_DIR")
+    shared = Path(keep) if keep else _shared_dir(tmp_path_factory)
+    shared.mkdir(parents=True, exist_ok=True)
     root = shared / f"demo_seed{DEMO_SEED}"
     with open(shared / "demo_dataset.lock", "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)

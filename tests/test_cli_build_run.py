@@ -169,3 +169,60 @@ def test_run_flags_failures_and_resumes(demo_dataset, tmp_path):
     assert res.exit_code == 0 and out.stat().st_mtime_ns == mtime
     res = runner.invoke(loc_app, ["report", str(out)])
     assert res.exit_code == 0 and "robot" in res.output and "synthroom_1" in res.output
+
+
+def test_privacy_mode_uses_only_features_near_lines(demo_dataset):
+    from ldlloc.pipeline import LocalizeParams, Localizer, load_image
+
+    m = read_map(demo_dataset / "maps" / "synthroom_1.h5", load_cloud=False)
+    img_path = sorted((demo_dataset / "handheld_pano" / "handheld_synthroom_1_scene_1").glob("*.jpg"))[1]
+    pose = np.loadtxt(str(img_path).replace("_pano", "_pose").replace(".jpg", ".txt"))
+    img = load_image(img_path)
+    full = Localizer(m).localize(img)
+    private = Localizer(m, LocalizeParams(privacy=True)).localize(img)
+    assert 0 < private.num_query_features < 0.6 * full.num_query_features
+    assert np.linalg.norm(private.center - pose[:, 3]) < 0.1
+
+
+def test_superpoint_map_with_a_checkpoint_written_here(demo_dataset, tmp_path):
+    """The SuperPoint path end to end (random weights: the wiring, not the accuracy)."""
+    import torch
+
+    from ldlmap.features.superpoint import build_superpoint
+
+    torch.manual_seed(0)
+    ckpt = tmp_path / "sp.pth"
+    torch.save(build_superpoint().state_dict(), ckpt)
+    src = tmp_path / "room.ply"
+    shutil.copy(demo_dataset / "pcd" / "synthroom_1.ply", src)
+    res = runner.invoke(map_app, ["build", str(src), "--features", "superpoint", "--weights", str(ckpt),
+                                  "--num-views", "2", "--num-trans", "100"])
+    assert res.exit_code == 0, res.output
+    m = read_map(tmp_path / "room.h5")
+    assert m.features.backend == "superpoint" and m.features.descriptors.dtype == np.float16
+    assert m.features.descriptors.shape[1] == 256
+    img = sorted((demo_dataset / "robot_pano" / "robot_synthroom_1_scene_1").glob("*.jpg"))[0]
+    res = runner.invoke(loc_app, ["localize", str(tmp_path / "room.h5"), str(img), "--weights", str(ckpt), "--json"])
+    assert res.exit_code == 0, res.output
+    assert json.loads(res.output)["num_rotations"] > 0
+    # A SIFT query against this map is refused with one line.
+    assert "built with superpoint" in one_error_line(
+        runner.invoke(loc_app, ["localize", str(tmp_path / "room.h5"), str(img), "--features", "sift"]))
+
+
+def test_build_from_a_colmap_workspace(demo_dataset, tmp_path):
+    """A COLMAP workspace: the fused.ply dense cloud is mapped, camera centres join the translations."""
+    from tests.test_io_colmap import _build_reconstruction
+
+    rec, centers, _, _ = _build_reconstruction(np.random.default_rng(0))
+    model = tmp_path / "ws" / "sparse" / "0"
+    model.mkdir(parents=True)
+    rec.write_binary(str(model))
+    shutil.copy(demo_dataset / "pcd" / "synthroom_1.ply", tmp_path / "ws" / "sparse" / "fused.ply")
+    res = runner.invoke(map_app, ["build", str(tmp_path / "ws"), "-o", str(tmp_path / "sfm.h5"),
+                                  "--features", "none", "--num-trans", "100"])
+    assert res.exit_code == 0, res.output
+    m = read_map(tmp_path / "sfm.h5")
+    assert m.lines_only and len(m.lines) > 10 and m.config["source"].startswith("colmap:")
+    for c in centers.values():  # the registered camera centres are candidate translations
+        assert np.linalg.norm(m.translations - c, axis=1).min() < 1e-5
