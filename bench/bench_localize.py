@@ -11,7 +11,8 @@ beside the paper's CPU and GPU columns, then accuracy per split, and writes
 ``bench/results.json``::
 
     {"stages": {"lines2d": s, "rotation": s, "search": s, "refine": s, "total": s},
-     "device": "cpu", "accuracy": {split: {...}}, "machine": {...}, "runs": {device: {...}}}
+     "device": "cpu", "accuracy": {split: {...}}, "machine": {...},
+     "runs": {device: {stages, accuracy, machine, queries: [per-query errors, status, seconds]}}}
 
 When CUDA is available (or ``--device cuda``) the queries are also run on the GPU and its
 column is added (``stages``/``device`` at the top level stay those of the CPU run).
@@ -60,8 +61,11 @@ def run_device(dataset: Path, device: str, splits: list[str] | None, progress: b
     pose_search = float(np.median([r.seconds["rotation"] + r.seconds["search"] for r in ok]))
     acc = {split: summarize(rs) for split, rs in group_by(results, "split").items()}
     acc["all"] = summarize(results)
+    queries = [{"name": r.name, "scene": r.scene, "split": r.split, "status": r.status,
+                "t_error_m": r.t_error_m, "r_error_deg": r.r_error_deg, "num_rotations": r.num_rotations,
+                "num_inliers": r.num_inliers, "seconds": r.seconds, "message": r.message} for r in results]
     return {"stages": stages, "pose_search": pose_search, "accuracy": acc,
-            "count": len(results), "failed": len(results) - len(ok),
+            "count": len(results), "failed": len(results) - len(ok), "queries": queries,
             "median_num_rotations": acc["all"]["median_num_rotations"],
             "machine": common.machine_info(device)}
 
