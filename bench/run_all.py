@@ -31,9 +31,10 @@ HERE = Path(__file__).resolve().parent
 
 # name -> (script, full-run arguments, quick-run arguments)
 BENCHES: dict[str, tuple[str, list[str], list[str]]] = {
-    "lines3d": ("bench_lines3d.py", [], ["--seeds", "0"]),
+    "lines3d": ("bench_lines3d.py", ["--synth"], ["--points", "200000"]),
     "render": ("bench_render_features.py", [], ["--points", "200000", "--views", "2"]),
     "ldf": ("bench_ldf.py", [], ["--repeat", "2"]),
+    "search": ("bench_search.py", [], ["--max-queries", "8"]),
     "build": ("bench_build.py", [], ["--quick"]),
     "localize": ("bench_localize.py", [], ["--quick"]),
     "ablation": ("bench_ablation.py", [], ["--quick"]),
