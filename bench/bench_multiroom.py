@@ -2,30 +2,31 @@
 
 A multi-room synthetic dataset (``ldlmap.synth.multiroom``: ``--rooms`` demo rooms in ONE scan,
 ``--per-split`` panoramas per split and room, 1024 x 512) is generated once under
-``bench/.cache/``. Two maps are built with :func:`ldlmap.build.build_map` (SIFT features,
-distance fields on, the default everything else):
+``bench/.cache/``. Maps are built with :func:`ldlmap.build.build_map` (SIFT features, distance
+fields on, defaults otherwise), all with the same density of candidates and views per room:
 
-- the multi-room map of the whole scan with ``N_t = --nt-per-room x rooms`` candidate
-  translations and ``--views-per-room x rooms`` rendered views;
-- room 1's own map (room 1's slice of the same scan) with ``N_t = --nt-per-room`` and
-  ``--views-per-room`` views, for comparison.
+- the multi-room map of the whole scan, ``N_t = --nt-per-room x rooms`` candidate translations
+  and ``--views-per-room x rooms`` rendered views, with the paper's lambda = 0.1;
+- the same with a room-scale lambda (:func:`room_scale_lambda`): the paper's length filter is
+  relative to the map's extent, so over several rooms it drops most of each room's lines;
+- each room's own map (its slice of the same scan), ``N_t = --nt-per-room``.
 
-Every query is localized against the multi-room map, and room 1's queries also against room 1's
-map, with :class:`ldlloc.pipeline.Localizer` (fast pose search on the precomputed fields, one
-untimed warm-up query per map). The table gives per map: N_t, the median number of candidate
-rotations N_r, the median pose-search seconds (rotation estimation + ranking,
-``Localization.seconds``), the median total seconds, the accuracy at 0.1 m / 5 deg per split and
-overall, the pose-search recall (best of the top-20 candidates within 0.5 m / 10 deg) and how
-often the final estimate lies in the query's own room. Writes ``bench/multiroom.json``.
+Every query is localized against the multi-room maps and against its room's own map with
+:class:`ldlloc.pipeline.Localizer` (fast pose search on the precomputed fields, one untimed
+warm-up query per map). Tables: per map N_t, the median number of candidate rotations N_r,
+median pose-search seconds (rotation estimation + ranking, ``Localization.seconds``), median
+total seconds, median errors, accuracy at 0.1 m / 5 deg (overall and per split), pose-search
+recall (best of the top-20 candidates within 0.5 m / 10 deg) and how often the final estimate
+lies in the query's own room; then accuracy / recall per room. Writes ``bench/multiroom.json``.
 
 Run: ``python bench/bench_multiroom.py [--rooms 4] [--per-split 2] [--nt-per-room 800]
-[--views-per-room 20] [--threads 1] [--illumination] [--json bench/multiroom.json]``.
+[--views-per-room 20] [--threads 1] [--illumination] [--no-own-maps] [--no-room-lambda]
+[--json bench/multiroom.json]``.
 """
 
 from __future__ import annotations
 
 import argparse
-import hashlib
 import sys
 import time
 from pathlib import Path
@@ -40,20 +41,11 @@ RECALL_M, RECALL_DEG = 0.5, 10.0  # pose-search recall: best of the top-K within
 ACC_M, ACC_DEG = 0.1, 5.0  # the paper's main accuracy threshold
 
 
-def _code_tag() -> str:
-    """8 hex digits of the generator's source: the cached dataset is remade when it changes."""
-    h = hashlib.sha1()
-    for f in sorted((common.ROOT / "ldlmap" / "synth").glob("*.py")):
-        h.update(f.name.encode())
-        h.update(f.read_bytes())
-    return h.hexdigest()[:8]
-
-
 def dataset(seed: int, rooms: int, per_split: int, illumination: bool) -> Path:
     """The cached multi-room dataset (generated when missing)."""
     from ldlmap.synth.multiroom import generate_multiroom
 
-    out = common.CACHE / f"multiroom_s{seed}_r{rooms}_n{per_split}{'_ill' if illumination else ''}_{_code_tag()}"
+    out = common.CACHE / f"multiroom_s{seed}_r{rooms}_n{per_split}{'_ill' if illumination else ''}_{common.synth_tag()}"
     if not (out / "dataset.json").exists():
         print(f"generating {rooms} rooms (seed {seed}, {per_split} per split and room) in {out} ...", flush=True)
         out.parent.mkdir(parents=True, exist_ok=True)
@@ -63,7 +55,7 @@ def dataset(seed: int, rooms: int, per_split: int, illumination: bool) -> Path:
     return out
 
 
-def build(cloud: Path, out: Path, n_t: int, views: int) -> dict[str, Any]:
+def build(cloud: Path, out: Path, n_t: int, views: int, lam: float = 0.1) -> dict[str, Any]:
     """Build (once) the map of ``cloud``; returns its description (N_t, lines, build seconds, sizes)."""
     import json
 
@@ -73,12 +65,24 @@ def build(cloud: Path, out: Path, n_t: int, views: int) -> dict[str, Any]:
     if out.exists() and meta.exists():
         return json.loads(meta.read_text())
     out.parent.mkdir(parents=True, exist_ok=True)
-    print(f"building {out.name} (N_t = {n_t}, {views} views) ...", flush=True)
-    rep = build_map(cloud, out, params=BuildParams(num_translations=n_t, num_views=views), name=out.stem)
-    info = {"requested_n_t": n_t, "views": views, "build_seconds": {k: round(v, 2) for k, v in rep.seconds.items()},
-            **rep.counts}
+    print(f"building {out.name} (N_t = {n_t}, {views} views, lambda = {lam:.3f}) ...", flush=True)
+    rep = build_map(cloud, out, params=BuildParams(num_translations=n_t, num_views=views, lam=lam), name=out.stem)
+    info = {"requested_n_t": n_t, "views": views, "lam": lam,
+            "build_seconds": {k: round(v, 2) for k, v in rep.seconds.items()}, **rep.counts}
     common.write_json(meta, info)
     return info
+
+
+def room_scale_lambda(rooms: list[Any], lam: float = 0.1) -> float:
+    """The lambda that gives the multi-room map the rooms' mean absolute length threshold.
+
+    The paper's filter drops lines shorter than ``lambda * mean extent`` of the whole map: over
+    several rooms the extent, hence the threshold, grows and most of each room's lines go.
+    """
+    lo = np.min([r.bounds_min for r in rooms], axis=0)
+    hi = np.max([r.bounds_max for r in rooms], axis=0)
+    per_room = np.mean([np.mean(r.bounds_max - r.bounds_min) for r in rooms])
+    return float(lam * per_room / np.mean(hi - lo))
 
 
 def room_cloud(root: Path, room: Any, out: Path) -> Path:
@@ -106,10 +110,11 @@ def localize(map_path: Path, queries: list[Any], rooms: list[Any], label: str) -
     rows = []
     for q, o in zip(queries, outcomes):
         r = o.result
-        row = {"image": str(q.image), "split": q.split, "failed": o.loc is None}
+        own = [x for x in rooms if x.contains(q.center)[0]]
+        row = {"image": str(q.image), "split": q.split, "room": own[0].index if own else None,
+               "failed": o.loc is None}
         if o.loc is not None:
             terr, rerr = common.candidate_errors(o.loc, q)
-            own = [x for x in rooms if x.contains(q.center)[0]]
             row.update(t_error_m=float(r.t_error_m), r_error_deg=float(r.r_error_deg),
                        search_s=float(r.seconds["rotation"] + r.seconds["search"]), total_s=float(r.seconds["total"]),
                        n_r=int(o.loc.num_rotations),
@@ -151,7 +156,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--illumination", action="store_true", help="also the extreme_* illumination splits")
     ap.add_argument("--threads", type=int, default=1, help="torch threads (1 on a shared machine)")
-    ap.add_argument("--no-single", action="store_true", help="skip room 1's own map")
+    ap.add_argument("--no-own-maps", action="store_true", help="skip the rooms' own maps")
+    ap.add_argument("--no-room-lambda", action="store_true", help="skip the multi-room map with room-scale lambda")
     ap.add_argument("--json", type=Path, default=common.ROOT / "bench" / "multiroom.json")
     args = ap.parse_args(argv)
     common.set_threads(args.threads)
@@ -163,58 +169,90 @@ def main(argv: list[str] | None = None) -> int:
     rooms = read_layout(root)
     ds = open_dataset(root, "omniscenes")
     queries = ds.queries(scene="multiroom_1")
-    maps_dir = common.CACHE / "maps" / root.name
-    n_multi = args.nt_per_room * args.rooms
-    maps = {"multi": build(ds.point_cloud("multiroom_1"), maps_dir / f"multiroom_nt{n_multi}_v{args.views_per_room}.h5",
-                           n_multi, args.views_per_room * args.rooms)}
-    results = {f"{args.rooms} rooms, one map": localize(maps_dir / f"multiroom_nt{n_multi}_v{args.views_per_room}.h5",
-                                                        queries, rooms, "multi-room map")}
-    room1_q = [q for q in queries if rooms[0].contains(q.center)[0]]
-    per_query = results[f"{args.rooms} rooms, one map"]["per_query"]
-    if not args.no_single:
-        cloud = room_cloud(root, rooms[0], maps_dir / "room1.ply")
-        single = maps_dir / f"room1_nt{args.nt_per_room}_v{args.views_per_room}.h5"
-        maps["room1"] = build(cloud, single, args.nt_per_room, args.views_per_room)
-        results["room 1, its own map"] = localize(single, room1_q, rooms[:1], "room 1 map")
-        # Room 1's queries in the multi-room map (same queries as the row above).
-        sub = [r for r in per_query if any(str(q.image) == r["image"] for q in room1_q)]
-        multi = results[f"{args.rooms} rooms, one map"]
-        results["room 1, in the multi-room map"] = {**{k: multi[k] for k in ("map", "n_t", "lines", "fields_mb")},
-                                                    **summarize(sub)}
+    maps_dir = common.CACHE / "maps" / f"{root.name}_{common.map_tag()}"  # rebuilt when the builder changes
+    n_multi, v_multi = args.nt_per_room * args.rooms, args.views_per_room * args.rooms
+    cloud = ds.point_cloud("multiroom_1")
+    maps: dict[str, Any] = {}
+    results: dict[str, dict[str, Any]] = {}
+    variants = [("multi", 0.1)] + ([] if args.no_room_lambda else [("multi_room_lambda", room_scale_lambda(rooms))])
+    for key, lam in variants:
+        path = maps_dir / f"multiroom_nt{n_multi}_v{v_multi}_lam{lam:.3f}.h5"
+        maps[key] = build(cloud, path, n_multi, v_multi, lam)
+        label = f"{args.rooms} rooms, one map" + ("" if key == "multi" else f", lambda {lam:.3f} (room scale)")
+        results[label] = localize(path, queries, rooms, label)
+    if not args.no_own_maps:
+        rows = []
+        for room in rooms:
+            own = [q for q in queries if room.contains(q.center)[0]]
+            path = maps_dir / f"room{room.index}_nt{args.nt_per_room}_v{args.views_per_room}.h5"
+            maps[f"room{room.index}"] = build(room_cloud(root, room, maps_dir / f"room{room.index}.ply"), path,
+                                              args.nt_per_room, args.views_per_room)
+            res = localize(path, own, [room], f"room {room.index} map")
+            rows += res["per_query"]
+        results["each room, its own map"] = {"map": "room<i>_*.h5", "n_t": maps["room1"]["translations"],
+                                             "lines": None, "fields_mb": None, **summarize(rows), "per_query": rows}
 
     info = common.machine_info("cpu")
-    _print_table(results, info)
+    _print_tables(results, rooms, info)
     out = {"dataset": str(root), "rooms": args.rooms, "per_split": args.per_split, "nt_per_room": args.nt_per_room,
            "views_per_room": args.views_per_room, "maps": maps,
            "results": {k: {kk: vv for kk, vv in v.items() if kk != "per_query"} for k, v in results.items()},
-           "per_query": {k: v.get("per_query", []) for k, v in results.items() if "per_query" in v},
+           "per_room": _per_room(results, rooms),
+           "per_query": {k: v["per_query"] for k, v in results.items()},
            "machine": info, "seconds": round(time.perf_counter() - t0, 1)}
     common.write_json(args.json, out)
     print(f"wrote {args.json}")
     return 0
 
 
-def _print_table(results: dict[str, dict[str, Any]], info: dict[str, Any]) -> None:
+def _per_room(results: dict[str, dict[str, Any]], rooms: list[Any]) -> dict[str, dict[str, Any]]:
+    """Per room and map: accuracy at 0.1 m / 5 deg and pose-search recall over the room's queries."""
+    out: dict[str, dict[str, Any]] = {}
+    for room in rooms:
+        key = f"room {room.index}"
+        out[key] = {}
+        for name, res in results.items():
+            rows = [r for r in res["per_query"] if r["room"] == room.index]
+            s = summarize(rows)
+            out[key][name] = {"queries": s["queries"], "accuracy": s["accuracy_0.1m_5deg"]["all"],
+                              "recall": s["recall_top20_0.5m_10deg"], "right_room": s["right_room"]}
+    return out
+
+
+def _print_tables(results: dict[str, dict[str, Any]], rooms: list[Any], info: dict[str, Any]) -> None:
     from rich.table import Table
 
-    splits = list(next(iter(results.values()))["accuracy_0.1m_5deg"])
-    t = Table(title="multi-room map vs. one room's map (SIFT refinement, fast pose search on fields)")
-    for c in ("map", "queries", "N_t", "N_r (med)", "search s", "total s", "t err m", "R err deg"):
+    con = common.console()
+    t = Table(title="multi-room map vs. each room's own map (SIFT refinement, fast pose search on fields)")
+    for c in ("map", "queries", "N_t", "N_r", "search s", "total s", "t err m", "R err deg", "acc", "recall@20",
+              "right room"):
         t.add_column(c, justify="left" if c == "map" else "right")
-    for s in splits:
-        t.add_column(f"acc {s}", justify="right")
-    t.add_column("recall top-20", justify="right")
-    t.add_column("right room", justify="right")
     for name, r in results.items():
-        acc = r["accuracy_0.1m_5deg"]
         t.add_row(name, f"{r['queries']}" + (f" ({r['failed']} failed)" if r["failed"] else ""), str(r["n_t"]),
                   common.fmt(r["median_n_r"], ".0f"), common.fmt(r["median_search_s"], ".3f"),
                   common.fmt(r["median_total_s"], ".2f"), common.fmt(r["median_t_error_m"], ".3f"),
-                  common.fmt(r["median_r_error_deg"], ".2f"), *[common.fmt(acc.get(s), ".2f") for s in splits],
+                  common.fmt(r["median_r_error_deg"], ".2f"), common.fmt(r["accuracy_0.1m_5deg"]["all"], ".2f"),
                   common.fmt(r["recall_top20_0.5m_10deg"], ".2f"), common.fmt(r["right_room"], ".2f"))
-    common.console().print(t)
-    print("search s = rotation estimation + ranking (median); accuracy at 0.1 m / 5 deg; recall: best of the "
-          "top-20 search candidates within 0.5 m / 10 deg")
+    con.print(t)
+    splits = [s for s in next(iter(results.values()))["accuracy_0.1m_5deg"] if s != "all"]
+    t2 = Table(title="accuracy at 0.1 m / 5 deg per split")
+    t2.add_column("map")
+    for s in splits:
+        t2.add_column(s, justify="right")
+    for name, r in results.items():
+        t2.add_row(name, *[common.fmt(r["accuracy_0.1m_5deg"].get(s), ".2f") for s in splits])
+    con.print(t2)
+    per_room = _per_room(results, rooms)
+    t3 = Table(title="per room: accuracy / pose-search recall@20")
+    t3.add_column("room")
+    for name in results:
+        t3.add_column(name, justify="right")
+    for room, by_map in per_room.items():
+        t3.add_row(f"{room} ({next(iter(by_map.values()))['queries']} q)",
+                   *[f"{common.fmt(v['accuracy'], '.2f')} / {common.fmt(v['recall'], '.2f')}" for v in by_map.values()])
+    con.print(t3)
+    print("search s = rotation estimation + ranking (median); acc: 0.1 m / 5 deg; recall@20: best of the top-20 "
+          "search candidates within 0.5 m / 10 deg; right room: the final estimate lies in the query's room")
     print(common.load_line(info))
 
 
