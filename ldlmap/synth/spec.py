@@ -130,12 +130,13 @@ class ScanSpec:
     """The simulated laser scan (colored point cloud of the unchanged scene)."""
 
     noise_std: float = 0.005  # m, Gaussian position noise per axis (0 = exact)
-    density: float = 2000.0  # points per m^2 of surface (mean)
-    max_points: int = 1_000_000  # cap on the point count
+    density: float = 4000.0  # points per m^2 of surface (mean; a Matterport-like room scan: ~0.5-1.5 M points)
+    max_points: int = 1_500_000  # cap on the point count
     uneven: float = 0.5  # 0..1, relative amplitude of smooth density variations
     holes: int = 6  # number of circular holes (missing data)
     hole_radius: float = 0.15  # m
-    stations: int = 2  # scanner stations (surfaces seen from none of them are not sampled)
+    stations: int = 6  # scanner stations (surfaces seen from none of them are not sampled; real room scans
+    # take a sweep every ~2 m: with 2 stations a third of an L-shaped room's edges is never seen)
 
 
 @dataclass(frozen=True)
@@ -511,7 +512,7 @@ PRESETS: dict[str, dict] = {
         "capture": {"width": 1024, "height": 512,
                     "robot": {"count": 3}, "handheld": {"count": 3}, "extreme": {"count": 3},
                     "change": {"count": 3}},
-        "scan": {"density": 1500.0},
+        "scan": {"density": 4000.0, "stations": 6},  # ~450-600 k points per room
     },
     "standard": {
         "scenes": 6,
@@ -525,7 +526,7 @@ PRESETS: dict[str, dict] = {
         "capture": {"width": 1024, "height": 512,
                     "robot": {"count": 10}, "handheld": {"count": 10}, "extreme": {"count": 10},
                     "change": {"count": 8}},
-        "scan": {"density": 2500.0},
+        "scan": {"density": 6000.0, "stations": 8},  # ~1-1.5 M points per room
     },
 }
 
