@@ -152,7 +152,7 @@ def test_run_flags_failures_and_resumes(demo_dataset, tmp_path):
     cv2.imwrite(str(grey), np.full((512, 1024, 3), 128, np.uint8))
     (root / "maps" / "synthroom_2.h5").unlink()
     out = tmp_path / "res.json"
-    res = runner.invoke(loc_app, ["run", "--root", str(root), "--split", "robot", "--output", str(out), "--no-refine"])
+    res = runner.invoke(loc_app, ["run", "--root", str(root), "--split", "robot", "--output", str(out)])
     assert res.exit_code == 0, res.output
     data = json.loads(out.read_text())
     status = {q["name"]: q for q in data["queries"]}
@@ -161,11 +161,10 @@ def test_run_flags_failures_and_resumes(demo_dataset, tmp_path):
     assert any("map not found" in q["message"] for q in status.values())
     assert out.with_suffix(".csv").read_text().count("\n") == 11
     ok = [q for q in status.values() if q["status"] != "failed"]
-    assert all(q["t_error_m"] < 0.5 for q in ok)
+    assert len(ok) == 4 and sum(q["t_error_m"] < 0.1 and q["r_error_deg"] < 5 for q in ok) >= 3
     # --resume does not redo finished queries; report prints the tables again.
     mtime = out.stat().st_mtime_ns
-    res = runner.invoke(loc_app, ["run", "--root", str(root), "--split", "robot", "--output", str(out), "--resume",
-                                  "--no-refine"])
+    res = runner.invoke(loc_app, ["run", "--root", str(root), "--split", "robot", "--output", str(out), "--resume"])
     assert res.exit_code == 0 and out.stat().st_mtime_ns == mtime
     res = runner.invoke(loc_app, ["report", str(out)])
     assert res.exit_code == 0 and "robot" in res.output and "synthroom_1" in res.output
