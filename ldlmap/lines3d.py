@@ -6,17 +6,23 @@ cloud") on numpy / scipy / open3d / OpenCV:
 1. voxel downsampling (``voxel_size``) when the cloud is denser than that;
 2. normals and surface variation ``lambda_0 / (lambda_0 + lambda_1 + lambda_2)`` from k-nearest
    neighbour covariances (open3d);
-3. planar regions: connected components of the kNN graph restricted to low-curvature points
-   whose normals agree and that lie on each other's tangent plane (a vectorized form of
-   smoothness-constrained region growing), a least-squares plane per region, then the
-   high-curvature points near edges are given back to the closest neighbouring plane;
+3. planar regions (robust to scan noise, down to 8 cm faces): dominant normal orientations
+   (greedy peaks of the sign-free normal histogram on an icosphere), then per orientation the
+   strongest peaks of the histogram of offsets ``x . n`` claim, strongest first, every point
+   within ``plane_tol`` whose normal agrees; each plane is split into kNN-connected pieces and
+   each piece gets a least-squares plane. Offsets pool all points of a plane, so a table leg's
+   face or a frame 4 cm in front of a wall is found although few of its points have a clean
+   normal;
 4. per plane: points projected to 2D plane coordinates, rasterised to an occupancy image
    (``cell_size``), morphologically closed, boundary contours approximated by polygons
-   (Douglas-Peucker) whose sides are lifted back to 3D;
+   (Douglas-Peucker) whose sides are lifted back to 3D; sides with no other surface nearby
+   (rims of occlusion shadows and of the scan's reach, not edges of the scene) are dropped;
 5. intersection lines of adjacent, non-parallel planes, clipped to where both supports lie near
    the line;
 6. merge of collinear overlapping pieces (intersection lines, being more accurate, fix the
-   position of the merged segment).
+   position of the merged segment), then a final join of the pieces of one line across gaps up
+   to ``join_gap`` and removal of short noise pieces (:func:`join_lines`), so that long edges
+   come out whole and the raw output holds what a line detector reports.
 
 Then the paper's length filter (:func:`filter_by_length`) drops segments shorter than
 ``lambda (b_x + b_y + b_z) / 3``. :func:`line_precision_recall` measures extracted segments
@@ -36,29 +42,45 @@ from ldlmap.errors import InputError
 class Lines3DParams:
     """Parameters of :func:`extract_lines` (metres and degrees)."""
 
-    voxel_size: float = 0.02  # downsampling grid; 0 disables it
-    max_points: int = 250_000  # the grid grows (surfaces: ~ 1 / voxel^2) until at most this many remain
-    normal_k: int = 20  # neighbours for normals and surface variation
-    graph_k: int = 10  # neighbours linked by region growing
-    normal_angle_deg: float = 12.0  # max normal difference of linked neighbours
-    max_curvature: float = 0.03  # surface variation above which a point is an edge point
-    plane_tol: float = 0.025  # max point-to-plane distance when linking / re-assigning points
-    min_region_points: int = 120  # smallest planar region kept
-    max_plane_rms: float = 0.02  # regions less planar than this RMS are not planes
-    cell_size: float = 0.02  # raster cell of the per-plane occupancy images
+    voxel_size: float = 0.01  # downsampling grid; 0 disables it
+    max_points: int = 400_000  # the grid grows (surfaces: ~ 1 / voxel^2) until at most this many remain
+    normal_k: int = 16  # neighbours for normals and surface variation
+    graph_k: int = 10  # neighbours linked into connected plane pieces
+    max_curvature: float = 0.06  # surface variation above which a point does not vote for planes
+    orient_radius_deg: float = 6.0  # plane orientations: vote smoothing radius
+    orient_cone_deg: float = 15.0  # normals this close to a found orientation belong to it
+    min_orientation_points: int = 60  # smallest normal cluster that makes an orientation
+    max_orientations: int = 60  # at most this many orientations
+    offset_bin: float = 0.002  # histogram bin of plane offsets x . n
+    offset_sigma: float = 0.004  # smoothing of the offset histogram (about the scan noise)
+    max_planes_per_orientation: int = 300  # at most this many parallel planes per orientation
+    assign_angle_deg: float = 35.0  # a point joins a plane when its normal is within this angle ...
+    plane_tol: float = 0.015  # ... and it lies this close to the plane
+    link_dist: float = 0.08  # neighbours farther apart than this do not connect plane pieces
+    min_region_points: int = 40  # smallest planar piece kept
+    max_plane_rms: float = 0.02  # pieces less planar than this RMS are not planes
+    cell_size: float = 0.025  # raster cell of the per-plane occupancy images
     close_cells: int = 2  # closing radius (cells) that bridges sampling gaps
     poly_eps: float = 0.03  # Douglas-Peucker tolerance of boundary polygons
     min_segment: float = 0.08  # raw pieces shorter than this are dropped before merging
     min_plane_angle_deg: float = 20.0  # planes meeting at a smaller angle give no intersection
-    support_dist: float = 0.06  # points this close to an intersection line support it
+    support_dist: float = 0.05  # points this close to an intersection line support it
     support_bin: float = 0.05  # bins along an intersection line that need support from both planes
     support_gap: float = 0.25  # unsupported stretches up to this long are bridged (sparse scans)
     min_adjacent_links: int = 5  # kNN links needed between two planes to call them adjacent
     min_linearity: float = 0.7  # thin structures (legs, rails, frames): 1 - lambda_1 / lambda_2 above this
     min_linear_points: int = 12  # smallest cluster of linear points that gives a segment
+    normal_angle_deg: float = 12.0  # linear structures: max axis difference of linked neighbours
+    linear_tol: float = 0.025  # linear structures: max offset of linked neighbours from the axis
     merge_angle_deg: float = 5.0  # collinear pieces: direction difference ...
     merge_dist: float = 0.04  # ... distance between the lines ...
     merge_gap: float = 0.03  # ... and largest gap along the line to still merge
+    edge_radius: float = 0.06  # boundary sides need points of another surface this close ...
+    edge_support: float = 0.3  # ... along this fraction of their length (else: occlusion shadow)
+    join_angle_deg: float = 3.0  # final join of collinear pieces of one line: direction difference ...
+    join_dist: float = 0.03  # ... distance between the lines ...
+    join_gap: float = 0.25  # ... and largest gap along the line bridged
+    min_line: float = 0.1  # joined lines shorter than this are dropped (noise pieces)
     lam: float = 0.1  # lambda: length filter ratio of the paper (sec. 3.1)
 
 
@@ -161,46 +183,167 @@ class PlaneRegions:
     linearity: np.ndarray | None = None  # (N,) 1 - lambda_1 / lambda_2 (1: points along a line)
 
 
+def _downsample(P: np.ndarray, params: Lines3DParams) -> tuple[np.ndarray, float]:
+    """Voxel-grid downsampling to at most ``params.max_points`` points; returns (points, voxel)."""
+    if params.voxel_size <= 0:
+        return P, 0.0
+    import open3d as o3d
+
+    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(P))
+    v = params.voxel_size
+    Q = np.asarray(pcd.voxel_down_sample(v).points)
+    for _ in range(4):
+        if len(Q) <= params.max_points:
+            break
+        v *= 1.03 * np.sqrt(len(Q) / params.max_points)
+        Q = np.asarray(pcd.voxel_down_sample(v).points)
+    return Q, v
+
+
+def _dominant_orientations(normals: np.ndarray, params: Lines3DParams) -> np.ndarray:
+    """Plane orientations (D, 3): greedy peaks of the (sign-free) normal histogram on a sphere.
+
+    Normals vote (with both signs) for their nearest vertex of a level-4 icosphere (~4 degree
+    cells); votes are summed over ``orient_radius_deg``; the top vertex is refined to the principal
+    axis of the normals within ``orient_radius_deg`` of it, those normals are removed, repeat while
+    a peak holds ``min_orientation_points`` normals.
+    """
+    from scipy.sparse import csr_matrix
+    from scipy.spatial import cKDTree
+
+    from ldlmap.geometry import icosphere_points
+
+    V = np.asarray(icosphere_points(4))
+    tree = cKDTree(V)
+    r = 2.0 * np.sin(np.radians(params.orient_radius_deg) / 2.0)
+    pairs = tree.query_pairs(r, output_type="ndarray")
+    nv = len(V)
+    rows = np.concatenate([pairs[:, 0], pairs[:, 1], np.arange(nv)])
+    cols = np.concatenate([pairs[:, 1], pairs[:, 0], np.arange(nv)])
+    S = csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(nv, nv))
+    _, vi = tree.query(normals)
+    _, vj = tree.query(-normals)
+    alive = np.ones(len(normals), bool)
+    cos_r = np.cos(np.radians(params.orient_radius_deg))
+    cos_c = np.cos(np.radians(params.orient_cone_deg))
+    out: list[np.ndarray] = []
+    for _ in range(params.max_orientations):
+        votes = S @ (np.bincount(vi[alive], minlength=nv) + np.bincount(vj[alive], minlength=nv)).astype(np.float64)
+        top = int(np.argmax(votes))
+        if votes[top] / 2.0 < params.min_orientation_points:
+            break
+        d = V[top]
+        for _ in range(2):  # refine: principal axis of the normals near the peak
+            sel = alive & (np.abs(normals @ d) >= cos_r)
+            if not sel.any():
+                break
+            w, U = np.linalg.eigh(normals[sel].T @ normals[sel])
+            d = U[:, 2]
+        if (alive & (np.abs(normals @ d) >= cos_r)).sum() < params.min_orientation_points:
+            alive &= ~(np.abs(normals @ V[top]) >= cos_r)
+            continue
+        out.append(d)
+        alive &= ~(np.abs(normals @ d) >= cos_c)
+    return np.asarray(out, dtype=np.float64).reshape(-1, 3)
+
+
+def _claim_planes(off: np.ndarray, voter: np.ndarray, free: np.ndarray, params: Lines3DParams) -> list[tuple[float, np.ndarray]]:
+    """Parallel planes of one orientation, strongest first.
+
+    ``off`` are the offsets ``x . n`` of the candidate points (normal within
+    ``assign_angle_deg``), ``voter`` marks the flat ones whose normal lies within
+    ``orient_cone_deg`` and ``free`` those not yet in a plane. Repeatedly: the top of the smoothed
+    histogram of the free voters' offsets, if at least ``min_region_points`` voters lie within
+    ``plane_tol``, becomes a plane (offset: mean of those voters) that claims every free candidate
+    within ``plane_tol``; its voters leave the histogram. Returns ``[(offset, claimed index)]``.
+    """
+    from scipy.ndimage import gaussian_filter1d
+
+    if voter.sum() < params.min_region_points:
+        return []
+    b = params.offset_bin
+    lo = off.min() - 5 * b
+    bins = np.floor((off - lo) / b).astype(np.int64)
+    nb = int(bins.max()) + 6
+    order = np.argsort(off, kind="stable")
+    srt = off[order]
+    live = voter & free
+    h = np.bincount(bins[live], minlength=nb).astype(np.float64)
+    k = int(round(params.plane_tol / b))
+    out = []
+    for _ in range(params.max_planes_per_orientation):
+        hs = gaussian_filter1d(h, params.offset_sigma / b)
+        top = int(np.argmax(hs))
+        cum = h[max(top - k, 0):top + k + 1].sum()
+        if cum < params.min_region_points:
+            break
+        c = lo + (top + 0.5) * b
+        i0, i1 = np.searchsorted(srt, [c - params.plane_tol / 2, c + params.plane_tol / 2])
+        idx = order[i0:i1]
+        idx = idx[live[idx]]
+        if len(idx):
+            c = float(off[idx].mean())
+        i0, i1 = np.searchsorted(srt, [c - params.plane_tol, c + params.plane_tol])
+        idx = order[i0:i1]
+        idx = idx[free[idx]]
+        gone = idx[live[idx]]
+        h -= np.bincount(bins[gone], minlength=nb)
+        h[max(top - 1, 0):top + 2] = np.minimum(h[max(top - 1, 0):top + 2], 0.0)  # never the same bin twice
+        free[idx] = False
+        live[idx] = False
+        out.append((c, idx))
+    return out
+
+
 def segment_planes(points: np.ndarray, params: Lines3DParams = Lines3DParams()) -> PlaneRegions:
-    """Planar regions by normal-constrained kNN connected components (steps 1-3 of the module)."""
+    """Planar regions (steps 1-3 of the module docstring).
+
+    Plane hypotheses come from the whole cloud, so that small faces (table legs, frames, shelf
+    boards) are found as reliably as walls: dominant normal orientations, then per orientation
+    the peaks of the histogram of offsets ``x . n``, strongest first (:func:`_claim_planes`); a
+    plane claims the free points within ``plane_tol`` whose normal agrees within
+    ``assign_angle_deg``; each plane is split
+    into connected pieces (kNN links within ``link_dist``), pieces with fewer than
+    ``min_region_points`` points are dropped, and each piece gets its own least-squares plane.
+    """
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
     P = _check_points(points)
-    v = 0.0
-    if params.voxel_size > 0:
-        import open3d as o3d
-
-        pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(P))
-        v = params.voxel_size
-        P = np.asarray(pcd.voxel_down_sample(v).points)
-        for _ in range(3):
-            if len(P) <= params.max_points:
-                break
-            v *= 1.05 * np.sqrt(len(P) / params.max_points)
-            P = np.asarray(pcd.voxel_down_sample(v).points)
+    P, v = _downsample(P, params)
     if len(P) < max(params.normal_k, 10):
         raise InputError(f"point cloud too small for line extraction ({len(P)} points)")
     normals, curv, axes, linearity = _normals_and_curvature(P, params.normal_k)
     nbr = _neighbours(P, params.graph_k)
-    n, k = nbr.shape
-    i = np.repeat(np.arange(n), k)
-    j = nbr.ravel()
     flat = curv <= params.max_curvature
-    cos_t = np.cos(np.radians(params.normal_angle_deg))
-    d = P[j] - P[i]
-    ok = (flat[i] & flat[j]
-          & (np.abs(np.einsum("ij,ij->i", normals[i], normals[j])) >= cos_t)
-          & (np.abs(np.einsum("ij,ij->i", normals[i], d)) <= params.plane_tol)
-          & (np.abs(np.einsum("ij,ij->i", normals[j], d)) <= params.plane_tol))
+    D = _dominant_orientations(normals[flat], params)
+    n = len(P)
+    lab = np.full(n, -1)
+    cos_peak = np.cos(np.radians(params.orient_cone_deg))
+    cos_assign = np.cos(np.radians(params.assign_angle_deg))
+    free = np.ones(n, bool)
+    n_planes = 0
+    for d in D:
+        cosn = np.abs(normals @ d)
+        cand = np.flatnonzero(cosn >= cos_assign)
+        if len(cand) == 0:
+            continue
+        sub_free = free[cand]
+        claimed = _claim_planes(P[cand] @ d, flat[cand] & (cosn[cand] >= cos_peak), sub_free, params)
+        for _, idx in claimed:
+            lab[cand[idx]] = n_planes
+            n_planes += 1
+        free[cand] = sub_free
+    # Connected pieces of each plane.
+    i = np.repeat(np.arange(n), nbr.shape[1])
+    j = nbr.ravel()
+    ok = (lab[i] >= 0) & (lab[i] == lab[j]) & (np.linalg.norm(P[i] - P[j], axis=1) <= params.link_dist)
     g = coo_matrix((np.ones(ok.sum(), np.int8), (i[ok], j[ok])), shape=(n, n))
     n_comp, comp = connected_components(g, directed=False)
-    comp = np.where(flat, comp, -1)
-    # Keep big, planar components.
+    comp = np.where(lab >= 0, comp, -1)
     sizes = np.bincount(comp[comp >= 0], minlength=n_comp)
     big = sizes >= params.min_region_points
-    remap = np.full(n_comp, -1)
-    remap[big] = np.arange(big.sum())
+    remap = np.where(big, np.cumsum(big) - 1, -1)
     labels = np.where(comp >= 0, remap[np.maximum(comp, 0)], -1)
     L = int(big.sum())
     if L == 0:
@@ -210,24 +353,7 @@ def segment_planes(points: np.ndarray, params: Lines3DParams = Lines3DParams()) 
     good = rms <= params.max_plane_rms
     remap = np.where(good, np.cumsum(good) - 1, -1)
     labels = np.where(labels >= 0, remap[np.maximum(labels, 0)], -1)
-    c, nrm = c[good], nrm[good]
-    # Give edge points (and small regions) back to the closest plane among their neighbours.
-    for _ in range(4):
-        free = np.flatnonzero(labels < 0)
-        if len(free) == 0:
-            break
-        cand = labels[nbr[free]]  # (F, k)
-        dist = np.abs(np.einsum("fkj,fkj->fk", P[free][:, None, :] - c[np.maximum(cand, 0)], nrm[np.maximum(cand, 0)]))
-        dist = np.where(cand >= 0, dist, np.inf)
-        best = np.argmin(dist, axis=1)
-        bd = dist[np.arange(len(free)), best]
-        take = bd <= params.plane_tol
-        if not take.any():
-            break
-        labels[free[take]] = cand[np.arange(len(free)), best][take]
-    if len(c):
-        c, nrm, _, _ = _plane_fits(P[labels >= 0], labels[labels >= 0], len(c))
-    return PlaneRegions(P, labels, c, nrm, nbr, v, axes, linearity)
+    return PlaneRegions(P, labels, c[good], nrm[good], nbr, v, axes, linearity)
 
 
 # ---------------------------------------------------------------------------- per-plane segments
@@ -366,7 +492,7 @@ def _linear_segments(reg: PlaneRegions, params: Lines3DParams) -> np.ndarray:
     dn = np.linalg.norm(d, axis=1)
     cos_t = np.cos(np.radians(params.normal_angle_deg))
     along = np.linalg.norm(d - np.einsum("ij,ij->i", d, ax[i])[:, None] * ax[i], axis=1)
-    ok = lin[j] & (np.abs(np.einsum("ij,ij->i", ax[i], ax[j])) >= cos_t) & (along <= params.plane_tol + 0.0 * dn)
+    ok = lin[j] & (np.abs(np.einsum("ij,ij->i", ax[i], ax[j])) >= cos_t) & (along <= params.linear_tol)
     g = coo_matrix((np.ones(ok.sum(), np.int8), (i[ok], j[ok])), shape=(n, n))
     _, comp = connected_components(g, directed=False)
     comp = np.where(lin, comp, -1)
@@ -379,7 +505,7 @@ def _linear_segments(reg: PlaneRegions, params: Lines3DParams) -> np.ndarray:
         u = Vt[0]
         t = (Q - c) @ u
         off = np.linalg.norm((Q - c) - t[:, None] * u, axis=1)
-        if np.percentile(off, 90) > 2 * params.plane_tol:
+        if np.percentile(off, 90) > 2 * params.linear_tol:
             continue  # not a thin straight structure
         t0, t1 = np.percentile(t, [1, 99])
         if t1 - t0 >= params.min_segment:
@@ -461,6 +587,46 @@ def merge_collinear(lines: np.ndarray, weights: np.ndarray | None = None, angle_
     return np.stack([M + tmin[:, None] * D, M + tmax[:, None] * D], axis=1)
 
 
+def join_lines(lines: np.ndarray, params: Lines3DParams = Lines3DParams()) -> np.ndarray:
+    """Final join: pieces of one line (same plane-plane intersection or boundary, broken by
+    sampling holes or occluders) become one segment, and short noise pieces are dropped.
+
+    Collinear pieces (``join_angle_deg``, ``join_dist``) whose gap along the line is at most
+    ``join_gap`` are merged (:func:`merge_collinear`, longer pieces place the line); joined lines
+    shorter than ``min_line`` are dropped, as a line detector would not report them.
+    """
+    L = _check_lines(lines)
+    if len(L) == 0:
+        return L.copy()
+    length = np.linalg.norm(L[:, 1] - L[:, 0], axis=1)
+    out = merge_collinear(L, length, params.join_angle_deg, params.join_dist, params.join_gap)
+    return out[np.linalg.norm(out[:, 1] - out[:, 0], axis=1) >= max(params.min_line, params.min_segment)]
+
+
+def _edge_supported(segs: np.ndarray, owner: np.ndarray, reg: PlaneRegions, params: Lines3DParams) -> np.ndarray:
+    """Mask of boundary sides that lie on a real edge of the scene.
+
+    A side of a plane's boundary polygon is either a fold or free edge of the geometry (another
+    surface - the other face of the fold, the thickness of a board, a frame - has points within
+    ``edge_radius`` of it) or the rim of an occlusion shadow or of the scan's reach (nothing but
+    the plane itself there). Sides whose samples (every ``edge_radius``) find a point of another
+    region or an unassigned point within ``edge_radius`` along at least ``edge_support`` of their
+    length are kept.
+    """
+    from scipy.spatial import cKDTree
+
+    if len(segs) == 0:
+        return np.zeros(0, bool)
+    x, seg = _sample_segments(segs, params.edge_radius)
+    k = 32
+    d, idx = cKDTree(reg.points).query(x, k=min(k, len(reg.points)), distance_upper_bound=params.edge_radius, workers=-1)
+    hit = np.isfinite(d)
+    lab = np.where(hit, reg.labels[np.minimum(idx, len(reg.points) - 1)], -2)
+    foreign = np.any(hit & (lab != owner[seg][:, None]), axis=1)
+    frac = np.bincount(seg, foreign, len(segs)) / np.bincount(seg, minlength=len(segs))
+    return frac >= params.edge_support
+
+
 # ------------------------------------------------------------------------------------ extraction
 
 
@@ -484,6 +650,9 @@ def extract_lines_with_stats(points: np.ndarray, params: Lines3DParams = Lines3D
     bnd = [_boundary_segments(reg.points[order[starts[i]:starts[i + 1]]], reg.centroids[i], reg.normals[i], bparams)
            for i in range(len(reg.normals))]
     B = np.concatenate(bnd) if bnd else np.zeros((0, 2, 3))
+    owner = np.repeat(np.arange(len(bnd)), [len(b) for b in bnd])
+    stats["boundary_sides"] = len(B)
+    B = B[_edge_supported(B, owner, reg, params)]
     stats["boundary_s"] = time.perf_counter() - t
     t = time.perf_counter()
     X = _intersection_segments(reg, params)
@@ -497,7 +666,8 @@ def extract_lines_with_stats(points: np.ndarray, params: Lines3DParams = Lines3D
     raw = np.concatenate([X, B, T])
     w = np.concatenate([np.full(len(X), 2.0), np.ones(len(B) + len(T))])
     out = merge_collinear(raw, w, params.merge_angle_deg, params.merge_dist, params.merge_gap)
-    out = out[np.linalg.norm(out[:, 1] - out[:, 0], axis=1) >= params.min_segment]
+    stats["merged_pieces"] = len(out)
+    out = join_lines(out, params)
     stats["merge_s"] = time.perf_counter() - t
     stats["lines"] = len(out)
     return out, stats
