@@ -38,6 +38,7 @@ BENCHES: dict[str, tuple[str, list[str], list[str]]] = {
     "build": ("bench_build.py", [], ["--quick"]),
     "localize": ("bench_localize.py", [], ["--quick"]),
     "ablation": ("bench_ablation.py", [], ["--quick"]),
+    "multiroom": ("bench_multiroom.py", [], ["--rooms", "2", "--per-split", "1", "--no-room-lambda"]),
 }
 DEVICE_AWARE = {"render", "ldf", "localize", "ablation"}
 THREAD_AWARE = {"render", "ldf", "build", "localize", "ablation"}

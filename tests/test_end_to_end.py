@@ -73,4 +73,4 @@ def test_pose_search_top20_contains_the_truth(localized):
 
 def test_rotation_candidates_contain_the_truth(localized):
     assert np.mean([r["rot_best"] < 3.0 for r in localized]) >= 0.95
-    assert max(r["num_rotations"] for r in localized) <= 200
+    assert np.median([r["num_rotations"] for r in localized if r["num_rotations"]]) <= 50
