@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # End-to-end demo on a synthetic scene it generates: dataset -> maps -> batch localization.
-# Usage: scripts/demo.sh [OUT]   (default demo_out; about 3-5 minutes on 2 cores)
+# Usage: scripts/demo.sh [OUT]   (default demo_out; about 2 minutes on 2 cores)
 set -euo pipefail
 OUT="${1:-demo_out}"
 DATA="$OUT/data"
