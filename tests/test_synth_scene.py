@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import time
 from pathlib import Path
 
 import numpy as np
@@ -124,11 +123,9 @@ def test_object_boxes_and_textures(lroom):
     assert mean_lum(shell & (np.abs(n) < 1e-9)) > mean_lum(shell & (n > 1e-9)) + 30
 
 
-def test_demo_build_fast_and_deterministic():
+def test_demo_build_deterministic():
     spec = random_spec("demo", 0)
-    t = time.perf_counter()
     a = build_scene(spec)
-    assert time.perf_counter() - t < 2.0
     b = build_scene(spec)
     assert np.array_equal(a.vertices, b.vertices) and np.array_equal(a.atlas, b.atlas)
     other = build_scene(random_spec("demo", 1))
