@@ -121,7 +121,8 @@ def test_unreachable_superpoint_weights(demo_dataset, tmp_path, monkeypatch):
 def test_localize_and_bad_maps(demo_dataset, tmp_path):
     map_path = demo_dataset / "maps" / "synthroom_1.h5"
     img = sorted((demo_dataset / "robot_pano" / "robot_synthroom_1_scene_1").glob("*.jpg"))[0]
-    res = runner.invoke(loc_app, ["localize", str(map_path), str(img), "--json", "--vis", str(tmp_path / "v.jpg")])
+    res = runner.invoke(loc_app, ["localize", str(map_path), str(img), "--json", "--vis", str(tmp_path / "v.jpg"),
+                                  "--threads", "1"])
     assert res.exit_code == 0, res.output
     out = json.loads(res.output)
     pose = np.loadtxt(str(img).replace("_pano", "_pose").replace(".jpg", ".txt"))
