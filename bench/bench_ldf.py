@@ -63,7 +63,7 @@ def _textured_room(width: int = 1024, height: int = 512, seed: int = 0):
 def main() -> None:
     import torch
 
-    from ldlmap.geometry import icosphere_points, rotation_error_deg
+    from ldlmap.geometry import rotation_error_deg
     from ldlloc import ldf, lines2d, principal
 
     ap = argparse.ArgumentParser(description=__doc__)

@@ -34,7 +34,6 @@ def _box_room(n: int, size=(6.0, 5.0, 3.0), seed: int = 0):
 
 
 def _synth_room(n: int, seed: int = 0):
-    from dataclasses import replace
 
     from ldlmap.synth.generate import load_specs
     from ldlmap.synth.scan import ScanParams, mesh_area, sample_scan

@@ -12,10 +12,6 @@ from ldlmap.cli_common import console, make_app
 app = make_app("ldlloc", "Localize panoramas against LDL maps with line distance functions.")
 
 
-def run() -> None:  # console-script entry point
-    app()
-
-
 # Commands are added below, one function each. Keep each one short: parse, call, print.
 
 

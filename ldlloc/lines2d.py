@@ -190,8 +190,6 @@ def detect_lines(image_rgb: np.ndarray, params: Lines2DParams = Lines2DParams())
     Accepts uint8 (H, W, 3) RGB (or grey (H, W)) with W = 2 H. An image without lines gives
     an empty (0, 2, 3) array.
     """
-    import cv2
-
     views = crops(image_rgb, params)
     h, w = np.asarray(image_rgb).shape[:2]
     cs = _crop_set(w, h, params)

@@ -16,10 +16,6 @@ from ldlmap.cli_common import console, make_app
 app = make_app("ldlmap", "Build LDL maps (3D lines, principal directions, features) and synthetic datasets.")
 
 
-def run() -> None:  # console-script entry point
-    app()
-
-
 # Commands are added below, one function each. Keep each one short: parse, call, print.
 
 

@@ -489,7 +489,6 @@ def _linear_segments(reg: PlaneRegions, params: Lines3DParams) -> np.ndarray:
     i = np.repeat(idx, k)
     j = nbr[idx].ravel()
     d = P[j] - P[i]
-    dn = np.linalg.norm(d, axis=1)
     cos_t = np.cos(np.radians(params.normal_angle_deg))
     along = np.linalg.norm(d - np.einsum("ij,ij->i", d, ax[i])[:, None] * ax[i], axis=1)
     ok = lin[j] & (np.abs(np.einsum("ij,ij->i", ax[i], ax[j])) >= cos_t) & (along <= params.linear_tol)

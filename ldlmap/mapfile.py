@@ -212,7 +212,6 @@ def write_map(path: str | Path, m: LdlMap) -> Path:
 
 def read_map_header(path: str | Path) -> dict[str, Any]:
     """Format version, name, build config and sizes of a map, without loading arrays."""
-    import h5py
 
     path = require_file(path, "map")
     with _open(path) as h5:
@@ -242,7 +241,7 @@ def _open(path: Path):
 
     try:
         return h5py.File(path, "r")
-    except OSError as exc:
+    except OSError:
         raise InputError(f"not a readable HDF5 map (corrupt or another format): {path}") from None
 
 

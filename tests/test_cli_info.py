@@ -27,3 +27,18 @@ def test_info_errors_are_one_line(tmp_path):
     bad.write_text("garbage")
     res = runner.invoke(app, ["info", str(bad)])
     assert res.exit_code == 1 and "Traceback" not in res.output
+
+
+def test_console_scripts_point_at_the_typer_apps():
+    """`ldlmap` / `ldlloc` entry points must be the apps, not a command that shares a name."""
+    import importlib
+    import tomllib
+    from pathlib import Path
+
+    import typer
+
+    scripts = tomllib.loads((Path(__file__).parents[1] / "pyproject.toml").read_text())["project"]["scripts"]
+    assert set(scripts) == {"ldlmap", "ldlloc"}
+    for target in scripts.values():
+        module, attr = target.split(":")
+        assert isinstance(getattr(importlib.import_module(module), attr), typer.Typer), target

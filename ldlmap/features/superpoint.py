@@ -67,7 +67,6 @@ def sample_descriptors(desc_map: "torch.Tensor", uv: "torch.Tensor") -> "torch.T
 
 def _superpoint_net():
     """Build the network class lazily (keeps torch out of import time)."""
-    import torch
     import torch.nn as nn
     import torch.nn.functional as F
 
