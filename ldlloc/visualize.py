@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ldlmap.pictures import GROUP_COLORS_BGR, draw_arcs, project_lines, write_png
+from ldlmap.pictures import draw_arcs, project_lines, write_png
 
 
 def localization_picture(image_rgb: np.ndarray, loc, ldl_map) -> np.ndarray:
@@ -44,4 +44,4 @@ def save_localization_picture(image_rgb: np.ndarray, loc, ldl_map, path: str | P
     return path
 
 
-__all__ = ["GROUP_COLORS_BGR", "localization_picture", "save_localization_picture"]
+__all__ = ["localization_picture", "save_localization_picture"]

@@ -760,16 +760,14 @@ def write_line_files(path: str, lines: np.ndarray) -> list:
     return targets
 
 
-def draw_top_view(lines: np.ndarray, path: str, size: int = 1000, principal: np.ndarray | None = None,
-                  dropped: np.ndarray | None = None) -> None:
-    """PNG top view (x right, y up) of 3D lines, colored by principal-direction group.
+def top_view_image(lines: np.ndarray, size: int = 1000, principal: np.ndarray | None = None,
+                   dropped: np.ndarray | None = None) -> np.ndarray:
+    """Top view (x right, y up) of 3D lines as a BGR image (size, size, 3), colored by group.
 
-    Lines of the three groups are red, green and blue, others grey; ``dropped`` lines (e.g.
-    removed by the length filter) are drawn thin and dark. Drawn with OpenCV, written atomically.
+    Lines of the three principal groups are red, green and blue, others grey; ``dropped`` lines
+    (e.g. removed by the length filter) are drawn thin and light.
     """
     import cv2
-
-    from ldlmap.errors import atomic_file
 
     L = _check_lines(lines)
     D = _check_lines(dropped) if dropped is not None else np.zeros((0, 2, 3))
@@ -795,6 +793,12 @@ def draw_top_view(lines: np.ndarray, path: str, size: int = 1000, principal: np.
         colors = {0: (40, 40, 220), 1: (40, 170, 40), 2: (220, 80, 40), -1: (90, 90, 90)}  # BGR
         for (a, b), g in zip(px(L), groups):
             cv2.line(img, tuple(map(int, a)), tuple(map(int, b)), colors.get(int(g), (90, 90, 90)), 2, cv2.LINE_AA)
-    with atomic_file(path, suffix=".png") as tmp:
-        if not cv2.imwrite(str(tmp), img):
-            raise InputError(f"could not write PNG {path}")
+    return img
+
+
+def draw_top_view(lines: np.ndarray, path: str, size: int = 1000, principal: np.ndarray | None = None,
+                  dropped: np.ndarray | None = None) -> None:
+    """Write :func:`top_view_image` as a PNG, atomically."""
+    from ldlmap.pictures import write_png
+
+    write_png(path, top_view_image(lines, size, principal, dropped))

@@ -69,7 +69,7 @@ def map_picture(ldl_map, path: str | Path, width: int = 1024) -> Path:
     """
     import cv2
 
-    from ldlmap.lines3d import draw_top_view
+    from ldlmap.lines3d import top_view_image
 
     height = width // 2
     centre = (ldl_map.bounds_min + ldl_map.bounds_max) / 2
@@ -82,11 +82,6 @@ def map_picture(ldl_map, path: str | Path, width: int = 1024) -> Path:
     else:
         pano = np.full((height, width, 3), 255, np.uint8)
     pano = draw_arcs(pano, project_lines(ldl_map.lines, np.eye(3), t), ldl_map.line_groups)
-    top_path = Path(path).with_suffix(".top.tmp.png")
-    try:
-        draw_top_view(ldl_map.lines, str(top_path), size=height, principal=ldl_map.principal_directions,
-                      dropped=ldl_map.lines_raw)
-        top = cv2.imread(str(top_path))
-    finally:
-        top_path.unlink(missing_ok=True)
+    top = top_view_image(ldl_map.lines, size=height, principal=ldl_map.principal_directions,
+                         dropped=ldl_map.lines_raw)
     return write_png(path, np.concatenate([top, pano], axis=1))

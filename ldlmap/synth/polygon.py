@@ -20,16 +20,23 @@ def _cross2(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
 
 
+def _sides(a0: np.ndarray, a1: np.ndarray, b0: np.ndarray, b1: np.ndarray) -> tuple[float, float, float, float]:
+    """Signed areas telling on which side of each segment the other's end points lie."""
+    return (float(_cross2(a1 - a0, b0 - a0)), float(_cross2(a1 - a0, b1 - a0)),
+            float(_cross2(b1 - b0, a0 - b0)), float(_cross2(b1 - b0, a1 - b0)))
+
+
+def _straddle(d1: float, d2: float, d3: float, d4: float, eps: float) -> bool:
+    return ((d1 > eps and d2 < -eps) or (d1 < -eps and d2 > eps)) and \
+        ((d3 > eps and d4 < -eps) or (d3 < -eps and d4 > eps))
+
+
 def segments_intersect(a0: np.ndarray, a1: np.ndarray, b0: np.ndarray, b1: np.ndarray,
                        eps: float = 1e-9) -> bool:
     """True when closed segments ``a0a1`` and ``b0b1`` share at least one point."""
     a0, a1, b0, b1 = (np.asarray(x, dtype=np.float64) for x in (a0, a1, b0, b1))
-    d1 = float(_cross2(a1 - a0, b0 - a0))
-    d2 = float(_cross2(a1 - a0, b1 - a0))
-    d3 = float(_cross2(b1 - b0, a0 - b0))
-    d4 = float(_cross2(b1 - b0, a1 - b0))
-    if ((d1 > eps and d2 < -eps) or (d1 < -eps and d2 > eps)) and \
-            ((d3 > eps and d4 < -eps) or (d3 < -eps and d4 > eps)):
+    d1, d2, d3, d4 = _sides(a0, a1, b0, b1)
+    if _straddle(d1, d2, d3, d4, eps):
         return True
 
     def on_seg(p0: np.ndarray, p1: np.ndarray, q: np.ndarray, d: float) -> bool:
@@ -43,12 +50,7 @@ def segments_cross_properly(a0: np.ndarray, a1: np.ndarray, b0: np.ndarray, b1: 
                             eps: float = 1e-9) -> bool:
     """True when the open segments cross at a single interior point of both."""
     a0, a1, b0, b1 = (np.asarray(x, dtype=np.float64) for x in (a0, a1, b0, b1))
-    d1 = float(_cross2(a1 - a0, b0 - a0))
-    d2 = float(_cross2(a1 - a0, b1 - a0))
-    d3 = float(_cross2(b1 - b0, a0 - b0))
-    d4 = float(_cross2(b1 - b0, a1 - b0))
-    return ((d1 > eps and d2 < -eps) or (d1 < -eps and d2 > eps)) and \
-        ((d3 > eps and d4 < -eps) or (d3 < -eps and d4 > eps))
+    return _straddle(*_sides(a0, a1, b0, b1), eps)
 
 
 def simple_polygon_problem(poly: np.ndarray, min_turn_deg: float = 0.5) -> str | None:
