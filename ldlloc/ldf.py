@@ -155,6 +155,32 @@ def decomposed_distance_2d(x, arcs, labels, num_groups: int = 3) -> "torch.Tenso
     return _group_min(d.unsqueeze(0), labels, num_groups)
 
 
+def _inputs_3d(x, rotations, translations, lines3d, groups, num_groups: int, device, dtype):
+    """Checked tensors of the 3D functions: x, R, T, grouped lines sorted by group, group bounds."""
+    import torch
+
+    x = _as_tensor(x, device, dtype)
+    dev, dt = x.device, x.dtype
+    R = _as_tensor(rotations, dev, dt)
+    T = _as_tensor(translations, dev, dt)
+    lines = _as_tensor(lines3d, dev, dt)
+    grp = _as_tensor(groups, dev, torch.long)
+    _check_last("query points", x, (3,))
+    if R.dim() != 3 or R.shape[1:] != (3, 3):
+        raise InputError(f"rotations must have shape (N_r, 3, 3), got {tuple(R.shape)}")
+    if T.dim() != 2 or T.shape[1] != 3:
+        raise InputError(f"translations must have shape (N_t, 3), got {tuple(T.shape)}")
+    if lines.dim() != 3 or lines.shape[1:] != (2, 3):
+        raise InputError(f"3D lines must have shape (L, 2, 3), got {tuple(lines.shape)}")
+    if grp.shape != (lines.shape[0],):
+        raise InputError(f"groups must have shape ({lines.shape[0]},), got {tuple(grp.shape)}")
+    for name, t in (("query points", x), ("rotations", R), ("translations", T), ("3D lines", lines)):
+        _check_finite(name, t)
+    # Keep only grouped lines, sorted by group, so each group is a contiguous slice.
+    lines, bounds = _sort_by_group(lines, grp, num_groups)
+    return x, R, T, lines, bounds
+
+
 def ldf_3d(x, rotations, translations, lines3d, groups, num_groups: int = 3,
            chunk: int = 4, device=None, dtype=None) -> "torch.Tensor":
     """Decomposed 3D line distance functions for all poses.
@@ -177,27 +203,9 @@ def ldf_3d(x, rotations, translations, lines3d, groups, num_groups: int = 3,
     """
     import torch
 
-    x = _as_tensor(x, device, dtype)
-    dev, dt = x.device, x.dtype
-    R = _as_tensor(rotations, dev, dt)
-    T = _as_tensor(translations, dev, dt)
-    lines = _as_tensor(lines3d, dev, dt)
-    grp = _as_tensor(groups, dev, torch.long)
-    _check_last("query points", x, (3,))
-    if R.dim() != 3 or R.shape[1:] != (3, 3):
-        raise InputError(f"rotations must have shape (N_r, 3, 3), got {tuple(R.shape)}")
-    if T.dim() != 2 or T.shape[1] != 3:
-        raise InputError(f"translations must have shape (N_t, 3), got {tuple(T.shape)}")
-    if lines.dim() != 3 or lines.shape[1:] != (2, 3):
-        raise InputError(f"3D lines must have shape (L, 2, 3), got {tuple(lines.shape)}")
-    if grp.shape != (lines.shape[0],):
-        raise InputError(f"groups must have shape ({lines.shape[0]},), got {tuple(grp.shape)}")
-    for name, t in (("query points", x), ("rotations", R), ("translations", T), ("3D lines", lines)):
-        _check_finite(name, t)
+    x, R, T, lines, bounds = _inputs_3d(x, rotations, translations, lines3d, groups, num_groups, device, dtype)
     n_t, n_r, q = T.shape[0], R.shape[0], x.shape[0]
-    out = torch.full((n_t, n_r, num_groups, q), EMPTY_DISTANCE, dtype=dt, device=dev)
-    # Keep only grouped lines, sorted by group, so each group is a contiguous slice.
-    lines, bounds = _sort_by_group(lines, grp, num_groups)
+    out = torch.full((n_t, n_r, num_groups, q), EMPTY_DISTANCE, dtype=x.dtype, device=x.device)
     if lines.shape[0] == 0 or n_t == 0 or n_r == 0:
         return out
     # R^T q for every rotation: (R^T q)_j = sum_i R_ij q_i -> q @ R.
@@ -207,6 +215,30 @@ def ldf_3d(x, rotations, translations, lines3d, groups, num_groups: int = 3,
         s, e = _project_lines(lines, T[a:a + step])
         out[a:a + step] = _grouped_min_distance(xr, s, e, bounds).reshape(-1, num_groups, n_r, q).transpose(1, 2)
     return out
+
+
+def ldf_3d_at(x, rotations, translations, lines3d, groups, translation_index, rotation_index,
+              num_groups: int = 3, device=None, dtype=None) -> "torch.Tensor":
+    """:func:`ldf_3d` at M chosen poses only: pose m is ``(rotations[rotation_index[m]],
+    translations[translation_index[m]])``.
+
+    The lines are projected once per distinct translation and all M poses go through one
+    batched evaluation (each pose with its own rotated query points). Returns (M, G, Q), the
+    values ``ldf_3d(...)[translation_index, rotation_index]`` (up to float rounding).
+    """
+    import torch
+
+    x, R, T, lines, bounds = _inputs_3d(x, rotations, translations, lines3d, groups, num_groups, device, dtype)
+    ti = _as_tensor(translation_index, x.device, torch.long).reshape(-1)
+    ri = _as_tensor(rotation_index, x.device, torch.long).reshape(-1)
+    if ti.shape != ri.shape:
+        raise InputError(f"{ti.numel()} translation indices for {ri.numel()} rotation indices")
+    if lines.shape[0] == 0 or ti.numel() == 0:
+        return torch.full((ti.numel(), num_groups, x.shape[0]), EMPTY_DISTANCE, dtype=x.dtype, device=x.device)
+    xr = torch.einsum("qi,mij->mqj", x, R[ri])  # (M, Q, 3): R^T q for each pose
+    uniq, inv = torch.unique(ti, return_inverse=True)
+    s, e = _project_lines(lines, T[uniq])  # once per distinct translation
+    return _grouped_min_distance(xr, s[inv], e[inv], bounds)
 
 
 # ------------------------------------------------------------------------------------- losses

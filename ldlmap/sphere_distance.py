@@ -117,6 +117,8 @@ def grouped_min_distance(x: "torch.Tensor", s: "torch.Tensor", e: "torch.Tensor"
                          bounds: Sequence[int]) -> "torch.Tensor":
     """``min over lines of group g`` of eq. 2 for points ``x`` (P, 3) and arcs ``s, e`` (c, L, 3).
 
+    ``x`` may also be (c, P, 3): its own points for each of the ``c`` arc sets (one pose each).
+
     Lines are sorted by group (``bounds``: G + 1 offsets). Uses two facts to stay cheap:
     (1) the endpoint distance ``min(acos x.s, acos x.e)`` is never below the true distance, so
     ``min_l D_l = min(min over inside l of asin|x.n_l|, min over all endpoints acos(x.p))``: the
@@ -133,7 +135,7 @@ def grouped_min_distance(x: "torch.Tensor", s: "torch.Tensor", e: "torch.Tensor"
     b_side = torch.linalg.cross(e, n, dim=-1)  # x . (e x n) > 0: x on s's side of the e-plane
     c, L = s.shape[0], s.shape[1]
     V = torch.cat([s, e, n, a_side, b_side], dim=1)  # (c, 5L, 3)
-    dots = torch.matmul(V, x.T)  # (c, 5L, P): one matmul for all dot products
+    dots = torch.matmul(V, x.transpose(-1, -2))  # (c, 5L, P): one matmul for all dot products
     xs, xe, xn, xa, xb = dots.split(L, dim=1)
     inside = torch.minimum(xa, xb) > 0
     circ = xn.abs_().masked_fill_(~inside, 2.0)  # sin of the great-circle distance, or 2 (none)
@@ -142,7 +144,7 @@ def grouped_min_distance(x: "torch.Tensor", s: "torch.Tensor", e: "torch.Tensor"
     for g in range(len(bounds) - 1):  # G = 3 groups: contiguous slices of the sorted lines
         lo, hi = bounds[g], bounds[g + 1]
         if hi == lo:
-            outs.append(torch.full((c, x.shape[0]), EMPTY_DISTANCE, dtype=x.dtype, device=x.device))
+            outs.append(torch.full((c, x.shape[-2]), EMPTY_DISTANCE, dtype=x.dtype, device=x.device))
             continue
         c_min = circ[:, lo:hi].amin(1)
         d_circ = torch.where(c_min <= 1.0, torch.asin(c_min.clamp(max=1.0)),
