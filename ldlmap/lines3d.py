@@ -16,7 +16,11 @@ cloud") on numpy / scipy / open3d / OpenCV:
 4. per plane: points projected to 2D plane coordinates, rasterised to an occupancy image
    (``cell_size``), morphologically closed, boundary contours approximated by polygons
    (Douglas-Peucker) whose sides are lifted back to 3D; sides with no other surface nearby
-   (rims of occlusion shadows and of the scan's reach, not edges of the scene) are dropped;
+   (rims of occlusion shadows and of the scan's reach, not edges of the scene) and sides across
+   which the surface goes on in nearly the same plane (facets of a curved wall) are dropped;
+   narrow pieces (``strip_width``: a table leg, the front of a shelf board, the side of a table
+   top) give both long sides directly, placed by percentiles of their points, since one of the
+   two faces at such an edge is often never scanned;
 5. intersection lines of adjacent, non-parallel planes, clipped to where both supports lie near
    the line;
 6. merge of collinear overlapping pieces (intersection lines, being more accurate, fix the
@@ -58,6 +62,7 @@ class Lines3DParams:
     plane_tol: float = 0.015  # ... and it lies this close to the plane
     link_dist: float = 0.08  # neighbours farther apart than this do not connect plane pieces
     min_region_points: int = 40  # smallest planar piece kept
+    min_plane_voters: int = 20  # flat points (clean normal) needed to start a plane hypothesis
     max_plane_rms: float = 0.02  # pieces less planar than this RMS are not planes
     cell_size: float = 0.025  # raster cell of the per-plane occupancy images
     close_cells: int = 2  # closing radius (cells) that bridges sampling gaps
@@ -77,6 +82,7 @@ class Lines3DParams:
     merge_gap: float = 0.03  # ... and largest gap along the line to still merge
     edge_radius: float = 0.06  # boundary sides need points of another surface this close ...
     edge_support: float = 0.3  # ... along this fraction of their length (else: occlusion shadow)
+    strip_width: float = 0.12  # planes narrower than this (legs, board fronts, frame sides) give both long sides
     join_angle_deg: float = 3.0  # final join of collinear pieces of one line: direction difference ...
     join_dist: float = 0.03  # ... distance between the lines ...
     join_gap: float = 0.25  # ... and largest gap along the line bridged
@@ -253,13 +259,13 @@ def _claim_planes(off: np.ndarray, voter: np.ndarray, free: np.ndarray, params: 
     ``off`` are the offsets ``x . n`` of the candidate points (normal within
     ``assign_angle_deg``), ``voter`` marks the flat ones whose normal lies within
     ``orient_cone_deg`` and ``free`` those not yet in a plane. Repeatedly: the top of the smoothed
-    histogram of the free voters' offsets, if at least ``min_region_points`` voters lie within
+    histogram of the free voters' offsets, if at least ``min_plane_voters`` voters lie within
     ``plane_tol``, becomes a plane (offset: mean of those voters) that claims every free candidate
     within ``plane_tol``; its voters leave the histogram. Returns ``[(offset, claimed index)]``.
     """
     from scipy.ndimage import gaussian_filter1d
 
-    if voter.sum() < params.min_region_points:
+    if voter.sum() < params.min_plane_voters:
         return []
     b = params.offset_bin
     lo = off.min() - 5 * b
@@ -275,7 +281,7 @@ def _claim_planes(off: np.ndarray, voter: np.ndarray, free: np.ndarray, params: 
         hs = gaussian_filter1d(h, params.offset_sigma / b)
         top = int(np.argmax(hs))
         cum = h[max(top - k, 0):top + k + 1].sum()
-        if cum < params.min_region_points:
+        if cum < params.min_plane_voters:
             break
         c = lo + (top + 0.5) * b
         i0, i1 = np.searchsorted(srt, [c - params.plane_tol / 2, c + params.plane_tol / 2])
@@ -400,6 +406,102 @@ def _boundary_segments(Q: np.ndarray, c: np.ndarray, n: np.ndarray, params: Line
     S2 = lo + (S + 0.5) * cs
     S3 = c + S2[..., :1] * e1 + S2[..., 1:] * e2
     return S3[np.linalg.norm(S3[:, 1] - S3[:, 0], axis=1) >= params.min_segment]
+
+
+def _strips(reg: PlaneRegions, params: Lines3DParams) -> tuple[np.ndarray, np.ndarray]:
+    """Narrow plane pieces as rectangles (M, 4, 3): centre, long axis, across axis, normal; and
+    their plane labels (M,).
+
+    The long axis is scaled to half the length (1st-99th percentile of the points along it) and
+    the across axis to half the width (2nd-98th percentile), both about the rectangle's centre.
+    Pieces at most ``strip_width`` wide and at least 3 times and ``min_segment`` longer than wide
+    count: a table leg, the front of a shelf board, the side of a table top.
+    """
+    lab = reg.labels
+    L = len(reg.normals)
+    order = np.argsort(lab, kind="stable")
+    starts = np.searchsorted(lab[order], np.arange(L + 1))
+    out, owner = [], []
+    for i in range(L):
+        Q = reg.points[order[starts[i]:starts[i + 1]]]
+        n = reg.normals[i]
+        X = Q - Q.mean(0)
+        X = X - np.outer(X @ n, n)
+        _, _, Vt = np.linalg.svd(X, full_matrices=False)
+        u, v = Vt[0], Vt[1]
+        a0, a1 = np.percentile(X @ u, [1, 99])
+        b0, b1 = np.percentile(X @ v, [2, 98])
+        if b1 - b0 > params.strip_width or a1 - a0 < max(params.min_segment, 3 * (b1 - b0)):
+            continue
+        c = Q.mean(0) + (a0 + a1) / 2 * u + (b0 + b1) / 2 * v
+        out.append([c, (a1 - a0) / 2 * u, (b1 - b0) / 2 * v, n])
+        owner.append(i)
+    return np.asarray(out, dtype=np.float64).reshape(-1, 4, 3), np.asarray(owner, dtype=np.int64)
+
+
+def _strip_sides(strips: np.ndarray, owner: np.ndarray, reg: PlaneRegions, params: Lines3DParams) -> np.ndarray:
+    """The long sides (M, 2, 3) of the strips of :func:`_strips` that are edges.
+
+    The long sides of a thin object's face are edges of the object even where the adjacent face
+    is never scanned (the underside of a board, the hidden face of a leg), which is where the
+    boundary test of :func:`_edge_supported` cannot tell them from occlusion rims; and a raster
+    boundary is coarse across a strip a few cells wide. Sides across which the surface goes on
+    smoothly (:func:`_smooth_continuation`: facets of a curved wall) are dropped.
+    """
+    if len(strips) == 0:
+        return np.zeros((0, 2, 3))
+    c, a, b = strips[:, 0], strips[:, 1], strips[:, 2]
+    sides = np.stack([np.stack([c + s * b - a, c + s * b + a], 1) for s in (-1.0, 1.0)], 1).reshape(-1, 2, 3)
+    owner2 = np.repeat(owner, 2)
+    return sides[~_smooth_continuation(sides, owner2, reg, params)]
+
+
+def _smooth_continuation(segs: np.ndarray, owner: np.ndarray, reg: PlaneRegions, params: Lines3DParams) -> np.ndarray:
+    """Mask of segments on plane ``owner`` across which the surface goes on in nearly the same
+    plane: along most of the segment, 2 cm beyond it on either side within the owner's plane, a
+    point of another plane lies within 1.5 cm of the owner's plane and that plane's normal is
+    within ``min_plane_angle_deg`` (the facets of a curved wall, which meet at no edge).
+    """
+    from scipy.spatial import cKDTree
+
+    if len(segs) == 0:
+        return np.zeros(0, bool)
+    n = reg.normals[owner]
+    d = segs[:, 1] - segs[:, 0]
+    w = np.cross(n, d)
+    w /= np.maximum(np.linalg.norm(w, axis=1, keepdims=True), 1e-12)
+    x, seg = _sample_segments(segs, 0.05)
+    tree = cKDTree(reg.points)
+    cos_t = np.cos(np.radians(params.min_plane_angle_deg))
+    smooth = np.zeros(len(x), bool)
+    for sgn in (-1.0, 1.0):
+        probe = x + sgn * 0.02 * w[seg]
+        dist, idx = tree.query(probe, distance_upper_bound=0.015, workers=-1)
+        hit = np.isfinite(dist)
+        j = np.minimum(idx, len(reg.points) - 1)
+        lab = np.where(hit, reg.labels[j], -1)
+        on_plane = np.abs(np.einsum("ij,ij->i", reg.points[j] - x, n[seg])) <= 0.015
+        same = np.abs(np.einsum("ij,ij->i", reg.normals[np.maximum(lab, 0)], n[seg])) > cos_t
+        smooth |= (lab >= 0) & (lab != owner[seg]) & on_plane & same
+    return np.bincount(seg, smooth, len(segs)) / np.bincount(seg, minlength=len(segs)) >= 0.5
+
+
+def _inside_strips(lines: np.ndarray, strips: np.ndarray, margin: float = 0.01, off_plane: float = 0.025) -> np.ndarray:
+    """Mask of lines whose both endpoints lie inside a strip (``margin`` in from its long sides).
+
+    Such lines (raster boundary pieces across a narrow face, intersections placed mid-face) would
+    chain the two sides of a strip into one line when collinear pieces are merged.
+    """
+    if len(lines) == 0 or len(strips) == 0:
+        return np.zeros(len(lines), bool)
+    c, a, b, n = (strips[:, k] for k in range(4))
+    la = np.linalg.norm(a, axis=1)
+    lb = np.linalg.norm(b, axis=1)
+    rel = lines[:, :, None, :] - c[None, None]  # (N, 2, M, 3)
+    along = np.abs(np.einsum("nkmj,mj->nkm", rel, a / la[:, None])) <= la + margin
+    across = np.abs(np.einsum("nkmj,mj->nkm", rel, b / lb[:, None])) <= lb - margin
+    near = np.abs(np.einsum("nkmj,mj->nkm", rel, n)) <= off_plane
+    return np.any(np.all(along & across & near, axis=1), axis=1)
 
 
 def _runs(mask: np.ndarray) -> np.ndarray:
@@ -651,7 +753,7 @@ def extract_lines_with_stats(points: np.ndarray, params: Lines3DParams = Lines3D
     B = np.concatenate(bnd) if bnd else np.zeros((0, 2, 3))
     owner = np.repeat(np.arange(len(bnd)), [len(b) for b in bnd])
     stats["boundary_sides"] = len(B)
-    B = B[_edge_supported(B, owner, reg, params)]
+    B = B[_edge_supported(B, owner, reg, params) & ~_smooth_continuation(B, owner, reg, params)]
     stats["boundary_s"] = time.perf_counter() - t
     t = time.perf_counter()
     X = _intersection_segments(reg, params)
@@ -661,10 +763,14 @@ def extract_lines_with_stats(points: np.ndarray, params: Lines3DParams = Lines3D
     T = _linear_segments(reg, params)
     stats["linear_s"] = time.perf_counter() - t
     stats["linear_segments"] = len(T)
+    strips, strip_owner = _strips(reg, params)
+    S = _strip_sides(strips, strip_owner, reg, params)
+    stats["strip_segments"] = len(S)
     t = time.perf_counter()
     raw = np.concatenate([X, B, T])
     w = np.concatenate([np.full(len(X), 2.0), np.ones(len(B) + len(T))])
     out = merge_collinear(raw, w, params.merge_angle_deg, params.merge_dist, params.merge_gap)
+    out = np.concatenate([out[~_inside_strips(out, strips)], S])
     stats["merged_pieces"] = len(out)
     out = join_lines(out, params)
     stats["merge_s"] = time.perf_counter() - t

@@ -11,8 +11,11 @@ What is included (computed per part, i.e. per closed solid / the room shell, usi
 * collinear, touching or overlapping pieces (also from different parts) are merged into maximal
   segments.
 
-Excluded: triangulation diagonals (coplanar neighbours), and boundary edges of open parts (door
-and window panels, posters: flat decals a few mm in front of the wall, no geometric edge).
+Excluded: triangulation diagonals (coplanar neighbours); boundary edges of open parts (door
+and window panels, posters: flat decals a few mm in front of the wall, no geometric edge); and
+flush seams, creases of one solid where a face of another solid continues one of its faces in
+the same plane and orientation (the side board and the back board of a shelf that share one
+flat back surface: the union has no edge there, only a joint, which no scan can show).
 Known approximation: frame edges on the wall plane are reported at the wall (the panel inside
 the frame is a few mm in front of it).
 """
@@ -47,8 +50,24 @@ def _parts(mesh: SceneMesh, weld: np.ndarray) -> np.ndarray:
     return labels[tri[:, 0]]
 
 
+def _flush(mesh: SceneMesh, mid: np.ndarray, out_dir: np.ndarray, normal: np.ndarray,
+           eps: float = 0.005, tol: float = 5e-4) -> np.ndarray:
+    """Mask: just beyond the edge midpoints ``mid``, across the edge in a face's plane
+    (``out_dir``), the mesh surface continues that face (a point on a face of equal normal)."""
+    import open3d as o3d
+
+    rs = o3d.t.geometry.RaycastingScene()
+    rs.add_triangles(o3d.core.Tensor(np.asarray(mesh.vertices, np.float32)),
+                     o3d.core.Tensor(np.asarray(mesh.triangles, np.uint32)))
+    q = (mid + eps * out_dir).astype(np.float32)
+    ans = rs.compute_closest_points(o3d.core.Tensor(q))
+    dist = np.linalg.norm(ans["points"].numpy() - q, axis=1)
+    n = ans["primitive_normals"].numpy()
+    return (dist <= tol) & (np.einsum("ij,ij->i", n, normal) > 0.999)
+
+
 def crease_edges(mesh: SceneMesh, min_angle_deg: float = 20.0) -> np.ndarray:
-    """Un-merged crease edges (M, 2, 3) of each part (see the module docstring)."""
+    """Un-merged crease edges (M, 2, 3) of each part, flush seams excluded (see the module docstring)."""
     V = np.asarray(mesh.vertices, dtype=np.float64)
     F = np.asarray(mesh.triangles, dtype=np.int64)
     if len(F) == 0:
@@ -82,7 +101,19 @@ def crease_edges(mesh: SceneMesh, min_angle_deg: float = 20.0) -> np.ndarray:
     rep = np.zeros(int(weld.max()) + 1, dtype=np.int64)
     rep[weld[::-1]] = np.arange(len(weld))[::-1]
     a, b = V[rep[keys[sel, 1]]], V[rep[keys[sel, 2]]]
-    return np.stack([a, b], axis=1)
+    if len(sel) == 0:
+        return np.zeros((0, 2, 3))
+    # Flush seams: beyond the edge, in the plane of either face, another face continues it.
+    mid, e = (a + b) / 2, b - a
+    seam = np.zeros(len(sel), bool)
+    for t in (owner[sel], owner[sel + 1]):
+        n = normals[t]
+        w = np.cross(e, n)
+        w /= np.linalg.norm(w, axis=1, keepdims=True)
+        inward = np.einsum("ij,ij->i", V[F[t]].mean(1) - mid, w) > 0
+        w[inward] *= -1.0  # point away from the face, across the edge
+        seam |= _flush(mesh, mid, w, n)
+    return np.stack([a, b], axis=1)[~seam]
 
 
 def merge_collinear(segs: np.ndarray, tol: float = 1e-5) -> np.ndarray:
