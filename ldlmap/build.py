@@ -36,6 +36,8 @@ class BuildParams:
     """Map-building parameters (paper defaults where the paper gives one)."""
 
     lam: float = 0.1  # lambda: 3D length filter ratio
+    min_line_length: float | None = None  # absolute length threshold (m) instead of lambda's; for maps
+    # of several rooms, whose extent makes lambda's threshold longer than most of a room's lines
     num_translations: int = 800  # N_t (800 OmniScenes, 1700 Stanford 2D-3D-S)
     translation_method: str = "octree"  # octree (OmniScenes) | grid (Stanford)
     clearance: float = 0.25  # candidate translations keep this distance (m) from the scan
@@ -204,7 +206,12 @@ def build_map(input_path: str | Path, output: str | Path | None = None, lines_pa
         raise InputError("no 3D lines found in the input")
     pts_for_bounds = src.points if src.points is not None else lines_raw.reshape(-1, 3)
     bmin, bmax = pts_for_bounds.min(0), pts_for_bounds.max(0)
-    lines, kept, threshold = filter_by_length(lines_raw, bmin, bmax, params.lam)
+    lam = params.lam
+    if params.min_line_length is not None:
+        if not params.min_line_length > 0:
+            raise InputError(f"minimum line length must be > 0 m, got {params.min_line_length}")
+        lam = float(params.min_line_length / np.mean(bmax - bmin))  # the lambda giving that threshold
+    lines, kept, threshold = filter_by_length(lines_raw, bmin, bmax, lam)
     if len(lines) == 0:
         raise InputError(f"no 3D line is longer than the length threshold {threshold:.3f} m")
     stage("lines")
@@ -246,7 +253,7 @@ def build_map(input_path: str | Path, output: str | Path | None = None, lines_pa
         name=name or input_path.stem,
         bounds_min=bmin, bounds_max=bmax,
         lines_raw=lines_raw, lines=lines, line_groups=groups,
-        length_threshold=threshold, kept_ratio=float(kept.mean()), line_lambda=params.lam,
+        length_threshold=threshold, kept_ratio=float(kept.mean()), line_lambda=lam,
         principal_directions=principal, translations=translations,
         cloud_points=cloud_pts, cloud_colors=cloud_cols, features=features, config=config,
         fields=fields, fields_attrs=fields_attrs,

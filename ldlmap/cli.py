@@ -134,6 +134,9 @@ def build(
     method: Optional[str] = typer.Option(None, "--translations", help="octree (OmniScenes) | grid (Stanford)."),
     num_views: Optional[int] = typer.Option(None, "--num-views", help="Views rendered for features (default 40)."),
     lam: Optional[float] = typer.Option(None, "--lambda", help="Length filter ratio lambda (default 0.1)."),
+    min_length: Optional[float] = typer.Option(None, "--min-line-length", help="Absolute length threshold in metres "
+                                               "instead of lambda's (maps of several rooms: about one room's 0.1 x "
+                                               "mean extent, e.g. 0.45)."),
     device: str = typer.Option("cpu", "--device", help="Torch device for rendering and SuperPoint: cpu | cuda."),
     png: Optional[Path] = typer.Option(None, "--png", help="Also write a picture of the map (top view + panorama with lines)."),
 ) -> None:
@@ -144,7 +147,7 @@ def build(
 
     params = params_with(BuildParams(), features=features, weights=str(weights) if weights else None,
                          num_translations=num_trans, translation_method=method, num_views=num_views, lam=lam,
-                         device=device)
+                         min_line_length=min_length, device=device)
     with _progress_bar() as bar:
         task = bar.add_task(f"building map of {input_path.name}", total=None)
 

@@ -13,6 +13,7 @@ import shutil
 import cv2
 import h5py
 import numpy as np
+import pytest
 from typer.testing import CliRunner
 
 from ldlloc.cli import app as loc_app
@@ -90,6 +91,18 @@ def test_lines_only_map_from_a_line_file(demo_dataset, tmp_path):
     assert res.exit_code == 0, res.output
     out = json.loads(res.output)
     assert out["status"] == "coarse" and "lines-only" in out["message"]
+    # An absolute length threshold (multi-room maps) instead of lambda's.
+    res = runner.invoke(map_app, ["build", str(demo_dataset / "gt_lines" / "synthroom_1.obj"),
+                                  "-o", str(tmp_path / "short.h5"), "--min-line-length", "0.25"])
+    assert res.exit_code == 0, res.output
+    short = read_map(tmp_path / "short.h5")
+    assert short.length_threshold == pytest.approx(0.25) and m.length_threshold > 0.3
+    assert len(short.lines) > len(m.lines)
+    assert np.linalg.norm(short.lines[:, 1] - short.lines[:, 0], axis=1).min() >= 0.25 - 1e-9
+    assert "minimum line length" in one_error_line(runner.invoke(
+        map_app, ["build", str(demo_dataset / "gt_lines" / "synthroom_1.obj"), "-o", str(tmp_path / "bad.h5"),
+                  "--min-line-length", "0"]))
+    assert not (tmp_path / "bad.h5").exists()
 
 
 def test_build_bad_inputs(tmp_path):
