@@ -497,11 +497,15 @@ def _inside_strips(lines: np.ndarray, strips: np.ndarray, margin: float = 0.01, 
     c, a, b, n = (strips[:, k] for k in range(4))
     la = np.linalg.norm(a, axis=1)
     lb = np.linalg.norm(b, axis=1)
-    rel = lines[:, :, None, :] - c[None, None]  # (N, 2, M, 3)
-    along = np.abs(np.einsum("nkmj,mj->nkm", rel, a / la[:, None])) <= la + margin
-    across = np.abs(np.einsum("nkmj,mj->nkm", rel, b / lb[:, None])) <= lb - margin
-    near = np.abs(np.einsum("nkmj,mj->nkm", rel, n)) <= off_plane
-    return np.any(np.all(along & across & near, axis=1), axis=1)
+    out = np.zeros(len(lines), bool)
+    step = max(1, int(2e6 // len(strips)))  # bounded (N, 2, M) blocks on large maps
+    for s in range(0, len(lines), step):
+        rel = lines[s:s + step, :, None, :] - c[None, None]  # (n, 2, M, 3)
+        along = np.abs(np.einsum("nkmj,mj->nkm", rel, a / la[:, None])) <= la + margin
+        across = np.abs(np.einsum("nkmj,mj->nkm", rel, b / lb[:, None])) <= lb - margin
+        near = np.abs(np.einsum("nkmj,mj->nkm", rel, n)) <= off_plane
+        out[s:s + step] = np.any(np.all(along & across & near, axis=1), axis=1)
+    return out
 
 
 def _runs(mask: np.ndarray) -> np.ndarray:
