@@ -16,8 +16,11 @@ cloud") on numpy / scipy / open3d / OpenCV:
 4. per plane: points projected to 2D plane coordinates, rasterised to an occupancy image
    (``cell_size``), morphologically closed, boundary contours approximated by polygons
    (Douglas-Peucker) whose sides are lifted back to 3D; sides with no other surface nearby
-   (rims of occlusion shadows and of the scan's reach, not edges of the scene) and sides across
-   which the surface goes on in nearly the same plane (facets of a curved wall) are dropped;
+   (rims of occlusion shadows and of the scan's reach, not edges of the scene) are dropped
+   unless the scene was scanned past them on both sides of the plane (an object's edge whose
+   other face is hidden, :func:`_seen_past`), and so are sides across which the surface goes on
+   in nearly the same plane (facets of a curved wall); long sides along a structural direction
+   regain the length the raster's rounded corners took (:func:`_extend_sides`);
    narrow pieces (``strip_width``: a table leg, the front of a shelf board, the side of a table
    top) give both long sides directly, placed by percentiles of their points, since one of the
    two faces at such an edge is often never scanned;
@@ -82,6 +85,8 @@ class Lines3DParams:
     merge_gap: float = 0.03  # ... and largest gap along the line to still merge
     edge_radius: float = 0.06  # boundary sides need points of another surface this close ...
     edge_support: float = 0.3  # ... along this fraction of their length (else: occlusion shadow)
+    extend_sides: bool = True  # lengthen boundary sides over the corners rounded by the raster
+    see_past: bool = True  # keep unsupported sides past which the scene was scanned on both sides
     strip_width: float = 0.12  # planes narrower than this (legs, board fronts, frame sides) give both long sides
     join_angle_deg: float = 3.0  # final join of collinear pieces of one line: direction difference ...
     join_dist: float = 0.03  # ... distance between the lines ...
@@ -732,6 +737,106 @@ def _edge_supported(segs: np.ndarray, owner: np.ndarray, reg: PlaneRegions, para
     return frac >= params.edge_support
 
 
+def _extend_sides(segs: np.ndarray, owner: np.ndarray, reg: PlaneRegions, step: float = 0.02,
+                  reach: float = 0.15, radius: float = 0.02, min_length: float = 0.2) -> np.ndarray:
+    """Boundary sides (M, 2, 3) lengthened at each end while their plane's boundary goes on.
+
+    Closing and polygon approximation round the corners of a plane's occupancy image, which
+    shortens every side by several centimetres at each end (a box's 62 cm vertical edge comes out
+    40 cm long, below the length threshold). Past each end, every ``step`` up to ``reach``, the
+    boundary goes on where the owner plane has points within ``radius`` on one side of the line
+    (``2 radius`` off it) but not on the other; the side grows to the last such sample before two
+    misses in a row. Only sides at least ``min_length`` long and within 3 degrees of a direction
+    where the owner plane meets another plane's orientation grow: short or oblique sides are the
+    chords of rounded or staircase outlines, which would grow into false lines.
+    """
+    from scipy.spatial import cKDTree
+
+    d = segs[:, 1] - segs[:, 0]
+    length = np.linalg.norm(d, axis=1)
+    # Structural directions: where the owner plane would meet another plane's orientation.
+    cand = np.cross(reg.normals[owner][:, None, :], reg.normals[None, :, :])  # (M, L, 3)
+    cn = np.linalg.norm(cand, axis=2)
+    cos_side = np.abs(np.einsum("mlj,mj->ml", cand, d)) / np.maximum(cn * length[:, None], 1e-12)
+    structural = np.any((cn > np.sin(np.radians(20.0))) & (cos_side > np.cos(np.radians(3.0))), axis=1)
+    long = (length >= min_length) & structural
+    if not long.any():
+        return segs
+    out = segs.copy()
+    out[long] = _extend_long_sides(segs[long], owner[long], reg, tree=cKDTree(reg.points), step=step,
+                                   reach=reach, radius=radius)
+    return out
+
+
+def _extend_long_sides(segs: np.ndarray, owner: np.ndarray, reg: PlaneRegions, tree, step: float,
+                       reach: float, radius: float) -> np.ndarray:
+    """The growth step of :func:`_extend_sides` for the sides it selected."""
+    P, lab = reg.points, reg.labels
+    n = reg.normals[owner]
+    d = segs[:, 1] - segs[:, 0]
+    d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
+    w = np.cross(n, d)
+    w /= np.maximum(np.linalg.norm(w, axis=1, keepdims=True), 1e-12)
+    s = np.arange(1, int(reach / step) + 1) * step  # (K,)
+    out = segs.copy()
+    for end, sgn in ((1, 1.0), (0, -1.0)):
+        x = segs[:, end, None, :] + sgn * s[None, :, None] * d[:, None, :]  # (M, K, 3)
+        sides = []
+        for off in (-2 * radius, 2 * radius):
+            q = (x + off * w[:, None, :]).reshape(-1, 3)
+            _, j = tree.query(q, distance_upper_bound=radius, workers=-1)
+            hit = (j < len(P)) & (lab[np.minimum(j, len(P) - 1)] == np.repeat(owner, len(s)))
+            sides.append(hit.reshape(len(segs), len(s)))
+        on = sides[0] ^ sides[1]  # (M, K): own points on exactly one side
+        miss2 = ~on[:, :-1] & ~on[:, 1:]
+        first_gap = np.where(miss2.any(axis=1), np.argmax(miss2, axis=1), len(s))  # samples before it
+        last = np.where(first_gap > 0, first_gap - 1, -1)
+        # Last "on" sample before the gap.
+        idx = np.arange(len(s))[None, :]
+        ok = on & (idx <= last[:, None])
+        grow = np.where(ok.any(axis=1), s[np.max(np.where(ok, idx, 0), axis=1)], 0.0)
+        grow = np.where(ok.any(axis=1), grow, 0.0)
+        out[:, end] = segs[:, end] + sgn * grow[:, None] * d
+    return out
+
+
+def _seen_past(segs: np.ndarray, owner: np.ndarray, reg: PlaneRegions, reach: float = 4.0,
+               radius: float = 0.04) -> np.ndarray:
+    """Mask of boundary sides past which the scene was scanned on both sides of their plane.
+
+    A side without another surface nearby is either the rim of an occlusion shadow or of the
+    scan's reach on a surface that bounds the scene (wall, floor: nothing lies behind them), or
+    an edge of an object whose face across the edge was never scanned (a box standing near a
+    wall). Just past the side, in the plane, rays along both normal directions find scan points
+    within ``reach`` (within ``radius`` of the ray) only in the second case: the object ends there
+    and the scanner saw the scene around it. Sides where both rays hit along at least half of
+    their length count.
+    """
+    from scipy.spatial import cKDTree
+
+    if len(segs) == 0:
+        return np.zeros(0, bool)
+    P, lab = reg.points, reg.labels
+    tree = cKDTree(P)
+    n = reg.normals[owner]
+    d = segs[:, 1] - segs[:, 0]
+    w = np.cross(n, d)
+    w /= np.maximum(np.linalg.norm(w, axis=1, keepdims=True), 1e-12)
+    x, seg = _sample_segments(segs, 0.1)
+    # Outward: the side of the segment where the owner plane has no point.
+    _, j = tree.query(x + 0.03 * w[seg], distance_upper_bound=0.02, workers=-1)
+    own = (j < len(P)) & (lab[np.minimum(j, len(P) - 1)] == owner[seg])
+    out = np.where(own[:, None], -w[seg], w[seg])
+    probe = x + 0.05 * out
+    steps = np.arange(0.1, reach, 1.5 * radius)
+    hit_both = np.ones(len(x), bool)
+    for sgn in (-1.0, 1.0):
+        ray = probe[:, None, :] + sgn * steps[None, :, None] * n[seg][:, None, :]  # (S, K, 3)
+        dist, _ = tree.query(ray.reshape(-1, 3), distance_upper_bound=radius, workers=-1)
+        hit_both &= np.isfinite(dist).reshape(len(x), -1).any(axis=1)
+    return np.bincount(seg, hit_both, len(segs)) / np.bincount(seg, minlength=len(segs)) >= 0.5
+
+
 # ------------------------------------------------------------------------------------ extraction
 
 
@@ -757,7 +862,13 @@ def extract_lines_with_stats(points: np.ndarray, params: Lines3DParams = Lines3D
     B = np.concatenate(bnd) if bnd else np.zeros((0, 2, 3))
     owner = np.repeat(np.arange(len(bnd)), [len(b) for b in bnd])
     stats["boundary_sides"] = len(B)
-    B = B[_edge_supported(B, owner, reg, params) & ~_smooth_continuation(B, owner, reg, params)]
+    supported = _edge_supported(B, owner, reg, params)
+    if params.see_past:
+        supported[~supported] = _seen_past(B[~supported], owner[~supported], reg)
+    keep = supported & ~_smooth_continuation(B, owner, reg, params)
+    B, owner = B[keep], owner[keep]
+    if params.extend_sides:
+        B = _extend_sides(B, owner, reg)
     stats["boundary_s"] = time.perf_counter() - t
     t = time.perf_counter()
     X = _intersection_segments(reg, params)
