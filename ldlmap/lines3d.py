@@ -39,6 +39,7 @@ against true edges.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -192,6 +193,20 @@ class PlaneRegions:
     spacing: float = 0.0  # voxel size actually used (0: no downsampling)
     axes: np.ndarray | None = None  # (N, 3) main axis of each point's neighbourhood
     linearity: np.ndarray | None = None  # (N,) 1 - lambda_1 / lambda_2 (1: points along a line)
+
+    @cached_property
+    def members(self) -> list[np.ndarray]:
+        """Point indices of each region (L arrays)."""
+        order = np.argsort(self.labels, kind="stable")
+        starts = np.searchsorted(self.labels[order], np.arange(len(self.normals) + 1))
+        return [order[starts[i]:starts[i + 1]] for i in range(len(self.normals))]
+
+    @cached_property
+    def tree(self):
+        """k-d tree of the points (scipy ``cKDTree``), built once for every look-up."""
+        from scipy.spatial import cKDTree
+
+        return cKDTree(self.points)
 
 
 def _downsample(P: np.ndarray, params: Lines3DParams) -> tuple[np.ndarray, float]:
@@ -422,13 +437,9 @@ def _strips(reg: PlaneRegions, params: Lines3DParams) -> tuple[np.ndarray, np.nd
     Pieces at most ``strip_width`` wide and at least 3 times and ``min_segment`` longer than wide
     count: a table leg, the front of a shelf board, the side of a table top.
     """
-    lab = reg.labels
-    L = len(reg.normals)
-    order = np.argsort(lab, kind="stable")
-    starts = np.searchsorted(lab[order], np.arange(L + 1))
     out, owner = [], []
-    for i in range(L):
-        Q = reg.points[order[starts[i]:starts[i + 1]]]
+    for i, m in enumerate(reg.members):
+        Q = reg.points[m]
         n = reg.normals[i]
         X = Q - Q.mean(0)
         X = X - np.outer(X @ n, n)
@@ -461,27 +472,28 @@ def _strip_sides(strips: np.ndarray, owner: np.ndarray, reg: PlaneRegions, param
     return sides[~_smooth_continuation(sides, owner2, reg, params)]
 
 
+def _across(segs: np.ndarray, normals: np.ndarray) -> np.ndarray:
+    """Unit directions (M, 3) in each segment's plane (``normals``), perpendicular to the segment."""
+    w = np.cross(normals, segs[:, 1] - segs[:, 0])
+    return w / np.maximum(np.linalg.norm(w, axis=1, keepdims=True), 1e-12)
+
+
 def _smooth_continuation(segs: np.ndarray, owner: np.ndarray, reg: PlaneRegions, params: Lines3DParams) -> np.ndarray:
     """Mask of segments on plane ``owner`` across which the surface goes on in nearly the same
     plane: along most of the segment, 2 cm beyond it on either side within the owner's plane, a
     point of another plane lies within 1.5 cm of the owner's plane and that plane's normal is
     within ``min_plane_angle_deg`` (the facets of a curved wall, which meet at no edge).
     """
-    from scipy.spatial import cKDTree
-
     if len(segs) == 0:
         return np.zeros(0, bool)
     n = reg.normals[owner]
-    d = segs[:, 1] - segs[:, 0]
-    w = np.cross(n, d)
-    w /= np.maximum(np.linalg.norm(w, axis=1, keepdims=True), 1e-12)
+    w = _across(segs, n)
     x, seg = _sample_segments(segs, 0.05)
-    tree = cKDTree(reg.points)
     cos_t = np.cos(np.radians(params.min_plane_angle_deg))
     smooth = np.zeros(len(x), bool)
     for sgn in (-1.0, 1.0):
         probe = x + sgn * 0.02 * w[seg]
-        dist, idx = tree.query(probe, distance_upper_bound=0.015, workers=-1)
+        dist, idx = reg.tree.query(probe, distance_upper_bound=0.015, workers=-1)
         hit = np.isfinite(dist)
         j = np.minimum(idx, len(reg.points) - 1)
         lab = np.where(hit, reg.labels[j], -1)
@@ -532,9 +544,7 @@ def _intersection_segments(reg: PlaneRegions, params: Lines3DParams) -> np.ndarr
     lo, hi = np.minimum(a[ok], b[ok]), np.maximum(a[ok], b[ok])
     pairs, counts = np.unique(lo * L + hi, return_counts=True)
     pairs = pairs[counts >= params.min_adjacent_links]
-    order = np.argsort(lab, kind="stable")
-    starts = np.searchsorted(lab[order], np.arange(L + 1))
-    members = [order[starts[i]:starts[i + 1]] for i in range(L)]
+    members = reg.members
     sin_min = np.sin(np.radians(params.min_plane_angle_deg))
     cs = params.support_bin
     out = []
@@ -723,13 +733,11 @@ def _edge_supported(segs: np.ndarray, owner: np.ndarray, reg: PlaneRegions, para
     region or an unassigned point within ``edge_radius`` along at least ``edge_support`` of their
     length are kept.
     """
-    from scipy.spatial import cKDTree
-
     if len(segs) == 0:
         return np.zeros(0, bool)
     x, seg = _sample_segments(segs, params.edge_radius)
     k = 32
-    d, idx = cKDTree(reg.points).query(x, k=min(k, len(reg.points)), distance_upper_bound=params.edge_radius, workers=-1)
+    d, idx = reg.tree.query(x, k=min(k, len(reg.points)), distance_upper_bound=params.edge_radius, workers=-1)
     hit = np.isfinite(d)
     lab = np.where(hit, reg.labels[np.minimum(idx, len(reg.points) - 1)], -2)
     foreign = np.any(hit & (lab != owner[seg][:, None]), axis=1)
@@ -750,8 +758,6 @@ def _extend_sides(segs: np.ndarray, owner: np.ndarray, reg: PlaneRegions, step: 
     where the owner plane meets another plane's orientation grow: short or oblique sides are the
     chords of rounded or staircase outlines, which would grow into false lines.
     """
-    from scipy.spatial import cKDTree
-
     d = segs[:, 1] - segs[:, 0]
     length = np.linalg.norm(d, axis=1)
     # Structural directions: where the owner plane would meet another plane's orientation.
@@ -759,44 +765,28 @@ def _extend_sides(segs: np.ndarray, owner: np.ndarray, reg: PlaneRegions, step: 
     cn = np.linalg.norm(cand, axis=2)
     cos_side = np.abs(np.einsum("mlj,mj->ml", cand, d)) / np.maximum(cn * length[:, None], 1e-12)
     structural = np.any((cn > np.sin(np.radians(20.0))) & (cos_side > np.cos(np.radians(3.0))), axis=1)
-    long = (length >= min_length) & structural
-    if not long.any():
-        return segs
+    sel = np.flatnonzero((length >= min_length) & structural)
     out = segs.copy()
-    out[long] = _extend_long_sides(segs[long], owner[long], reg, tree=cKDTree(reg.points), step=step,
-                                   reach=reach, radius=radius)
-    return out
-
-
-def _extend_long_sides(segs: np.ndarray, owner: np.ndarray, reg: PlaneRegions, tree, step: float,
-                       reach: float, radius: float) -> np.ndarray:
-    """The growth step of :func:`_extend_sides` for the sides it selected."""
-    P, lab = reg.points, reg.labels
-    n = reg.normals[owner]
-    d = segs[:, 1] - segs[:, 0]
-    d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
-    w = np.cross(n, d)
-    w /= np.maximum(np.linalg.norm(w, axis=1, keepdims=True), 1e-12)
+    if len(sel) == 0:
+        return out
+    S, own = segs[sel], owner[sel]
+    u = d[sel] / length[sel, None]
+    w = _across(S, reg.normals[own])
     s = np.arange(1, int(reach / step) + 1) * step  # (K,)
-    out = segs.copy()
+    idx = np.arange(len(s))[None, :]
     for end, sgn in ((1, 1.0), (0, -1.0)):
-        x = segs[:, end, None, :] + sgn * s[None, :, None] * d[:, None, :]  # (M, K, 3)
+        x = S[:, end, None, :] + sgn * s[None, :, None] * u[:, None, :]  # (m, K, 3)
         sides = []
         for off in (-2 * radius, 2 * radius):
-            q = (x + off * w[:, None, :]).reshape(-1, 3)
-            _, j = tree.query(q, distance_upper_bound=radius, workers=-1)
-            hit = (j < len(P)) & (lab[np.minimum(j, len(P) - 1)] == np.repeat(owner, len(s)))
-            sides.append(hit.reshape(len(segs), len(s)))
-        on = sides[0] ^ sides[1]  # (M, K): own points on exactly one side
+            _, j = reg.tree.query((x + off * w[:, None, :]).reshape(-1, 3), distance_upper_bound=radius, workers=-1)
+            hit = (j < len(reg.points)) & (reg.labels[np.minimum(j, len(reg.points) - 1)] == np.repeat(own, len(s)))
+            sides.append(hit.reshape(len(S), len(s)))
+        on = sides[0] ^ sides[1]  # (m, K): own points on exactly one side
         miss2 = ~on[:, :-1] & ~on[:, 1:]
-        first_gap = np.where(miss2.any(axis=1), np.argmax(miss2, axis=1), len(s))  # samples before it
-        last = np.where(first_gap > 0, first_gap - 1, -1)
-        # Last "on" sample before the gap.
-        idx = np.arange(len(s))[None, :]
-        ok = on & (idx <= last[:, None])
-        grow = np.where(ok.any(axis=1), s[np.max(np.where(ok, idx, 0), axis=1)], 0.0)
-        grow = np.where(ok.any(axis=1), grow, 0.0)
-        out[:, end] = segs[:, end] + sgn * grow[:, None] * d
+        gap = np.where(miss2.any(axis=1), np.argmax(miss2, axis=1), len(s))  # first of two misses
+        ok = on & (idx < gap[:, None])
+        grow = np.where(ok.any(axis=1), s[(ok * idx).max(axis=1)], 0.0)  # the last "on" sample before it
+        out[sel, end] = S[:, end] + sgn * grow[:, None] * u
     return out
 
 
@@ -812,16 +802,11 @@ def _seen_past(segs: np.ndarray, owner: np.ndarray, reg: PlaneRegions, reach: fl
     and the scanner saw the scene around it. Sides where both rays hit along at least half of
     their length count.
     """
-    from scipy.spatial import cKDTree
-
     if len(segs) == 0:
         return np.zeros(0, bool)
-    P, lab = reg.points, reg.labels
-    tree = cKDTree(P)
+    P, lab, tree = reg.points, reg.labels, reg.tree
     n = reg.normals[owner]
-    d = segs[:, 1] - segs[:, 0]
-    w = np.cross(n, d)
-    w /= np.maximum(np.linalg.norm(w, axis=1, keepdims=True), 1e-12)
+    w = _across(segs, n)
     x, seg = _sample_segments(segs, 0.1)
     # Outward: the side of the segment where the owner plane has no point.
     _, j = tree.query(x + 0.03 * w[seg], distance_upper_bound=0.02, workers=-1)
@@ -851,14 +836,11 @@ def extract_lines_with_stats(points: np.ndarray, params: Lines3DParams = Lines3D
     stats["points_processed"] = len(reg.points)
     stats["planes"] = len(reg.normals)
     t = time.perf_counter()
-    lab = reg.labels
-    order = np.argsort(lab, kind="stable")
-    starts = np.searchsorted(lab[order], np.arange(len(reg.normals) + 1))
     from dataclasses import replace
 
     bparams = replace(params, cell_size=max(params.cell_size, reg.spacing))
-    bnd = [_boundary_segments(reg.points[order[starts[i]:starts[i + 1]]], reg.centroids[i], reg.normals[i], bparams)
-           for i in range(len(reg.normals))]
+    bnd = [_boundary_segments(reg.points[m], reg.centroids[i], reg.normals[i], bparams)
+           for i, m in enumerate(reg.members)]
     B = np.concatenate(bnd) if bnd else np.zeros((0, 2, 3))
     owner = np.repeat(np.arange(len(bnd)), [len(b) for b in bnd])
     stats["boundary_sides"] = len(B)
