@@ -104,15 +104,14 @@ def crease_edges(mesh: SceneMesh, min_angle_deg: float = 20.0) -> np.ndarray:
     if len(sel) == 0:
         return np.zeros((0, 2, 3))
     # Flush seams: beyond the edge, in the plane of either face, another face continues it.
-    mid, e = (a + b) / 2, b - a
-    seam = np.zeros(len(sel), bool)
-    for t in (owner[sel], owner[sel + 1]):
-        n = normals[t]
-        w = np.cross(e, n)
-        w /= np.linalg.norm(w, axis=1, keepdims=True)
-        inward = np.einsum("ij,ij->i", V[F[t]].mean(1) - mid, w) > 0
-        w[inward] *= -1.0  # point away from the face, across the edge
-        seam |= _flush(mesh, mid, w, n)
+    mid, e = np.tile((a + b) / 2, (2, 1)), np.tile(b - a, (2, 1))
+    t = np.concatenate([owner[sel], owner[sel + 1]])  # the two faces of every edge
+    n = normals[t]
+    w = np.cross(e, n)
+    w /= np.linalg.norm(w, axis=1, keepdims=True)
+    inward = np.einsum("ij,ij->i", V[F[t]].mean(1) - mid, w) > 0
+    w[inward] *= -1.0  # point away from the face, across the edge
+    seam = _flush(mesh, mid, w, n).reshape(2, -1).any(axis=0)
     return np.stack([a, b], axis=1)[~seam]
 
 
