@@ -14,6 +14,17 @@ app = make_app("ldlloc", "Localize panoramas against LDL maps with line distance
 
 # Commands are added below, one function each. Keep each one short: parse, call, print.
 
+# Options shared by `localize` and `run` (method parameters, device, threads).
+DEVICE = typer.Option("cpu", "--device", help="cpu | cuda.")
+TOP_K = typer.Option(20, "--top-k", help="K poses kept by the search for refinement.")
+LOSS = typer.Option("inlier", "--loss", help="inlier (paper) | l1 | l2 | huber | median.")
+NO_DECOMPOSE = typer.Option(False, "--no-decompose", help="Do not decompose the distance functions.")
+NO_REFINE = typer.Option(False, "--no-refine", help="Stop after pose search.")
+PRIVACY = typer.Option(False, "--privacy", help="Privacy mode: refine only with features near principal lines.")
+FEATURES = typer.Option(None, "--features", help="Feature backend (must match the map's).")
+WEIGHTS = typer.Option(None, "--weights", help="SuperPoint checkpoint.")
+THREADS = typer.Option(0, "--threads", help="Torch CPU threads (0: default; 1 is best on a busy machine).")
+
 
 def _set_threads(threads: int) -> None:
     """Torch intra-op threads (0: torch's default). On a CPU shared with other work, 1 is faster."""
@@ -48,16 +59,16 @@ def localize(
     map_path: Path = typer.Argument(..., metavar="MAP", help="LDL map (.h5) of the scene."),
     pano: Path = typer.Argument(..., metavar="PANO", help="Equirectangular panorama (W = 2H)."),
     as_json: bool = typer.Option(False, "--json", help="Print the result as JSON."),
-    device: str = typer.Option("cpu", "--device", help="cpu | cuda."),
-    top_k: int = typer.Option(20, "--top-k", help="K poses kept by the search for refinement."),
-    loss: str = typer.Option("inlier", "--loss", help="inlier (paper) | l1 | l2 | huber | median."),
-    no_decompose: bool = typer.Option(False, "--no-decompose", help="Do not decompose the distance functions."),
-    no_refine: bool = typer.Option(False, "--no-refine", help="Stop after pose search."),
-    privacy: bool = typer.Option(False, "--privacy", help="Refine only with features near principal-direction lines."),
-    features: Optional[str] = typer.Option(None, "--features", help="Feature backend (must match the map's)."),
-    weights: Optional[Path] = typer.Option(None, "--weights", help="SuperPoint checkpoint."),
+    device: str = DEVICE,
+    top_k: int = TOP_K,
+    loss: str = LOSS,
+    no_decompose: bool = NO_DECOMPOSE,
+    no_refine: bool = NO_REFINE,
+    privacy: bool = PRIVACY,
+    features: Optional[str] = FEATURES,
+    weights: Optional[Path] = WEIGHTS,
     vis: Optional[Path] = typer.Option(None, "--vis", help="Write a picture of the lines and the estimated pose (.jpg/.png)."),
-    threads: int = typer.Option(0, "--threads", help="Torch CPU threads (0: default; 1 is best on a busy machine)."),
+    threads: int = THREADS,
 ) -> None:
     """Localize one panorama: prints R (world to camera) and t (camera centre, metres)."""
     import json
@@ -103,17 +114,17 @@ def run(
     scene: Optional[str] = typer.Option(None, "--scene", help="Only queries of this scene."),
     maps: Optional[Path] = typer.Option(None, "--maps", help="Folder of the maps (default ROOT/maps)."),
     output: Optional[Path] = typer.Option(None, "--output", "-o", help="Results JSON (a CSV is written beside it)."),
-    device: str = typer.Option("cpu", "--device", help="cpu | cuda."),
-    top_k: int = typer.Option(20, "--top-k", help="K poses kept for refinement."),
-    loss: str = typer.Option("inlier", "--loss", help="inlier | l1 | l2 | huber | median."),
-    no_decompose: bool = typer.Option(False, "--no-decompose", help="No distance-function decomposition."),
-    no_refine: bool = typer.Option(False, "--no-refine", help="Stop after pose search."),
-    privacy: bool = typer.Option(False, "--privacy", help="Privacy mode: refine with features near lines only."),
-    features: Optional[str] = typer.Option(None, "--features", help="Feature backend (must match the maps')."),
-    weights: Optional[Path] = typer.Option(None, "--weights", help="SuperPoint checkpoint."),
+    device: str = DEVICE,
+    top_k: int = TOP_K,
+    loss: str = LOSS,
+    no_decompose: bool = NO_DECOMPOSE,
+    no_refine: bool = NO_REFINE,
+    privacy: bool = PRIVACY,
+    features: Optional[str] = FEATURES,
+    weights: Optional[Path] = WEIGHTS,
     resume: bool = typer.Option(False, "--resume", help="Skip queries already in the results file."),
     save_vis: Optional[Path] = typer.Option(None, "--save-vis", help="Write a picture per query into this folder."),
-    threads: int = typer.Option(0, "--threads", help="Torch CPU threads (0: default; 1 is best on a busy machine)."),
+    threads: int = THREADS,
 ) -> None:
     """Localize every query of a dataset split (or all splits) and print accuracy tables."""
     from ldlloc.evaluate import summary_table, timing_table
