@@ -183,6 +183,8 @@ def build_map(input_path: str | Path, output: str | Path | None = None, lines_pa
     output = Path(output) if output is not None else input_path.with_suffix(".h5")
     if params.features not in ("sift", "superpoint", "none"):
         raise InputError(f"unknown feature backend {params.features!r}; valid: sift, superpoint, none")
+    if params.min_line_length is not None and not params.min_line_length > 0:
+        raise InputError(f"minimum line length must be > 0 m, got {params.min_line_length}")
     report = BuildReport(output)
     tick = time.perf_counter()
 
@@ -208,8 +210,6 @@ def build_map(input_path: str | Path, output: str | Path | None = None, lines_pa
     bmin, bmax = pts_for_bounds.min(0), pts_for_bounds.max(0)
     lam = params.lam
     if params.min_line_length is not None:
-        if not params.min_line_length > 0:
-            raise InputError(f"minimum line length must be > 0 m, got {params.min_line_length}")
         lam = float(params.min_line_length / np.mean(bmax - bmin))  # the lambda giving that threshold
     lines, kept, threshold = filter_by_length(lines_raw, bmin, bmax, lam)
     if len(lines) == 0:
