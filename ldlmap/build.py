@@ -52,6 +52,10 @@ class BuildParams:
     device: str = "cpu"  # torch device for rendering and SuperPoint
     seed: int = 0
     distance_fields: bool = True  # precompute 3D distance fields (fast pose search, ldlmap.fields3d)
+    trans_spacing: float = 0.3  # maps without a scan (layouts, line files): candidate translations on a
+    # lattice this many metres apart (a true camera is then within spacing / sqrt(2) in xy)
+    camera_height: tuple[float, float] | None = None  # maps without a scan: camera-height band (world z,
+    # metres) for candidate translations; None: the layout's when known, else floor to ceiling
 
 
 @dataclass
@@ -72,6 +76,7 @@ class SceneInput:
     lines: np.ndarray | None
     prior_centers: np.ndarray | None
     source: str
+    walkable: Any = None  # ldlmap.translations.Walkable: where cameras stand (maps without a scan)
 
 
 def load_input(path: str | Path, lines_path: str | Path | None, mesh_samples: int) -> SceneInput:
@@ -122,15 +127,6 @@ def _farthest_point_indices(P: np.ndarray, k: int, seed: int) -> np.ndarray:
     return idx
 
 
-def _lines_as_points(lines: np.ndarray, step: float = 0.05) -> np.ndarray:
-    """Points sampled along segments: stands in for a cloud when only lines are given."""
-    v = lines[:, 1] - lines[:, 0]
-    n = np.maximum(np.ceil(np.linalg.norm(v, axis=1) / step).astype(np.int64), 1) + 1
-    seg = np.repeat(np.arange(len(lines)), n)
-    t = (np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)) / np.repeat(n - 1, n)
-    return lines[seg, 0] + t[:, None] * v[seg]
-
-
 def compute_features(points: np.ndarray, colors: np.ndarray, translations: np.ndarray, params: BuildParams,
                      progress: Callable[[int, int], None] | None = None):
     """Render ``num_views`` views, extract and lift features; returns a MapFeatures."""
@@ -174,18 +170,79 @@ def build_map(input_path: str | Path, output: str | Path | None = None, lines_pa
 
     ``progress(stage, done, total)`` is called as stages advance (for a progress bar).
     """
-    from ldlmap.lines3d import Lines3DParams, extract_lines, filter_by_length
-    from ldlmap.mapfile import LdlMap, write_map
-    from ldlmap.principal3d import assign_line_groups, line_directions, principal_directions_3d
-    from ldlmap.translations import candidate_translations
-
     input_path = Path(input_path)
     output = Path(output) if output is not None else input_path.with_suffix(".h5")
+    _check_params(params)
+    tick = time.perf_counter()
+    src = load_input(input_path, lines_path, params.mesh_samples)
+    load_seconds = time.perf_counter() - tick
+    config = {"input": str(input_path), "lines_file": str(lines_path) if lines_path else None}
+    return build_from_input(src, output, params, name or input_path.stem, progress, config, load_seconds)
+
+
+def build_lines_map(lines: np.ndarray, output: str | Path, params: BuildParams = BuildParams(), name: str = "lines",
+                    walkable=None, source: str = "lines",
+                    progress: Callable[[str, int, int], None] | None = None) -> BuildReport:
+    """Build a lines-only map from 3D segments (L, 2, 3) held in memory (e.g. a room layout).
+
+    ``walkable`` (:class:`ldlmap.translations.Walkable`) says where cameras can stand; without it
+    candidate translations fill the free space of the lines.
+    """
+    from ldlmap.io.linefiles import _check_segments
+
+    _check_params(params)
+    segs = _check_segments(lines, name)
+    src = SceneInput(None, None, segs, None, source, walkable)
+    return build_from_input(src, Path(output), params, name, progress, {"input": source, "lines_file": None})
+
+
+def _check_params(params: BuildParams) -> None:
     if params.features not in ("sift", "superpoint", "none"):
         raise InputError(f"unknown feature backend {params.features!r}; valid: sift, superpoint, none")
     if params.min_line_length is not None and not params.min_line_length > 0:
         raise InputError(f"minimum line length must be > 0 m, got {params.min_line_length}")
+    if not (np.isfinite(params.trans_spacing) and params.trans_spacing > 0):
+        raise InputError(f"translation spacing must be > 0 m, got {params.trans_spacing}")
+    ch = params.camera_height
+    if ch is not None and not (len(ch) == 2 and np.all(np.isfinite(ch)) and ch[0] <= ch[1]):
+        raise InputError(f"camera-height band must be MIN:MAX with MIN <= MAX, got {ch}")
+
+
+def scene_translations(src: SceneInput, lines: np.ndarray, lines_raw: np.ndarray,
+                       params: BuildParams) -> tuple[np.ndarray, dict]:
+    """Candidate translations of a scene and how they were chosen (stored in the map's config).
+
+    With a scan: N_t in its free space (octree or grid, the paper's). Without one: a lattice of
+    ``trans_spacing`` over where cameras stand (:func:`ldlmap.translations.spaced_translations`).
+    """
+    from ldlmap.translations import candidate_translations, spaced_translations
+
+    if src.points is not None:
+        T = candidate_translations(src.points, params.num_translations, params.translation_method,
+                                   params.clearance, prior_centers=src.prior_centers)
+        return T, {"method": params.translation_method, "num": int(params.num_translations)}
+    T = spaced_translations(lines_raw, params.trans_spacing, src.walkable, params.camera_height)
+    if src.prior_centers is not None:
+        T = np.concatenate([T, np.asarray(src.prior_centers, float).reshape(-1, 3)])
+    zr = params.camera_height or (src.walkable.z_range if src.walkable is not None else None)
+    info = {"method": "spacing", "spacing": float(params.trans_spacing),
+            "region": "layout polygons" if src.walkable is not None and src.walkable.polygons else "free space of the lines",
+            "camera_height": [float(z) for z in zr] if zr is not None else None}
+    return T, info
+
+
+def build_from_input(src: SceneInput, output: Path, params: BuildParams, name: str,
+                     progress: Callable[[str, int, int], None] | None = None, config: dict | None = None,
+                     load_seconds: float = 0.0) -> BuildReport:
+    """Build and write the map of a loaded :class:`SceneInput` (the stages after ``load``)."""
+    from ldlmap.lines3d import Lines3DParams, extract_lines, filter_by_length
+    from ldlmap.mapfile import LdlMap, write_map
+    from ldlmap.principal3d import assign_line_groups, line_directions, principal_directions_3d
+
     report = BuildReport(output)
+    report.seconds["load"] = load_seconds
+    if progress:
+        progress("load", 1, 1)
     tick = time.perf_counter()
 
     def stage(name_: str) -> None:
@@ -196,8 +253,6 @@ def build_map(input_path: str | Path, output: str | Path | None = None, lines_pa
         if progress:
             progress(name_, 1, 1)
 
-    src = load_input(input_path, lines_path, params.mesh_samples)
-    stage("load")
     if src.points is not None and len(src.points) < 100:
         raise InputError(f"point cloud has only {len(src.points)} points: too few to build a map")
     if src.lines is not None:
@@ -218,9 +273,7 @@ def build_map(input_path: str | Path, output: str | Path | None = None, lines_pa
     principal = principal_directions_3d(lines)
     groups = assign_line_groups(line_directions(lines)[0], principal)
     stage("principal")
-    free_space_points = src.points if src.points is not None else _lines_as_points(lines_raw)
-    translations = candidate_translations(free_space_points, params.num_translations, params.translation_method,
-                                          params.clearance, prior_centers=src.prior_centers)
+    translations, trans_info = scene_translations(src, lines, lines_raw, params)
     if len(translations) == 0:
         raise InputError("no candidate translation found in the free space of the scan")
     stage("translations")
@@ -245,12 +298,11 @@ def build_map(input_path: str | Path, output: str | Path | None = None, lines_pa
         keep.sort()
         cloud_pts = src.points[keep]
         cloud_cols = src.colors[keep] if src.colors is not None else None
-    config = {**asdict(params), "input": str(input_path), "source": src.source,
-              "lines_file": str(lines_path) if lines_path else None}
+    config = {**asdict(params), **(config or {}), "source": src.source, "translations": trans_info}
     if params.features == "none" or src.points is None:
         config["features"] = "none"
     m = LdlMap(
-        name=name or input_path.stem,
+        name=name,
         bounds_min=bmin, bounds_max=bmax,
         lines_raw=lines_raw, lines=lines, line_groups=groups,
         length_threshold=threshold, kept_ratio=float(kept.mean()), line_lambda=lam,

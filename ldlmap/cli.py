@@ -35,7 +35,7 @@ def info(map_path: Path = typer.Argument(..., help="An LDL map (.h5) written by 
         ("format version", str(h["format_version"])),
         ("3D lines (raw -> kept)", f"{h['num_lines_raw']} -> {h['num_lines']} (kept ratio {h['kept_ratio']:.3f}, "
                                    f"length threshold {h['length_threshold']:.3f} m)"),
-        ("candidate translations", str(h["num_translations"])),
+        ("candidate translations", _translations_summary(h)),
         ("cloud points stored", str(h["num_cloud_points"])),
         ("features", "none (lines-only map)" if h["feature_backend"] is None else
          f"{h['feature_backend']}: {h['num_keypoints']} keypoints in {h['num_views']} views"),
@@ -46,6 +46,35 @@ def info(map_path: Path = typer.Argument(..., help="An LDL map (.h5) written by 
     for k, v in rows:
         table.add_row(k, v)
     console.print(table)
+
+
+def _translations_summary(header: dict) -> str:
+    """Count and how the candidates were chosen (spacing and height band for maps without a scan)."""
+    n, cfg = header["num_translations"], header["build_config"]
+    how = cfg.get("translations") or {}
+    if how.get("method") == "spacing":
+        band = how.get("camera_height")
+        z = f", camera height {band[0]:.2f}-{band[1]:.2f} m" if band else ""
+        return f"{n}, spaced {how['spacing']:.2f} m over the {how.get('region', 'free space')}{z}"
+    method = how.get("method") or cfg.get("translation_method")
+    return f"{n}" + (f" ({method}, N_t = {cfg.get('num_translations')})" if method else "")
+
+
+def parse_band(text: Optional[str], option: str) -> Optional[tuple[float, float]]:
+    """``"MIN:MAX"`` as a (min, max) pair of finite floats with min <= max (None stays None)."""
+    import math
+
+    from ldlmap.errors import InputError
+
+    if text is None:
+        return None
+    try:
+        lo, hi = (float(x) for x in text.split(":"))
+    except ValueError:
+        raise InputError(f"{option} must be MIN:MAX in metres (e.g. 1.2:1.7), got {text!r}") from None
+    if not (math.isfinite(lo) and math.isfinite(hi)) or lo > hi:
+        raise InputError(f"{option} must be MIN:MAX with finite MIN <= MAX, got {text!r}")
+    return lo, hi
 
 
 @app.command()
@@ -137,6 +166,10 @@ def build(
     min_length: Optional[float] = typer.Option(None, "--min-line-length", help="Absolute length threshold in metres "
                                                "instead of lambda's (maps of several rooms: about one room's 0.1 x "
                                                "mean extent, e.g. 0.45)."),
+    trans_spacing: Optional[float] = typer.Option(None, "--trans-spacing", help="Maps without a scan (line files): "
+                                                  "candidate translations this many metres apart (default 0.3)."),
+    camera_height: Optional[str] = typer.Option(None, "--camera-height", metavar="MIN:MAX", help="Maps without a scan: "
+                                                "camera-height band in metres (e.g. 1.2:1.7; default floor to ceiling)."),
     device: str = typer.Option("cpu", "--device", help="Torch device for rendering and SuperPoint: cpu | cuda."),
     png: Optional[Path] = typer.Option(None, "--png", help="Also write a picture of the map (top view + panorama with lines)."),
 ) -> None:
@@ -147,7 +180,8 @@ def build(
 
     params = params_with(BuildParams(), features=features, weights=str(weights) if weights else None,
                          num_translations=num_trans, translation_method=method, num_views=num_views, lam=lam,
-                         min_line_length=min_length, device=device)
+                         min_line_length=min_length, device=device, trans_spacing=trans_spacing,
+                         camera_height=parse_band(camera_height, "--camera-height"))
     with _progress_bar() as bar:
         task = bar.add_task(f"building map of {input_path.name}", total=None)
 

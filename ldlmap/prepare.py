@@ -38,8 +38,10 @@ def default_params(kind: str, base: BuildParams = BuildParams()) -> BuildParams:
 
 
 def _comparable(config: dict) -> dict:
+    import json
+
     keys = set(asdict(BuildParams())) - {"device"}
-    return {k: config.get(k) for k in sorted(keys)}
+    return json.loads(json.dumps({k: config.get(k) for k in sorted(keys)}))  # tuples as lists
 
 
 def is_up_to_date(map_path: Path, sources: list[Path], params: BuildParams) -> bool:

@@ -76,6 +76,15 @@ def _free_space(P: np.ndarray, clearance: float, params: TranslationParams):
     return free, lo, h
 
 
+def points_along_lines(lines: np.ndarray, step: float = 0.05) -> np.ndarray:
+    """Points every ``step`` metres along segments (L, 2, 3): stand in for a cloud when only lines are given."""
+    v = lines[:, 1] - lines[:, 0]
+    n = np.maximum(np.ceil(np.linalg.norm(v, axis=1) / step).astype(np.int64), 1) + 1
+    seg = np.repeat(np.arange(len(lines)), n)
+    t = (np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)) / np.repeat(n - 1, n)
+    return lines[seg, 0] + t[:, None] * v[seg]
+
+
 def _check_clear(C: np.ndarray, P: np.ndarray, clearance: float) -> np.ndarray:
     from scipy.spatial import cKDTree
 
@@ -220,3 +229,139 @@ def candidate_translations(points: np.ndarray, num: int = 800, method: Literal["
     if len(C) == 0:
         raise InputError(f"no free space found for candidate translations (clearance {clearance} m)")
     return C
+
+
+# ------------------------------------------------------------------ maps without a scan
+
+
+@dataclass(frozen=True)
+class Walkable:
+    """Where a camera can stand in a map that has no scan (a room layout or an SfM line map).
+
+    ``polygons``: (V, 2) xy outlines in metres (rooms of a floor plan). ``portals``: (P, 2, 2)
+    door and opening segments (xy ends): cameras may also stand in a rectangle ``portal_depth``
+    deep on both sides of each, so that a closet photographed from its doorway is covered.
+    ``z_range``: the camera-height band (world z, metres) when it is known.
+    """
+
+    polygons: tuple[np.ndarray, ...] = ()
+    portals: np.ndarray | None = None
+    z_range: tuple[float, float] | None = None
+
+
+def portal_rectangles(portals: np.ndarray, depth: float, widen: float = 0.0) -> list[np.ndarray]:
+    """(4, 2) rectangles spanning each portal segment (P, 2, 2), ``depth`` to both sides of it."""
+    P = np.asarray(portals, dtype=np.float64).reshape(-1, 2, 2)
+    a, b = P[:, 0], P[:, 1]
+    d = b - a
+    length = np.linalg.norm(d, axis=1, keepdims=True)
+    ok = length[:, 0] > 1e-9
+    a, b, d, length = a[ok], b[ok], d[ok], length[ok]
+    u = d / length
+    n = np.stack([-u[:, 1], u[:, 0]], 1) * depth
+    a, b = a - u * widen, b + u * widen
+    return list(np.stack([a - n, b - n, b + n, a + n], 1))
+
+
+def _z_levels(z_range: tuple[float, float], spacing: float) -> np.ndarray:
+    """Heights spaced by at most ``spacing`` over the band, centred (one level for a thin band)."""
+    lo, hi = float(min(z_range)), float(max(z_range))
+    n = max(1, int(np.ceil((hi - lo) / spacing - 1e-9)))
+    if hi - lo < 1e-9:
+        return np.array([lo])
+    return lo + (np.arange(n) + 0.5) * (hi - lo) / n
+
+
+def _centred_lattice(lo: np.ndarray, hi: np.ndarray, spacing: float) -> np.ndarray:
+    """(N, 2) square lattice of ``spacing`` over the box [lo, hi], with equal margins on both sides."""
+    axes = []
+    for a, b in zip(lo, hi):
+        n = max(1, int(np.floor((b - a) / spacing)) + 1)
+        start = a + 0.5 * ((b - a) - (n - 1) * spacing)
+        axes.append(start + spacing * np.arange(n))
+    return np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 2)
+
+
+def _region_interior_point(poly: np.ndarray) -> np.ndarray:
+    """A point well inside a polygon: the centroid when inside, else the deepest point of a fine grid."""
+    from ldlmap.synth.polygon import distance_to_boundary, points_in_polygon
+
+    c = poly.mean(0)
+    if points_in_polygon(c[None], poly)[0]:
+        return c
+    lo, hi = poly.min(0), poly.max(0)
+    g = np.stack(np.meshgrid(*[np.linspace(lo[i], hi[i], 41) for i in range(2)], indexing="ij"), -1).reshape(-1, 2)
+    g = g[points_in_polygon(g, poly)]
+    if len(g) == 0:
+        return c
+    return g[np.argmax(distance_to_boundary(g, poly))]
+
+
+def spaced_translations(lines: np.ndarray, spacing: float = 0.3, walkable: Walkable | None = None,
+                        z_range: tuple[float, float] | None = None, portal_depth: float = 1.0,
+                        clearance: float = 0.1, params: TranslationParams = TranslationParams()) -> np.ndarray:
+    """Candidate camera centres for a map without a scan, on a lattice of ``spacing`` metres.
+
+    Where cameras can stand: the ``walkable`` polygons (and ``portal_depth`` on both sides of
+    each portal) when given, else the free space of the lines (the footprint their points
+    enclose, as for scans). Heights: ``z_range`` (or ``walkable.z_range``) when known, else
+    the free space's floor-to-ceiling band; levels at most ``spacing`` apart. Lattice points
+    closer than ``clearance`` to a 3D line are dropped. Never empty: a region that no lattice
+    point falls in (a room smaller than the spacing) gets its interior point.
+    """
+    from ldlmap.synth.polygon import points_in_polygon
+
+    L = np.asarray(lines, dtype=np.float64).reshape(-1, 2, 3)
+    if len(L) == 0 or not np.all(np.isfinite(L)):
+        raise InputError("candidate translations need finite 3D lines")
+    if not (np.isfinite(spacing) and spacing > 0):
+        raise InputError(f"translation spacing must be > 0 m, got {spacing}")
+    zr = z_range if z_range is not None else (walkable.z_range if walkable is not None else None)
+    if zr is not None and not (len(zr) == 2 and np.all(np.isfinite(zr))):
+        raise InputError(f"camera-height band must be two finite heights, got {zr}")
+    regions: list[np.ndarray] = []
+    if walkable is not None and walkable.polygons:
+        regions = [np.asarray(p, dtype=np.float64).reshape(-1, 2) for p in walkable.polygons]
+        if walkable.portals is not None and len(walkable.portals):
+            regions += portal_rectangles(walkable.portals, portal_depth)
+        if zr is None:
+            zs = L[..., 2]
+            zr = (float(zs.min()) + clearance, float(zs.max()) - clearance)
+        lo = np.min([r.min(0) for r in regions], axis=0)
+        hi = np.max([r.max(0) for r in regions], axis=0)
+        G = _centred_lattice(lo, hi, spacing)
+        inside = np.zeros((len(regions), len(G)), bool)
+        for k, r in enumerate(regions):  # one vectorized test per region (rooms: tens)
+            inside[k] = points_in_polygon(G, r)
+        xy = G[inside.any(0)]
+        missing = [r for k, r in enumerate(regions[: len(walkable.polygons)]) if not inside[k].any()]
+        if missing:
+            xy = np.concatenate([xy, np.stack([_region_interior_point(r) for r in missing])])
+        Z = _z_levels(zr, spacing)
+        C = np.concatenate([np.column_stack([xy, np.full(len(xy), z)]) for z in Z])
+    else:
+        P = points_along_lines(L)
+        free, lo3, h = _free_space(P, clearance, params)
+        foot = free.any(axis=2) if free.any() else _free_space(P, 0.0, params)[0].any(axis=2)
+        if zr is None:
+            zs = lo3[2] + (np.nonzero(free.any(axis=(0, 1)))[0] + 0.5) * h if free.any() else P[:, 2]
+            zr = (float(zs.min()), float(zs.max()))
+        G = _centred_lattice(np.zeros(2), np.array(foot.shape) * h, spacing)
+        ij = np.minimum((G / h).astype(np.int64), np.array(foot.shape) - 1)
+        xy = lo3[:2] + G[foot[ij[:, 0], ij[:, 1]]]
+        if len(xy) == 0:
+            xy = (P[:, :2].min(0) + P[:, :2].max(0))[None] / 2
+        Z = _z_levels(zr, spacing)
+        C = np.concatenate([np.column_stack([xy, np.full(len(xy), z)]) for z in Z])
+    keep = _far_from_lines(C, L, clearance)
+    return C[keep] if keep.any() else C
+
+
+def _far_from_lines(C: np.ndarray, L: np.ndarray, clearance: float) -> np.ndarray:
+    """(N,) bool: points at least ``clearance`` from every segment (k-d tree over sampled lines)."""
+    from scipy.spatial import cKDTree
+
+    if clearance <= 0:
+        return np.ones(len(C), bool)
+    d, _ = cKDTree(points_along_lines(L, step=clearance / 2)).query(C, k=1, workers=-1)
+    return d >= clearance * 0.9

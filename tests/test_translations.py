@@ -64,3 +64,98 @@ def test_prior_centers_and_bad_input(room):
     bad[3, 2] = np.nan
     with pytest.raises(InputError):
         candidate_translations(bad, num=10)
+
+
+# ------------------------------------------------------------------ maps without a scan
+
+
+def _layout_lines(poly: np.ndarray, height: float) -> np.ndarray:
+    """Floor and ceiling edges and vertical corners of a room outline (what a layout map holds)."""
+    L = []
+    for a, b in zip(poly, np.roll(poly, -1, axis=0)):
+        L += [[[*a, 0.0], [*b, 0.0]], [[*a, height], [*b, height]], [[*a, 0.0], [*a, height]]]
+    return np.array(L, dtype=np.float64)
+
+
+L_ROOM = np.array([[0, 0], [5, 0], [5, 2], [2, 2], [2, 4], [0, 4]], dtype=np.float64)  # an L-shaped room
+
+
+def test_spaced_candidates_cover_the_layout_at_the_camera_height():
+    from ldlmap.synth.polygon import distance_to_boundary, points_in_polygon
+    from ldlmap.translations import Walkable, spaced_translations
+
+    spacing = 0.3
+    C = spaced_translations(_layout_lines(L_ROOM, 2.5), spacing, Walkable((L_ROOM,), None, (1.4, 1.4)))
+    assert np.allclose(C[:, 2], 1.4), "one level at the known camera height"
+    assert points_in_polygon(C[:, :2], L_ROOM).all(), "every candidate inside the room"
+    area = 5 * 2 + 2 * 2
+    assert abs(len(C) - area / spacing ** 2) < 0.15 * area / spacing ** 2, "count follows the spacing"
+    rng = np.random.default_rng(0)
+    Q = rng.uniform([0, 0], [5, 4], size=(2000, 2))
+    Q = Q[points_in_polygon(Q, L_ROOM) & (distance_to_boundary(Q, L_ROOM) > 0.15)]  # no camera against a wall
+    d, _ = cKDTree(C[:, :2]).query(Q)
+    assert d.max() <= spacing / np.sqrt(2) + 1e-6, "any camera position is within spacing / sqrt(2)"
+    # A height band: levels at most `spacing` apart, inside the band.
+    C2 = spaced_translations(_layout_lines(L_ROOM, 2.5), spacing, Walkable((L_ROOM,), None, (1.0, 1.8)))
+    levels = np.unique(np.round(C2[:, 2], 6))
+    assert len(levels) == 3 and levels.min() > 1.0 and levels.max() < 1.8 and np.diff(levels).max() <= spacing
+
+
+def test_spaced_candidates_reach_through_doors_and_never_skip_a_small_room():
+    from ldlmap.translations import Walkable, spaced_translations
+
+    closet = np.array([[0, 0], [0.5, 0], [0.5, 0.5], [0, 0.5]], dtype=np.float64)
+    door = np.array([[[0.5, 0.05], [0.5, 0.45]]])  # in the closet's right wall
+    lines = _layout_lines(closet, 2.4)
+    C = spaced_translations(lines, 0.6, Walkable((closet,), None, (1.4, 1.4)))
+    assert len(C) >= 1 and np.all((C[:, :2] > 0) & (C[:, :2] < 0.5)), "a room smaller than the spacing gets a candidate"
+    C = spaced_translations(lines, 0.2, Walkable((closet,), door, (1.4, 1.4)), portal_depth=1.0)
+    outside = C[C[:, 0] > 0.5]
+    assert len(outside) and outside[:, 0].max() > 1.2, "cameras in front of the door are covered"
+    assert np.all((outside[:, 1] > -0.1) & (outside[:, 1] < 0.6)), "only in front of the door"
+
+
+def test_spaced_candidates_from_lines_alone_and_bad_input():
+    from ldlmap.translations import spaced_translations
+
+    lines = _layout_lines(L_ROOM, 2.5)
+    C = spaced_translations(lines, 0.3, z_range=(1.5, 1.5))
+    assert len(C) > 50 and np.allclose(C[:, 2], 1.5)
+    assert np.all((C[:, :2] > -0.2) & (C[:, :2] < [5.2, 4.2])), "inside the lines' footprint"
+    with pytest.raises(InputError):
+        spaced_translations(lines, 0.0)
+    with pytest.raises(InputError):
+        spaced_translations(lines, 0.3, z_range=(1.0, float("nan")))
+    with pytest.raises(InputError):
+        spaced_translations(np.zeros((0, 2, 3)), 0.3)
+
+
+def test_lines_only_map_records_spacing_and_info_prints_it(tmp_path):
+    from typer.testing import CliRunner
+
+    from ldlmap.build import BuildParams, build_lines_map
+    from ldlmap.cli import app
+    from ldlmap.io.linefiles import write_lines
+    from ldlmap.mapfile import read_map
+    from ldlmap.translations import Walkable
+
+    lines = _layout_lines(L_ROOM, 2.5)
+    rep = build_lines_map(lines, tmp_path / "room.h5", BuildParams(features="none", trans_spacing=0.4),
+                          name="lroom", walkable=Walkable((L_ROOM,), None, (1.4, 1.4)))
+    m = read_map(rep.path)
+    assert m.lines_only and len(m.translations) == rep.counts["translations"] > 50
+    assert m.config["translations"] == {"method": "spacing", "spacing": 0.4, "region": "layout polygons",
+                                        "camera_height": [1.4, 1.4]}
+    runner = CliRunner()
+    res = runner.invoke(app, ["info", str(rep.path)], terminal_width=200)
+    assert res.exit_code == 0 and "spaced 0.40 m" in res.output and str(len(m.translations)) in res.output
+    # From a line file on the command line, with a camera-height band.
+    write_lines(tmp_path / "room.obj", lines)
+    res = runner.invoke(app, ["build", str(tmp_path / "room.obj"), "-o", str(tmp_path / "cli.h5"),
+                              "--trans-spacing", "0.5", "--camera-height", "1.2:1.6"], terminal_width=200)
+    assert res.exit_code == 0, res.output
+    T = read_map(tmp_path / "cli.h5").translations
+    assert np.all((T[:, 2] > 1.2) & (T[:, 2] < 1.6))
+    for bad in (["--camera-height", "1.6:1.2"], ["--camera-height", "tall"], ["--trans-spacing", "-1"]):
+        res = runner.invoke(app, ["build", str(tmp_path / "room.obj"), "-o", str(tmp_path / "bad.h5"), *bad])
+        assert res.exit_code == 1 and "error:" in res.output and not (tmp_path / "bad.h5").exists(), bad
