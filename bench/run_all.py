@@ -12,6 +12,9 @@ Benchmarks (in this order; names for ``--only``):
   ``bench/results.json`` (bench_localize.py)
 - ``ablation``: decomposition and losses on the synthetic extreme split; writes
   ``bench/ablation.json`` (bench_ablation.py)
+- ``real``: real ZInD panoramas against their layout maps, room and floor level; writes
+  ``bench/real.json`` (bench_real.py; prints a note and measures nothing when the real data,
+  ``--data`` / ``$LDL_REAL_DATA`` / ``../shared/data``, is absent)
 
 Each runs in its own Python process (so one's memory and threads do not skew the next). Data
 and maps are cached under ``bench/.cache/``; the first run generates them. ``--quick`` runs
@@ -39,9 +42,10 @@ BENCHES: dict[str, tuple[str, list[str], list[str]]] = {
     "localize": ("bench_localize.py", [], ["--quick"]),
     "ablation": ("bench_ablation.py", [], ["--quick"]),
     "multiroom": ("bench_multiroom.py", [], ["--rooms", "2", "--per-split", "1", "--no-room-lambda"]),
+    "real": ("bench_real.py", [], ["--levels", "room"]),
 }
 DEVICE_AWARE = {"render", "ldf", "localize", "ablation"}
-THREAD_AWARE = {"render", "ldf", "build", "localize", "ablation"}
+THREAD_AWARE = {"render", "ldf", "build", "localize", "ablation", "real"}
 
 
 def main(argv: list[str] | None = None) -> int:

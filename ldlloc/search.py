@@ -47,6 +47,10 @@ class SearchParams:
     # the map has them (and decompose is on), False: always the exact path
     rescore: int = 64  # fast path: the best `rescore` poses by field loss (at least top_k) are
     # re-scored with the exact functions and the top_k by exact loss returned (0: field losses)
+    rescore_query_level: int | None = None  # query points of the exact re-scoring (None: query_level;
+    # 2 = 162 points sees small structure such as door frames that tell a room from its twin)
+    diverse_translation: float = 0.0  # top-K diversity: a pose is dropped when a better one lies
+    diverse_rotation_deg: float = 0.0  # within this distance (m) AND this angle (0: no diversity)
 
 
 @dataclass
@@ -107,8 +111,21 @@ def search_poses(arcs2d: np.ndarray, labels2d: np.ndarray, rotations: np.ndarray
                          chunk=params.chunk_translations, device=device, dtype=dt)
         loss = ldf.pose_loss(f2d, f3d, kind=params.loss, tau=params.tau, decompose=True)
     rescore = fast and params.rescore > 0
-    ti, ri, lv = ldf.top_k_poses(loss, max(params.top_k, params.rescore) if rescore else params.top_k)
+    want = max(params.top_k, params.rescore) if rescore else params.top_k
+    diverse = params.diverse_translation > 0 and params.diverse_rotation_deg > 0
+    ti, ri, lv = ldf.top_k_poses(loss, 16 * want if diverse else want)
+    if diverse:
+        keep = diverse_subset(np.asarray(translations)[ti.cpu().numpy()], np.asarray(rotations)[ri.cpu().numpy()],
+                              want, params.diverse_translation, params.diverse_rotation_deg)
+        keep_t = torch.as_tensor(keep, device=ti.device)
+        ti, ri, lv = ti[keep_t], ri[keep_t], lv[keep_t]
     if rescore:  # exact losses of the best field poses; the stable sort keeps the field order on ties
+        level = params.rescore_query_level
+        if level is not None and level != params.query_level:
+            Q = ldf.query_points(level, device=device, dtype=dt)
+            f2d = ldf.decomposed_distance_2d(Q, arcs_t, torch.as_tensor(np.asarray(labels2d), device=device), 3) \
+                if params.decompose else ldf.decomposed_distance_2d(
+                    Q, arcs_t, torch.zeros(len(arcs2d), dtype=torch.long, device=device), 1)
         f3d = ldf.ldf_3d_at(Q, rotations, translations, lines3d, groups3d, ti, ri, device=device, dtype=dt)
         lv = ldf.pose_loss(f2d[ri] if f2d.dim() == 3 else f2d, f3d.unsqueeze(0), kind=params.loss, tau=params.tau)[0]
         order = torch.sort(lv, stable=True).indices[:params.top_k]
@@ -116,6 +133,33 @@ def search_poses(arcs2d: np.ndarray, labels2d: np.ndarray, rotations: np.ndarray
     ti, ri = ti.cpu().numpy(), ri.cpu().numpy()
     return SearchResult(rotations=np.asarray(rotations)[ri], centers=np.asarray(translations)[ti],
                         translation_index=ti, rotation_index=ri, losses=lv.cpu().numpy())
+
+
+def diverse_subset(centers: np.ndarray, rotations: np.ndarray, k: int, min_distance: float,
+                   min_angle_deg: float) -> np.ndarray:
+    """Indices of up to ``k`` poses, in the given (best-first) order, none of which lies within
+    ``min_distance`` metres and ``min_angle_deg`` of a better kept pose (greedy suppression).
+
+    ``centers`` (M, 3), ``rotations`` (M, 3, 3). Keeps the top-K from being near-copies of one
+    pose, so that a pose and its symmetric twin both reach refinement.
+    """
+    C = np.asarray(centers, dtype=np.float64)
+    R = np.asarray(rotations, dtype=np.float64)
+    near_t = np.sum((C[:, None] - C[None]) ** 2, axis=-1) < min_distance ** 2
+    cos_min = np.cos(np.radians(min_angle_deg))
+    near_r = (np.einsum("aij,bij->ab", R, R) - 1.0) / 2.0 > cos_min  # trace(R_a^T R_b)
+    close = near_t & near_r
+    suppressed = np.zeros(len(C), dtype=bool)
+    keep: list[int] = []
+    while len(keep) < k:  # at most k rounds, each vectorized over the M poses
+        free = np.flatnonzero(~suppressed)
+        if len(free) == 0:
+            break
+        i = int(free[0])
+        keep.append(i)
+        suppressed |= close[i]
+        suppressed[i] = True
+    return np.array(keep, dtype=np.int64)
 
 
 def use_fields_for(params: SearchParams, fields) -> bool:

@@ -1,0 +1,209 @@
+"""Real panoramas: ZInD homes against lines-only maps of their room layouts (issue 9).
+
+Run: ``python bench/bench_real.py [--data ../shared/data] [--levels room,floor] [--threads 1]``.
+
+For every home under ``<data>/zind`` (the project's shared copy holds one, ``000``: 19 real
+panoramas, 15 rooms), at each map level (``room``: one map per complete room; ``floor``: one
+map for all rooms of a floor, the paper's large-scale setting), the maps are built from the
+layouts (``ldlmap prepare --dataset zind``, cached under ``bench/.cache/real/``) and every
+panorama is localized with ``ldlloc run``'s library path (pose search only: layout maps carry
+no features). Printed per query and summarized:
+
+- top-1 within 0.5 m / 10 deg (the search's best pose), best of the top 20 within 0.5 m / 10 deg;
+- accuracy of the final pose at 0.1 m / 5 deg and 0.25 m / 5 deg, median errors;
+- the share of queries whose nearest candidate translation is within 0.25 m of the camera;
+- median seconds per stage (``rotation + search`` is the pose search of the targets: under
+  50 ms at room level and 150 ms at floor level on 2 cores with 1 thread).
+
+The data path comes from ``--data``, else ``$LDL_REAL_DATA``, else ``../shared/data`` beside
+the repository; without data the script says so and exits 0 (``make bench`` runs it only when
+the data is there). Results go to ``bench/real.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parent
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+from bench.common import CACHE, console, source_hash  # noqa: E402
+
+GOOD_T, GOOD_R = 0.5, 10.0  # "right pose" for the search: within 0.5 m and 10 deg
+
+
+def real_data_root(arg: str | None) -> Path:
+    """``--data``, else ``$LDL_REAL_DATA``, else ``<repo>/../shared/data``."""
+    return Path(arg or os.environ.get("LDL_REAL_DATA") or ROOT.parent / "shared" / "data")
+
+
+def build_maps(zind_root: Path, level: str, spacing: float | None) -> Path:
+    """Maps of every scene at ``level``, cached by the code that builds them."""
+    from ldlmap.build import BuildParams, params_with
+    from ldlmap.prepare import default_params, prepare_dataset
+
+    tag = source_hash("ldlmap", exclude=("synth/",))
+    maps = CACHE / "real" / f"{level}_{spacing or 'default'}_{tag}"
+    params = params_with(default_params("zind", BuildParams()), trans_spacing=spacing)
+    t0 = time.perf_counter()
+    out = prepare_dataset(zind_root, "zind", maps, params, map_level=level)
+    failed = [o for o in out if o.status == "failed"]
+    built = [o for o in out if o.status == "built"]
+    console().print(f"{level} maps: {len(out)} scenes, {len(built)} built in {time.perf_counter() - t0:.1f} s, "
+                    f"{len(failed)} failed" + "".join(f"\n  {o.scene}: {o.message}" for o in failed))
+    return maps
+
+
+def nearest_candidate(maps: Path, scene: str, center: np.ndarray) -> tuple[float, int]:
+    """Distance from a camera centre to the nearest candidate translation of its map, and N_t."""
+    from ldlmap.errors import LdlError
+    from ldlmap.mapfile import read_map
+
+    try:
+        m = read_map(maps / f"{scene}.h5", load_cloud=False)
+    except LdlError:
+        return float("inf"), 0
+    return float(np.linalg.norm(m.translations - center, axis=1).min()), int(len(m.translations))
+
+
+def run_level(zind_root: Path, level: str, args) -> dict:
+    from ldlmap.datasets import open_dataset
+    from ldlloc.pipeline import LocalizeParams
+    from ldlloc.run import run_queries
+
+    maps = build_maps(zind_root, level, args.spacing)
+    ds = open_dataset(zind_root, "zind", map_level=level)
+    queries = ds.queries()
+    params = LocalizeParams(do_refine=False)
+    if args.max_tilt is not None:
+        from dataclasses import replace
+
+        params = replace(params, max_tilt_deg=args.max_tilt)
+    out = CACHE / "real" / f"results_{level}.json"
+    if out.exists():
+        out.unlink()
+    results = run_queries(queries, maps, out, params, "cpu", meta={"dataset": "zind", "map_level": level})
+    gt = {q.name: q for q in queries}
+    rows = []
+    for r in results:
+        q = gt[r.name]
+        near, n_t = nearest_candidate(maps, q.scene, q.center)
+        ok = r.status != "failed"
+        rows.append({
+            "name": r.name, "scene": r.scene, "status": r.status, "message": r.message,
+            "t_error_m": r.t_error_m if ok else None, "r_error_deg": r.r_error_deg if ok else None,
+            "top1_good": bool(ok and r.t_error_m < GOOD_T and r.r_error_deg < GOOD_R),
+            "first_good_rank": getattr(r, "first_good_rank", None) if ok else None,
+            "nearest_candidate_m": near, "num_translations": n_t,
+            "num_rotations": r.num_rotations, "rotation_prior": getattr(r, "rotation_prior", ""),
+            "seconds": r.seconds,
+        })
+    return {"level": level, "queries": rows, "summary": summarize(rows)}
+
+
+def summarize(rows: list[dict]) -> dict:
+    n = len(rows)
+    te = np.array([r["t_error_m"] if r["t_error_m"] is not None else np.inf for r in rows])
+    re = np.array([r["r_error_deg"] if r["r_error_deg"] is not None else np.inf for r in rows])
+    med = lambda key: float(np.median([r["seconds"].get(key, np.nan) for r in rows if r["seconds"]]))  # noqa: E731
+    pose_search = float(np.median([r["seconds"].get("rotation", 0) + r["seconds"].get("search", 0)
+                                   for r in rows if "search" in r["seconds"]] or [np.nan]))
+    return {
+        "count": n,
+        "failed": sum(r["status"] == "failed" for r in rows),
+        "top1_0.5m_10deg": float(np.mean([r["top1_good"] for r in rows])),
+        "top20_0.5m_10deg": float(np.mean([r["first_good_rank"] is not None for r in rows])),
+        "acc_0.1m_5deg": float(np.mean((te < 0.1) & (re < 5))),
+        "acc_0.25m_5deg": float(np.mean((te < 0.25) & (re < 5))),
+        "median_t_error_m": float(np.median(te)),
+        "median_r_error_deg": float(np.median(re)),
+        "nearest_candidate_within_0.25m": float(np.mean([r["nearest_candidate_m"] < 0.25 for r in rows])),
+        "median_num_translations": float(np.median([r["num_translations"] for r in rows])),
+        "median_seconds": {k: med(k) for k in ("lines2d", "rotation", "search", "total")},
+        "median_pose_search_seconds": pose_search,
+    }
+
+
+def print_level(res: dict) -> None:
+    from rich.table import Table
+
+    t = Table(title=f"ZInD, {res['level']} level: per query (pose search only)")
+    for col in ("query", "map", "status", "t err m", "r err deg", "top-1 ok", "first ok rank", "nearest cand m",
+                "N_t", "N_r", "search s"):
+        t.add_column(col)
+    for r in res["queries"]:
+        f = lambda x, s: "-" if x is None else format(x, s)  # noqa: E731
+        t.add_row(r["name"], r["scene"].split("/")[-1], r["status"], f(r["t_error_m"], ".3f"), f(r["r_error_deg"], ".1f"),
+                  "yes" if r["top1_good"] else "no", f(r["first_good_rank"], "d"), f(r["nearest_candidate_m"], ".3f"),
+                  str(r["num_translations"]), str(r["num_rotations"]),
+                  f(r["seconds"].get("rotation", 0) + r["seconds"].get("search", 0) if r["seconds"] else None, ".3f"))
+    console().print(t)
+
+
+def print_summary(results: list[dict]) -> None:
+    from rich.table import Table
+
+    t = Table(title="ZInD summary (pose search only; the issue's targets in brackets)")
+    t.add_column("metric")
+    for r in results:
+        t.add_column(f"{r['level']} level", justify="right")
+    targets = {"room": {"top1_0.5m_10deg": ">= 0.8", "top20_0.5m_10deg": ">= 0.95", "median_pose_search_seconds": "< 0.05"},
+               "floor": {"top1_0.5m_10deg": ">= 0.5", "top20_0.5m_10deg": ">= 0.8", "median_pose_search_seconds": "< 0.15"}}
+    keys = ["count", "failed", "top1_0.5m_10deg", "top20_0.5m_10deg", "acc_0.1m_5deg", "acc_0.25m_5deg",
+            "median_t_error_m", "median_r_error_deg", "nearest_candidate_within_0.25m", "median_num_translations",
+            "median_pose_search_seconds"]
+    for k in keys:
+        cells = []
+        for r in results:
+            v = r["summary"][k]
+            cell = f"{v:.3f}" if isinstance(v, float) else str(v)
+            tgt = targets.get(r["level"], {}).get(k)
+            cells.append(cell + (f" [{tgt}]" if tgt else ""))
+        t.add_row(k, *cells)
+    for stage in ("lines2d", "rotation", "search", "total"):
+        t.add_row(f"median {stage} s", *[f"{r['summary']['median_seconds'][stage]:.3f}" for r in results])
+    console().print(t)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--data", default=None, help="real data folder (default $LDL_REAL_DATA or ../shared/data)")
+    ap.add_argument("--levels", default="room,floor", help="map levels: room, floor or both")
+    ap.add_argument("--threads", type=int, default=1, help="torch intra-op threads (default 1)")
+    ap.add_argument("--spacing", type=float, default=None, help="candidate translation spacing (default: the map's)")
+    ap.add_argument("--max-tilt", type=float, default=None, help="upright prior in degrees (default: the reader's)")
+    ap.add_argument("--output", default=str(HERE / "real.json"))
+    args = ap.parse_args(argv)
+    data = real_data_root(args.data)
+    zind_root = data / "zind"
+    if not zind_root.is_dir():
+        print(f"no real data at {zind_root} (pass --data or set LDL_REAL_DATA): nothing to measure")
+        return 0
+    import torch
+
+    torch.set_num_threads(args.threads)
+    import cv2
+
+    cv2.setNumThreads(args.threads)
+    results = []
+    for level in [x.strip() for x in args.levels.split(",") if x.strip()]:
+        res = run_level(zind_root, level, args)
+        print_level(res)
+        results.append(res)
+    print_summary(results)
+    Path(args.output).write_text(json.dumps({"data": str(data), "threads": args.threads, "levels": results}, indent=1))
+    print(f"wrote {args.output}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
