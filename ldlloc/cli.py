@@ -24,6 +24,10 @@ PRIVACY = typer.Option(False, "--privacy", help="Privacy mode: refine only with 
 FEATURES = typer.Option(None, "--features", help="Feature backend (must match the map's).")
 WEIGHTS = typer.Option(None, "--weights", help="SuperPoint checkpoint.")
 THREADS = typer.Option(0, "--threads", help="Torch CPU threads (0: default; 1 is best on a busy machine).")
+MAX_TILT = typer.Option(None, "--max-tilt", metavar="DEG",
+                        help="Upright prior: keep candidate rotations whose camera up axis is within DEG degrees "
+                             "of the world's up (0 < DEG <= 180; 180: free rotation, the paper's). `run` uses "
+                             "10 by default for datasets whose panoramas are upright (zind).")
 
 
 def _set_threads(threads: int) -> None:
@@ -39,7 +43,7 @@ def _set_threads(threads: int) -> None:
 
 
 def _params(top_k: int, loss: str, no_decompose: bool, no_refine: bool, privacy: bool,
-            features: Optional[str], weights: Optional[Path]):
+            features: Optional[str], weights: Optional[Path], max_tilt: Optional[float] = None):
     from ldlloc.ldf import LOSS_KINDS
     from ldlloc.pipeline import LocalizeParams
     from ldlloc.search import SearchParams
@@ -49,9 +53,11 @@ def _params(top_k: int, loss: str, no_decompose: bool, no_refine: bool, privacy:
         raise InputError(f"unknown loss {loss!r}; valid: {', '.join(LOSS_KINDS)}")
     if top_k < 1:
         raise InputError(f"--top-k must be at least 1, got {top_k}")
+    if max_tilt is not None and not (0.0 < max_tilt <= 180.0):
+        raise InputError(f"--max-tilt must be in (0, 180] degrees, got {max_tilt:g}")
     return LocalizeParams(search=SearchParams(top_k=top_k, loss=loss, decompose=not no_decompose),
                           features=features, weights=str(weights) if weights else None,
-                          do_refine=not no_refine, privacy=privacy)
+                          do_refine=not no_refine, privacy=privacy, max_tilt_deg=max_tilt)
 
 
 @app.command()
@@ -67,10 +73,14 @@ def localize(
     privacy: bool = PRIVACY,
     features: Optional[str] = FEATURES,
     weights: Optional[Path] = WEIGHTS,
+    max_tilt: Optional[float] = MAX_TILT,
     vis: Optional[Path] = typer.Option(None, "--vis", help="Write a picture of the lines and the estimated pose (.jpg/.png)."),
     threads: int = THREADS,
 ) -> None:
-    """Localize one panorama: prints R (world to camera) and t (camera centre, metres)."""
+    """Localize one panorama: prints R (world to camera) and t (camera centre, metres).
+
+    With --json, also the search's top-K candidates (best first, with their losses).
+    """
     import json
 
     import numpy as np
@@ -78,7 +88,7 @@ def localize(
     from ldlloc.pipeline import Localizer, load_image
     from ldlmap.mapfile import read_map
 
-    params = _params(top_k, loss, no_decompose, no_refine, privacy, features, weights)
+    params = _params(top_k, loss, no_decompose, no_refine, privacy, features, weights, max_tilt)
     _set_threads(threads)
     m = read_map(map_path, load_cloud=False)
     img = load_image(pano)
@@ -86,8 +96,8 @@ def localize(
     out = {"image": str(pano), "map": str(map_path), "R": np.round(loc.rot_cam_from_world, 8).tolist(),
            "t": np.round(loc.center, 6).tolist(), "status": loc.status, "refined": loc.refined,
            "message": loc.message, "num_rotations": loc.num_rotations, "num_lines": loc.num_lines,
-           "num_matches": loc.num_matches, "num_inliers": loc.num_inliers,
-           "seconds": {k: round(v, 4) for k, v in loc.seconds.items()}}
+           "num_matches": loc.num_matches, "num_inliers": loc.num_inliers, "rotation_prior": loc.rotation_prior,
+           "seconds": {k: round(v, 4) for k, v in loc.seconds.items()}, "candidates": loc.candidate_dicts(6)}
     if vis is not None:
         from ldlloc.visualize import save_localization_picture
 
@@ -99,7 +109,8 @@ def localize(
     console.print(f"[bold]{pano.name}[/]: {loc.status}" + (f" ({loc.message})" if loc.message else ""), soft_wrap=True)
     console.print(f"t = [{t[0]:.4f}, {t[1]:.4f}, {t[2]:.4f}] m (camera centre, world)", soft_wrap=True)
     console.print("R (world to camera) =\n" + "\n".join("  [" + ", ".join(f"{x: .6f}" for x in row) + "]" for row in R))
-    console.print(f"{loc.num_lines} lines, {loc.num_rotations} candidate rotations, {loc.num_matches} matches, "
+    console.print(f"{loc.num_lines} lines, {loc.num_rotations} candidate rotations ({loc.rotation_prior}), "
+                  f"{loc.num_matches} matches, "
                   f"{loc.num_inliers} inliers; " + ", ".join(f"{k} {v:.3f} s" for k, v in loc.seconds.items()),
                   soft_wrap=True)
     if vis is not None:
@@ -109,7 +120,9 @@ def localize(
 @app.command()
 def run(
     root: Optional[Path] = typer.Option(None, "--root", help="Dataset root (default ./data/<dataset>)."),
-    dataset: Optional[str] = typer.Option(None, "--dataset", help="omniscenes | stanford (default: detected)."),
+    dataset: Optional[str] = typer.Option(None, "--dataset", help="omniscenes | stanford | zind (default: detected)."),
+    map_level: Optional[str] = typer.Option(None, "--map-level",
+                                            help="room | floor: which maps of `ldlmap prepare` to use (zind)."),
     split: Optional[list[str]] = typer.Option(None, "--split", help="Split(s) to run (repeatable; default all)."),
     scene: Optional[str] = typer.Option(None, "--scene", help="Only queries of this scene."),
     maps: Optional[Path] = typer.Option(None, "--maps", help="Folder of the maps (default ROOT/maps)."),
@@ -122,6 +135,7 @@ def run(
     privacy: bool = PRIVACY,
     features: Optional[str] = FEATURES,
     weights: Optional[Path] = WEIGHTS,
+    max_tilt: Optional[float] = MAX_TILT,
     resume: bool = typer.Option(False, "--resume", help="Skip queries already in the results file."),
     save_vis: Optional[Path] = typer.Option(None, "--save-vis", help="Write a picture per query into this folder."),
     threads: int = THREADS,
@@ -132,12 +146,15 @@ def run(
     from ldlmap.datasets import open_dataset
     from ldlmap.errors import InputError
 
-    ds = open_dataset(root, dataset or (None if root else "omniscenes"))
+    params = _params(top_k, loss, no_decompose, no_refine, privacy, features, weights, max_tilt)
+    if map_level is not None and map_level not in ("room", "floor"):
+        raise InputError(f"--map-level must be room or floor, got {map_level!r}")
+    level = {"map_level": map_level} if map_level is not None else {}  # only when given
+    ds = open_dataset(root, dataset or (None if root else "omniscenes"), **level)
     root, kind = Path(ds.root), ds.kind
     queries = ds.queries(split or None, scene)
     if not queries:
         raise InputError(f"no queries in {root} for split(s) {', '.join(split or ['all'])}")
-    params = _params(top_k, loss, no_decompose, no_refine, privacy, features, weights)
     _set_threads(threads)
     tag = "-".join(split) if split else "all"
     output = output or Path("results") / f"{kind}_{tag}.json"
@@ -153,10 +170,14 @@ def run(
             bar.update(task, advance=1, description=f"{r.split} {r.scene}: {err}")
 
         results = run_queries(queries, maps, output, params, device, resume, save_vis,
-                              meta={"dataset": kind, "root": str(root), "splits": split or "all"}, progress=progress)
+                              meta={"dataset": kind, "root": str(root), "splits": split or "all", **level},
+                              progress=progress)
     console.print(summary_table(results, "scene", f"{kind} by scene"))
     console.print(summary_table(results, "split", f"{kind} by split"))
     console.print(timing_table(results))
+    priors = sorted({r.rotation_prior for r in results})
+    console.print(f"rotation prior: {', '.join(priors)}" + ("" if max_tilt is None else f" (--max-tilt {max_tilt:g})"),
+                  soft_wrap=True)
     failed = [r for r in results if r.status == "failed"]
     for r in failed[:10]:
         console.print(f"[yellow]failed[/] {r.name}: {r.message}", soft_wrap=True)

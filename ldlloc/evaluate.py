@@ -4,10 +4,24 @@ Results file (DESIGN.md section 4)::
 
     {"queries": [ {image, scene, split, name, R (3x3), t (3,), t_error_m, r_error_deg,
                    seconds: {stage: s}, num_rotations, num_matches, num_inliers, refined,
-                   status, message}, ... ],
+                   status, message, rotation_prior,
+                   candidates: [{R, t, loss}, ...] (the search's top K, best first),
+                   best_candidate_t_error_m, best_candidate_r_error_deg, first_good_rank}, ... ],
      "summary": {count, failed, median_t_error_m, median_r_error_deg,
                  accuracy: {"0.05m_5deg": a, "0.1m_5deg": a, "0.2m_10deg": a},
-                 median_seconds: {stage: s}, device, ...}}
+                 median_seconds: {stage: s}, device,
+                 search: {"top1_0.5m_10deg": a, "topk_0.5m_10deg": a} (when candidates were kept),
+                 ...}}
+
+Top-K candidates against the truth (to judge ambiguity: is the right pose among the search's
+K, and how far down?): a candidate is *good* when within :data:`GOOD_T_M` = 0.5 m and
+:data:`GOOD_R_DEG` = 10 deg of the truth; ``first_good_rank`` is the 1-based rank of the first
+good one (1: the search's top-1 is good; None: none of the K is). The *best candidate*
+(:func:`best_candidate`) is the one with the smallest translation error among the candidates
+within 10 deg rotation error, or, when none is, the one with the smallest rotation error; its
+errors are ``best_candidate_t_error_m`` and ``best_candidate_r_error_deg``. The candidates are
+in the JSON only (not in the CSV). Files written before these fields existed still load (the
+fields get their defaults: no candidates, rotation prior "free").
 
 ``ResultsWriter`` rewrites the JSON and the CSV beside it atomically after every query, so an
 interrupted run loses nothing and ``--resume`` skips the queries already there.
@@ -33,6 +47,8 @@ THRESHOLDS: tuple[tuple[str, float, float], ...] = (
     ("0.2m_10deg", 0.2, 10.0),
 )
 STAGES = ("lines2d", "rotation", "search", "refine", "total")
+GOOD_T_M = 0.5  # a top-K candidate is "good" within 0.5 m and 10 degrees of the truth
+GOOD_R_DEG = 10.0
 
 
 @dataclass
@@ -54,11 +70,33 @@ class QueryResult:
     refined: bool = False
     status: str = "ok"  # ok | coarse (refinement failed or skipped) | failed
     message: str = ""
+    rotation_prior: str = "free"  # "free" (paper) or "upright<=Xdeg" (--max-tilt, upright queries)
+    candidates: list = field(default_factory=list)  # top-K search poses, best first: {R, t, loss}
+    best_candidate_t_error_m: float | None = None  # errors of the best of the K (best_candidate)
+    best_candidate_r_error_deg: float | None = None
+    first_good_rank: int | None = None  # 1-based rank of the first candidate within 0.5 m / 10 deg
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> "QueryResult":
         known = {k: d[k] for k in cls.__dataclass_fields__ if k in d}
         return cls(**known)
+
+
+def best_candidate(t_errors, r_errors, max_r_deg: float = GOOD_R_DEG) -> int | None:
+    """Index of the best candidate: the smallest translation error among those within
+    ``max_r_deg`` rotation error, else the smallest rotation error (None when there are none)."""
+    t = np.asarray(t_errors, dtype=np.float64)
+    r = np.asarray(r_errors, dtype=np.float64)
+    if len(t) == 0:
+        return None
+    close = np.flatnonzero(r < max_r_deg)
+    return int(close[np.argmin(t[close])]) if len(close) else int(np.argmin(r))
+
+
+def first_good_rank(t_errors, r_errors, max_t_m: float = GOOD_T_M, max_r_deg: float = GOOD_R_DEG) -> int | None:
+    """1-based rank of the first candidate within ``max_t_m`` and ``max_r_deg`` (None: none is)."""
+    good = np.flatnonzero((np.asarray(t_errors, float) < max_t_m) & (np.asarray(r_errors, float) < max_r_deg))
+    return int(good[0]) + 1 if len(good) else None
 
 
 def _median(values: Iterable[float]) -> float | None:
@@ -86,6 +124,12 @@ def summarize(results: list[QueryResult], device: str | None = None) -> dict[str
         "median_seconds": {s: _median(r.seconds.get(s) for r in results) for s in stages},
         "median_num_rotations": _median(r.num_rotations for r in results if r.status != "failed"),
     }
+    with_cands = [r for r in results if r.candidates]
+    if with_cands:  # pose search alone: top-1 and best of the top K within 0.5 m / 10 deg
+        ranks = [r.first_good_rank for r in results]
+        key = f"{GOOD_T_M:g}m_{GOOD_R_DEG:g}deg"
+        out["search"] = {f"top1_{key}": float(np.mean([k == 1 for k in ranks])),
+                         f"topk_{key}": float(np.mean([k is not None for k in ranks]))}
     if device is not None:
         out["device"] = device
     return out
@@ -142,16 +186,21 @@ class ResultsWriter:
 
 
 def results_csv(results: list[QueryResult]) -> str:
-    """One row per query: identifiers, errors, estimate, counts and stage seconds."""
+    """One row per query: identifiers, errors, estimate, counts, rotation prior, the best of the
+    top-K candidates (errors, first good rank) and stage seconds (the candidates themselves are in
+    the JSON only)."""
     stages = sorted({s for r in results for s in r.seconds}, key=lambda s: (s not in STAGES, STAGES.index(s) if s in STAGES else 0, s))
     buf = io.StringIO()
     w = csv.writer(buf)
     w.writerow(["name", "scene", "split", "image", "status", "t_error_m", "r_error_deg", "tx", "ty", "tz",
-                "num_rotations", "num_matches", "num_inliers", "refined"] + [f"sec_{s}" for s in stages])
+                "num_rotations", "num_matches", "num_inliers", "refined", "rotation_prior",
+                "best_candidate_t_error_m", "best_candidate_r_error_deg", "first_good_rank"]
+               + [f"sec_{s}" for s in stages])
     for r in results:
         t = r.t if r.t is not None else [None] * 3
         w.writerow([r.name, r.scene, r.split, r.image, r.status, r.t_error_m, r.r_error_deg, *t,
-                    r.num_rotations, r.num_matches, r.num_inliers, int(r.refined)]
+                    r.num_rotations, r.num_matches, r.num_inliers, int(r.refined), r.rotation_prior,
+                    r.best_candidate_t_error_m, r.best_candidate_r_error_deg, r.first_good_rank]
                    + [r.seconds.get(s) for s in stages])
     return buf.getvalue()
 

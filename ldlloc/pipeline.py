@@ -1,8 +1,10 @@
 """Localize one panorama against an LDL map: ``Localizer(map).localize(image) -> Localization``.
 
-Stages (timed): ``lines2d`` (LSD on crops, arcs, adaptive length filter), ``rotation``
-(vanishing points and candidate rotations), ``search`` (line distance functions over
-N_t x N_r poses, top K), ``refine`` (query features, matching, spherical PnP), ``total``.
+Stages (timed): ``lines2d`` (LSD on crops, arcs, adaptive length filter: the longest
+fraction of the arcs equal to the map's kept ratio within bounds, ``query_keep_ratio``),
+``rotation`` (vanishing points and candidate rotations, then the optional upright prior
+``max_tilt_deg``), ``search`` (line distance functions over N_t x N_r poses, top K),
+``refine`` (query features, matching, spherical PnP), ``total``.
 """
 
 from __future__ import annotations
@@ -19,6 +21,20 @@ from ldlloc.principal import PrincipalParams
 from ldlloc.refine import RefineParams
 from ldlloc.search import SearchParams
 
+# Upright prior used by default for queries that their dataset marks upright (``Query.upright``,
+# e.g. every ZInD panorama) when the user gives no ``--max-tilt``: candidate rotations whose
+# camera up axis is more than this many degrees from the world's up are dropped. 10 degrees
+# leaves room for a tripod that is not quite level and for the map's principal directions being
+# off by a few degrees, while removing every 90-degree relabeling of a Manhattan frame.
+UPRIGHT_MAX_TILT_DEG = 10.0
+
+
+def rotation_prior_name(max_tilt_deg: float | None) -> str:
+    """``"free"`` (no bound, or a bound of 180 degrees or more) or e.g. ``"upright<=10deg"``."""
+    if max_tilt_deg is None or max_tilt_deg >= 180.0:
+        return "free"
+    return f"upright<={max_tilt_deg:g}deg"
+
 
 @dataclass(frozen=True)
 class LocalizeParams:
@@ -34,9 +50,11 @@ class LocalizeParams:
     privacy: bool = False  # refine only with query features near principal-direction lines
     max_keypoints: int = 8192  # query features
     vp_keep_ratio: float = 0.2  # vanishing points are voted by the longest max(kept ratio, this)
-    # fraction of the 2D lines (then 0.5, then all, until candidate rotations exist): the map's
+    # fraction of the 2D lines (then 0.5, then all, until candidate rotations exist): the query's
     # kept ratio (often ~5 %) can leave a principal direction without any line in a close-up
     # view, while the distance functions keep the paper's adaptive filter
+    max_tilt_deg: float | None = None  # upright prior: keep candidate rotations whose camera up
+    # axis is within this many degrees of the world's up (None or >= 180: free, the paper's)
 
 
 @dataclass
@@ -59,11 +77,26 @@ class Localization:
     message: str = ""
     arcs: np.ndarray | None = None  # the filtered 2D arcs used (camera frame)
     arc_groups: np.ndarray | None = None  # principal group of each arc under the chosen rotation
-    rotations: np.ndarray | None = None  # (N_r, 3, 3) all candidate rotations
+    rotations: np.ndarray | None = None  # (N_r, 3, 3) all candidate rotations (after the prior)
+    candidates_loss: np.ndarray | None = None  # (K,) search loss of each top-K pose (lower is better)
+    rotation_prior: str = "free"  # "free" or "upright<=Xdeg" (see rotation_prior_name)
 
     @property
     def status(self) -> str:
         return "ok" if self.refined else "coarse"
+
+    def candidate_dicts(self, digits: int | None = None) -> list[dict]:
+        """The top-K search poses, best first: ``[{"R": 3x3, "t": [3], "loss": float}, ...]``.
+
+        ``digits``: round R to ``digits + 2`` and t to ``digits`` decimals (None: no rounding).
+        """
+        Rs = np.asarray(self.candidates_rot, dtype=np.float64)
+        ts = np.asarray(self.candidates_center, dtype=np.float64)
+        losses = (np.full(len(Rs), np.nan) if self.candidates_loss is None
+                  else np.asarray(self.candidates_loss, dtype=np.float64))
+        if digits is not None:
+            Rs, ts = np.round(Rs, digits + 2), np.round(ts, digits)
+        return [{"R": R.tolist(), "t": t.tolist(), "loss": float(v)} for R, t, v in zip(Rs, ts, losses)]
 
 
 def load_image(path: str | Path) -> np.ndarray:
@@ -111,10 +144,14 @@ class Localizer:
     def feature_backend(self) -> str | None:
         return self.backend.name if self.backend is not None else None
 
-    def localize(self, image_rgb: np.ndarray) -> Localization:
-        """Localize an RGB panorama (H, W, 3) uint8; raises InputError when it cannot even search."""
-        from ldlloc.lines2d import detect_lines, filter_by_length
-        from ldlloc.principal import candidate_rotations, labels_for_rotations, vanishing_points
+    def localize(self, image_rgb: np.ndarray, max_tilt_deg: float | None = None) -> Localization:
+        """Localize an RGB panorama (H, W, 3) uint8; raises InputError when it cannot even search.
+
+        ``max_tilt_deg``: the upright prior for this panorama, overriding
+        ``params.max_tilt_deg`` (None: the params'; 180: free rotation).
+        """
+        from ldlloc.lines2d import detect_lines, filter_by_length, query_keep_ratio
+        from ldlloc.principal import candidate_rotations, filter_by_tilt, labels_for_rotations, vanishing_points
         from ldlloc.refine import keep_near_lines, refine_candidates
         from ldlloc.search import search_poses
 
@@ -122,6 +159,11 @@ class Localizer:
         img = np.asarray(image_rgb)
         if img.ndim != 3 or img.shape[2] != 3 or img.dtype != np.uint8 or img.shape[1] != 2 * img.shape[0]:
             raise InputError(f"panorama must be uint8 (H, 2H, 3), got {img.dtype} {img.shape}")
+        tilt = p.max_tilt_deg if max_tilt_deg is None else float(max_tilt_deg)
+        if tilt is not None and not (0.0 < tilt <= 180.0):
+            raise InputError(f"the tilt bound must be in (0, 180] degrees, got {tilt:g}")
+        if tilt is not None and tilt >= 180.0:
+            tilt = None
         secs: dict[str, float] = {}
         t0 = tick = time.perf_counter()
 
@@ -134,15 +176,23 @@ class Localizer:
         arcs_all = detect_lines(img, p.lines2d)
         if len(arcs_all) < 3:
             raise InputError(f"too few lines in the panorama ({len(arcs_all)} detected): a flat or empty image?")
-        arcs = filter_by_length(arcs_all, m.kept_ratio)
+        keep = query_keep_ratio(m.kept_ratio, p.lines2d)  # the map's kept ratio within bounds
+        arcs = filter_by_length(arcs_all, keep)
         lap("lines2d")
         # Vanishing points from the longest lines first; more (shorter) lines only when those
-        # do not give 3 directions that match the map's.
-        for ratio in sorted({max(m.kept_ratio, p.vp_keep_ratio), 0.5, 1.0}):
+        # do not give 3 directions that match the map's (within the tilt bound, if any).
+        found = 0
+        for ratio in sorted({max(keep, p.vp_keep_ratio), 0.5, 1.0}):
             vps = vanishing_points(filter_by_length(arcs_all, ratio), p.principal.k_2d, p.principal)
             rots = candidate_rotations(vps, m.principal_directions, params=p.principal)
+            found = max(found, len(rots))
+            if tilt is not None:
+                rots = filter_by_tilt(rots, tilt)
             if len(rots):
                 break
+        if len(rots) == 0 and found:
+            raise InputError(f"no candidate rotation is within the tilt bound of {tilt:g} deg "
+                             f"({found} found; raise --max-tilt, or 180 for free rotation)")
         if len(rots) == 0:
             raise InputError("no candidate rotation: the panorama's vanishing points do not match the map's")
         labels = labels_for_rotations(arcs, vps, rots.triplets, p.principal.group_tol)
@@ -153,7 +203,9 @@ class Localizer:
         best_r, best_t = res.rotations[0], res.centers[0]
         out = Localization(best_r, best_t, best_r, best_t, res.rotations, res.centers, secs,
                            num_rotations=len(rots), num_lines=len(arcs), refined=False, arcs=arcs,
-                           arc_groups=labels[res.rotation_index[0]], rotations=rots.rotations)
+                           arc_groups=labels[res.rotation_index[0]], rotations=rots.rotations,
+                           candidates_loss=np.asarray(res.losses, dtype=np.float64),
+                           rotation_prior=rotation_prior_name(tilt))
         if self.refine_enabled:
             feats = self.backend.extract(img, max_keypoints=p.max_keypoints)
             if p.privacy:

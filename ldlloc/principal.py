@@ -18,6 +18,13 @@ residual is below ``residual_tol`` are kept, sorted by residual, and near-duplic
 below ``dedup_deg``) are dropped, keeping the lowest residual. For a Manhattan scene every
 physical rotation appears with its 24 relabelings: they are all kept, since the decomposed
 distance functions tell them apart.
+
+Upright prior (:func:`filter_by_tilt`, ``ldlloc localize/run --max-tilt DEG``): an option beyond
+the paper, whose rotation is free. The camera's up axis is camera +z, in the world
+``R.T @ e_z`` (the last row of ``R``); its tilt is the angle to the world's up ``e_z``,
+``arccos(R[2, 2])``. Of a Manhattan scene's 24 relabelings of one physical rotation, only the 4
+turns about z keep the camera upright, so the prior removes the candidates that lie the camera on
+its side (which real panoramas, taken upright, never are).
 """
 
 from __future__ import annotations
@@ -263,3 +270,33 @@ def labels_for_rotations(arcs: np.ndarray, vp2d: np.ndarray, triplets: np.ndarra
     g = np.argmin(ct, axis=2)
     ok = (np.min(ct, axis=2) < tol) & (np.linalg.norm(normals, axis=1) > 0)[:, None]
     return np.where(ok, g, -1).T.astype(np.int64)
+
+
+# --------------------------------------------------------------------------------- upright prior
+
+
+def camera_tilt_deg(rotations: np.ndarray) -> np.ndarray:
+    """Tilt of the camera's up axis from the world's up, in degrees, per rotation.
+
+    ``rotations``: (N, 3, 3) or (3, 3), world to camera. The camera's up axis in the world is
+    ``R.T @ e_z`` = ``R[2, :]``, so the tilt is ``arccos(R[2, 2])`` in [0, 180].
+    """
+    R = np.asarray(rotations, dtype=np.float64)
+    if R.shape[-2:] != (3, 3):
+        raise InputError(f"rotations must have shape (N, 3, 3), got {R.shape}")
+    return np.degrees(np.arccos(np.clip(R[..., 2, 2], -1.0, 1.0)))
+
+
+def filter_by_tilt(rots: RotationCandidates, max_tilt_deg: float) -> RotationCandidates:
+    """The candidates whose camera up axis (``R.T @ e_z``) is within ``max_tilt_deg`` of the world up.
+
+    Order is kept. ``max_tilt_deg >= 180`` keeps every candidate (the paper's free rotation).
+    Raises InputError for a negative or non-finite bound.
+    """
+    tilt = float(max_tilt_deg)
+    if not np.isfinite(tilt) or tilt < 0:
+        raise InputError(f"the tilt bound must be a finite angle >= 0 degrees, got {max_tilt_deg}")
+    if tilt >= 180.0 or len(rots) == 0:
+        return rots
+    keep = camera_tilt_deg(rots.rotations) <= tilt + 1e-9
+    return RotationCandidates(rots.rotations[keep], rots.triplets[keep], rots.signs[keep], rots.residuals[keep])

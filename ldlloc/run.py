@@ -5,6 +5,12 @@ Each query is localized against the map of its scene (``<maps>/<scene>.h5``, as 
 lines, wrong feature backend) becomes a ``failed`` record with its message, and the run goes on.
 Results are written after every query (:class:`ldlloc.evaluate.ResultsWriter`), so an
 interrupted run loses nothing and ``resume`` skips the queries already done.
+
+Upright prior per query (:func:`max_tilt_for`): ``params.max_tilt_deg`` (``--max-tilt``) when
+given, always (180: free rotation); otherwise :data:`ldlloc.pipeline.UPRIGHT_MAX_TILT_DEG` for
+queries that their dataset marks upright (``Query.upright``, e.g. ZInD) and free rotation for
+the others. Each result records the prior that ran (``rotation_prior``), and the run's meta the
+option (``max_tilt_deg``, None when not given) and the upright default.
 """
 
 from __future__ import annotations
@@ -18,12 +24,24 @@ import numpy as np
 
 from ldlmap.errors import InputError, LdlError
 from ldlmap.geometry import rotation_error_deg, translation_error
-from ldlloc.evaluate import QueryResult, ResultsWriter
-from ldlloc.pipeline import Localization, LocalizeParams, Localizer, load_image
+from ldlloc.evaluate import QueryResult, ResultsWriter, best_candidate, first_good_rank
+from ldlloc.pipeline import (UPRIGHT_MAX_TILT_DEG, Localization, LocalizeParams, Localizer, load_image,
+                             rotation_prior_name)
+
+
+def max_tilt_for(q, params: LocalizeParams) -> float | None:
+    """The upright prior for query ``q``: ``params.max_tilt_deg`` when set (the user's
+    ``--max-tilt`` wins), else :data:`UPRIGHT_MAX_TILT_DEG` for an upright query, else None (free)."""
+    if params.max_tilt_deg is not None:
+        return float(params.max_tilt_deg)
+    return UPRIGHT_MAX_TILT_DEG if getattr(q, "upright", False) else None
 
 
 def result_from_localization(q, loc: Localization) -> QueryResult:
     """A results record for dataset query ``q`` (with ground truth) and its localization."""
+    cand_t = [translation_error(c, q.center) for c in np.asarray(loc.candidates_center)]
+    cand_r = [rotation_error_deg(R, q.rot_cam_from_world) for R in np.asarray(loc.candidates_rot)]
+    best = best_candidate(cand_t, cand_r)
     return QueryResult(
         image=str(q.image), scene=q.scene, split=q.split, name=q.name,
         R=np.asarray(loc.rot_cam_from_world).tolist(), t=np.asarray(loc.center).tolist(),
@@ -32,6 +50,10 @@ def result_from_localization(q, loc: Localization) -> QueryResult:
         seconds={k: float(v) for k, v in loc.seconds.items()},
         num_rotations=int(loc.num_rotations), num_matches=int(loc.num_matches), num_inliers=int(loc.num_inliers),
         refined=bool(loc.refined), status=loc.status, message=loc.message,
+        rotation_prior=loc.rotation_prior, candidates=loc.candidate_dicts(),
+        best_candidate_t_error_m=None if best is None else float(cand_t[best]),
+        best_candidate_r_error_deg=None if best is None else float(cand_r[best]),
+        first_good_rank=first_good_rank(cand_t, cand_r),
     )
 
 
@@ -65,17 +87,20 @@ def run_queries(queries: list, maps_dir: str | Path, output: str | Path, params:
                 device: str = "cpu", resume: bool = False, save_vis: str | Path | None = None,
                 meta: dict | None = None, progress: Callable[[QueryResult], None] | None = None) -> list[QueryResult]:
     """Localize ``queries`` (from :mod:`ldlmap.datasets`) and write results as they finish."""
-    writer = ResultsWriter(output, meta={**(meta or {}), "device": device, "params": asdict(params)}, resume=resume)
+    meta = {**(meta or {}), "device": device, "params": asdict(params),
+            "max_tilt_deg": params.max_tilt_deg, "upright_max_tilt_deg": UPRIGHT_MAX_TILT_DEG}
+    writer = ResultsWriter(output, meta=meta, resume=resume)
     done = writer.done()
     cache = MapCache(Path(maps_dir), params, device)
     for q in sorted(queries, key=lambda q: (q.scene, q.split, q.name)):
         if q.name in done:
             continue
         t0 = time.perf_counter()
+        tilt = max_tilt_for(q, params)
         try:
             loc = cache.get(q.scene)
             img = load_image(q.image)
-            res = loc.localize(img)
+            res = loc.localize(img, max_tilt_deg=180.0 if tilt is None else tilt)
             r = result_from_localization(q, res)
             if save_vis is not None:
                 from ldlloc.visualize import save_localization_picture
@@ -83,7 +108,8 @@ def run_queries(queries: list, maps_dir: str | Path, output: str | Path, params:
                 save_localization_picture(img, res, loc.map, Path(save_vis) / q.split / f"{q.scene}_{Path(q.image).stem}.jpg")
         except LdlError as exc:
             r = QueryResult(image=str(q.image), scene=q.scene, split=q.split, name=q.name, status="failed",
-                            message=str(exc), seconds={"total": time.perf_counter() - t0})
+                            message=str(exc), seconds={"total": time.perf_counter() - t0},
+                            rotation_prior=rotation_prior_name(tilt))
         writer.add(r)
         if progress:
             progress(r)
