@@ -210,12 +210,20 @@ def build(
 @app.command()
 def prepare(
     root: Optional[Path] = typer.Argument(None, help="Dataset root (default ./data/<dataset>)."),
-    dataset: Optional[str] = typer.Option(None, "--dataset", help="omniscenes | stanford (default: detected from the layout)."),
+    dataset: Optional[str] = typer.Option(None, "--dataset", help="omniscenes | stanford | zind (default: detected "
+                                          "from the layout)."),
     maps: Optional[Path] = typer.Option(None, "--maps", help="Folder for the maps (default ROOT/maps)."),
-    features: str = typer.Option("sift", "--features", help="sift | superpoint | none."),
+    map_level: str = typer.Option("room", "--map-level", help="ZInD: one map per complete room (room) or per "
+                                  "floor (floor, every room in one map)."),
+    features: Optional[str] = typer.Option(None, "--features", help="sift | superpoint | none (default sift; "
+                                           "ZInD layout maps: none)."),
     weights: Optional[Path] = typer.Option(None, "--weights", help="SuperPoint checkpoint."),
     num_trans: Optional[int] = typer.Option(None, "--num-trans", help="N_t (default: 800 OmniScenes, 1700 Stanford)."),
     num_views: Optional[int] = typer.Option(None, "--num-views", help="Views rendered for features (default 40)."),
+    trans_spacing: Optional[float] = typer.Option(None, "--trans-spacing", help="Maps without a scan (ZInD layouts): "
+                                                  "candidate translations this many metres apart (default 0.3)."),
+    camera_height: Optional[str] = typer.Option(None, "--camera-height", metavar="MIN:MAX", help="Maps without a "
+                                                "scan: camera-height band in metres (default: ZInD's camera height)."),
     scene: Optional[list[str]] = typer.Option(None, "--scene", help="Only these scenes (repeatable)."),
     line_files: bool = typer.Option(False, "--line-files", help="Use the dataset's 3D line files instead of extracting lines."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Rebuild maps that are up to date."),
@@ -225,14 +233,25 @@ def prepare(
     from rich.table import Table
 
     from ldlmap.build import params_with
-    from ldlmap.datasets import open_dataset
+    from ldlmap.datasets import MAP_LEVELS, open_dataset
     from ldlmap.errors import InputError
     from ldlmap.prepare import default_params, prepare_dataset
 
-    ds = open_dataset(root, dataset or (None if root else "omniscenes"))
+    if map_level not in MAP_LEVELS:
+        raise InputError(f"--map-level must be {' or '.join(MAP_LEVELS)}, got {map_level!r}")
+    ds = open_dataset(root, dataset or (None if root else "omniscenes"), map_level=map_level)
     root, kind = Path(ds.root), ds.kind
-    params = params_with(default_params(kind), features=features, weights=str(weights) if weights else None,
-                         num_translations=num_trans, num_views=num_views, device=device)
+    if kind == "zind":
+        if features not in (None, "none"):
+            raise InputError(f"ZInD maps are built from room layouts and carry no features: --features {features} "
+                             "is not possible (leave it out or use none)")
+        if line_files:
+            raise InputError("ZInD has no 3D line files: its maps are built from the room layouts")
+        console.print(f"ZInD: lines-only maps from the room layouts, one per {map_level} (features: none)")
+    params = params_with(default_params(kind), features=features or ("none" if kind == "zind" else "sift"),
+                         weights=str(weights) if weights else None, num_translations=num_trans, num_views=num_views,
+                         device=device, trans_spacing=trans_spacing,
+                         camera_height=parse_band(camera_height, "--camera-height"))
     with _progress_bar() as bar:
         task = bar.add_task("scenes", total=None)
         done_scenes: set[str] = set()
@@ -243,9 +262,9 @@ def prepare(
             bar.update(task, description=f"{scene_name}: {stage}", completed=len(done_scenes))
 
         outcomes = prepare_dataset(root, kind, maps, params, overwrite=overwrite, use_line_files=line_files,
-                                   scenes=scene or None, progress=progress)
+                                   scenes=scene or None, progress=progress, map_level=map_level)
         bar.update(task, total=len(outcomes), completed=len(outcomes), description="scenes")
-    table = Table(title=f"maps of {root} ({kind})")
+    table = Table(title=f"maps of {root} ({kind}" + (f", {map_level} level)" if kind == "zind" else ")"))
     for col in ("scene", "status", "map", "seconds", "note"):
         table.add_column(col)
     for o in outcomes:

@@ -1,7 +1,7 @@
 """Readers for panoramic localization datasets in their distributed layouts.
 
-Two layouts are supported (DESIGN.md section 4); the synthetic generator (``ldlmap synth``)
-writes the OmniScenes one, so a single reader serves real and synthetic data.
+Three layouts are supported (DESIGN.md sections 4 and 10); the synthetic generator (``ldlmap
+synth``) writes the OmniScenes one, so a single reader serves real and synthetic data.
 
 **OmniScenes** (``<root>`` = e.g. ``data/omniscenes``)::
 
@@ -26,6 +26,17 @@ several times faster than text.
 Splits of Stanford 2D-3D-S are its areas (``area_1`` ... ``area_6``, area 5 being distributed
 as ``area_5a`` and ``area_5b``); scenes are keyed ``area_N/<room>_<n>``.
 
+**ZInD** (Zillow Indoor Dataset; ``<root>`` = e.g. ``data/zind``, or one home folder)::
+
+    <home>/zind_data.json                                   layouts, floor-plan placements, scales
+    <home>/panos/floor_XX_partial_room_ZZ_pano_N.jpg        query panoramas (upright)
+
+Splits are the homes (``000``); there are no scans: maps are built from the room layouts
+(:meth:`ZInD.layout_scene`, :mod:`ldlmap.io.zind`, which also documents the pose conversion).
+``ZInD(root, map_level="room")`` has one scene per complete room (``000/floor_01/
+complete_room_06``), ``map_level="floor"`` one per floor (``000/floor_01``, every room in one
+map); a query's ``scene`` is the map it is localized against at that level.
+
 Every query pose is validated on read (shape, finite values, proper rotation); a bad file raises
 :class:`~ldlmap.errors.InputError` naming it.
 """
@@ -43,10 +54,12 @@ import numpy as np
 
 from ldlmap.errors import InputError
 
-DEFAULT_ROOTS: dict[str, Path] = {"omniscenes": Path("data/omniscenes"), "stanford": Path("data/stanford2d3ds")}
-DATASET_KINDS: tuple[str, ...] = ("omniscenes", "stanford")
+DEFAULT_ROOTS: dict[str, Path] = {"omniscenes": Path("data/omniscenes"), "stanford": Path("data/stanford2d3ds"),
+                                  "zind": Path("data/zind")}
+DATASET_KINDS: tuple[str, ...] = ("omniscenes", "stanford", "zind")
 # Folder under ``datasets/`` holding each kind's split manifest.
-MANIFEST_DIRS: dict[str, str] = {"omniscenes": "omniscenes", "stanford": "stanford2d3ds"}
+MANIFEST_DIRS: dict[str, str] = {"omniscenes": "omniscenes", "stanford": "stanford2d3ds", "zind": "zind"}
+MAP_LEVELS: tuple[str, ...] = ("room", "floor")  # ZInD: one map per complete room, or per floor
 
 # Split order used for listing and sorting (other ``<name>_pano`` splits follow alphabetically).
 OMNISCENES_SPLITS: tuple[str, ...] = ("robot", "handheld", "extreme", "change_robot", "change_handheld")
@@ -74,7 +87,8 @@ class Query:
     rot_cam_from_world: np.ndarray = field(repr=False)  # (3, 3) R, world -> camera
     center: np.ndarray = field(repr=False)  # (3,) t, camera centre in world coordinates
     name: str = ""  # stable id, e.g. ``extreme/room_1_scene_2/00012``
-    scene_state: str = ""  # ``scene_2`` (OmniScenes capture session) or the Stanford area
+    scene_state: str = ""  # ``scene_2`` (OmniScenes capture session), the Stanford area or the ZInD home
+    upright: bool = False  # captured upright (ZInD): localization may use an upright rotation prior
 
 
 @runtime_checkable
@@ -421,31 +435,148 @@ class Stanford2D3DS:
         return _find_file(self.root / "pcd_line" / area, [f"{room}lines", f"{room}_lines", room], (".txt", ".obj"))
 
 
+# ------------------------------------------------------------------------------------- ZInD
+
+
+class ZInD:
+    """Reader for Zillow Indoor Dataset homes (``<root>/<home>/zind_data.json``); splits are homes.
+
+    ``root`` is a folder of homes or one home folder (then its name is the only split). Scenes
+    are ``<home>/<floor>/<complete_room>`` (``map_level="room"``) or ``<home>/<floor>``
+    (``"floor"``). Queries are the panoramas, upright, with poses converted by
+    :mod:`ldlmap.io.zind`; their ``scene_state`` is the home.
+    """
+
+    kind = "zind"
+
+    def __init__(self, root: str | Path, map_level: str = "room") -> None:
+        from ldlmap.io.zind import ZIND_JSON
+
+        if map_level not in MAP_LEVELS:
+            raise InputError(f"unknown ZInD map level {map_level!r}; choose one of {', '.join(MAP_LEVELS)}")
+        self.root = _require_root(root, "ZInD")
+        self.map_level = map_level
+        if (self.root / ZIND_JSON).is_file():
+            self._folders = {self.root.name: self.root}
+        else:
+            self._folders = {p.name: p for p in _visible_dirs(self.root) if (p / ZIND_JSON).is_file()}
+        if not self._folders:
+            raise InputError(f"not a ZInD root (no <home>/{ZIND_JSON}): {self.root}")
+        self._homes: dict[str, object] = {}
+
+    def __repr__(self) -> str:
+        return f"ZInD({str(self.root)!r}, map_level={self.map_level!r})"
+
+    def home(self, name: str):
+        """The parsed :class:`ldlmap.io.zind.ZindHome` of a home (read once)."""
+        from ldlmap.io.zind import read_zind_home
+
+        if name not in self._folders:
+            raise InputError(f"unknown ZInD home {name!r}; available: {', '.join(self.splits())}")
+        if name not in self._homes:
+            self._homes[name] = read_zind_home(self._folders[name])
+        return self._homes[name]
+
+    def json_path(self, scene_or_home: str) -> Path:
+        """``zind_data.json`` of the home a scene (or home) belongs to."""
+        from ldlmap.io.zind import ZIND_JSON
+
+        home = scene_or_home.split("/", 1)[0]
+        if home not in self._folders:
+            raise InputError(f"unknown ZInD home {home!r}; available: {', '.join(self.splits())}")
+        return self._folders[home] / ZIND_JSON
+
+    def splits(self) -> list[str]:
+        """Home names (``000``, ...)."""
+        return sorted(self._folders, key=_natural_key)
+
+    def _scene_of(self, home: str, floor: str, room: str) -> str:
+        return f"{home}/{floor}" if self.map_level == "floor" else f"{home}/{floor}/{room}"
+
+    def scenes(self) -> list[str]:
+        """Map keys at this level: ``<home>/<floor>/<complete_room>`` or ``<home>/<floor>``."""
+        out: list[str] = []
+        for name in self.splits():
+            keys = {self._scene_of(name, f, r) for f, r in self.home(name).rooms}
+            out.extend(sorted(keys, key=_natural_key))
+        return out
+
+    def queries(self, split: str | Sequence[str] | None = None, scene: str | None = None) -> list[Query]:
+        """Panoramas of the given home(s) (all when None), optionally of one scene; sorted by home,
+        floor, partial room and pano. Names are ``<home>/<floor>/<partial_room>/<pano>``."""
+        available = self.splits()
+        wanted = _as_split_list(split, available, "ZInD home")
+        if scene is not None and scene not in self.scenes():
+            raise InputError(f"unknown ZInD scene {scene} at {self.map_level} level; available: {', '.join(self.scenes())}")
+        out: list[Query] = []
+        for name in sorted(wanted, key=available.index):
+            for p in self.home(name).panos:
+                key = self._scene_of(name, p.floor, p.complete_room)
+                if scene is not None and key != scene:
+                    continue
+                out.append(Query(image=p.image, scene=key, split=name, rot_cam_from_world=p.rot_cam_from_world,
+                                 center=p.center, name=f"{name}/{p.floor}/{p.partial_room}/{p.pano}",
+                                 scene_state=name, upright=True))
+        return out
+
+    def _parse_scene(self, scene: str) -> tuple[str, str, list[str] | None]:
+        parts = scene.split("/")
+        if scene not in self.scenes() or len(parts) != (2 if self.map_level == "floor" else 3):
+            raise InputError(f"unknown ZInD scene {scene} at {self.map_level} level; available: {', '.join(self.scenes())}")
+        return parts[0], parts[1], (parts[2:] or None)
+
+    def layout_scene(self, scene: str):
+        """``(lines (L, 2, 3), Walkable)`` of a scene: its rooms' layout lines (metres, z up, floor
+        at 0), their polygons, doors and openings as portals, and the camera-height band."""
+        from ldlmap.io.zind import scene_layout
+
+        home, floor, rooms = self._parse_scene(scene)
+        return scene_layout(self.home(home), floor, rooms)
+
+    def point_cloud(self, scene: str) -> Path:
+        raise InputError(f"ZInD has no point clouds: its maps are built from the room layouts "
+                         f"(ldlmap prepare --dataset zind), scene {scene}")
+
+    def line_file(self, scene: str) -> Path | None:
+        """None: ZInD distributes no 3D line files (lines come from the layouts)."""
+        return None
+
+
 # ------------------------------------------------------------------------------ entry points
 
 
 def detect_kind(root: str | Path) -> str:
-    """Guess the layout of ``root``: ``"stanford"`` (``pano/area_*``) or ``"omniscenes"``."""
+    """Guess the layout of ``root``: ``"zind"`` (``<home>/zind_data.json``, or a home folder),
+    ``"stanford"`` (``pano/area_*``) or ``"omniscenes"``."""
+    from ldlmap.io.zind import ZIND_JSON
+
     r = _require_root(root, "dataset")
+    if (r / ZIND_JSON).is_file() or any((p / ZIND_JSON).is_file() for p in _visible_dirs(r)):
+        return "zind"
     if (r / "pano").is_dir() and any(p.name.startswith("area_") for p in _visible_dirs(r / "pano")):
         return "stanford"
     if any(p.name.endswith("_pano") for p in _visible_dirs(r)) or (r / "pcd").is_dir():
         return "omniscenes"
-    raise InputError(f"no recognisable dataset layout in {r} (expected OmniScenes <split>_pano/ "
-                     "or Stanford 2D-3D-S pano/area_N/; see datasets/README.md)")
+    raise InputError(f"no recognisable dataset layout in {r} (expected OmniScenes <split>_pano/, "
+                     "Stanford 2D-3D-S pano/area_N/ or ZInD <home>/zind_data.json; see datasets/README.md)")
 
 
-def open_dataset(root: str | Path | None = None, kind: str | None = "omniscenes") -> Dataset:
+def open_dataset(root: str | Path | None = None, kind: str | None = "omniscenes", map_level: str = "room") -> Dataset:
     """Open a dataset root of the given kind (``None``: detect it). ``root=None`` uses
-    :data:`DEFAULT_ROOTS` for the kind."""
+    :data:`DEFAULT_ROOTS` for the kind. ``map_level`` (``room`` | ``floor``) picks ZInD's scenes
+    (one map per complete room or per floor); other kinds ignore it."""
     if kind is not None and kind not in DATASET_KINDS:
         raise InputError(f"unknown dataset kind {kind!r}; choose one of {', '.join(DATASET_KINDS)}")
+    if map_level not in MAP_LEVELS:
+        raise InputError(f"unknown map level {map_level!r}; choose one of {', '.join(MAP_LEVELS)}")
     if root is None:
         if kind is None:
             raise InputError("give a dataset root or a dataset kind")
         root = DEFAULT_ROOTS[kind]
     if kind is None:
         kind = detect_kind(root)
+    if kind == "zind":
+        return ZInD(root, map_level)
     return OmniScenes(root) if kind == "omniscenes" else Stanford2D3DS(root)
 
 
@@ -470,7 +601,7 @@ def manifest_path(kind: str) -> Path:
 
 
 def load_manifest(kind: str) -> dict:
-    """Parsed split manifest of ``"omniscenes"`` or ``"stanford"`` (see ``datasets/README.md``)."""
+    """Parsed split manifest of ``"omniscenes"``, ``"stanford"`` or ``"zind"`` (see ``datasets/README.md``)."""
     try:
         import tomllib
     except ModuleNotFoundError:  # Python 3.10

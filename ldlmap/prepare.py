@@ -5,6 +5,15 @@ Maps go to ``<maps_dir>/<scene>.h5`` (default ``<root>/maps``; Stanford scene ke
 newer than its point cloud (and line file) and was built with the same parameters; ``overwrite``
 rebuilds everything. Stanford 2D-3D-S uses the paper's grid translations (N_t = 1700) unless
 parameters say otherwise.
+
+ZInD has no scans: each scene's map is a lines-only map of its room layouts
+(:meth:`ldlmap.datasets.ZInD.layout_scene`: wall corners, floor and flat-ceiling edges, door,
+window and opening frames) with candidate translations spaced over the rooms' polygons and
+portals at the panoramas' camera height (:func:`ldlmap.build.build_lines_map`). ``map_level``
+picks one map per complete room (``room``) or per floor (``floor``); maps go to
+``<maps_dir>/<home>/<floor>/<complete_room>.h5`` or ``<maps_dir>/<home>/<floor>.h5``. Features
+are always ``none`` there (``params.features`` is overridden), and a map is up to date when it
+is newer than the home's ``zind_data.json`` and used the same parameters.
 """
 
 from __future__ import annotations
@@ -20,6 +29,7 @@ from ldlmap.errors import InputError, LdlError
 DATASET_DEFAULTS = {
     "omniscenes": {"num_translations": 800, "translation_method": "octree"},
     "stanford": {"num_translations": 1700, "translation_method": "grid"},
+    "zind": {"features": "none"},  # layout maps: lines only, translations by spacing (BuildParams.trans_spacing)
 }
 
 
@@ -63,16 +73,20 @@ def is_up_to_date(map_path: Path, sources: list[Path], params: BuildParams) -> b
 def prepare_dataset(root: str | Path, kind: str | None, maps_dir: str | Path | None = None,
                     params: BuildParams | None = None, overwrite: bool = False, use_line_files: bool = False,
                     scenes: list[str] | None = None,
-                    progress: Callable[[str, str, int, int], None] | None = None) -> list[SceneOutcome]:
+                    progress: Callable[[str, str, int, int], None] | None = None,
+                    map_level: str = "room") -> list[SceneOutcome]:
     """Build (or skip when up to date) the map of every scene; failures are reported, not raised.
 
-    ``progress(scene, stage, done, total)`` is called as work advances.
+    ``progress(scene, stage, done, total)`` is called as work advances. ``map_level``: ZInD's
+    scenes (``room`` or ``floor``), ignored for other datasets.
     """
     from ldlmap.datasets import open_dataset
 
-    ds = open_dataset(root, kind)
+    ds = open_dataset(root, kind, map_level=map_level)
     kind = ds.kind
     params = params or default_params(kind)
+    if kind == "zind":
+        params = replace(params, features="none")
     maps_dir = Path(maps_dir) if maps_dir is not None else Path(ds.root) / "maps"
     todo = ds.scenes() if not scenes else scenes
     unknown = sorted(set(todo) - set(ds.scenes()))
@@ -81,6 +95,9 @@ def prepare_dataset(root: str | Path, kind: str | None, maps_dir: str | Path | N
     out: list[SceneOutcome] = []
     for scene in todo:
         target = maps_dir / f"{scene}.h5"
+        if kind == "zind":
+            out.append(_prepare_layout_scene(ds, scene, target, params, overwrite, progress))
+            continue
         try:
             cloud = ds.point_cloud(scene)
             lines = ds.line_file(scene) if use_line_files else None
@@ -99,3 +116,25 @@ def prepare_dataset(root: str | Path, kind: str | None, maps_dir: str | Path | N
             if progress:
                 progress(scene, "failed", 1, 1)
     return out
+
+
+def _prepare_layout_scene(ds, scene: str, target: Path, params: BuildParams, overwrite: bool,
+                          progress: Callable[[str, str, int, int], None] | None) -> SceneOutcome:
+    """The lines-only map of one ZInD scene from its layouts (or skip it when up to date)."""
+    from ldlmap.build import build_lines_map
+
+    try:
+        source = ds.json_path(scene)
+        if not overwrite and is_up_to_date(target, [source], params):
+            if progress:
+                progress(scene, "up-to-date", 1, 1)
+            return SceneOutcome(scene, target, "up-to-date")
+        lines, walkable = ds.layout_scene(scene)
+        cb = (lambda stage, d, t: progress(scene, stage, d, t)) if progress else None
+        rep = build_lines_map(lines, target, params, name=scene.replace("/", "_"), walkable=walkable,
+                              source=f"zind:{scene}", progress=cb)
+        return SceneOutcome(scene, target, "built", report=rep)
+    except LdlError as exc:
+        if progress:
+            progress(scene, "failed", 1, 1)
+        return SceneOutcome(scene, target, "failed", str(exc))
