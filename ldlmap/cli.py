@@ -247,6 +247,7 @@ def prepare(
                              "is not possible (leave it out or use none)")
         if line_files:
             raise InputError("ZInD has no 3D line files: its maps are built from the room layouts")
+        ds.scenes()  # reads and validates every home's zind_data.json before anything is printed
         console.print(f"ZInD: lines-only maps from the room layouts, one per {map_level} (features: none)")
     params = params_with(default_params(kind), features=features or ("none" if kind == "zind" else "sift"),
                          weights=str(weights) if weights else None, num_translations=num_trans, num_views=num_views,
