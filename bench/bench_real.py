@@ -83,11 +83,19 @@ def run_level(zind_root: Path, level: str, args) -> dict:
     maps = build_maps(zind_root, level, args.spacing)
     ds = open_dataset(zind_root, "zind", map_level=level)
     queries = ds.queries()
+    from dataclasses import replace
+
     params = LocalizeParams(do_refine=False)
     if args.max_tilt is not None:
-        from dataclasses import replace
-
         params = replace(params, max_tilt_deg=args.max_tilt)
+    search = {}
+    if args.rescore_level is not None:
+        search["rescore_query_level"] = args.rescore_level
+    if args.diverse is not None:
+        d_t, d_r = (float(x) for x in args.diverse.split(","))
+        search.update(diverse_translation=d_t, diverse_rotation_deg=d_r)
+    if search:
+        params = replace(params, search=replace(params.search, **search))
     out = CACHE / "real" / f"results_{level}.json"
     if out.exists():
         out.unlink()
@@ -181,6 +189,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--threads", type=int, default=1, help="torch intra-op threads (default 1)")
     ap.add_argument("--spacing", type=float, default=None, help="candidate translation spacing (default: the map's)")
     ap.add_argument("--max-tilt", type=float, default=None, help="upright prior in degrees (default: the reader's)")
+    ap.add_argument("--rescore-level", type=int, default=None, help="query-point level of the exact re-scoring")
+    ap.add_argument("--diverse", default=None, help="top-K diversity 'METRES,DEGREES' (default: the search's)")
     ap.add_argument("--output", default=str(HERE / "real.json"))
     args = ap.parse_args(argv)
     data = real_data_root(args.data)

@@ -52,7 +52,7 @@ from ldlmap.sphere_distance import (
     grouped_min_distance as _grouped_min_distance,
     point_arc_distance,
     project_lines as _project_lines,
-    sort_by_group as _sort_by_group,
+    group_order as _group_order,
 )
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -155,8 +155,9 @@ def decomposed_distance_2d(x, arcs, labels, num_groups: int = 3) -> "torch.Tenso
     return _group_min(d.unsqueeze(0), labels, num_groups)
 
 
-def _inputs_3d(x, rotations, translations, lines3d, groups, num_groups: int, device, dtype):
-    """Checked tensors of the 3D functions: x, R, T, grouped lines sorted by group, group bounds."""
+def _inputs_3d(x, rotations, translations, lines3d, groups, num_groups: int, device, dtype, visibility=None):
+    """Checked tensors of the 3D functions: x, R, T, grouped lines sorted by group, group bounds,
+    and the (N_t, L') visibility of those sorted lines (None: all visible)."""
     import torch
 
     x = _as_tensor(x, device, dtype)
@@ -177,12 +178,18 @@ def _inputs_3d(x, rotations, translations, lines3d, groups, num_groups: int, dev
     for name, t in (("query points", x), ("rotations", R), ("translations", T), ("3D lines", lines)):
         _check_finite(name, t)
     # Keep only grouped lines, sorted by group, so each group is a contiguous slice.
-    lines, bounds = _sort_by_group(lines, grp, num_groups)
-    return x, R, T, lines, bounds
+    index, bounds = _group_order(grp, num_groups)
+    vis = None
+    if visibility is not None:
+        vis = _as_tensor(visibility, dev, torch.bool)
+        if tuple(vis.shape) != (T.shape[0], lines.shape[0]):
+            raise InputError(f"visibility must have shape ({T.shape[0]}, {lines.shape[0]}), got {tuple(vis.shape)}")
+        vis = vis[:, index]
+    return x, R, T, lines[index], bounds, vis
 
 
 def ldf_3d(x, rotations, translations, lines3d, groups, num_groups: int = 3,
-           chunk: int = 4, device=None, dtype=None) -> "torch.Tensor":
+           chunk: int = 4, device=None, dtype=None, visibility=None) -> "torch.Tensor":
     """Decomposed 3D line distance functions for all poses.
 
     ``f3D_g(q; R, t) = min over lines l in group g of D(q, Pi_L(l; R, t))`` computed as
@@ -197,13 +204,16 @@ def ldf_3d(x, rotations, translations, lines3d, groups, num_groups: int = 3,
         groups: (L,) int principal group of each line (-1: none, ignored).
         chunk: translations per batch (peak memory ~ chunk * N_r * Q * L * 4 bytes * ~8; small
             chunks stay in CPU cache and are fastest there, use larger ones on CUDA).
+        visibility: optional (N_t, L) bool: the lines seen from each translation (the map's,
+            where walls hide lines); None: every line.
 
     Returns:
         (N_t, N_r, G, Q) distances.
     """
     import torch
 
-    x, R, T, lines, bounds = _inputs_3d(x, rotations, translations, lines3d, groups, num_groups, device, dtype)
+    x, R, T, lines, bounds, vis = _inputs_3d(x, rotations, translations, lines3d, groups, num_groups, device, dtype,
+                                             visibility)
     n_t, n_r, q = T.shape[0], R.shape[0], x.shape[0]
     out = torch.full((n_t, n_r, num_groups, q), EMPTY_DISTANCE, dtype=x.dtype, device=x.device)
     if lines.shape[0] == 0 or n_t == 0 or n_r == 0:
@@ -213,12 +223,13 @@ def ldf_3d(x, rotations, translations, lines3d, groups, num_groups: int = 3,
     step = max(1, int(chunk))
     for a in range(0, n_t, step):  # loop over chunks of translations, vectorized inside
         s, e = _project_lines(lines, T[a:a + step])
-        out[a:a + step] = _grouped_min_distance(xr, s, e, bounds).reshape(-1, num_groups, n_r, q).transpose(1, 2)
+        v = None if vis is None else vis[a:a + step]
+        out[a:a + step] = _grouped_min_distance(xr, s, e, bounds, v).reshape(-1, num_groups, n_r, q).transpose(1, 2)
     return out
 
 
 def ldf_3d_at(x, rotations, translations, lines3d, groups, translation_index, rotation_index,
-              num_groups: int = 3, device=None, dtype=None) -> "torch.Tensor":
+              num_groups: int = 3, device=None, dtype=None, visibility=None) -> "torch.Tensor":
     """:func:`ldf_3d` at M chosen poses only: pose m is ``(rotations[rotation_index[m]],
     translations[translation_index[m]])``.
 
@@ -228,7 +239,8 @@ def ldf_3d_at(x, rotations, translations, lines3d, groups, translation_index, ro
     """
     import torch
 
-    x, R, T, lines, bounds = _inputs_3d(x, rotations, translations, lines3d, groups, num_groups, device, dtype)
+    x, R, T, lines, bounds, vis = _inputs_3d(x, rotations, translations, lines3d, groups, num_groups, device, dtype,
+                                             visibility)
     ti = _as_tensor(translation_index, x.device, torch.long).reshape(-1)
     ri = _as_tensor(rotation_index, x.device, torch.long).reshape(-1)
     if ti.shape != ri.shape:
@@ -238,7 +250,7 @@ def ldf_3d_at(x, rotations, translations, lines3d, groups, translation_index, ro
     xr = torch.einsum("qi,mij->mqj", x, R[ri])  # (M, Q, 3): R^T q for each pose
     uniq, inv = torch.unique(ti, return_inverse=True)
     s, e = _project_lines(lines, T[uniq])  # once per distinct translation
-    return _grouped_min_distance(xr, s[inv], e[inv], bounds)
+    return _grouped_min_distance(xr, s[inv], e[inv], bounds, None if vis is None else vis[ti])
 
 
 # ------------------------------------------------------------------------------------- losses

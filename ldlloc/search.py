@@ -66,7 +66,7 @@ class SearchResult:
 
 def search_poses(arcs2d: np.ndarray, labels2d: np.ndarray, rotations: np.ndarray, lines3d: np.ndarray,
                  line_groups: np.ndarray, translations: np.ndarray, params: SearchParams = SearchParams(),
-                 device: str = "cpu", fields=None) -> SearchResult:
+                 device: str = "cpu", fields=None, visibility: np.ndarray | None = None) -> SearchResult:
     """Rank every (translation, rotation) pair and return the ``top_k`` poses, best first.
 
     ``arcs2d`` (N, 2, 3) are the query's (length-filtered) arcs in the camera frame and
@@ -74,7 +74,8 @@ def search_poses(arcs2d: np.ndarray, labels2d: np.ndarray, rotations: np.ndarray
     (:func:`ldlloc.principal.labels_for_rotations`); ``rotations`` (N_r, 3, 3) the candidate
     rotations; ``lines3d`` (L, 2, 3) with ``line_groups`` (L,) from the map; ``translations``
     (N_t, 3). ``fields``: the map's :class:`ldlloc.fields.DistanceFields` (or None), used as
-    ``params.use_fields`` says.
+    ``params.use_fields`` says. ``visibility`` (N_t, L) bool: the lines seen from each translation
+    (maps with walls; the fields were computed with it), None: all.
     """
     import torch
 
@@ -108,7 +109,7 @@ def search_poses(arcs2d: np.ndarray, labels2d: np.ndarray, rotations: np.ndarray
             loss = ldf.pose_loss(f2d, f3d.permute(3, 0, 2, 1).to(dt), kind=params.loss, tau=params.tau)
     else:
         f3d = ldf.ldf_3d(Q, rotations, translations, lines3d, groups3d, num_groups=num_groups,
-                         chunk=params.chunk_translations, device=device, dtype=dt)
+                         chunk=params.chunk_translations, device=device, dtype=dt, visibility=visibility)
         loss = ldf.pose_loss(f2d, f3d, kind=params.loss, tau=params.tau, decompose=True)
     rescore = fast and params.rescore > 0
     want = max(params.top_k, params.rescore) if rescore else params.top_k
@@ -126,7 +127,8 @@ def search_poses(arcs2d: np.ndarray, labels2d: np.ndarray, rotations: np.ndarray
             f2d = ldf.decomposed_distance_2d(Q, arcs_t, torch.as_tensor(np.asarray(labels2d), device=device), 3) \
                 if params.decompose else ldf.decomposed_distance_2d(
                     Q, arcs_t, torch.zeros(len(arcs2d), dtype=torch.long, device=device), 1)
-        f3d = ldf.ldf_3d_at(Q, rotations, translations, lines3d, groups3d, ti, ri, device=device, dtype=dt)
+        f3d = ldf.ldf_3d_at(Q, rotations, translations, lines3d, groups3d, ti, ri, device=device, dtype=dt,
+                            visibility=visibility)
         lv = ldf.pose_loss(f2d[ri] if f2d.dim() == 3 else f2d, f3d.unsqueeze(0), kind=params.loss, tau=params.tau)[0]
         order = torch.sort(lv, stable=True).indices[:params.top_k]
         ti, ri, lv = ti[order], ri[order], lv[order]

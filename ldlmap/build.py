@@ -277,11 +277,18 @@ def build_from_input(src: SceneInput, output: Path, params: BuildParams, name: s
     if len(translations) == 0:
         raise InputError("no candidate translation found in the free space of the scan")
     stage("translations")
+    visibility = None
+    walls = getattr(src.walkable, "walls", None)
+    if walls is not None and len(walls):
+        from ldlmap.visibility import line_visibility
+
+        visibility = line_visibility(lines, translations, walls)
+        stage("visibility")
     fields, fields_attrs = {}, {}
     if params.distance_fields:
         from ldlmap.fields3d import compute_fields
 
-        dist, fields_attrs = compute_fields(lines, groups, translations, device=params.device)
+        dist, fields_attrs = compute_fields(lines, groups, translations, device=params.device, visibility=visibility)
         fields = {"distances": dist}
     stage("fields")
     features = None
@@ -308,7 +315,7 @@ def build_from_input(src: SceneInput, output: Path, params: BuildParams, name: s
         length_threshold=threshold, kept_ratio=float(kept.mean()), line_lambda=lam,
         principal_directions=principal, translations=translations,
         cloud_points=cloud_pts, cloud_colors=cloud_cols, features=features, config=config,
-        fields=fields, fields_attrs=fields_attrs,
+        fields=fields, fields_attrs=fields_attrs, visibility=visibility,
     )
     write_map(output, m)
     stage("write")
@@ -316,6 +323,7 @@ def build_from_input(src: SceneInput, output: Path, params: BuildParams, name: s
     report.counts = {
         "lines_raw": int(len(lines_raw)), "lines": int(len(lines)), "kept_ratio": float(kept.mean()),
         "translations": int(len(translations)),
+        "visible_lines": float(visibility.sum(1).mean()) if visibility is not None else float(len(lines)),
         "views": features.num_views if features else 0,
         "keypoints": int(len(features.xyz)) if features else 0,
         "size_mb": output.stat().st_size / 1e6,

@@ -40,6 +40,7 @@ def info(map_path: Path = typer.Argument(..., help="An LDL map (.h5) written by 
         ("features", "none (lines-only map)" if h["feature_backend"] is None else
          f"{h['feature_backend']}: {h['num_keypoints']} keypoints in {h['num_views']} views"),
         ("precomputed fields", ", ".join(h["fields"]) or "none"),
+        ("line visibility", "per translation (walls hide lines)" if h.get("line_visibility") else "every line seen"),
         ("file size", f"{h['file_size_bytes'] / 1e6:.2f} MB"),
         ("built with", ", ".join(f"{k} {v}" for k, v in h["library_versions"].items())),
     ]

@@ -69,13 +69,16 @@ def grid_directions(rows: int) -> np.ndarray:
 
 def compute_fields(lines: np.ndarray, groups: np.ndarray, translations: np.ndarray,
                    params: FieldParams = FieldParams(), device: str = "cpu",
-                   progress: Callable[[int, int], None] | None = None) -> tuple[np.ndarray, dict[str, Any]]:
+                   progress: Callable[[int, int], None] | None = None,
+                   visibility: np.ndarray | None = None) -> tuple[np.ndarray, dict[str, Any]]:
     """Sample the decomposed 3D distance functions of every translation on the node grid.
 
     Args:
         lines: (L, 2, 3) 3D segments (world).
         groups: (L,) principal group of each line (-1: none; such lines are not in any field).
         translations: (N_t, 3) candidate camera centres.
+        visibility: optional (N_t, L) bool, the lines seen from each translation (walls hide the
+            others, :mod:`ldlmap.visibility`); None: every line.
 
     Returns:
         ``distances`` (N_t, G_groups, G + 1, 2G) in ``params.dtype`` and the attrs to store with
@@ -83,7 +86,7 @@ def compute_fields(lines: np.ndarray, groups: np.ndarray, translations: np.ndarr
     """
     import torch
 
-    from ldlmap.sphere_distance import grouped_min_distance, project_lines, sort_by_group
+    from ldlmap.sphere_distance import group_order, grouped_min_distance, project_lines
 
     lines = np.asarray(lines, dtype=np.float64)
     T = np.asarray(translations, dtype=np.float64)
@@ -101,7 +104,14 @@ def compute_fields(lines: np.ndarray, groups: np.ndarray, translations: np.ndarr
     out = np.empty((len(T), ng, G + 1, 2 * G), dtype=np.dtype(params.dtype))
     dt = torch.float32
     x = torch.as_tensor(dirs.reshape(-1, 3), dtype=dt, device=device)
-    L, bounds = sort_by_group(torch.as_tensor(lines, dtype=dt, device=device), torch.as_tensor(grp, device=device), ng)
+    index, bounds = group_order(torch.as_tensor(grp, device=device), ng)
+    L = torch.as_tensor(lines, dtype=dt, device=device)[index]
+    vis = None
+    if visibility is not None:
+        vis_np = np.asarray(visibility, dtype=bool)
+        if vis_np.shape != (len(T), len(lines)):
+            raise InputError(f"visibility must have shape ({len(T)}, {len(lines)}), got {vis_np.shape}")
+        vis = torch.as_tensor(vis_np, device=device)[:, index]
     if L.shape[0] == 0:
         out[:] = np.pi
     else:
@@ -115,7 +125,8 @@ def compute_fields(lines: np.ndarray, groups: np.ndarray, translations: np.ndarr
             for a in range(0, len(T), step):  # chunks of translations x chunks of nodes
                 s, e = project_lines(L, Tt[a:a + step])
                 for p in range(0, x.shape[0], pc):
-                    f = grouped_min_distance(x[p:p + pc], s, e, bounds)  # (c, G_groups, nodes)
+                    f = grouped_min_distance(x[p:p + pc], s, e, bounds,
+                                             None if vis is None else vis[a:a + step])  # (c, G_groups, nodes)
                     flat[a:a + step, :, p:p + pc] = f.cpu().numpy()
                 if progress:
                     progress(min(a + step, len(T)), len(T))

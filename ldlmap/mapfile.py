@@ -15,6 +15,8 @@ datasets are readable with plain h5py::
                             attrs: length_threshold (m), kept_ratio (L / L0), lambda
     /principal/directions   (3, 3) float64  rows: the 3 principal 3D directions (right-handed)
     /translations/centers   (N_t, 3) float32  candidate camera centres
+    /lines/visibility       (N_t, L) uint8  optional: 1 where kept line l is seen from translation i
+                            (maps with walls, e.g. room layouts: walls hide the other lines)
     /translations/view_index (N_t,) int32  index of the rendered view that serves each candidate
                             (only when features are present)
     /features               attrs: backend ('sift' | 'superpoint'), descriptor_dim, width, height
@@ -94,6 +96,7 @@ class LdlMap:
     fields_attrs: dict[str, Any] = field(default_factory=dict)
     config: dict[str, Any] = field(default_factory=dict)
     line_lambda: float = 0.1
+    visibility: np.ndarray | None = None  # (N_t, L) bool: kept lines seen from each translation (None: all)
 
     @property
     def lines_only(self) -> bool:
@@ -123,6 +126,8 @@ def validate_map(m: LdlMap) -> None:
         raise InputError("map has no candidate translations")
     if len(m.lines) == 0:
         raise InputError("map has no 3D lines")
+    if m.visibility is not None:
+        _check_array("visibility", m.visibility, (len(m.translations), len(m.lines)), "b")
     if m.cloud_points is not None:
         _check_array("cloud_points", m.cloud_points, (None, 3))
         if m.cloud_colors is not None:
@@ -182,6 +187,8 @@ def write_map(path: str | Path, m: LdlMap) -> Path:
             g.attrs["length_threshold"] = float(m.length_threshold)
             g.attrs["kept_ratio"] = float(m.kept_ratio)
             g.attrs["lambda"] = float(m.line_lambda)
+            if m.visibility is not None:
+                g.create_dataset("visibility", data=np.asarray(m.visibility, np.uint8), **_COMPRESS)
             h5.create_group("principal")["directions"] = np.asarray(m.principal_directions, np.float64)
             t = h5.create_group("translations")
             t["centers"] = np.asarray(m.translations, np.float32)
@@ -231,6 +238,7 @@ def read_map_header(path: str | Path) -> dict[str, Any]:
             "num_views": int(h5["features/view_centers"].shape[0]) if "features" in h5 else 0,
             "num_keypoints": int(h5["features/xyz"].shape[0]) if "features" in h5 else 0,
             "fields": sorted(h5["fields"].keys()) if "fields" in h5 else [],
+            "line_visibility": "lines/visibility" in h5,
             "file_size_bytes": path.stat().st_size,
         }
     return info
@@ -300,6 +308,7 @@ def read_map(path: str | Path, load_cloud: bool = True) -> LdlMap:
                 fields=fields,
                 fields_attrs=fields_attrs,
                 config=json.loads(h5.attrs.get("build_config", "{}")),
+                visibility=lines_grp["visibility"][()].astype(bool) if "visibility" in lines_grp else None,
             )
         except (KeyError, OSError, ValueError) as exc:
             raise InputError(f"corrupt LDL map {path}: {exc}") from None

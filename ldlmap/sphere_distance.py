@@ -114,7 +114,7 @@ def project_lines(lines: "torch.Tensor", centers: "torch.Tensor") -> tuple["torc
 
 
 def grouped_min_distance(x: "torch.Tensor", s: "torch.Tensor", e: "torch.Tensor",
-                         bounds: Sequence[int]) -> "torch.Tensor":
+                         bounds: Sequence[int], visible: "torch.Tensor | None" = None) -> "torch.Tensor":
     """``min over lines of group g`` of eq. 2 for points ``x`` (P, 3) and arcs ``s, e`` (c, L, 3).
 
     ``x`` may also be (c, P, 3): its own points for each of the ``c`` arc sets (one pose each).
@@ -125,6 +125,9 @@ def grouped_min_distance(x: "torch.Tensor", s: "torch.Tensor", e: "torch.Tensor"
     endpoint term needs no masking; (2) ``x`` is inside the lune of ``(s, e)`` iff
     ``x . (n x s) > 0`` and ``x . (e x n) > 0`` (the same conditions as eq. 2 up to positive
     factors), so all five dot products come from one batched matmul. Returns (c, G, P).
+
+    ``visible`` (c, L) bool, optional: lines that are not visible from the arc set's centre (hidden
+    behind walls) are left out of the minimum.
     """
     import torch
 
@@ -138,8 +141,12 @@ def grouped_min_distance(x: "torch.Tensor", s: "torch.Tensor", e: "torch.Tensor"
     dots = torch.matmul(V, x.transpose(-1, -2))  # (c, 5L, P): one matmul for all dot products
     xs, xe, xn, xa, xb = dots.split(L, dim=1)
     inside = torch.minimum(xa, xb) > 0
+    if visible is not None:
+        inside &= visible.unsqueeze(-1)
     circ = xn.abs_().masked_fill_(~inside, 2.0)  # sin of the great-circle distance, or 2 (none)
     end = torch.maximum(xs, xe)  # cos of the nearest endpoint distance
+    if visible is not None:
+        end.masked_fill_(~visible.unsqueeze(-1), -1.0)  # a hidden line is pi away
     outs = []
     for g in range(len(bounds) - 1):  # G = 3 groups: contiguous slices of the sorted lines
         lo, hi = bounds[g], bounds[g + 1]
@@ -154,14 +161,19 @@ def grouped_min_distance(x: "torch.Tensor", s: "torch.Tensor", e: "torch.Tensor"
     return torch.stack(outs, dim=1)
 
 
+def group_order(groups: "torch.Tensor", num_groups: int) -> tuple["torch.Tensor", list[int]]:
+    """Indices of the lines of groups 0..G-1 sorted by group (stable), and the G + 1 slice bounds."""
+    import torch
+
+    keep = torch.nonzero((groups >= 0) & (groups < num_groups)).reshape(-1)
+    index = keep[torch.argsort(groups[keep], stable=True)]
+    grp = groups[index]
+    counts = torch.bincount(grp, minlength=num_groups).tolist() if len(grp) else [0] * num_groups
+    return index, np.concatenate([[0], np.cumsum(counts)]).astype(int).tolist()
+
+
 def sort_by_group(lines: "torch.Tensor", groups: "torch.Tensor", num_groups: int
                   ) -> tuple["torch.Tensor", list[int]]:
     """Lines of groups 0..G-1 sorted by group, and the G + 1 slice bounds of each group."""
-    import torch
-
-    keep = (groups >= 0) & (groups < num_groups)
-    order = torch.argsort(groups[keep], stable=True)
-    lines = lines[keep][order]
-    grp = groups[keep][order]
-    counts = torch.bincount(grp, minlength=num_groups).tolist() if len(grp) else [0] * num_groups
-    return lines, np.concatenate([[0], np.cumsum(counts)]).astype(int).tolist()
+    index, bounds = group_order(groups, num_groups)
+    return lines[index], bounds

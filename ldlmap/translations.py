@@ -241,12 +241,15 @@ class Walkable:
     ``polygons``: (V, 2) xy outlines in metres (rooms of a floor plan). ``portals``: (P, 2, 2)
     door and opening segments (xy ends): cameras may also stand in a rectangle ``portal_depth``
     deep on both sides of each, so that a closet photographed from its doorway is covered.
-    ``z_range``: the camera-height band (world z, metres) when it is known.
+    ``z_range``: the camera-height band (world z, metres) when it is known. ``walls``: (W, 4, 3)
+    wall quads (corner by corner, door and opening holes left out) that hide lines from cameras
+    (:mod:`ldlmap.visibility`), when known.
     """
 
     polygons: tuple[np.ndarray, ...] = ()
     portals: np.ndarray | None = None
     z_range: tuple[float, float] | None = None
+    walls: np.ndarray | None = None
 
 
 def portal_rectangles(portals: np.ndarray, depth: float, widen: float = 0.0) -> list[np.ndarray]:
@@ -298,12 +301,12 @@ def _region_interior_point(poly: np.ndarray) -> np.ndarray:
 
 
 def spaced_translations(lines: np.ndarray, spacing: float = 0.3, walkable: Walkable | None = None,
-                        z_range: tuple[float, float] | None = None, portal_depth: float = 1.0,
+                        z_range: tuple[float, float] | None = None, portal_depth: float = 1.0, portal_widen: float = 0.3,
                         clearance: float = 0.1, params: TranslationParams = TranslationParams()) -> np.ndarray:
     """Candidate camera centres for a map without a scan, on a lattice of ``spacing`` metres.
 
     Where cameras can stand: the ``walkable`` polygons (and ``portal_depth`` on both sides of
-    each portal) when given, else the free space of the lines (the footprint their points
+    each portal, widened by ``portal_widen`` at both ends) when given, else the free space of the lines (the footprint their points
     enclose, as for scans). Heights: ``z_range`` (or ``walkable.z_range``) when known, else
     the free space's floor-to-ceiling band; levels at most ``spacing`` apart. Lattice points
     closer than ``clearance`` to a 3D line are dropped. Never empty: a region that no lattice
@@ -323,7 +326,7 @@ def spaced_translations(lines: np.ndarray, spacing: float = 0.3, walkable: Walka
     if walkable is not None and walkable.polygons:
         regions = [np.asarray(p, dtype=np.float64).reshape(-1, 2) for p in walkable.polygons]
         if walkable.portals is not None and len(walkable.portals):
-            regions += portal_rectangles(walkable.portals, portal_depth)
+            regions += portal_rectangles(walkable.portals, portal_depth, portal_widen)
         if zr is None:
             zs = L[..., 2]
             zr = (float(zs.min()) + clearance, float(zs.max()) - clearance)

@@ -448,6 +448,34 @@ def room_lines(room: ZindRoom, kinds: bool = False) -> np.ndarray | tuple[np.nda
     return (lines, names) if kinds else lines
 
 
+def room_walls(room: ZindRoom) -> np.ndarray:
+    """(W, 4, 3) wall quads of a room (corner by corner), floor to ceiling along every polygon edge
+    and internal wall, with its doors and openings left open: over a portal only the lintel above
+    it (and the sill below it) remain. Windows count as wall (nothing behind them is mapped)."""
+    H = room.ceiling_height
+    quads: list[np.ndarray] = []
+
+    def quad(p: np.ndarray, q: np.ndarray, z0: float, z1: float) -> None:
+        if z1 - z0 > 1e-3 and np.linalg.norm(q - p) > 1e-3:
+            quads.append(np.array([[p[0], p[1], z0], [q[0], q[1], z0], [q[0], q[1], z1], [p[0], p[1], z1]]))
+
+    portals = [r for r in (room.doors, room.openings) if len(r)]
+    rects = np.concatenate(portals) if portals else np.zeros((0, 4, 3))
+    spans = [(r[0, :2], r[1, :2]) for r in rects]
+    poly = room.polygon
+    edges = [(poly[i], poly[(i + 1) % len(poly)]) for i in range(len(poly))]
+    edges += [(a, b) for pl in room.internal for a, b in zip(pl[:-1], pl[1:])]
+    for a, b in edges:
+        for p, q in _subtract_intervals(a, b, spans):
+            quad(p, q, 0.0, H)
+        for p, q, r in ((r[0, :2], r[1, :2], r) for r in rects):
+            if _subtract_intervals(p, q, [(a, b)]):  # the portal does not lie on this edge
+                continue
+            quad(p, q, float(max(r[2, 2], r[3, 2])), H)  # lintel
+            quad(p, q, 0.0, float(min(r[0, 2], r[1, 2])))  # sill
+    return np.array(quads, dtype=np.float64).reshape(-1, 4, 3)
+
+
 def room_portals(room: ZindRoom) -> np.ndarray:
     """(P, 2, 2) xy segments of a room's doors and openings (where cameras may look in from)."""
     rects = [r for r in (room.doors, room.openings) if len(r)]
@@ -477,7 +505,8 @@ def scene_layout(home: ZindHome, floor: str, rooms: Sequence[str] | None = None)
     heights = [p.camera_height_m for p in home.panos if p.floor == floor and p.complete_room in keys]
     heights = heights or [p.camera_height_m for p in home.panos if p.floor == floor]
     walk = Walkable(polygons=tuple(r.polygon.copy() for r in sel), portals=portals,
-                    z_range=(float(min(heights)), float(max(heights))))
+                    z_range=(float(min(heights)), float(max(heights))),
+                    walls=np.concatenate([room_walls(r) for r in sel]))
     return lines, walk
 
 
