@@ -13,6 +13,16 @@ detected in pieces; both are resolved by merging: arcs whose great circles agree
 extents overlap or are separated by less than ``merge_gap_deg`` are joined (transitively) into
 one arc spanning their union on the length-weighted mean circle.
 
+Pole caps: arcs that come near camera -z (the tripod at the nadir; ``nadir_mask_deg``) or
+into a flat band found at the image's bottom or top rows (black padding, a blurred nadir) are
+dropped, so that neither the rig nor a band's boundary becomes a line (:class:`Lines2DParams`).
+The query keeps the longest fraction of its arcs given by :func:`query_keep_ratio`: the map's 3D
+kept ratio (the paper's rule) within ``keep_ratio_bounds``.
+
+The first call in a process pays only for the crop maps of its image size (float32, ~30-60 ms
+at 2048 x 1024); merging uses numpy only (importing scipy's k-d tree and sparse graphs would
+cost a fresh process about 0.35 s).
+
 Pixel convention: crop pixel ``(c, r)`` has its centre at crop coordinates ``(c, r)``, which is
 the convention of OpenCV's LSD output; the crop's principal point is ``((S-1)/2, (S-1)/2)``.
 """
@@ -29,7 +39,34 @@ from ldlmap.errors import InputError
 
 @dataclass(frozen=True)
 class Lines2DParams:
-    """Parameters of 2D line extraction."""
+    """Parameters of 2D line extraction.
+
+    Pole masks. Real panoramas see the capture rig at the nadir: the shared ZInD panoramas carry
+    a dark, blurred tripod head whose wavy top edge reaches 12-14 degrees from the nadir (16 at
+    its bumps), with the tripod's feet standing on it up to 18-19 degrees; LSD finds segments
+    along that edge and on the feet (40-100 arcs per panorama within 18 degrees of the nadir, 6 %
+    of all arcs). Arcs that come within ``nadir_mask_deg`` of camera -z are dropped: the default
+    18 degrees covers the band's edge with 2 degrees to spare and the feet (they stand on the
+    band, so their segments reach into the cap; what is left of a foot's tip are arcs of 1-2
+    degrees, which the length filter drops), while staying modest: the cap holds 2.4 % of the
+    sphere, so a panorama taken at an arbitrary rotation (the synthetic extreme split) loses only
+    the few lines that pass near its nadir. ``zenith_mask_deg`` is the same cap around +z (off by
+    default).
+
+    On top of these fixed caps, a band found in the image itself grows them
+    (``detect_pole_bands``): when the rows next to the bottom (or top) of the image are a
+    near-constant dark or flat (blurred, padded) band, e.g. the black padding of a panorama with
+    a limited vertical field of view, the cap grows to the band's extent plus
+    ``band_margin_deg``, so that the band's boundary (a long circle of constant latitude) gives no
+    line. See :func:`pole_band_extents` for the test; a flat region that reaches beyond
+    ``band_max_deg`` or fades out gradually (an untextured floor seen up to its walls) is scene,
+    not a band.
+
+    ``keep_ratio_bounds``: the paper keeps the longest fraction of 2D lines equal to the map's 3D
+    kept ratio; real maps break that rule both ways (a room-layout map keeps 70-100 % of its 3D
+    lines, a Line3D++ map 0.8 %), so :func:`query_keep_ratio` clips the map's ratio to these
+    bounds.
+    """
 
     fov_deg: float = 60.0  # field of view of each perspective crop (authors: 26 views of 60 deg)
     views: str = "cube26"  # crop directions: cube26 (faces, edges, corners) or cube14 (faces, corners)
@@ -42,6 +79,29 @@ class Lines2DParams:
     # so that washed-out or dark panoramas (gamma, exposure changes) keep their gradients
     lsd_threads: int = 0  # threads running LSD over the crops (OpenCV releases the GIL); 0: auto
     # (up to 4, at most the CPU count). The result does not depend on it.
+    nadir_mask_deg: float = 18.0  # drop arcs that come this close to camera -z (tripod); 0: off
+    zenith_mask_deg: float = 0.0  # the same around camera +z; 0: off
+    detect_pole_bands: bool = True  # grow the caps over a dark / flat band found at the image's
+    # bottom or top rows (see pole_band_extents)
+    band_margin_deg: float = 3.0  # a detected band's cap reaches this far beyond the band
+    band_max_deg: float = 45.0  # a flat region reaching farther from the pole is scene, not a band
+    keep_ratio_bounds: tuple[float, float] = (0.05, 0.5)  # the 2D kept ratio is the map's 3D kept
+    # ratio clipped to these bounds (query_keep_ratio)
+
+
+def query_keep_ratio(map_kept_ratio: float, params: Lines2DParams = Lines2DParams()) -> float:
+    """The fraction of a query's 2D arcs to keep (longest first) for a map that kept ``map_kept_ratio``.
+
+    The paper keeps the same fraction as the map's 3D length filter kept; here that ratio is
+    clipped to ``params.keep_ratio_bounds`` (see :class:`Lines2DParams`).
+    """
+    lo, hi = (float(b) for b in params.keep_ratio_bounds)
+    if not (0.0 < lo <= hi <= 1.0):
+        raise InputError(f"keep_ratio_bounds must satisfy 0 < low <= high <= 1, got {params.keep_ratio_bounds}")
+    r = float(map_kept_ratio)
+    if not np.isfinite(r) or r <= 0.0 or r > 1.0:
+        raise InputError(f"the map's kept ratio must be in (0, 1], got {map_kept_ratio}")
+    return min(max(r, lo), hi)
 
 
 # ------------------------------------------------------------------------------------- views
@@ -85,24 +145,38 @@ def _crop_size(width: int, params: Lines2DParams) -> int:
 
 @lru_cache(maxsize=8)
 def _crop_set(width: int, height: int, params: Lines2DParams) -> _CropSet:
-    """Crop cameras and remap maps for a panorama size (cached)."""
-    import cv2
+    """Crop cameras and remap maps for a panorama size (cached).
 
-    from ldlmap.geometry import pixel_from_bearing
+    The maps (V * S * S entries, 3 million for a 2048-pixel-wide panorama) are computed view by
+    view and per coordinate in float32, without (V, S, S, 3) float64 ray arrays whose fresh
+    memory alone (page faults) cost a new process a good part of the half second it used to
+    pay here; now it is about 30 ms. float32 keeps the sample positions within
+    1e-3 pixel, far below the 1/32 pixel of OpenCV's fixed-point maps.
+    """
+    import cv2
 
     bases = _view_bases(view_directions(params.views))
     S = _crop_size(width, params)
     focal = (S / 2.0) / np.tan(np.radians(params.fov_deg) / 2.0)
     c = (S - 1) / 2.0
-    a = (np.arange(S, dtype=np.float64) - c) / focal
-    xx, yy = np.meshgrid(a, a)  # (S, S): column offset, row offset
-    rays = (bases[:, None, None, 0, :] + xx[None, :, :, None] * bases[:, None, None, 1, :]
-            + yy[None, :, :, None] * bases[:, None, None, 2, :])  # (V, S, S, 3)
-    uv = pixel_from_bearing(rays, width, height)
-    # Panorama is padded by one wrapped column on each side; pixel centres sit at (u - 0.5).
-    mx = (uv[..., 0] - 0.5 + 1.0).astype(np.float32).reshape(-1, S)
-    my = (uv[..., 1] - 0.5).astype(np.float32).reshape(-1, S)
-    map1, map2 = cv2.convertMaps(mx, my, cv2.CV_16SC2)
+    a = ((np.arange(S, dtype=np.float64) - c) / focal).astype(np.float32)
+    col, row = a[None, None, :], a[None, :, None]  # column offset along right, row offset along down
+    b = bases.astype(np.float32)
+    V = len(b)
+    mx = np.empty((V, S, S), dtype=np.float32)
+    my = np.empty((V, S, S), dtype=np.float32)
+    for v in range(V):  # one view at a time: small temporaries, reused by the allocator
+        x, y, z = (b[v, 0, k] + col[0] * b[v, 1, k] + row[0] * b[v, 2, k] for k in range(3))  # (S, S)
+        # pixel_from_bearing (ldlmap.geometry) in float32; the panorama is padded by one wrapped
+        # column on each side, and pixel centres sit at (u - 0.5, v - 0.5):
+        # mx = u - 0.5 + 1 with u = W (1 - (atan2(y, x) + pi) / (2 pi)), my = v - 0.5.
+        np.arctan2(y, x, out=mx[v])
+        mx[v] *= np.float32(-width / (2.0 * np.pi))
+        mx[v] += np.float32(width / 2.0 + 0.5)
+        np.arctan2(np.hypot(x, y), z, out=my[v])
+        my[v] *= np.float32(height / np.pi)
+        my[v] -= np.float32(0.5)
+    map1, map2 = cv2.convertMaps(mx.reshape(-1, S), my.reshape(-1, S), cv2.CV_16SC2)
     return _CropSet(bases, S, float(focal), map1, map2)
 
 
@@ -123,8 +197,8 @@ def _check_image(image: np.ndarray) -> np.ndarray:
     return img
 
 
-def crops(image_rgb: np.ndarray, params: Lines2DParams = Lines2DParams()) -> np.ndarray:
-    """Grey perspective crops (V, S, S) of the panorama (for inspection and tests)."""
+def _gray(image_rgb: np.ndarray, params: Lines2DParams) -> np.ndarray:
+    """The grey panorama LSD sees (contrast-stretched when ``params.normalize_contrast``)."""
     import cv2
 
     img = _check_image(image_rgb)
@@ -133,11 +207,114 @@ def crops(image_rgb: np.ndarray, params: Lines2DParams = Lines2DParams()) -> np.
         from ldlmap.imageproc import stretch_contrast
 
         gray = stretch_contrast(gray)
+    return np.ascontiguousarray(gray)
+
+
+def _crops_of_gray(gray: np.ndarray, params: Lines2DParams) -> np.ndarray:
+    import cv2
+
     h, w = gray.shape
     cs = _crop_set(w, h, params)
     padded = np.concatenate([gray[:, -1:], gray, gray[:, :1]], axis=1)
     out = cv2.remap(padded, cs.map1, cs.map2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
     return out.reshape(-1, cs.size, cs.size)
+
+
+def crops(image_rgb: np.ndarray, params: Lines2DParams = Lines2DParams()) -> np.ndarray:
+    """Grey perspective crops (V, S, S) of the panorama (for inspection and tests)."""
+    return _crops_of_gray(_gray(image_rgb, params), params)
+
+
+# ------------------------------------------------------------------------------------ pole masks
+
+_BAND_WIDTH = 512  # band statistics on the panorama resized to this width (resolution-independent)
+_BAND_FLAT_GRAD = 2.0  # a pixel is flat when its grey level differs from its right and lower
+# neighbours by at most this (at _BAND_WIDTH; 255 levels)
+_BAND_ROW_FRACTION = 0.9  # a band row is flat in at least this fraction of its pixels
+_BAND_EDGE_DEG = 3.0  # within this many degrees past a band, the flat fraction falls below half
+
+
+def pole_band_extents(gray: np.ndarray, params: Lines2DParams = Lines2DParams()) -> tuple[float, float]:
+    """Angular extents (degrees from the nadir, from the zenith) of flat bands at the image's poles.
+
+    Row statistics of the grey panorama resized to 512 pixels wide (a millisecond): a pixel is
+    flat when it differs from its right and lower neighbours by at most 2 grey levels; a row
+    belongs to a band when at least 90 % of its pixels are flat, and a band is the run of such
+    rows starting at the bottom (top) row. Black or constant padding, a blurred or logo-covered
+    nadir and a near-constant dark tripod band are flat. The band counts only when it ends
+    sharply (its flat fraction falls below one half within 3 degrees, as it does at a band's
+    boundary, which is a row of the image) and within ``params.band_max_deg`` of the pole: an
+    untextured floor or ceiling is flat too, but it ends where the walls begin, at rows that
+    change around the panorama, and usually farther out. 0 where there is no band.
+    """
+    import cv2
+
+    g = np.asarray(gray)
+    h, w = g.shape[:2]
+    ws = min(w, _BAND_WIDTH)
+    hs = max(2, ws // 2)
+    small = cv2.resize(g, (ws, hs), interpolation=cv2.INTER_AREA).astype(np.int16)
+    dx = np.abs(small - np.roll(small, -1, axis=1))  # wraps around: the panorama is periodic in u
+    dy = np.zeros_like(small)
+    dy[:-1] = np.abs(small[1:] - small[:-1])
+    dy[-1] = dy[-2]
+    frac = np.mean((dx <= _BAND_FLAT_GRAD) & (dy <= _BAND_FLAT_GRAD), axis=1)  # (hs,)
+    deg_per_row = 180.0 / hs
+    edge = max(1, int(np.ceil(_BAND_EDGE_DEG / deg_per_row)))
+    out = []
+    for f in (frac[::-1], frac):  # from the nadir (bottom row), then from the zenith (top row)
+        band = f >= _BAND_ROW_FRACTION
+        n = len(f) if band.all() else int(np.argmin(band))  # length of the leading run of band rows
+        ext = n * deg_per_row
+        sharp = n < len(f) and float(f[n:n + edge].min()) < 0.5
+        out.append(ext if (n > 0 and sharp and ext <= params.band_max_deg) else 0.0)
+    return out[0], out[1]
+
+
+def pole_caps(gray: np.ndarray, params: Lines2DParams = Lines2DParams()) -> tuple[float, float]:
+    """Radii (degrees) of the masked caps around the nadir (camera -z) and the zenith (+z).
+
+    The fixed ``nadir_mask_deg`` / ``zenith_mask_deg``, grown to a detected band plus
+    ``band_margin_deg`` (see :class:`Lines2DParams`, :func:`pole_band_extents`).
+    """
+    caps = [float(params.nadir_mask_deg), float(params.zenith_mask_deg)]
+    if params.detect_pole_bands:
+        for k, ext in enumerate(pole_band_extents(gray, params)):
+            if ext > 0:
+                caps[k] = max(caps[k], ext + float(params.band_margin_deg))
+    return caps[0], caps[1]
+
+
+def arc_max_dot(arcs: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """``max over x on arc of x . c`` for arcs (N, 2, 3) and a unit direction ``c`` (3,), (N,).
+
+    The arc's closest point to ``c`` is an endpoint or, when it lies between them, the
+    normalized projection of ``c`` onto the arc's plane.
+    """
+    arcs = np.asarray(arcs, dtype=np.float64).reshape(-1, 2, 3)
+    c = np.asarray(c, dtype=np.float64)
+    s, e = arcs[:, 0], arcs[:, 1]
+    best = np.maximum(s @ c, e @ c)
+    n = np.cross(s, e)
+    nn = np.linalg.norm(n, axis=1)
+    ok = nn > 1e-12
+    n = n / np.where(ok, nn, 1.0)[:, None]
+    p = c[None, :] - (n @ c)[:, None] * n
+    pn = np.linalg.norm(p, axis=1)
+    p = p / np.maximum(pn, 1e-15)[:, None]
+    se = np.sum(s * e, axis=1)
+    ps, pe = np.sum(p * s, axis=1), np.sum(p * e, axis=1)
+    inside = ok & (pn > 1e-12) & (ps - se * pe > 0) & (pe - se * ps > 0)
+    return np.where(inside, np.maximum(best, pn), best)
+
+
+def _outside_caps(arcs: np.ndarray, nadir_deg: float, zenith_deg: float) -> np.ndarray:
+    """Mask (N,) of arcs that stay farther than the cap radii from camera -z and +z."""
+    keep = np.ones(len(arcs), dtype=bool)
+    for deg, c in ((nadir_deg, (0.0, 0.0, -1.0)), (zenith_deg, (0.0, 0.0, 1.0))):
+        if deg > 0:
+            keep &= arc_max_dot(arcs, np.array(c)) < np.cos(np.radians(deg))
+    return keep
 
 
 def _lsd_threads(requested: int) -> int:
@@ -188,10 +365,12 @@ def detect_lines(image_rgb: np.ndarray, params: Lines2DParams = Lines2DParams())
     """Great-circle arcs (N, 2, 3) of the panorama's line segments (camera-frame unit bearings).
 
     Accepts uint8 (H, W, 3) RGB (or grey (H, W)) with W = 2 H. An image without lines gives
-    an empty (0, 2, 3) array.
+    an empty (0, 2, 3) array. No arc comes within the pole caps (:func:`pole_caps`: the tripod
+    at the nadir, flat bands at the bottom or top rows).
     """
-    views = crops(image_rgb, params)
-    h, w = np.asarray(image_rgb).shape[:2]
+    gray = _gray(image_rgb, params)
+    h, w = gray.shape
+    views = _crops_of_gray(gray, params)
     cs = _crop_set(w, h, params)
     found = _detect_all(views, int(params.lsd_refine), _lsd_threads(params.lsd_threads))
     segs, owner = [], []
@@ -210,7 +389,11 @@ def detect_lines(image_rgb: np.ndarray, params: Lines2DParams = Lines2DParams())
     B = cs.bases[own]  # (N, 3, 3)
     rays = B[:, None, 0, :] + pts[..., 0:1] * B[:, None, 1, :] + pts[..., 1:2] * B[:, None, 2, :]
     arcs = rays / np.linalg.norm(rays, axis=-1, keepdims=True)
-    return merge_arcs(arcs, params.merge_angle_deg, params.merge_gap_deg)
+    # Nothing from the tripod or a band at the poles: segments touching the caps go before the
+    # merge, and merged arcs (which may lean a little) are checked once more.
+    caps = pole_caps(gray, params)
+    arcs = merge_arcs(arcs[_outside_caps(arcs, *caps)], params.merge_angle_deg, params.merge_gap_deg)
+    return arcs[_outside_caps(arcs, *caps)]
 
 
 # ---------------------------------------------------------------------------------------- merge
@@ -223,16 +406,83 @@ def _normals_lengths(arcs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return n / np.maximum(nn, 1e-15)[:, None], np.arctan2(nn, np.sum(s * e, axis=1))
 
 
+# Plain numpy rather than scipy's k-d tree and sparse graphs: importing scipy.sparse and
+# scipy.spatial costs a fresh process about 0.35 s, more than the whole detection.
+_HALF_OFFSETS = np.array([o for o in np.ndindex(3, 3, 3) if o > (1, 1, 1)], dtype=np.int64) - 1  # 13
+
+
+def _close_pairs(p: np.ndarray, radius: float) -> np.ndarray:
+    """Index pairs (P, 2), ``i < j``, of points (M, 3) within ``radius`` of each other.
+
+    A hash grid of cell size ``radius``: the points of each occupied cell meet those of their own
+    cell and of 13 of its 26 neighbouring cells (the other 13 meet them from their side), so each
+    pair comes once. Cells are looked up as sorted keys (a constant offset keeps them sorted).
+    """
+    M = len(p)
+    if M < 2:
+        return np.zeros((0, 2), dtype=np.int64)
+    cell = np.floor(p / radius).astype(np.int64)
+    cell -= cell.min(0) - 1  # >= 1, so that neighbour offsets stay non-negative
+    dims = cell.max(0) + 2
+    key = (cell[:, 0] * dims[1] + cell[:, 1]) * dims[2] + cell[:, 2]
+    order = np.argsort(key, kind="stable")
+    ukey, start, count = np.unique(key[order], return_index=True, return_counts=True)
+    src_all, dst_all = [], []
+    for o in np.concatenate([np.zeros((1, 3), dtype=np.int64), _HALF_OFFSETS]):
+        nk = ukey + (o[0] * dims[1] + o[1]) * dims[2] + o[2]
+        idx = np.minimum(np.searchsorted(ukey, nk), len(ukey) - 1)
+        ca = np.nonzero(ukey[idx] == nk)[0]  # occupied cells whose neighbour at o is occupied
+        if len(ca) == 0:
+            continue
+        cb = idx[ca]
+        na, nb = count[ca], count[cb]
+        tot = na * nb
+        pid = np.repeat(np.arange(len(ca)), tot)
+        k = np.arange(int(tot.sum())) - np.repeat(np.cumsum(tot) - tot, tot)
+        src = order[start[ca][pid] + k // nb[pid]]
+        dst = order[start[cb][pid] + k % nb[pid]]
+        if not o.any():
+            keep = src < dst
+            src, dst = src[keep], dst[keep]
+        src_all.append(src)
+        dst_all.append(dst)
+    if not src_all:
+        return np.zeros((0, 2), dtype=np.int64)
+    i, j = np.concatenate(src_all), np.concatenate(dst_all)
+    close = np.sum((p[i] - p[j]) ** 2, axis=1) <= radius * radius
+    i, j = i[close], j[close]
+    return np.stack([np.minimum(i, j), np.maximum(i, j)], axis=1)
+
+
+def _components(i: np.ndarray, j: np.ndarray, n: int) -> tuple[int, np.ndarray]:
+    """Connected components of the undirected graph with edges ``(i, j)`` on ``n`` nodes.
+
+    Returns ``(count, labels)``, components numbered in the order of their smallest node (as
+    scipy's ``connected_components``): each node takes the smallest label among its neighbours,
+    with pointer jumping, until nothing changes.
+    """
+    lab = np.arange(n)
+    if len(i) == 0:
+        return n, lab
+    while True:
+        m = np.minimum(lab[i], lab[j])
+        new = lab.copy()
+        np.minimum.at(new, i, m)
+        np.minimum.at(new, j, m)
+        new = new[new]
+        if np.array_equal(new, lab):
+            break
+        lab = new
+    roots, comp = np.unique(lab, return_inverse=True)
+    return len(roots), comp
+
+
 def merge_arcs(arcs: np.ndarray, angle_deg: float = 1.0, gap_deg: float = 0.5) -> np.ndarray:
     """Join arcs that lie on one great circle and overlap or nearly touch (transitively).
 
     Each group becomes one arc on the length-weighted mean circle spanning the union of the
     members' extents. Degenerate (zero-length) arcs are dropped.
     """
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-    from scipy.spatial import cKDTree
-
     arcs = np.asarray(arcs, dtype=np.float64)
     if arcs.ndim != 3 or arcs.shape[1:] != (2, 3):
         raise InputError(f"arcs must have shape (N, 2, 3), got {arcs.shape}")
@@ -244,10 +494,9 @@ def merge_arcs(arcs: np.ndarray, angle_deg: float = 1.0, gap_deg: float = 0.5) -
         return arcs
     sin_tol = np.sin(np.radians(angle_deg))
     gap = np.radians(gap_deg)
-    # Candidate pairs: near-parallel normals (same circle up to orientation), from a k-d tree
+    # Candidate pairs: near-parallel normals (same circle up to orientation), from a hash grid
     # over the normals and their antipodes (no N x N matrix).
-    tree = cKDTree(np.concatenate([n, -n]))
-    pairs = tree.query_pairs(2.0 * np.sin(np.radians(angle_deg) / 2.0), output_type="ndarray")
+    pairs = _close_pairs(np.concatenate([n, -n]), 2.0 * np.sin(np.radians(angle_deg) / 2.0))
     i, j = pairs[:, 0] % N, pairs[:, 1] % N
     i, j = np.minimum(i, j), np.maximum(i, j)
     uniq = np.unique(i[i != j] * N + j[i != j])
@@ -264,8 +513,7 @@ def merge_arcs(arcs: np.ndarray, angle_deg: float = 1.0, gap_deg: float = 0.5) -
         overlap = (np.maximum(lo, 0.0) <= np.minimum(hi, length[i]) + gap)
         link = near & no_wrap & overlap
         i, j = i[link], j[link]
-    graph = coo_matrix((np.ones(len(i)), (i, j)), shape=(N, N))
-    ncomp, comp = connected_components(graph, directed=False)
+    ncomp, comp = _components(i, j, N)
     if ncomp == N:
         return arcs
     # Reference arc per component: its longest member.

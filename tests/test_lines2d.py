@@ -122,3 +122,106 @@ def test_bad_and_empty_images():
     with pytest.raises(InputError, match="W = 2 H"):
         lines2d.detect_lines(np.zeros((256, 300, 3), np.uint8))
     assert lines2d.detect_lines(np.full((128, 256, 3), 128, np.uint8)).shape == (0, 2, 3)
+
+
+# ------------------------------------------------------------------------------ pole masks, ratio
+
+
+def _nadir_deg(arcs, zenith=False):
+    c = np.array([0.0, 0.0, 1.0 if zenith else -1.0])
+    return np.degrees(np.arccos(np.clip(lines2d.arc_max_dot(arcs, c), -1.0, 1.0)))
+
+
+NO_MASK = lines2d.Lines2DParams(nadir_mask_deg=0.0, detect_pole_bands=False)
+UPRIGHT = (np.eye(3), np.array([0.4, 0.3, 1.3]))  # nearest wall's foot 53 deg from the nadir
+
+
+def test_black_band_at_the_bottom_gives_no_lines_and_keeps_the_others():
+    img = render_box_room(*UPRIGHT, 512, 256)
+    band = img.copy()
+    band[-int(256 * 30 / 180):] = 0  # a black band over the 30 degrees around the nadir
+    raw = lines2d.detect_lines(band, NO_MASK)
+    assert np.sum(_nadir_deg(raw) < 31) >= 1  # the band's boundary is a line when unmasked
+    ext, top = lines2d.pole_band_extents(lines2d._gray(band, lines2d.Lines2DParams()))
+    assert 29 <= ext <= 31 and top == 0
+    arcs = lines2d.detect_lines(band)
+    assert np.all(_nadir_deg(arcs) >= ext + lines2d.Lines2DParams().band_margin_deg - 1e-6)
+    # The lines above the band survive: those of the plain image beyond 40 deg are found again.
+    plain = lines2d.detect_lines(img, NO_MASK)
+    plain = plain[_nadir_deg(plain) > 40]
+    d = ldf.distance_function(torch.tensor(_arc_samples(plain)), torch.tensor(arcs)).numpy()
+    assert len(plain) >= 10 and np.mean(d < 0.01) > 0.9
+    # The same band at the top (the image upside down) masks the zenith.
+    flipped = lines2d.detect_lines(np.ascontiguousarray(band[::-1]))
+    assert np.all(_nadir_deg(flipped, zenith=True) >= ext) and len(flipped) >= 10
+
+
+def test_bright_textured_blob_at_the_nadir_gives_no_lines():
+    img = render_box_room(*UPRIGHT, 512, 256)
+    uv = pixel_centers(512, 256)
+    polar = np.degrees(np.arccos(-bearing_from_pixel(uv, 512, 256)[..., 2]))  # from the nadir
+    stripes = np.where((uv[..., 0] // 6) % 2 == 0, 250, 140).astype(np.uint8)  # a tripod's legs
+    blob = img.copy()
+    blob[polar < 12] = stripes[polar < 12, None]
+    raw = lines2d.detect_lines(blob, NO_MASK)
+    assert np.sum(_nadir_deg(raw) < 12) >= 5
+    params = lines2d.Lines2DParams()
+    arcs = lines2d.detect_lines(blob, params)
+    assert np.all(_nadir_deg(arcs) >= params.nadir_mask_deg)
+    plain = lines2d.detect_lines(img, NO_MASK)
+    plain = plain[_nadir_deg(plain) > params.nadir_mask_deg + 2]
+    d = ldf.distance_function(torch.tensor(_arc_samples(plain)), torch.tensor(arcs)).numpy()
+    assert len(plain) >= 10 and np.mean(d < 0.01) > 0.9
+
+
+def test_untextured_floor_is_not_a_band():
+    import cv2
+
+    img = cv2.GaussianBlur(render_box_room(*UPRIGHT, 512, 256), (0, 0), 2.0)  # flat floor, ceiling
+    assert lines2d.pole_band_extents(lines2d._gray(img, lines2d.Lines2DParams())) == (0.0, 0.0)
+    assert lines2d.pole_caps(lines2d._gray(img, lines2d.Lines2DParams())) == (18.0, 0.0)
+
+
+def test_arc_max_dot_against_dense_samples():
+    rng = np.random.default_rng(3)
+    s = normalize(rng.normal(size=(200, 3)))
+    e = normalize(s + rng.uniform(0.05, 1.5, (200, 1)) * normalize(rng.normal(size=(200, 3))))
+    arcs = np.stack([s, e], axis=1)
+    c = normalize(np.array([0.2, -0.1, -1.0]))
+    dense = (_arc_samples(arcs, 2001).reshape(200, 2001, 3) @ c).max(1)
+    np.testing.assert_allclose(lines2d.arc_max_dot(arcs, c), dense, atol=1e-6)
+
+
+def test_query_keep_ratio_clips_both_ways():
+    p = lines2d.Lines2DParams(keep_ratio_bounds=(0.05, 0.5))
+    assert lines2d.query_keep_ratio(0.008, p) == 0.05  # a Line3D++ map
+    assert lines2d.query_keep_ratio(0.9, p) == 0.5  # a room-layout map
+    assert lines2d.query_keep_ratio(0.2, p) == 0.2
+    assert lines2d.query_keep_ratio(0.3) == 0.3  # default bounds
+    for bad in (0.0, -0.1, 1.5, float("nan")):
+        with pytest.raises(InputError):
+            lines2d.query_keep_ratio(bad, p)
+    with pytest.raises(InputError):
+        lines2d.query_keep_ratio(0.3, lines2d.Lines2DParams(keep_ratio_bounds=(0.6, 0.5)))
+
+
+def _real_panoramas():
+    import os
+    from pathlib import Path
+
+    root = Path(os.environ.get("LDL_REAL_DATA", Path(__file__).resolve().parents[1] / ".." / "shared" / "data"))
+    return sorted(root.glob("zind/*/panos/*.jpg")), root
+
+
+def test_real_panoramas_have_no_arc_in_the_nadir_cap():
+    import cv2
+
+    files, root = _real_panoramas()
+    if not files:
+        pytest.skip(f"no real panoramas under {root} (set LDL_REAL_DATA)")
+    params = lines2d.Lines2DParams()
+    for f in files:  # at 1024 x 512 to stay fast
+        img = cv2.resize(cv2.imread(str(f)), (1024, 512), interpolation=cv2.INTER_AREA)[..., ::-1]
+        arcs = lines2d.detect_lines(np.ascontiguousarray(img), params)
+        assert len(arcs) >= 100, f.name
+        assert _nadir_deg(arcs).min() >= params.nadir_mask_deg, f.name
