@@ -96,6 +96,9 @@ def run_level(zind_root: Path, level: str, args) -> dict:
         search.update(diverse_translation=d_t, diverse_rotation_deg=d_r)
     if search:
         params = replace(params, search=replace(params.search, **search))
+    if args.keep_ratio is not None:
+        lo, hi = (float(x) for x in args.keep_ratio.split(","))
+        params = replace(params, lines2d=replace(params.lines2d, keep_ratio_bounds=(lo, hi)))
     out = CACHE / "real" / f"results_{level}.json"
     if out.exists():
         out.unlink()
@@ -191,6 +194,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--max-tilt", type=float, default=None, help="upright prior in degrees (default: the reader's)")
     ap.add_argument("--rescore-level", type=int, default=None, help="query-point level of the exact re-scoring")
     ap.add_argument("--diverse", default=None, help="top-K diversity 'METRES,DEGREES' (default: the search's)")
+    ap.add_argument("--keep-ratio", default=None, help="2D kept-ratio bounds 'MIN,MAX' (default: Lines2DParams')")
     ap.add_argument("--output", default=str(HERE / "real.json"))
     args = ap.parse_args(argv)
     data = real_data_root(args.data)

@@ -198,7 +198,8 @@ class Localizer:
         labels = labels_for_rotations(arcs, vps, rots.triplets, p.principal.group_tol)
         lap("rotation")
         res = search_poses(arcs, labels, rots.rotations, m.lines, m.line_groups, m.translations,
-                           p.search, self.device, fields=self.fields, visibility=m.visibility)
+                           p.search, self.device, fields=self.fields, visibility=m.visibility,
+                           coverage=m.coverage)
         lap("search")
         best_r, best_t = res.rotations[0], res.centers[0]
         out = Localization(best_r, best_t, best_r, best_t, res.rotations, res.centers, secs,

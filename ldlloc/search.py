@@ -47,10 +47,15 @@ class SearchParams:
     # the map has them (and decompose is on), False: always the exact path
     rescore: int = 64  # fast path: the best `rescore` poses by field loss (at least top_k) are
     # re-scored with the exact functions and the top_k by exact loss returned (0: field losses)
-    rescore_query_level: int | None = None  # query points of the exact re-scoring (None: query_level;
+    rescore_query_level: int | None = 2  # query points of the exact re-scoring (None: query_level;
     # 2 = 162 points sees small structure such as door frames that tell a room from its twin)
-    diverse_translation: float = 0.0  # top-K diversity: a pose is dropped when a better one lies
-    diverse_rotation_deg: float = 0.0  # within this distance (m) AND this angle (0: no diversity)
+    coverage_cap: float = 2.0  # maps with coverage (room layouts): the re-scored inlier count is
+    # taken over the directions the map covers and divided by their share (at most this factor),
+    # so a doorway pose is not beaten by a twin whose map lines cover the unmapped room behind it;
+    # 1: off
+    diverse_translation: float = 0.35  # top-K diversity: a pose is dropped when a better one lies
+    diverse_rotation_deg: float = 5.0  # within this distance (m) AND this angle (0: no diversity), so
+    # the top K are not near-copies of one pose (0.35 m: the next candidate of a 0.3 m lattice)
 
 
 @dataclass
@@ -66,7 +71,8 @@ class SearchResult:
 
 def search_poses(arcs2d: np.ndarray, labels2d: np.ndarray, rotations: np.ndarray, lines3d: np.ndarray,
                  line_groups: np.ndarray, translations: np.ndarray, params: SearchParams = SearchParams(),
-                 device: str = "cpu", fields=None, visibility: np.ndarray | None = None) -> SearchResult:
+                 device: str = "cpu", fields=None, visibility: np.ndarray | None = None,
+                 coverage: np.ndarray | None = None) -> SearchResult:
     """Rank every (translation, rotation) pair and return the ``top_k`` poses, best first.
 
     ``arcs2d`` (N, 2, 3) are the query's (length-filtered) arcs in the camera frame and
@@ -75,7 +81,9 @@ def search_poses(arcs2d: np.ndarray, labels2d: np.ndarray, rotations: np.ndarray
     rotations; ``lines3d`` (L, 2, 3) with ``line_groups`` (L,) from the map; ``translations``
     (N_t, 3). ``fields``: the map's :class:`ldlloc.fields.DistanceFields` (or None), used as
     ``params.use_fields`` says. ``visibility`` (N_t, L) bool: the lines seen from each translation
-    (maps with walls; the fields were computed with it), None: all.
+    (maps with walls; the fields were computed with it), None: all. ``coverage`` (N_t, G + 1, 2G)
+    bool: the directions that meet a mapped surface from each translation
+    (:func:`ldlmap.visibility.coverage_fields`), used by the re-scoring (``coverage_cap``).
     """
     import torch
 
@@ -114,7 +122,7 @@ def search_poses(arcs2d: np.ndarray, labels2d: np.ndarray, rotations: np.ndarray
     rescore = fast and params.rescore > 0
     want = max(params.top_k, params.rescore) if rescore else params.top_k
     diverse = params.diverse_translation > 0 and params.diverse_rotation_deg > 0
-    ti, ri, lv = ldf.top_k_poses(loss, 16 * want if diverse else want)
+    ti, ri, lv = ldf.top_k_poses(loss, 8 * want if diverse else want)
     if diverse:
         keep = diverse_subset(np.asarray(translations)[ti.cpu().numpy()], np.asarray(rotations)[ri.cpu().numpy()],
                               want, params.diverse_translation, params.diverse_rotation_deg)
@@ -122,19 +130,46 @@ def search_poses(arcs2d: np.ndarray, labels2d: np.ndarray, rotations: np.ndarray
         ti, ri, lv = ti[keep_t], ri[keep_t], lv[keep_t]
     if rescore:  # exact losses of the best field poses; the stable sort keeps the field order on ties
         level = params.rescore_query_level
-        if level is not None and level != params.query_level:
+        if level is not None and level != params.query_level:  # 2D functions on the denser points,
+            # for the rotations of the re-scored poses only (decompose is on: the fields hold groups)
             Q = ldf.query_points(level, device=device, dtype=dt)
-            f2d = ldf.decomposed_distance_2d(Q, arcs_t, torch.as_tensor(np.asarray(labels2d), device=device), 3) \
-                if params.decompose else ldf.decomposed_distance_2d(
-                    Q, arcs_t, torch.zeros(len(arcs2d), dtype=torch.long, device=device), 1)
+            uniq, inv = torch.unique(ri, return_inverse=True)
+            lab = torch.as_tensor(np.asarray(labels2d), device=device)[uniq]
+            f2d_at = ldf.decomposed_distance_2d(Q, arcs_t, lab, 3)[inv]
+        else:
+            f2d_at = f2d[ri] if f2d.dim() == 3 else f2d
         f3d = ldf.ldf_3d_at(Q, rotations, translations, lines3d, groups3d, ti, ri, device=device, dtype=dt,
                             visibility=visibility)
-        lv = ldf.pose_loss(f2d[ri] if f2d.dim() == 3 else f2d, f3d.unsqueeze(0), kind=params.loss, tau=params.tau)[0]
+        if coverage is not None and params.loss == "inlier" and params.coverage_cap > 1:
+            lv = covered_inlier_loss(f2d_at, f3d, Q, np.asarray(rotations)[ri.cpu().numpy()], ti.cpu().numpy(),
+                                     coverage, params.tau, params.coverage_cap)
+        else:
+            lv = ldf.pose_loss(f2d_at, f3d.unsqueeze(0), kind=params.loss, tau=params.tau)[0]
         order = torch.sort(lv, stable=True).indices[:params.top_k]
         ti, ri, lv = ti[order], ri[order], lv[order]
     ti, ri = ti.cpu().numpy(), ri.cpu().numpy()
     return SearchResult(rotations=np.asarray(rotations)[ri], centers=np.asarray(translations)[ti],
                         translation_index=ti, rotation_index=ri, losses=lv.cpu().numpy())
+
+
+def covered_inlier_loss(f2d, f3d, Q, rotations: np.ndarray, translation_index: np.ndarray, coverage: np.ndarray,
+                        tau: float, cap: float):
+    """Inlier loss of M poses counted over the query points whose world direction meets a mapped
+    surface, divided by their share (at most ``cap``): ``-(inliers on covered points) / max(share,
+    1 / cap)``. Equals the plain inlier loss where the map covers every direction.
+
+    ``f2d`` (M, G, Q) or (G, Q), ``f3d`` (M, G, Q), ``Q`` (Q, 3) camera-frame points,
+    ``rotations`` (M, 3, 3), ``translation_index`` (M,), ``coverage`` (N_t, G' + 1, 2G').
+    """
+    import torch
+
+    from ldlmap.visibility import coverage_at
+
+    dirs = np.einsum("qi,mij->mqj", Q.detach().cpu().numpy().astype(np.float64), rotations)  # R^T q
+    covered = torch.as_tensor(coverage_at(coverage, translation_index, dirs), device=f3d.device)  # (M, Q)
+    inl = ((f2d - f3d).abs() < tau) & covered[:, None, :]
+    share = covered.to(f3d.dtype).mean(1).clamp(min=1.0 / cap)
+    return -inl.sum((1, 2)).to(f3d.dtype) / share
 
 
 def diverse_subset(centers: np.ndarray, rotations: np.ndarray, k: int, min_distance: float,
@@ -146,20 +181,15 @@ def diverse_subset(centers: np.ndarray, rotations: np.ndarray, k: int, min_dista
     pose, so that a pose and its symmetric twin both reach refinement.
     """
     C = np.asarray(centers, dtype=np.float64)
-    R = np.asarray(rotations, dtype=np.float64)
-    near_t = np.sum((C[:, None] - C[None]) ** 2, axis=-1) < min_distance ** 2
-    cos_min = np.cos(np.radians(min_angle_deg))
-    near_r = (np.einsum("aij,bij->ab", R, R) - 1.0) / 2.0 > cos_min  # trace(R_a^T R_b)
-    close = near_t & near_r
+    R = np.asarray(rotations, dtype=np.float64).reshape(len(C), 9)
+    d2, cos_min = float(min_distance) ** 2, np.cos(np.radians(min_angle_deg))
     suppressed = np.zeros(len(C), dtype=bool)
     keep: list[int] = []
-    while len(keep) < k:  # at most k rounds, each vectorized over the M poses
-        free = np.flatnonzero(~suppressed)
-        if len(free) == 0:
-            break
-        i = int(free[0])
+    while len(keep) < k and not suppressed.all():  # at most k rounds, each vectorized over M
+        i = int(np.argmin(suppressed))  # the best pose not yet suppressed
         keep.append(i)
-        suppressed |= close[i]
+        near = (np.sum((C - C[i]) ** 2, axis=1) < d2) & ((R @ R[i] - 1.0) / 2.0 > cos_min)  # trace(R_i^T R_m)
+        suppressed |= near
         suppressed[i] = True
     return np.array(keep, dtype=np.int64)
 

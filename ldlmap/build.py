@@ -277,12 +277,17 @@ def build_from_input(src: SceneInput, output: Path, params: BuildParams, name: s
     if len(translations) == 0:
         raise InputError("no candidate translation found in the free space of the scan")
     stage("translations")
-    visibility = None
+    visibility = coverage = None
     walls = getattr(src.walkable, "walls", None)
     if walls is not None and len(walls):
         from ldlmap.visibility import line_visibility
 
         visibility = line_visibility(lines, translations, walls)
+        if len(src.walkable.ceiling_heights) == len(src.walkable.polygons):
+            from ldlmap.visibility import coverage_fields, room_surfaces
+
+            coverage = coverage_fields(translations, *room_surfaces(walls, src.walkable.polygons,
+                                                                    src.walkable.ceiling_heights))
         stage("visibility")
     fields, fields_attrs = {}, {}
     if params.distance_fields:
@@ -315,7 +320,7 @@ def build_from_input(src: SceneInput, output: Path, params: BuildParams, name: s
         length_threshold=threshold, kept_ratio=float(kept.mean()), line_lambda=lam,
         principal_directions=principal, translations=translations,
         cloud_points=cloud_pts, cloud_colors=cloud_cols, features=features, config=config,
-        fields=fields, fields_attrs=fields_attrs, visibility=visibility,
+        fields=fields, fields_attrs=fields_attrs, visibility=visibility, coverage=coverage,
     )
     write_map(output, m)
     stage("write")

@@ -17,6 +17,9 @@ datasets are readable with plain h5py::
     /translations/centers   (N_t, 3) float32  candidate camera centres
     /lines/visibility       (N_t, L) uint8  optional: 1 where kept line l is seen from translation i
                             (maps with walls, e.g. room layouts: walls hide the other lines)
+    /coverage/mapped        (N_t, G + 1, 2G) uint8  optional: 1 where the direction of node (i, j)
+                            (the fields' grid) seen from translation t meets a mapped surface
+                            (walls, floors, ceilings of a layout); 0 where it leaves the map
     /translations/view_index (N_t,) int32  index of the rendered view that serves each candidate
                             (only when features are present)
     /features               attrs: backend ('sift' | 'superpoint'), descriptor_dim, width, height
@@ -97,6 +100,7 @@ class LdlMap:
     config: dict[str, Any] = field(default_factory=dict)
     line_lambda: float = 0.1
     visibility: np.ndarray | None = None  # (N_t, L) bool: kept lines seen from each translation (None: all)
+    coverage: np.ndarray | None = None  # (N_t, G + 1, 2G) bool: directions meeting a mapped surface
 
     @property
     def lines_only(self) -> bool:
@@ -128,6 +132,10 @@ def validate_map(m: LdlMap) -> None:
         raise InputError("map has no 3D lines")
     if m.visibility is not None:
         _check_array("visibility", m.visibility, (len(m.translations), len(m.lines)), "b")
+    if m.coverage is not None:
+        _check_array("coverage", m.coverage, (len(m.translations), None, None), "b")
+        if m.coverage.shape[2] != 2 * (m.coverage.shape[1] - 1) or m.coverage.shape[1] < 3:
+            raise InputError(f"map field coverage has shape {m.coverage.shape}, expected (N_t, G + 1, 2G)")
     if m.cloud_points is not None:
         _check_array("cloud_points", m.cloud_points, (None, 3))
         if m.cloud_colors is not None:
@@ -189,6 +197,8 @@ def write_map(path: str | Path, m: LdlMap) -> Path:
             g.attrs["lambda"] = float(m.line_lambda)
             if m.visibility is not None:
                 g.create_dataset("visibility", data=np.asarray(m.visibility, np.uint8), **_COMPRESS)
+            if m.coverage is not None:
+                h5.create_group("coverage").create_dataset("mapped", data=np.asarray(m.coverage, np.uint8), **_COMPRESS)
             h5.create_group("principal")["directions"] = np.asarray(m.principal_directions, np.float64)
             t = h5.create_group("translations")
             t["centers"] = np.asarray(m.translations, np.float32)
@@ -309,6 +319,7 @@ def read_map(path: str | Path, load_cloud: bool = True) -> LdlMap:
                 fields_attrs=fields_attrs,
                 config=json.loads(h5.attrs.get("build_config", "{}")),
                 visibility=lines_grp["visibility"][()].astype(bool) if "visibility" in lines_grp else None,
+                coverage=h5["coverage/mapped"][()].astype(bool) if "coverage/mapped" in h5 else None,
             )
         except (KeyError, OSError, ValueError) as exc:
             raise InputError(f"corrupt LDL map {path}: {exc}") from None

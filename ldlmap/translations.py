@@ -243,13 +243,15 @@ class Walkable:
     deep on both sides of each, so that a closet photographed from its doorway is covered.
     ``z_range``: the camera-height band (world z, metres) when it is known. ``walls``: (W, 4, 3)
     wall quads (corner by corner, door and opening holes left out) that hide lines from cameras
-    (:mod:`ldlmap.visibility`), when known.
+    (:mod:`ldlmap.visibility`), when known; ``ceiling_heights``: each polygon's ceiling (metres),
+    with the walls they close the rooms (floor and ceiling surfaces for coverage).
     """
 
     polygons: tuple[np.ndarray, ...] = ()
     portals: np.ndarray | None = None
     z_range: tuple[float, float] | None = None
     walls: np.ndarray | None = None
+    ceiling_heights: tuple[float, ...] = ()
 
 
 def portal_rectangles(portals: np.ndarray, depth: float, widen: float = 0.0) -> list[np.ndarray]:
@@ -302,7 +304,7 @@ def _region_interior_point(poly: np.ndarray) -> np.ndarray:
 
 def spaced_translations(lines: np.ndarray, spacing: float = 0.3, walkable: Walkable | None = None,
                         z_range: tuple[float, float] | None = None, portal_depth: float = 1.0, portal_widen: float = 0.3,
-                        clearance: float = 0.1, params: TranslationParams = TranslationParams()) -> np.ndarray:
+                        clearance: float = 0.05, params: TranslationParams = TranslationParams()) -> np.ndarray:
     """Candidate camera centres for a map without a scan, on a lattice of ``spacing`` metres.
 
     Where cameras can stand: the ``walkable`` polygons (and ``portal_depth`` on both sides of

@@ -8,6 +8,11 @@ doorway it adds the hidden parts of the room behind the door. A room layout know
 translation, the lines that are not hidden (``/lines/visibility``), and the pose search leaves
 the others out of the 3D distance functions.
 
+Coverage: from a doorway, or near an opening of a room-level map, part of the view looks into
+space the map does not hold (the next room). :func:`coverage_fields` records, per translation and
+direction, whether a ray meets a mapped surface (walls, floors, ceilings), so that the pose search
+can judge a pose on the directions its map can explain.
+
 A line is seen from ``t`` when at least ``min_fraction`` of ``samples`` points spread along it
 are: the segment from ``t`` to the point crosses no wall before ``tolerance`` metres short of
 the point (lines lie on walls: a ray reaching its own wall is not hidden). Rays are cast with
@@ -76,3 +81,63 @@ def line_visibility(lines: np.ndarray, translations: np.ndarray, walls: np.ndarr
         free = hit * dist >= dist - params.tolerance
         seen[a:a + per] = free.reshape(len(t), len(L), S).mean(-1) >= params.min_fraction - 1e-9
     return seen
+
+
+def room_surfaces(walls: np.ndarray, polygons, ceiling_heights) -> tuple[np.ndarray, np.ndarray]:
+    """Vertices and triangles of a layout's surfaces: wall quads, and each room's floor (z = 0) and
+    ceiling (its height) as triangulated polygons."""
+    from ldlmap.synth.polygon import triangulate_polygon
+
+    verts, tris = wall_triangles(walls)
+    vs, ts, off = [verts], [tris], len(verts)
+    for poly, h in zip(polygons, ceiling_heights):
+        P = np.asarray(poly, dtype=np.float64).reshape(-1, 2)
+        tri = np.asarray(triangulate_polygon(P), dtype=np.int64).reshape(-1, 3)
+        for z in (0.0, float(h)):
+            vs.append(np.column_stack([P, np.full(len(P), z)]))
+            ts.append(tri + off)
+            off += len(P)
+    return np.concatenate(vs), np.concatenate(ts)
+
+
+def coverage_fields(translations: np.ndarray, verts: np.ndarray, tris: np.ndarray, rows: int = 32,
+                    max_rays: int = 4_000_000) -> np.ndarray:
+    """(N_t, G + 1, 2G) bool: the direction of each node (the distance fields' grid,
+    :func:`ldlmap.fields3d.grid_directions`) seen from each translation meets a mapped surface.
+
+    A direction that leaves the mapped space (through a door or opening of a room-level map,
+    into a room the map does not hold) is not covered: no map line can explain the image there,
+    and the pose search does not count it against a pose (:mod:`ldlloc.search`).
+    """
+    import open3d as o3d
+
+    from ldlmap.fields3d import grid_directions
+
+    T = np.asarray(translations, dtype=np.float64).reshape(-1, 3)
+    dirs = grid_directions(rows).reshape(-1, 3)
+    out = np.zeros((len(T), len(dirs)), dtype=bool)
+    if len(tris) == 0:
+        return out.reshape(len(T), rows + 1, 2 * rows)
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.core.Tensor(np.asarray(verts, np.float32)), o3d.core.Tensor(np.asarray(tris, np.uint32)))
+    per = max(1, int(max_rays) // len(dirs))
+    for a in range(0, len(T), per):
+        t = T[a:a + per]
+        rays = np.concatenate([np.broadcast_to(t[:, None], (len(t), len(dirs), 3)),
+                               np.broadcast_to(dirs[None], (len(t), len(dirs), 3))], -1)
+        hit = scene.cast_rays(o3d.core.Tensor(rays.reshape(-1, 6).astype(np.float32)))["t_hit"].numpy()
+        out[a:a + per] = np.isfinite(hit).reshape(len(t), -1)
+    return out.reshape(len(T), rows + 1, 2 * rows)
+
+
+def coverage_at(coverage: np.ndarray, translation_index: np.ndarray, directions: np.ndarray) -> np.ndarray:
+    """Look up coverage fields (N_t, G + 1, 2G) at world directions (M, Q, 3) seen from
+    ``translations[translation_index]`` (M,): (M, Q) bool, nearest node."""
+    C = np.asarray(coverage)
+    G = C.shape[1] - 1
+    d = np.asarray(directions, dtype=np.float64)
+    theta = np.arccos(np.clip(d[..., 2] / np.maximum(np.linalg.norm(d, axis=-1), 1e-12), -1.0, 1.0))
+    phi = np.arctan2(d[..., 1], d[..., 0])
+    i = np.clip(np.rint(theta / np.pi * G).astype(np.int64), 0, G)
+    j = np.rint((phi + np.pi) / np.pi * G).astype(np.int64) % (2 * G)
+    return C[np.asarray(translation_index)[:, None], i, j]

@@ -171,6 +171,11 @@ def _query_searches(room, seed=5, n=40):
         yield args, search_poses(*args, SearchParams(use_fields=False))
 
 
+# The exact re-scoring on the search's own 42 query points and no top-K diversity: then the fast
+# path's losses are the exact path's (the defaults re-score on 162 points, see test_search_diverse).
+LEVEL1 = dict(rescore_query_level=None, diverse_translation=0.0)
+
+
 def _pairs(res):
     return list(zip(res.translation_index.tolist(), res.rotation_index.tolist()))
 
@@ -178,7 +183,7 @@ def _pairs(res):
 def test_fast_search_with_rescoring_returns_the_exact_ranking(room):
     fields = room[3]
     for args, exact in _query_searches(room):
-        fast = search_poses(*args, SearchParams(), fields=fields)  # rescore = 64 by default
+        fast = search_poses(*args, SearchParams(**LEVEL1), fields=fields)  # rescore = 64 by default
         # Measured on these 40 queries: the exact best pose is the fast path's first every time and
         # the returned top-20 losses are the exact path's top-20 losses (the poses may differ
         # where inlier counts tie).
@@ -186,7 +191,7 @@ def test_fast_search_with_rescoring_returns_the_exact_ranking(room):
         np.testing.assert_array_equal(fast.losses, exact.losses)
         # Without re-scoring the field ranking alone keeps the exact best pose in its top 20
         # (first in 39 / 40, second once), with field losses within 3 inliers of the exact ones.
-        plain = search_poses(*args, SearchParams(rescore=0), fields=fields)
+        plain = search_poses(*args, SearchParams(rescore=0, **LEVEL1), fields=fields)
         assert _pairs(exact)[0] in _pairs(plain)[:2]
         assert abs(plain.losses[0] - exact.losses[0]) <= 3  # inlier counts of 126 terms
 
@@ -200,7 +205,7 @@ def test_rescored_losses_equal_exact_losses_at_the_same_poses(room, loss):
         grid = np.full((len(T), len(rots)), np.nan)
         grid[full.translation_index, full.rotation_index] = full.losses  # every pose's exact loss
         for rescore in (1, 64, 200):  # at least top_k candidates are re-scored
-            fast = search_poses(*args, SearchParams(loss=loss, rescore=rescore), fields=fields)
+            fast = search_poses(*args, SearchParams(loss=loss, rescore=rescore, **LEVEL1), fields=fields)
             assert len(fast.losses) == 20 and np.all(np.diff(fast.losses) >= 0)
             np.testing.assert_allclose(fast.losses, grid[fast.translation_index, fast.rotation_index],
                                        rtol=1e-6, atol=1e-6)
@@ -242,7 +247,7 @@ def test_search_path_selection(room):
     b = search_poses(*args, SearchParams(decompose=False, use_fields=False))
     np.testing.assert_array_equal(a.losses, b.losses)
     # Other losses go through ldf.pose_loss on the looked-up values.
-    c = search_poses(*args, SearchParams(loss="l1"), fields=fields)
+    c = search_poses(*args, SearchParams(loss="l1", **LEVEL1), fields=fields)
     d = search_poses(*args, SearchParams(loss="l1", use_fields=False))
     assert c.losses[0] == pytest.approx(d.losses[0], rel=0.05)
 

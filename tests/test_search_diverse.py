@@ -22,11 +22,11 @@ def test_diverse_subset_suppresses_only_near_copies():
 
 def test_search_with_diversity_keeps_the_best_pose_and_spreads_the_rest(room):  # noqa: F811
     fields = room[3]
-    div = SearchParams(diverse_translation=0.6, diverse_rotation_deg=5.0)
+    div = SearchParams(diverse_translation=0.6, diverse_rotation_deg=5.0, rescore_query_level=None)
     for args, exact in _query_searches(room, n=10):
         T = args[5]
         res = search_poses(*args, div, fields=fields)
-        plain = search_poses(*args, SearchParams(), fields=fields)
+        plain = search_poses(*args, SearchParams(diverse_translation=0.0, rescore_query_level=None), fields=fields)
         assert res.losses[0] == plain.losses[0], "the best pose is never suppressed"
         assert np.all(np.diff(res.losses) >= 0)
         d = np.linalg.norm(res.centers[:, None] - res.centers[None], axis=-1)
@@ -35,3 +35,28 @@ def test_search_with_diversity_keeps_the_best_pose_and_spreads_the_rest(room):  
         np.fill_diagonal(close, False)
         assert not close.any(), "no two returned poses are near-copies"
         assert len(res.losses) == min(20, len(T) * len(args[2]))
+
+
+def test_denser_rescoring_finds_the_true_pose(room):  # noqa: F811
+    """The default search (re-scoring on 162 query points, diversity) puts a pose at the nearest
+    candidate translation and within 2 degrees of the truth first, as the exact path does."""
+    from ldlmap.geometry import rotation_error_deg
+    from ldlloc.principal import assign_arcs_to_principal
+    from tests.test_fields import _manhattan_candidates, _synthetic_query
+
+    lines, groups, T, fields, *_ = room
+    rng = np.random.default_rng(11)
+    hits = exact_hits = 0
+    for _ in range(12):
+        arcs, R_true, t_true = _synthetic_query(rng, lines)
+        rots = _manhattan_candidates(rng, R_true)
+        labels = np.stack([assign_arcs_to_principal(arcs, r.T) for r in rots])
+        nearest = int(np.argmin(np.linalg.norm(T - t_true, axis=1)))
+        for params, f in ((SearchParams(), fields), (SearchParams(use_fields=False), None)):
+            res = search_poses(arcs, labels, rots, lines, groups, T, params, fields=f)
+            ok = res.translation_index[0] == nearest and rotation_error_deg(res.rotations[0], R_true) < 2.0
+            if f is None:
+                exact_hits += ok
+            else:
+                hits += ok
+    assert hits >= exact_hits - 1 and hits >= 10, (hits, exact_hits)

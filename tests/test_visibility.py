@@ -89,3 +89,43 @@ def test_map_stores_visibility_and_rejects_a_wrong_shape(tmp_path):
     m.visibility = m.visibility[:, :-1]
     with pytest.raises(InputError):
         write_map(tmp_path / "bad.h5", m)
+
+
+def test_coverage_of_a_closed_room_and_of_a_doorway():
+    from ldlmap.visibility import coverage_at, coverage_fields, room_surfaces
+
+    walls, _ = _two_rooms()
+    polys = (np.array([[0, 0], [4, 0], [4, 3], [0, 3]], float), np.array([[4, 0], [8, 0], [8, 3], [4, 3]], float))
+    both = room_surfaces(walls, polys, (H, H))
+    T = np.array([[2.0, 1.5, 1.4], [3.9, 1.5, 1.4]])
+    cov = coverage_fields(T, *both, rows=16)
+    assert cov.shape == (2, 17, 32) and cov.all(), "both rooms mapped: every direction meets a surface"
+    # Room A alone (its walls, floor and ceiling): from near the door, the directions through it leave the map.
+    a_walls = np.array([w for w in walls if w[:, 0].max() <= 4.0 + 1e-9])
+    cov_a = coverage_fields(T, *room_surfaces(a_walls, polys[:1], (H,)), rows=16)
+    assert cov_a[0].mean() > cov_a[1].mean() > 0.5
+    through_door = coverage_at(cov_a, np.array([1]), np.array([[[1.0, 0.0, 0.0], [-1.0, 0.0, 0.0]]]))
+    assert through_door.tolist() == [[False, True]]
+
+
+def test_covered_inlier_loss_equals_the_inlier_loss_on_a_covered_map():
+    from ldlloc import ldf
+    from ldlloc.search import covered_inlier_loss
+
+    Q = ldf.query_points(1)
+    f2d = torch.rand(5, 3, len(Q))
+    f3d = f2d + 0.2 * (torch.rand(5, 3, len(Q)) - 0.5)
+    R = np.stack([np.eye(3)] * 5)
+    full = np.ones((2, 9, 16), bool)
+    plain = ldf.pose_loss(f2d, f3d.unsqueeze(0), kind="inlier", tau=0.1)[0]
+    got = covered_inlier_loss(f2d, f3d, Q, R, np.zeros(5, int), full, 0.1, 2.0)
+    torch.testing.assert_close(got, plain)
+    half = full.copy()
+    half[:, :, :8] = False  # directions with phi < 0 (y < 0) leave the map
+    got = covered_inlier_loss(f2d, f3d, Q, R, np.zeros(5, int), half, 0.1, 2.0)
+    from ldlmap.visibility import coverage_at
+
+    cov = torch.as_tensor(coverage_at(half, np.zeros(1, int), Q.numpy()[None].astype(float))[0])
+    assert 0.4 < cov.float().mean() < 0.65 and bool(cov[Q[:, 1] < -0.2].logical_not().all())
+    expect = -((f2d - f3d).abs() < 0.1)[:, :, cov].sum((1, 2)).float() / cov.float().mean().clamp(min=0.5)
+    torch.testing.assert_close(got, expect)  # inliers on covered directions, scaled by their share

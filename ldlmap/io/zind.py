@@ -506,7 +506,8 @@ def scene_layout(home: ZindHome, floor: str, rooms: Sequence[str] | None = None)
     heights = heights or [p.camera_height_m for p in home.panos if p.floor == floor]
     walk = Walkable(polygons=tuple(r.polygon.copy() for r in sel), portals=portals,
                     z_range=(float(min(heights)), float(max(heights))),
-                    walls=np.concatenate([room_walls(r) for r in sel]))
+                    walls=np.concatenate([room_walls(r) for r in sel]),
+                    ceiling_heights=tuple(float(r.ceiling_height) for r in sel))
     return lines, walk
 
 
