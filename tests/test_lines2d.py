@@ -197,7 +197,7 @@ def test_query_keep_ratio_clips_both_ways():
     assert lines2d.query_keep_ratio(0.008, p) == 0.05  # a Line3D++ map
     assert lines2d.query_keep_ratio(0.9, p) == 0.5  # a room-layout map
     assert lines2d.query_keep_ratio(0.2, p) == 0.2
-    assert lines2d.query_keep_ratio(0.3) == 0.3  # default bounds
+    assert lines2d.query_keep_ratio(0.15) == 0.15 and lines2d.query_keep_ratio(0.9) == 0.2  # default bounds
     for bad in (0.0, -0.1, 1.5, float("nan")):
         with pytest.raises(InputError):
             lines2d.query_keep_ratio(bad, p)
