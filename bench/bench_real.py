@@ -94,6 +94,9 @@ def run_level(zind_root: Path, level: str, args) -> dict:
     if args.diverse is not None:
         d_t, d_r = (float(x) for x in args.diverse.split(","))
         search.update(diverse_translation=d_t, diverse_rotation_deg=d_r)
+    for kv in args.search or []:  # --search name=value: any SearchParams field (experiments)
+        key, value = kv.split("=", 1)
+        search[key] = type(getattr(params.search, key))(value) if getattr(params.search, key) is not None else int(value)
     if search:
         params = replace(params, search=replace(params.search, **search))
     if args.keep_ratio is not None:
@@ -194,6 +197,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--max-tilt", type=float, default=None, help="upright prior in degrees (default: the reader's)")
     ap.add_argument("--rescore-level", type=int, default=None, help="query-point level of the exact re-scoring")
     ap.add_argument("--diverse", default=None, help="top-K diversity 'METRES,DEGREES' (default: the search's)")
+    ap.add_argument("--search", action="append", help="SearchParams field=value (repeatable, for experiments)")
     ap.add_argument("--keep-ratio", default=None, help="2D kept-ratio bounds 'MIN,MAX' (default: Lines2DParams')")
     ap.add_argument("--output", default=str(HERE / "real.json"))
     args = ap.parse_args(argv)
