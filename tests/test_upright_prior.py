@@ -24,17 +24,10 @@ from ldlmap.datasets import open_dataset
 from ldlmap.errors import InputError
 from ldlmap.geometry import rotation_error_deg, translation_error
 from ldlmap.mapfile import read_map
+from tests.test_cli_build_run import one_error_line
 
 runner = CliRunner()
 TILTS = (0.0, 5.0, 30.0, 90.0)
-
-
-def one_error_line(res) -> str:
-    lines = [line for line in res.output.splitlines() if line.strip()]
-    assert res.exit_code == 1, res.output
-    assert "Traceback" not in res.output
-    assert len(lines) == 1 and lines[0].startswith("error:"), res.output
-    return lines[0]
 
 
 def tilted(tilt_deg: float, yaw_deg: float, axis: str) -> np.ndarray:
