@@ -178,12 +178,24 @@ def run(
     priors = sorted({r.rotation_prior for r in results})
     console.print(f"rotation prior: {', '.join(priors)}" + ("" if max_tilt is None else f" (--max-tilt {max_tilt:g})"),
                   soft_wrap=True)
+    _print_search_summary(results)
     failed = [r for r in results if r.status == "failed"]
     for r in failed[:10]:
         console.print(f"[yellow]failed[/] {r.name}: {r.message}", soft_wrap=True)
     if len(failed) > 10:
         console.print(f"... and {len(failed) - 10} more failures (see {output})", soft_wrap=True)
     console.print(f"wrote {output} and {output.with_suffix('.csv')}", soft_wrap=True)
+
+
+def _print_search_summary(results) -> None:
+    """The pose search alone: its best pose, and the best of its top K, within 0.5 m / 10 deg."""
+    from ldlloc.evaluate import summarize
+
+    search, n = summarize(results).get("search"), len(results)
+    if search:
+        top1, topk = search["top1_0.5m_10deg"], search["topk_0.5m_10deg"]
+        console.print(f"pose search: top-1 within 0.5 m / 10 deg {top1:.3f} ({round(top1 * n)} / {n}), "
+                      f"best of the top K {topk:.3f} ({round(topk * n)} / {n})", soft_wrap=True)
 
 
 @app.command()
@@ -195,3 +207,4 @@ def report(results: Path = typer.Argument(..., help="Results JSON written by `ld
     console.print(summary_table(rs, "scene", f"{results} by scene"))
     console.print(summary_table(rs, "split", f"{results} by split"))
     console.print(timing_table(rs))
+    _print_search_summary(rs)
