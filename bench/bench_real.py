@@ -85,7 +85,7 @@ def run_level(zind_root: Path, level: str, args) -> dict:
     queries = ds.queries()
     from dataclasses import replace
 
-    params = LocalizeParams(do_refine=False)
+    params = LocalizeParams(refine_mode=args.refine)
     if args.max_tilt is not None:
         params = replace(params, max_tilt_deg=args.max_tilt)
     search = {}
@@ -115,7 +115,9 @@ def run_level(zind_root: Path, level: str, args) -> dict:
         rows.append({
             "name": r.name, "scene": r.scene, "status": r.status, "message": r.message,
             "t_error_m": r.t_error_m if ok else None, "r_error_deg": r.r_error_deg if ok else None,
-            "top1_good": bool(ok and r.t_error_m < GOOD_T and r.r_error_deg < GOOD_R),
+            "top1_good": bool(ok and getattr(r, "first_good_rank", None) == 1),
+            "final_good": bool(ok and r.t_error_m < GOOD_T and r.r_error_deg < GOOD_R),
+            "refined": bool(r.refined),
             "first_good_rank": getattr(r, "first_good_rank", None) if ok else None,
             "nearest_candidate_m": near, "num_translations": n_t,
             "num_rotations": r.num_rotations, "rotation_prior": getattr(r, "rotation_prior", ""),
@@ -135,6 +137,8 @@ def summarize(rows: list[dict]) -> dict:
         "count": n,
         "failed": sum(r["status"] == "failed" for r in rows),
         "top1_0.5m_10deg": float(np.mean([r["top1_good"] for r in rows])),
+        "final_0.5m_10deg": float(np.mean([r["final_good"] for r in rows])),
+        "refined": float(np.mean([r["refined"] for r in rows])),
         "top20_0.5m_10deg": float(np.mean([r["first_good_rank"] is not None for r in rows])),
         "acc_0.1m_5deg": float(np.mean((te < 0.1) & (re < 5))),
         "acc_0.25m_5deg": float(np.mean((te < 0.25) & (re < 5))),
@@ -194,6 +198,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--levels", default="room,floor", help="map levels: room, floor or both")
     ap.add_argument("--threads", type=int, default=1, help="torch intra-op threads (default 1)")
     ap.add_argument("--spacing", type=float, default=None, help="candidate translation spacing (default: the map's)")
+    ap.add_argument("--refine", default="auto", help="auto (geometric for these lines-only maps) | geometric | none")
     ap.add_argument("--max-tilt", type=float, default=None, help="upright prior in degrees (default: the reader's)")
     ap.add_argument("--rescore-level", type=int, default=None, help="query-point level of the exact re-scoring")
     ap.add_argument("--diverse", default=None, help="top-K diversity 'METRES,DEGREES' (default: the search's)")

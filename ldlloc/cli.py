@@ -19,7 +19,9 @@ DEVICE = typer.Option("cpu", "--device", help="cpu | cuda.")
 TOP_K = typer.Option(20, "--top-k", help="K poses kept by the search for refinement.")
 LOSS = typer.Option("inlier", "--loss", help="inlier (paper) | l1 | l2 | huber | median.")
 NO_DECOMPOSE = typer.Option(False, "--no-decompose", help="Do not decompose the distance functions.")
-NO_REFINE = typer.Option(False, "--no-refine", help="Stop after pose search.")
+NO_REFINE = typer.Option(False, "--no-refine", help="Stop after pose search (= --refine none).")
+REFINE = typer.Option("auto", "--refine", help="auto (features when the map has them, else geometric) | features | "
+                      "geometric (lines alone) | none.")
 PRIVACY = typer.Option(False, "--privacy", help="Privacy mode: refine only with features near principal lines.")
 FEATURES = typer.Option(None, "--features", help="Feature backend (must match the map's).")
 WEIGHTS = typer.Option(None, "--weights", help="SuperPoint checkpoint.")
@@ -43,7 +45,8 @@ def _set_threads(threads: int) -> None:
 
 
 def _params(top_k: int, loss: str, no_decompose: bool, no_refine: bool, privacy: bool,
-            features: Optional[str], weights: Optional[Path], max_tilt: Optional[float] = None):
+            features: Optional[str], weights: Optional[Path], max_tilt: Optional[float] = None,
+            refine: str = "auto"):
     from ldlloc.ldf import LOSS_KINDS
     from ldlloc.pipeline import LocalizeParams
     from ldlloc.search import SearchParams
@@ -53,11 +56,15 @@ def _params(top_k: int, loss: str, no_decompose: bool, no_refine: bool, privacy:
         raise InputError(f"unknown loss {loss!r}; valid: {', '.join(LOSS_KINDS)}")
     if top_k < 1:
         raise InputError(f"--top-k must be at least 1, got {top_k}")
+    from ldlloc.pipeline import REFINE_MODES
+
+    if refine not in REFINE_MODES:
+        raise InputError(f"unknown --refine {refine!r}; valid: {', '.join(REFINE_MODES)}")
     if max_tilt is not None and not (0.0 < max_tilt <= 180.0):
         raise InputError(f"--max-tilt must be in (0, 180] degrees, got {max_tilt:g}")
     return LocalizeParams(search=SearchParams(top_k=top_k, loss=loss, decompose=not no_decompose),
                           features=features, weights=str(weights) if weights else None,
-                          do_refine=not no_refine, privacy=privacy, max_tilt_deg=max_tilt)
+                          do_refine=not no_refine, privacy=privacy, max_tilt_deg=max_tilt, refine_mode=refine)
 
 
 @app.command()
@@ -70,6 +77,7 @@ def localize(
     loss: str = LOSS,
     no_decompose: bool = NO_DECOMPOSE,
     no_refine: bool = NO_REFINE,
+    refine: str = REFINE,
     privacy: bool = PRIVACY,
     features: Optional[str] = FEATURES,
     weights: Optional[Path] = WEIGHTS,
@@ -88,7 +96,7 @@ def localize(
     from ldlloc.pipeline import Localizer, load_image
     from ldlmap.mapfile import read_map
 
-    params = _params(top_k, loss, no_decompose, no_refine, privacy, features, weights, max_tilt)
+    params = _params(top_k, loss, no_decompose, no_refine, privacy, features, weights, max_tilt, refine)
     _set_threads(threads)
     m = read_map(map_path, load_cloud=False)
     img = load_image(pano)
@@ -97,6 +105,7 @@ def localize(
            "t": np.round(loc.center, 6).tolist(), "status": loc.status, "refined": loc.refined,
            "message": loc.message, "num_rotations": loc.num_rotations, "num_lines": loc.num_lines,
            "num_matches": loc.num_matches, "num_inliers": loc.num_inliers, "rotation_prior": loc.rotation_prior,
+           "refine_method": loc.refine_method, "refine_residual_deg": loc.refine_residual_deg,
            "seconds": {k: round(v, 4) for k, v in loc.seconds.items()}, "candidates": loc.candidate_dicts(6)}
     if vis is not None:
         from ldlloc.visualize import save_localization_picture
@@ -132,6 +141,7 @@ def run(
     loss: str = LOSS,
     no_decompose: bool = NO_DECOMPOSE,
     no_refine: bool = NO_REFINE,
+    refine: str = REFINE,
     privacy: bool = PRIVACY,
     features: Optional[str] = FEATURES,
     weights: Optional[Path] = WEIGHTS,
@@ -146,7 +156,7 @@ def run(
     from ldlmap.datasets import open_dataset
     from ldlmap.errors import InputError
 
-    params = _params(top_k, loss, no_decompose, no_refine, privacy, features, weights, max_tilt)
+    params = _params(top_k, loss, no_decompose, no_refine, privacy, features, weights, max_tilt, refine)
     if map_level is not None and map_level not in ("room", "floor"):
         raise InputError(f"--map-level must be room or floor, got {map_level!r}")
     level = {"map_level": map_level} if map_level is not None else {}  # only when given

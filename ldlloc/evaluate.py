@@ -4,7 +4,7 @@ Results file (DESIGN.md section 4)::
 
     {"queries": [ {image, scene, split, name, R (3x3), t (3,), t_error_m, r_error_deg,
                    seconds: {stage: s}, num_rotations, num_matches, num_inliers, refined,
-                   status, message, rotation_prior,
+                   status, message, refine_method, refine_residual_deg, rotation_prior,
                    candidates: [{R, t, loss}, ...] (the search's top K, best first),
                    best_candidate_t_error_m, best_candidate_r_error_deg, first_good_rank}, ... ],
      "summary": {count, failed, median_t_error_m, median_r_error_deg,
@@ -70,6 +70,8 @@ class QueryResult:
     refined: bool = False
     status: str = "ok"  # ok | coarse (refinement failed or skipped) | failed
     message: str = ""
+    refine_method: str = "none"  # what produced the final pose: features | geometric | none
+    refine_residual_deg: float | None = None  # geometric refinement: median angle of matched line points
     rotation_prior: str = "free"  # "free" (paper) or "upright<=Xdeg" (--max-tilt, upright queries)
     candidates: list = field(default_factory=list)  # top-K search poses, best first: {R, t, loss}
     best_candidate_t_error_m: float | None = None  # errors of the best of the K (best_candidate)
@@ -193,13 +195,13 @@ def results_csv(results: list[QueryResult]) -> str:
     buf = io.StringIO()
     w = csv.writer(buf)
     w.writerow(["name", "scene", "split", "image", "status", "t_error_m", "r_error_deg", "tx", "ty", "tz",
-                "num_rotations", "num_matches", "num_inliers", "refined", "rotation_prior",
+                "num_rotations", "num_matches", "num_inliers", "refined", "refine_method", "rotation_prior",
                 "best_candidate_t_error_m", "best_candidate_r_error_deg", "first_good_rank"]
                + [f"sec_{s}" for s in stages])
     for r in results:
         t = r.t if r.t is not None else [None] * 3
         w.writerow([r.name, r.scene, r.split, r.image, r.status, r.t_error_m, r.r_error_deg, *t,
-                    r.num_rotations, r.num_matches, r.num_inliers, int(r.refined), r.rotation_prior,
+                    r.num_rotations, r.num_matches, r.num_inliers, int(r.refined), r.refine_method, r.rotation_prior,
                     r.best_candidate_t_error_m, r.best_candidate_r_error_deg, r.first_good_rank]
                    + [r.seconds.get(s) for s in stages])
     return buf.getvalue()

@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from ldlmap.errors import InputError
+from ldlloc.geometric import GeometricParams
 from ldlloc.lines2d import Lines2DParams
 from ldlloc.principal import PrincipalParams
 from ldlloc.refine import RefineParams
@@ -46,7 +47,10 @@ class LocalizeParams:
     refine: RefineParams = field(default_factory=RefineParams)
     features: str | None = None  # feature backend; None: the map's backend
     weights: str | None = None  # SuperPoint checkpoint (path)
-    do_refine: bool = True  # False: stop after pose search (always so for lines-only maps)
+    do_refine: bool = True  # False: stop after pose search
+    refine_mode: str = "auto"  # auto: features when the map has them, else geometric | features |
+    # geometric (lines alone, ldlloc.geometric) | none
+    geometric: GeometricParams = field(default_factory=GeometricParams)
     privacy: bool = False  # refine only with query features near principal-direction lines
     max_keypoints: int = 8192  # query features
     vp_keep_ratio: float = 0.2  # vanishing points are voted by the longest max(kept ratio, this)
@@ -75,6 +79,8 @@ class Localization:
     num_inliers: int = 0
     num_query_features: int = 0  # query features used for matching (fewer in privacy mode)
     message: str = ""
+    refine_method: str = "none"  # features | geometric | none (what produced the final pose)
+    refine_residual_deg: float | None = None  # geometric: median angle of the matched line points
     arcs: np.ndarray | None = None  # the filtered 2D arcs used (camera frame)
     arc_groups: np.ndarray | None = None  # principal group of each arc under the chosen rotation
     rotations: np.ndarray | None = None  # (N_r, 3, 3) all candidate rotations (after the prior)
@@ -97,6 +103,9 @@ class Localization:
         if digits is not None:
             Rs, ts = np.round(Rs, digits + 2), np.round(ts, digits)
         return [{"R": R.tolist(), "t": t.tolist(), "loss": float(v)} for R, t, v in zip(Rs, ts, losses)]
+
+
+REFINE_MODES = ("auto", "features", "geometric", "none")
 
 
 def load_image(path: str | Path) -> np.ndarray:
@@ -133,12 +142,53 @@ class Localizer:
             from ldlloc.fields import DistanceFields
 
             self.fields = DistanceFields.from_map(ldl_map, device)
-        self.refine_enabled = params.do_refine and map_backend is not None
+        mode = params.refine_mode if params.do_refine else "none"
+        if mode not in REFINE_MODES:
+            raise InputError(f"unknown refinement {mode!r}; valid: {', '.join(REFINE_MODES)}")
+        if mode == "auto":
+            mode = "features" if map_backend is not None else "geometric"
+        if mode == "features" and map_backend is None:
+            raise InputError(f"map {ldl_map.name} has no features: feature refinement needs a map built with "
+                             "features (use --refine geometric)")
+        self.refine_mode = mode
+        self.refine_enabled = mode == "features"
         if self.refine_enabled:
             from ldlmap.features import get_backend
 
             opts = {"weights": params.weights, "device": device} if want == "superpoint" else {}
             self.backend = get_backend(want, **opts)
+
+    def _refine_geometric(self, out: "Localization", arcs: np.ndarray, res) -> None:
+        """Refine the top-K poses from lines alone and keep the best by the exact loss."""
+        from ldlloc.geometric import refine_poses_geometric
+        from ldlloc.principal import assign_arcs_to_principal
+        from ldlloc.search import score_poses
+
+        m, p = self.map, self.params
+        vis = m.visibility[res.translation_index] if m.visibility is not None else None
+        g = refine_poses_geometric(arcs, res.rotations, res.centers, m.lines, m.line_groups, m.principal_directions,
+                                   vis, p.geometric)
+        # A candidate keeps its refined pose where refinement was accepted and the pose explains about
+        # as much of the image as its coarse pose (the search's exact loss, GeometricParams.keep_within);
+        # the candidate with the best loss wins.
+        both = score_poses(arcs, np.concatenate([g.rotations, res.rotations]), np.concatenate([g.centers, res.centers]),
+                           m.lines, m.line_groups, m.principal_directions, np.tile(res.translation_index, 2), p.search,
+                           m.visibility, m.coverage, self.device)
+        K = len(res.centers)
+        refined_loss, coarse_loss = both[:K], both[K:]
+        better = g.accepted & (refined_loss <= coarse_loss + p.geometric.keep_within * np.abs(coarse_loss))
+        k = int(np.argmin(np.minimum(np.where(better, refined_loss, np.inf), coarse_loss)))
+        out.coarse_rot, out.coarse_center = res.rotations[k], res.centers[k]
+        out.rot_cam_from_world, out.center = (g.rotations[k], g.centers[k]) if better[k] else (res.rotations[k], res.centers[k])
+        out.arc_groups = assign_arcs_to_principal(arcs, (out.rot_cam_from_world @ m.principal_directions.T).T,
+                                                  p.principal.group_tol)
+        out.refined = bool(better[k])
+        out.num_matches = int(g.matched[k])
+        out.refine_residual_deg = float(g.residual_deg[k])
+        out.message = (f"geometric refinement of candidate {k + 1}: {out.num_matches} line points, median "
+                       f"residual {out.refine_residual_deg:.2f} deg" if out.refined else
+                       f"candidate {k + 1}: coarse pose kept (its geometric refinement diverged, matched too few line "
+                       "points or explained less of the image)")
 
     @property
     def feature_backend(self) -> str | None:
@@ -221,8 +271,11 @@ class Localizer:
             out.arc_groups = labels[res.rotation_index[ref.candidate]]
             out.refined, out.num_matches, out.num_inliers, out.message = (
                 ref.refined, ref.num_matches, ref.num_inliers, ref.message)
+        elif self.refine_mode == "geometric":
+            self._refine_geometric(out, arcs, res)
         else:
-            out.message = "pose search only (no refinement)" if m.features is not None else "lines-only map: pose search only"
+            out.message = "pose search only (no refinement)"
+        out.refine_method = self.refine_mode if out.refined else "none"
         lap("refine")
         secs["total"] = time.perf_counter() - t0
         return out

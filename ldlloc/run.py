@@ -51,6 +51,7 @@ def result_from_localization(q, loc: Localization) -> QueryResult:
         num_rotations=int(loc.num_rotations), num_matches=int(loc.num_matches), num_inliers=int(loc.num_inliers),
         refined=bool(loc.refined), status=loc.status, message=loc.message,
         rotation_prior=loc.rotation_prior, candidates=loc.candidate_dicts(),
+        refine_method=loc.refine_method, refine_residual_deg=loc.refine_residual_deg,
         best_candidate_t_error_m=None if best is None else float(cand_t[best]),
         best_candidate_r_error_deg=None if best is None else float(cand_r[best]),
         first_good_rank=first_good_rank(cand_t, cand_r),

@@ -152,6 +152,38 @@ def search_poses(arcs2d: np.ndarray, labels2d: np.ndarray, rotations: np.ndarray
                         translation_index=ti, rotation_index=ri, losses=lv.cpu().numpy())
 
 
+def score_poses(arcs2d: np.ndarray, rotations: np.ndarray, centers: np.ndarray, lines3d: np.ndarray,
+                line_groups: np.ndarray, principal3d: np.ndarray, translation_index: np.ndarray,
+                params: SearchParams = SearchParams(), visibility: np.ndarray | None = None,
+                coverage: np.ndarray | None = None, device: str = "cpu") -> np.ndarray:
+    """Exact inlier losses (M,) of arbitrary poses (e.g. refined ones), as the re-scoring computes
+    them: decomposed functions on the re-scoring's query points, each arc grouped by the principal
+    direction its great circle passes through under the pose, the lines seen from (and the
+    coverage of) the candidate translation ``translation_index`` (M,) each pose came from."""
+    import torch
+
+    from ldlloc import ldf
+    from ldlloc.principal import assign_arcs_to_principal
+
+    R = np.asarray(rotations, dtype=np.float64).reshape(-1, 3, 3)
+    C = np.asarray(centers, dtype=np.float64).reshape(-1, 3)
+    ti = np.asarray(translation_index, dtype=np.int64).reshape(-1)
+    P = np.asarray(principal3d, dtype=np.float64)
+    labels = np.stack([assign_arcs_to_principal(arcs2d, (r @ P.T).T, 0.05) for r in R])  # (M, N)
+    dt = torch.float32
+    Q = ldf.query_points(params.rescore_query_level or params.query_level, device=device, dtype=dt)
+    arcs_t = torch.as_tensor(np.asarray(arcs2d), dtype=dt, device=device)
+    f2d = ldf.decomposed_distance_2d(Q, arcs_t, torch.as_tensor(labels, device=device), 3)  # (M, G, Q)
+    vis = None if visibility is None else np.asarray(visibility)[ti]
+    f3d = ldf.ldf_3d_at(Q, R, C, lines3d, line_groups, np.arange(len(R)), np.arange(len(R)), device=device,
+                        dtype=dt, visibility=vis)
+    if coverage is not None and params.coverage_cap > 1:
+        lv = covered_inlier_loss(f2d, f3d, Q, R, ti, coverage, params.tau, params.coverage_cap)
+    else:
+        lv = ldf.pose_loss(f2d, f3d.unsqueeze(0), kind="inlier", tau=params.tau)[0]
+    return lv.cpu().numpy().astype(np.float64)
+
+
 def covered_inlier_loss(f2d, f3d, Q, rotations: np.ndarray, translation_index: np.ndarray, coverage: np.ndarray,
                         tau: float, cap: float):
     """Inlier loss of M poses counted over the query points whose world direction meets a mapped
