@@ -99,6 +99,12 @@ def run_level(zind_root: Path, level: str, args) -> dict:
         search[key] = type(getattr(params.search, key))(value) if getattr(params.search, key) is not None else int(value)
     if search:
         params = replace(params, search=replace(params.search, **search))
+    geo = {}
+    for kv in args.geometric or []:  # --geometric name=value: any GeometricParams field (experiments)
+        key, value = kv.split("=", 1)
+        geo[key] = type(getattr(params.geometric, key))(value)
+    if geo:
+        params = replace(params, geometric=replace(params.geometric, **geo))
     if args.keep_ratio is not None:
         lo, hi = (float(x) for x in args.keep_ratio.split(","))
         params = replace(params, lines2d=replace(params.lines2d, keep_ratio_bounds=(lo, hi)))
@@ -203,6 +209,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--rescore-level", type=int, default=None, help="query-point level of the exact re-scoring")
     ap.add_argument("--diverse", default=None, help="top-K diversity 'METRES,DEGREES' (default: the search's)")
     ap.add_argument("--search", action="append", help="SearchParams field=value (repeatable, for experiments)")
+    ap.add_argument("--geometric", action="append", help="GeometricParams field=value (repeatable, for experiments)")
     ap.add_argument("--keep-ratio", default=None, help="2D kept-ratio bounds 'MIN,MAX' (default: Lines2DParams')")
     ap.add_argument("--output", default=str(HERE / "real.json"))
     args = ap.parse_args(argv)

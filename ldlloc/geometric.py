@@ -36,6 +36,8 @@ from ldlmap.errors import InputError
 class GeometricParams:
     """Parameters of :func:`refine_poses_geometric`."""
 
+    max_poses: int = 10  # refine the best this many of the K search poses (the rest stay coarse;
+    # on the real home 10 gave the accuracy of 20 at 0.21 instead of 0.30 s per query, room level)
     samples: int = 5  # points per 2D arc
     rounds: int = 10  # association rounds
     steps: int = 2  # Gauss-Newton steps per round

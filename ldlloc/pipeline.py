@@ -165,9 +165,17 @@ class Localizer:
         from ldlloc.search import score_poses
 
         m, p = self.map, self.params
-        vis = m.visibility[res.translation_index] if m.visibility is not None else None
-        g = refine_poses_geometric(arcs, res.rotations, res.centers, m.lines, m.line_groups, m.principal_directions,
-                                   vis, p.geometric)
+        n = max(1, min(len(res.centers), int(p.geometric.max_poses)))
+        vis = m.visibility[res.translation_index[:n]] if m.visibility is not None else None
+        g = refine_poses_geometric(arcs, res.rotations[:n], res.centers[:n], m.lines, m.line_groups,
+                                   m.principal_directions, vis, p.geometric)
+        if n < len(res.centers):  # the others keep their coarse poses
+            rest = len(res.centers) - n
+            g.rotations = np.concatenate([g.rotations, res.rotations[n:]])
+            g.centers = np.concatenate([g.centers, res.centers[n:]])
+            g.accepted = np.concatenate([g.accepted, np.zeros(rest, bool)])
+            g.matched = np.concatenate([g.matched, np.zeros(rest, g.matched.dtype)])
+            g.residual_deg = np.concatenate([g.residual_deg, np.full(rest, np.nan)])
         # A candidate keeps its refined pose where refinement was accepted and the pose explains about
         # as much of the image as its coarse pose (the search's exact loss, GeometricParams.keep_within);
         # the candidate with the best loss wins.
@@ -184,7 +192,7 @@ class Localizer:
                                                   p.principal.group_tol)
         out.refined = bool(better[k])
         out.num_matches = int(g.matched[k])
-        out.refine_residual_deg = float(g.residual_deg[k])
+        out.refine_residual_deg = float(g.residual_deg[k]) if out.refined else None
         out.message = (f"geometric refinement of candidate {k + 1}: {out.num_matches} line points, median "
                        f"residual {out.refine_residual_deg:.2f} deg" if out.refined else
                        f"candidate {k + 1}: coarse pose kept (its geometric refinement diverged, matched too few line "
