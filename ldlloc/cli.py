@@ -21,7 +21,7 @@ LOSS = typer.Option("inlier", "--loss", help="inlier (paper) | l1 | l2 | huber |
 NO_DECOMPOSE = typer.Option(False, "--no-decompose", help="Do not decompose the distance functions.")
 NO_REFINE = typer.Option(False, "--no-refine", help="Stop after pose search (= --refine none).")
 REFINE = typer.Option("auto", "--refine", help="auto (features when the map has them, else geometric) | features | "
-                      "geometric (lines alone) | none.")
+                      "geometric (lines alone) | both (features, then a geometric polish) | none.")
 PRIVACY = typer.Option(False, "--privacy", help="Privacy mode: refine only with features near principal lines.")
 FEATURES = typer.Option(None, "--features", help="Feature backend (must match the map's).")
 WEIGHTS = typer.Option(None, "--weights", help="SuperPoint checkpoint.")
