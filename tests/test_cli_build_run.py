@@ -107,6 +107,17 @@ def test_lines_only_map_from_a_line_file(demo_dataset, tmp_path):
         coarse, out = coarse_loc.localize(pano), refine_loc.localize(pano)
         assert coarse.status == "coarse" and (out.status == "ok") == (out.refine_method == "geometric")
         errors.append([np.linalg.norm(o.center - t_true) for o in (coarse, out)])
+    line = one_error_line(runner.invoke(loc_app, ["localize", str(tmp_path / "lines.h5"), str(images[0]),
+                                                  "--refine", "features"]))
+    assert "no features" in line
+    assert "--refine" in one_error_line(runner.invoke(loc_app, ["localize", str(tmp_path / "lines.h5"), str(images[0]),
+                                                                "--refine", "bogus"]))
+    # A map with features: `both` polishes the feature pose with the lines and says what it kept.
+    res = runner.invoke(loc_app, ["localize", str(demo_dataset / "maps" / "synthroom_1.h5"), str(images[0]), "--json",
+                                  "--refine", "both"])
+    assert res.exit_code == 0, res.output
+    both = json.loads(res.output)
+    assert both["refine_method"] in ("features+geometric", "features", "geometric") and "geometric polish" in both["message"]
     errors = np.array(errors)
     assert np.sum(errors[:, 1] < 0.1) >= 4 and np.median(errors[:, 1]) < np.median(errors[:, 0]), errors
     # An absolute length threshold (multi-room maps) instead of lambda's.
