@@ -12,6 +12,9 @@ Benchmarks (in this order; names for ``--only``):
   ``bench/results.json`` (bench_localize.py)
 - ``ablation``: decomposition and losses on the synthetic extreme split; writes
   ``bench/ablation.json`` (bench_ablation.py)
+- ``geometric``: geometric refinement on the synthetic extreme, robot and change_robot splits with
+  lines-only maps (true edges, extracted scan lines) and SIFT maps; writes ``bench/geometric.json``
+  (bench_geometric.py)
 - ``real``: real ZInD panoramas against their layout maps, room and floor level; writes
   ``bench/real.json`` (bench_real.py; prints a note and measures nothing when the real data,
   ``--data`` / ``$LDL_REAL_DATA`` / ``../shared/data``, is absent)
@@ -43,9 +46,10 @@ BENCHES: dict[str, tuple[str, list[str], list[str]]] = {
     "ablation": ("bench_ablation.py", [], ["--quick"]),
     "multiroom": ("bench_multiroom.py", [], ["--rooms", "2", "--per-split", "1", "--no-room-lambda"]),
     "real": ("bench_real.py", [], ["--levels", "room"]),
+    "geometric": ("bench_geometric.py", [], ["--quick"]),
 }
 DEVICE_AWARE = {"render", "ldf", "localize", "ablation"}
-THREAD_AWARE = {"render", "ldf", "build", "localize", "ablation", "real"}
+THREAD_AWARE = {"render", "ldf", "build", "localize", "ablation", "real", "geometric"}
 
 
 def main(argv: list[str] | None = None) -> int:
