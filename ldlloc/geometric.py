@@ -175,8 +175,9 @@ def refine_poses_geometric(arcs: np.ndarray, rotations: np.ndarray, centers: np.
 def _associate(R, t, X, arc_of, n2, L, G3, vis, P3, group_tol, margin, thr):
     """(K, X) index of the line matched to each point (-1: none), see the module docstring.
 
-    Computed in float32 with one batched matmul for the four dot products of every point with
-    every line (distance to its circle, the two extent planes, the near side)."""
+    Per pose and principal group, the points of that group meet only the lines of that group
+    (a third of the pairs): one float32 matmul for the four dot products of each point with each
+    line (distance to its circle, the two extent planes, the near side)."""
     import torch
 
     f = torch.float32
@@ -187,14 +188,26 @@ def _associate(R, t, X, arc_of, n2, L, G3, vis, P3, group_tol, margin, thr):
     g2 = torch.where(cmin < group_tol, g2, torch.full_like(g2, -1))
     gx = torch.gather(g2, 1, arc_of[None].expand(len(R), -1))  # (K, X)
     n, s, e = _line_geometry(R, t, L)  # (K, L, 3)
-    V = torch.cat([n, torch.linalg.cross(n, s, dim=-1), torch.linalg.cross(e, n, dim=-1), s + e], 1).to(f)
-    dots = torch.matmul(V, X.to(f).T[None])  # (K, 4L, X)
-    dist, side_a, side_b, near = dots.split(L.shape[0], dim=1)
-    ok = (side_a > -margin) & (side_b > -margin) & (near > 0) & vis[..., None] \
-        & (G3[None, :, None] == gx[:, None, :]) & (gx[:, None, :] >= 0)  # (K, L, X)
-    dist = dist.abs_().masked_fill_(~ok, 2.0)
-    best, idx = dist.min(1)  # (K, X)
-    return torch.where(best < thr, idx, torch.full_like(idx, -1))
+    V = torch.stack([n, torch.linalg.cross(n, s, dim=-1), torch.linalg.cross(e, n, dim=-1), s + e], 2).to(f)  # (K, L, 4, 3)
+    Xf = X.to(f)
+    match = torch.full(gx.shape, -1, dtype=torch.long)
+    for g in range(3):
+        lines_g = torch.nonzero(G3 == g).reshape(-1)
+        if len(lines_g) == 0:
+            continue
+        for k in range(len(R)):  # K x 3 blocks: the points of group g under pose k
+            pts = torch.nonzero(gx[k] == g).reshape(-1)
+            if len(pts) == 0:
+                continue
+            lk = lines_g[vis[k, lines_g]]
+            if len(lk) == 0:
+                continue
+            dots = torch.matmul(V[k, lk].reshape(-1, 3), Xf[pts].T).reshape(len(lk), 4, len(pts))
+            ok = (dots[:, 1] > -margin) & (dots[:, 2] > -margin) & (dots[:, 3] > 0)
+            dist = dots[:, 0].abs().masked_fill_(~ok, 2.0)
+            best, idx = dist.min(0)
+            match[k, pts] = torch.where(best < thr, lk[idx], torch.full_like(idx, -1))
+    return match
 
 
 def _residuals_and_jacobian(R, t, X, L, match):
