@@ -157,8 +157,10 @@ def run(
     from ldlmap.errors import InputError
 
     params = _params(top_k, loss, no_decompose, no_refine, privacy, features, weights, max_tilt, refine)
-    if map_level is not None and map_level not in ("room", "floor"):
-        raise InputError(f"--map-level must be room or floor, got {map_level!r}")
+    from ldlmap.datasets import MAP_LEVELS
+
+    if map_level is not None and map_level not in MAP_LEVELS:
+        raise InputError(f"--map-level must be {' or '.join(MAP_LEVELS)}, got {map_level!r}")
     level = {"map_level": map_level} if map_level is not None else {}  # only when given
     ds = open_dataset(root, dataset or (None if root else "omniscenes"), **level)
     root, kind = Path(ds.root), ds.kind

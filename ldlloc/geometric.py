@@ -106,16 +106,6 @@ def _line_geometry(R, t, L):
     return n, s, e
 
 
-def _residuals(R, t, X, L, match):
-    """``x . n_l`` for every point and its matched line (K, X); 0 where unmatched."""
-    import torch
-
-    n, _, _ = _line_geometry(R, t, L)
-    nl = torch.gather(n, 1, match.clamp_min(0)[..., None].expand(-1, -1, 3))  # (K, X, 3)
-    r = (nl * X[None]).sum(-1)
-    return torch.where(match >= 0, r, torch.zeros_like(r))
-
-
 def refine_poses_geometric(arcs: np.ndarray, rotations: np.ndarray, centers: np.ndarray, lines: np.ndarray,
                            line_groups: np.ndarray, principal: np.ndarray, visible: np.ndarray | None = None,
                            params: GeometricParams = GeometricParams()) -> GeometricResult:
@@ -158,10 +148,9 @@ def refine_poses_geometric(arcs: np.ndarray, rotations: np.ndarray, centers: np.
         match = _associate(R, t, X, arc_of, n2, L, G3, vis, P3, params.group_tol, margin, thr)
         for _ in range(max(1, int(params.steps))):
             R, t = _gauss_newton_step(R, t, X, L, match, max(huber, thr / 3), params.damping)
-    r = _residuals(R, t, X, L, match).abs()
+    r = _residuals_and_jacobian(R, t, X, L, match)[0].abs().masked_fill_(match < 0, float("nan"))
     matched = (match >= 0).sum(1)
-    med = torch.stack([r[i][match[i] >= 0].median() if matched[i] > 0 else torch.tensor(np.pi, dtype=dt)
-                       for i in range(K)])  # K = 20 medians
+    med = torch.nan_to_num(torch.nanmedian(r, dim=1).values, nan=1.0)  # sine; 1 (90 deg) when none matched
     move = torch.linalg.vector_norm(t - t0, dim=-1)
     turn = torch.rad2deg(torch.arccos(((torch.einsum("kij,kij->k", R, R0) - 1) / 2).clamp(-1, 1)))
     ok = (move <= params.max_move_m) & (turn <= params.max_turn_deg) & (matched >= params.min_points) \

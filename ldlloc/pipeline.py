@@ -163,41 +163,48 @@ class Localizer:
             opts = {"weights": params.weights, "device": device} if want == "superpoint" else {}
             self.backend = get_backend(want, **opts)
 
-    def _refine_geometric(self, out: "Localization", arcs: np.ndarray, res) -> None:
-        """Refine the top-K poses from lines alone and keep the best by the exact loss."""
+    def _refine_and_keep(self, arcs: np.ndarray, rotations: np.ndarray, centers: np.ndarray,
+                         translation_index: np.ndarray, n: int):
+        """Refine the first ``n`` of these poses from lines alone and score every pose.
+
+        A refined pose is kept where refinement was accepted and its exact loss (the search's,
+        :func:`ldlloc.search.score_poses`) is within ``GeometricParams.keep_within`` of its start's:
+        the inlier loss cannot see a few centimetres, so a pose refined to 3 cm may count a few
+        inliers less than a coarse one 11 cm off. Returns the :class:`GeometricResult` of the first
+        ``n``, ``kept`` (M,) and each pose's loss (M,) (the better of the two where kept)."""
         from ldlloc.geometric import refine_poses_geometric
-        from ldlloc.principal import assign_arcs_to_principal
         from ldlloc.search import score_poses
 
         m, p = self.map, self.params
-        n = max(1, min(len(res.centers), int(p.geometric.max_poses)))
-        vis = m.visibility[res.translation_index[:n]] if m.visibility is not None else None
-        g = refine_poses_geometric(arcs, res.rotations[:n], res.centers[:n], m.lines, m.line_groups,
-                                   m.principal_directions, vis, p.geometric)
-        if n < len(res.centers):  # the others keep their coarse poses
-            rest = len(res.centers) - n
-            g.rotations = np.concatenate([g.rotations, res.rotations[n:]])
-            g.centers = np.concatenate([g.centers, res.centers[n:]])
-            g.accepted = np.concatenate([g.accepted, np.zeros(rest, bool)])
-            g.matched = np.concatenate([g.matched, np.zeros(rest, g.matched.dtype)])
-            g.residual_deg = np.concatenate([g.residual_deg, np.full(rest, np.nan)])
-        # A candidate keeps its refined pose where refinement was accepted and the pose explains about
-        # as much of the image as its coarse pose (the search's exact loss, GeometricParams.keep_within);
-        # the candidate with the best loss wins.
-        both = score_poses(arcs, np.concatenate([g.rotations, res.rotations]), np.concatenate([g.centers, res.centers]),
-                           m.lines, m.line_groups, m.principal_directions, np.tile(res.translation_index, 2), p.search,
-                           m.visibility, m.coverage, self.device)
-        K = len(res.centers)
-        refined_loss, coarse_loss = both[:K], both[K:]
-        better = g.accepted & (refined_loss <= coarse_loss + p.geometric.keep_within * np.abs(coarse_loss))
-        k = int(np.argmin(np.minimum(np.where(better, refined_loss, np.inf), coarse_loss)))
+        ti = np.asarray(translation_index)
+        vis = m.visibility[ti[:n]] if m.visibility is not None else None
+        g = refine_poses_geometric(arcs, rotations[:n], centers[:n], m.lines, m.line_groups, m.principal_directions,
+                                   vis, p.geometric)
+        loss = score_poses(arcs, np.concatenate([g.rotations, rotations]), np.concatenate([g.centers, centers]),
+                           m.lines, m.line_groups, m.principal_directions, np.concatenate([ti[:n], ti]), p.search,
+                           m.visibility, m.coverage, self.device, p.principal.group_tol)
+        refined, start = loss[:n], loss[n:]
+        kept = np.zeros(len(rotations), dtype=bool)
+        kept[:n] = g.accepted & (refined <= start[:n] + p.geometric.keep_within * np.abs(start[:n]))
+        best = start.copy()
+        best[:n] = np.where(kept[:n], np.minimum(refined, start[:n]), start[:n])
+        return g, kept, best
+
+    def _refine_geometric(self, out: "Localization", arcs: np.ndarray, res) -> None:
+        """Refine the best of the top-K poses from lines alone; the candidate with the best loss wins."""
+        from ldlloc.principal import assign_arcs_to_principal
+
+        m, p = self.map, self.params
+        n = max(1, min(len(res.centers), int(p.geometric.max_poses)))  # the others keep their coarse poses
+        g, kept, loss = self._refine_and_keep(arcs, res.rotations, res.centers, res.translation_index, n)
+        k = int(np.argmin(loss))
         out.coarse_rot, out.coarse_center = res.rotations[k], res.centers[k]
-        out.rot_cam_from_world, out.center = (g.rotations[k], g.centers[k]) if better[k] else (res.rotations[k], res.centers[k])
+        out.rot_cam_from_world, out.center = (g.rotations[k], g.centers[k]) if kept[k] else (res.rotations[k], res.centers[k])
         out.arc_groups = assign_arcs_to_principal(arcs, (out.rot_cam_from_world @ m.principal_directions.T).T,
                                                   p.principal.group_tol)
-        out.refined = bool(better[k])
+        out.refined = bool(kept[k])
         out.refine_method = "geometric" if out.refined else "none"
-        out.num_matches = int(g.matched[k])
+        out.num_matches = int(g.matched[k]) if k < n else 0
         out.refine_residual_deg = float(g.residual_deg[k]) if out.refined else None
         out.message = (f"geometric refinement of candidate {k + 1}: {out.num_matches} line points, median "
                        f"residual {out.refine_residual_deg:.2f} deg" if out.refined else
@@ -205,28 +212,17 @@ class Localizer:
                        "points or explained less of the image)")
 
     def _polish_geometric(self, out: "Localization", arcs: np.ndarray, translation_index: int) -> None:
-        """``--refine both``: refine the feature-refined (or coarse) pose from lines alone and keep
-        it when its exact loss is within ``GeometricParams.keep_within`` of the pose it started from."""
-        from ldlloc.geometric import refine_poses_geometric
-        from ldlloc.search import score_poses
-
-        m, p = self.map, self.params
-        vis = m.visibility[[translation_index]] if m.visibility is not None else None
-        g = refine_poses_geometric(arcs, out.rot_cam_from_world[None], out.center[None], m.lines, m.line_groups,
-                                   m.principal_directions, vis, p.geometric)
-        loss = score_poses(arcs, np.concatenate([g.rotations, out.rot_cam_from_world[None]]),
-                           np.concatenate([g.centers, out.center[None]]), m.lines, m.line_groups,
-                           m.principal_directions, np.array([translation_index] * 2), p.search, m.visibility,
-                           m.coverage, self.device)
-        before = out.refine_method
-        if g.accepted[0] and loss[0] <= loss[1] + p.geometric.keep_within * abs(loss[1]):
+        """``--refine both`` (and ``auto``'s fallback): refine the feature-refined (or coarse) pose from
+        lines alone, kept as :meth:`_refine_and_keep` says."""
+        g, kept, _ = self._refine_and_keep(arcs, out.rot_cam_from_world[None], out.center[None],
+                                           np.array([translation_index]), 1)
+        if kept[0]:
             out.rot_cam_from_world, out.center = g.rotations[0], g.centers[0]
             out.refine_residual_deg = float(g.residual_deg[0])
             out.refined = True
-            out.refine_method = "features+geometric" if before == "features" else "geometric"
+            out.refine_method = "features+geometric" if out.refine_method == "features" else "geometric"
             out.message += f"; geometric polish: median residual {out.refine_residual_deg:.2f} deg"
         else:
-            out.refine_method = before
             out.message += "; geometric polish not kept"
 
     @property

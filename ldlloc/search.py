@@ -25,7 +25,7 @@ inlier count by a few terms at most). ``rescore=0`` returns the field losses.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -140,11 +140,7 @@ def search_poses(arcs2d: np.ndarray, labels2d: np.ndarray, rotations: np.ndarray
             f2d_at = f2d[ri] if f2d.dim() == 3 else f2d
         f3d = ldf.ldf_3d_at(Q, rotations, translations, lines3d, groups3d, ti, ri, device=device, dtype=dt,
                             visibility=visibility)
-        if coverage is not None and params.loss == "inlier" and params.coverage_cap > 1:
-            lv = covered_inlier_loss(f2d_at, f3d, Q, np.asarray(rotations)[ri.cpu().numpy()], ti.cpu().numpy(),
-                                     coverage, params.tau, params.coverage_cap)
-        else:
-            lv = ldf.pose_loss(f2d_at, f3d.unsqueeze(0), kind=params.loss, tau=params.tau)[0]
+        lv = _rescored_loss(f2d_at, f3d, Q, np.asarray(rotations)[ri.cpu().numpy()], ti.cpu().numpy(), coverage, params)
         order = torch.sort(lv, stable=True).indices[:params.top_k]
         ti, ri, lv = ti[order], ri[order], lv[order]
     ti, ri = ti.cpu().numpy(), ri.cpu().numpy()
@@ -155,21 +151,25 @@ def search_poses(arcs2d: np.ndarray, labels2d: np.ndarray, rotations: np.ndarray
 def score_poses(arcs2d: np.ndarray, rotations: np.ndarray, centers: np.ndarray, lines3d: np.ndarray,
                 line_groups: np.ndarray, principal3d: np.ndarray, translation_index: np.ndarray,
                 params: SearchParams = SearchParams(), visibility: np.ndarray | None = None,
-                coverage: np.ndarray | None = None, device: str = "cpu") -> np.ndarray:
+                coverage: np.ndarray | None = None, device: str = "cpu", group_tol: float = 0.05) -> np.ndarray:
     """Exact inlier losses (M,) of arbitrary poses (e.g. refined ones), as the re-scoring computes
     them: decomposed functions on the re-scoring's query points, each arc grouped by the principal
-    direction its great circle passes through under the pose, the lines seen from (and the
-    coverage of) the candidate translation ``translation_index`` (M,) each pose came from."""
+    direction its great circle passes through under the pose (``|n . R p_g| < group_tol``), the
+    lines seen from (and the coverage of) the candidate translation ``translation_index`` (M,)
+    each pose came from."""
     import torch
 
     from ldlloc import ldf
-    from ldlloc.principal import assign_arcs_to_principal
+    from ldlloc.principal import arc_normals
 
     R = np.asarray(rotations, dtype=np.float64).reshape(-1, 3, 3)
     C = np.asarray(centers, dtype=np.float64).reshape(-1, 3)
     ti = np.asarray(translation_index, dtype=np.int64).reshape(-1)
-    P = np.asarray(principal3d, dtype=np.float64)
-    labels = np.stack([assign_arcs_to_principal(arcs2d, (r @ P.T).T, 0.05) for r in R])  # (M, N)
+    normals, _ = arc_normals(arcs2d)
+    c = np.abs(np.einsum("ni,mig->mng", normals, R @ np.asarray(principal3d, dtype=np.float64).T))  # |n . R p_g|
+    g = np.argmin(c, axis=2)
+    ok = (np.min(c, axis=2) < group_tol) & (np.linalg.norm(normals, axis=1) > 0)[None]
+    labels = np.where(ok, g, -1)  # (M, N)
     dt = torch.float32
     Q = ldf.query_points(params.rescore_query_level or params.query_level, device=device, dtype=dt)
     arcs_t = torch.as_tensor(np.asarray(arcs2d), dtype=dt, device=device)
@@ -177,11 +177,17 @@ def score_poses(arcs2d: np.ndarray, rotations: np.ndarray, centers: np.ndarray, 
     vis = None if visibility is None else np.asarray(visibility)[ti]
     f3d = ldf.ldf_3d_at(Q, R, C, lines3d, line_groups, np.arange(len(R)), np.arange(len(R)), device=device,
                         dtype=dt, visibility=vis)
-    if coverage is not None and params.coverage_cap > 1:
-        lv = covered_inlier_loss(f2d, f3d, Q, R, ti, coverage, params.tau, params.coverage_cap)
-    else:
-        lv = ldf.pose_loss(f2d, f3d.unsqueeze(0), kind="inlier", tau=params.tau)[0]
-    return lv.cpu().numpy().astype(np.float64)
+    return _rescored_loss(f2d, f3d, Q, R, ti, coverage, replace(params, loss="inlier")).cpu().numpy().astype(np.float64)
+
+
+def _rescored_loss(f2d, f3d, Q, rotations: np.ndarray, translation_index: np.ndarray, coverage, params: SearchParams):
+    """Loss of M poses from their functions (M, G, Q): over the covered directions (maps with
+    coverage, inlier loss, ``coverage_cap`` > 1; :func:`covered_inlier_loss`) or the plain loss."""
+    from ldlloc import ldf
+
+    if coverage is not None and params.loss == "inlier" and params.coverage_cap > 1:
+        return covered_inlier_loss(f2d, f3d, Q, rotations, translation_index, coverage, params.tau, params.coverage_cap)
+    return ldf.pose_loss(f2d, f3d.unsqueeze(0), kind=params.loss, tau=params.tau)[0]
 
 
 def covered_inlier_loss(f2d, f3d, Q, rotations: np.ndarray, translation_index: np.ndarray, coverage: np.ndarray,

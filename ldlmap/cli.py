@@ -18,6 +18,12 @@ app = make_app("ldlmap", "Build LDL maps (3D lines, principal directions, featur
 
 # Commands are added below, one function each. Keep each one short: parse, call, print.
 
+# Options shared by `build` and `prepare` (maps without a scan: line files, ZInD layouts).
+TRANS_SPACING = typer.Option(None, "--trans-spacing", help="Maps without a scan (line files, ZInD layouts): "
+                             "candidate translations this many metres apart (default 0.3).")
+CAMERA_HEIGHT = typer.Option(None, "--camera-height", metavar="MIN:MAX", help="Maps without a scan: camera-height "
+                             "band in metres (e.g. 1.2:1.7; default: ZInD's camera height, else floor to ceiling).")
+
 
 @app.command()
 def info(map_path: Path = typer.Argument(..., help="An LDL map (.h5) written by `ldlmap build`.")) -> None:
@@ -167,10 +173,8 @@ def build(
     min_length: Optional[float] = typer.Option(None, "--min-line-length", help="Absolute length threshold in metres "
                                                "instead of lambda's (maps of several rooms: about one room's 0.1 x "
                                                "mean extent, e.g. 0.45)."),
-    trans_spacing: Optional[float] = typer.Option(None, "--trans-spacing", help="Maps without a scan (line files): "
-                                                  "candidate translations this many metres apart (default 0.3)."),
-    camera_height: Optional[str] = typer.Option(None, "--camera-height", metavar="MIN:MAX", help="Maps without a scan: "
-                                                "camera-height band in metres (e.g. 1.2:1.7; default floor to ceiling)."),
+    trans_spacing: Optional[float] = TRANS_SPACING,
+    camera_height: Optional[str] = CAMERA_HEIGHT,
     device: str = typer.Option("cpu", "--device", help="Torch device for rendering and SuperPoint: cpu | cuda."),
     png: Optional[Path] = typer.Option(None, "--png", help="Also write a picture of the map (top view + panorama with lines)."),
 ) -> None:
@@ -221,10 +225,8 @@ def prepare(
     weights: Optional[Path] = typer.Option(None, "--weights", help="SuperPoint checkpoint."),
     num_trans: Optional[int] = typer.Option(None, "--num-trans", help="N_t (default: 800 OmniScenes, 1700 Stanford)."),
     num_views: Optional[int] = typer.Option(None, "--num-views", help="Views rendered for features (default 40)."),
-    trans_spacing: Optional[float] = typer.Option(None, "--trans-spacing", help="Maps without a scan (ZInD layouts): "
-                                                  "candidate translations this many metres apart (default 0.3)."),
-    camera_height: Optional[str] = typer.Option(None, "--camera-height", metavar="MIN:MAX", help="Maps without a "
-                                                "scan: camera-height band in metres (default: ZInD's camera height)."),
+    trans_spacing: Optional[float] = TRANS_SPACING,
+    camera_height: Optional[str] = CAMERA_HEIGHT,
     scene: Optional[list[str]] = typer.Option(None, "--scene", help="Only these scenes (repeatable)."),
     line_files: bool = typer.Option(False, "--line-files", help="Use the dataset's 3D line files instead of extracting lines."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Rebuild maps that are up to date."),

@@ -467,24 +467,24 @@ class ZInD:
     def __repr__(self) -> str:
         return f"ZInD({str(self.root)!r}, map_level={self.map_level!r})"
 
+    def _folder(self, home: str) -> Path:
+        if home not in self._folders:
+            raise InputError(f"unknown ZInD home {home!r}; available: {', '.join(self.splits())}")
+        return self._folders[home]
+
     def home(self, name: str):
         """The parsed :class:`ldlmap.io.zind.ZindHome` of a home (read once)."""
         from ldlmap.io.zind import read_zind_home
 
-        if name not in self._folders:
-            raise InputError(f"unknown ZInD home {name!r}; available: {', '.join(self.splits())}")
         if name not in self._homes:
-            self._homes[name] = read_zind_home(self._folders[name])
+            self._homes[name] = read_zind_home(self._folder(name))
         return self._homes[name]
 
     def json_path(self, scene_or_home: str) -> Path:
         """``zind_data.json`` of the home a scene (or home) belongs to."""
         from ldlmap.io.zind import ZIND_JSON
 
-        home = scene_or_home.split("/", 1)[0]
-        if home not in self._folders:
-            raise InputError(f"unknown ZInD home {home!r}; available: {', '.join(self.splits())}")
-        return self._folders[home] / ZIND_JSON
+        return self._folder(scene_or_home.split("/", 1)[0]) / ZIND_JSON
 
     def splits(self) -> list[str]:
         """Home names (``000``, ...)."""
@@ -506,8 +506,8 @@ class ZInD:
         floor, partial room and pano. Names are ``<home>/<floor>/<partial_room>/<pano>``."""
         available = self.splits()
         wanted = _as_split_list(split, available, "ZInD home")
-        if scene is not None and scene not in self.scenes():
-            raise InputError(f"unknown ZInD scene {scene} at {self.map_level} level; available: {', '.join(self.scenes())}")
+        if scene is not None:
+            self._parse_scene(scene)  # one-line error for an unknown scene
         out: list[Query] = []
         for name in sorted(wanted, key=available.index):
             for p in self.home(name).panos:

@@ -22,7 +22,7 @@ from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Callable
 
-from ldlmap.build import BuildParams, BuildReport, build_map
+from ldlmap.build import BuildParams, BuildReport, build_lines_map, build_map
 from ldlmap.errors import InputError, LdlError
 
 # Paper hyperparameters per dataset (supplementary): N_t and the translation sampling.
@@ -95,21 +95,15 @@ def prepare_dataset(root: str | Path, kind: str | None, maps_dir: str | Path | N
     out: list[SceneOutcome] = []
     for scene in todo:
         target = maps_dir / f"{scene}.h5"
-        if kind == "zind":
-            out.append(_prepare_layout_scene(ds, scene, target, params, overwrite, progress))
-            continue
         try:
-            cloud = ds.point_cloud(scene)
-            lines = ds.line_file(scene) if use_line_files else None
-            if use_line_files and lines is None:
-                raise InputError(f"no line file for scene {scene}")
-            if not overwrite and is_up_to_date(target, [cloud, lines], params):
+            sources, build = _scene_build(ds, scene, use_line_files)
+            if not overwrite and is_up_to_date(target, sources, params):
                 out.append(SceneOutcome(scene, target, "up-to-date"))
                 if progress:
                     progress(scene, "up-to-date", 1, 1)
                 continue
             cb = (lambda stage, d, t, s=scene: progress(s, stage, d, t)) if progress else None
-            rep = build_map(cloud, target, lines, params, name=scene.replace("/", "_"), progress=cb)
+            rep = build(target, params, scene.replace("/", "_"), cb)
             out.append(SceneOutcome(scene, target, "built", report=rep))
         except LdlError as exc:
             out.append(SceneOutcome(scene, target, "failed", str(exc)))
@@ -118,23 +112,20 @@ def prepare_dataset(root: str | Path, kind: str | None, maps_dir: str | Path | N
     return out
 
 
-def _prepare_layout_scene(ds, scene: str, target: Path, params: BuildParams, overwrite: bool,
-                          progress: Callable[[str, str, int, int], None] | None) -> SceneOutcome:
-    """The lines-only map of one ZInD scene from its layouts (or skip it when up to date)."""
-    from ldlmap.build import build_lines_map
+def _scene_build(ds, scene: str, use_line_files: bool) -> tuple[list[Path | None], Callable[..., BuildReport]]:
+    """The files a scene's map is built from (for the up-to-date check) and a function
+    ``build(target, params, name, progress)`` that builds it: from the scan (and the dataset's line
+    file), or, for ZInD, a lines-only map of the room layouts (``build_lines_map``)."""
+    if ds.kind == "zind":
+        def build_layout(target: Path, params: BuildParams, name: str, progress) -> BuildReport:
+            lines, walkable = ds.layout_scene(scene)
+            return build_lines_map(lines, target, params, name=name, walkable=walkable, source=f"zind:{scene}",
+                                   progress=progress)
 
-    try:
-        source = ds.json_path(scene)
-        if not overwrite and is_up_to_date(target, [source], params):
-            if progress:
-                progress(scene, "up-to-date", 1, 1)
-            return SceneOutcome(scene, target, "up-to-date")
-        lines, walkable = ds.layout_scene(scene)
-        cb = (lambda stage, d, t: progress(scene, stage, d, t)) if progress else None
-        rep = build_lines_map(lines, target, params, name=scene.replace("/", "_"), walkable=walkable,
-                              source=f"zind:{scene}", progress=cb)
-        return SceneOutcome(scene, target, "built", report=rep)
-    except LdlError as exc:
-        if progress:
-            progress(scene, "failed", 1, 1)
-        return SceneOutcome(scene, target, "failed", str(exc))
+        return [ds.json_path(scene)], build_layout
+    cloud = ds.point_cloud(scene)
+    lines = ds.line_file(scene) if use_line_files else None
+    if use_line_files and lines is None:
+        raise InputError(f"no line file for scene {scene}")
+    return [cloud, lines], lambda target, params, name, progress: build_map(cloud, target, lines, params, name=name,
+                                                                           progress=progress)

@@ -46,14 +46,29 @@ def wall_triangles(walls: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return W.reshape(-1, 3), tris
 
 
+def _raycasting_scene(verts: np.ndarray, tris: np.ndarray):
+    """An open3d ``RaycastingScene`` holding the triangles ``tris`` (T, 3) over ``verts`` (V, 3)."""
+    import open3d as o3d
+
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.core.Tensor(np.asarray(verts, np.float32)), o3d.core.Tensor(np.asarray(tris, np.uint32)))
+    return scene
+
+
+def _hits(scene, rays: np.ndarray) -> np.ndarray:
+    """``t_hit`` (R,) of rays (R, 6) ``(origin, direction)``: the first hit at origin + t_hit *
+    direction (in units of the direction's length), inf when nothing is hit."""
+    import open3d as o3d
+
+    return scene.cast_rays(o3d.core.Tensor(np.asarray(rays, dtype=np.float32).reshape(-1, 6)))["t_hit"].numpy()
+
+
 def line_visibility(lines: np.ndarray, translations: np.ndarray, walls: np.ndarray,
                     params: VisibilityParams = VisibilityParams()) -> np.ndarray:
     """(N_t, L) bool: line ``l`` is seen from translation ``i`` (see the module docstring).
 
     ``lines`` (L, 2, 3), ``translations`` (N_t, 3), ``walls`` (W, 4, 3) quads; no walls: all seen.
     """
-    import open3d as o3d
-
     L = np.asarray(lines, dtype=np.float64).reshape(-1, 2, 3)
     T = np.asarray(translations, dtype=np.float64).reshape(-1, 3)
     Wq = np.asarray(walls, dtype=np.float64).reshape(-1, 4, 3)
@@ -62,9 +77,7 @@ def line_visibility(lines: np.ndarray, translations: np.ndarray, walls: np.ndarr
             raise InputError(f"visibility: {name} contain NaN or infinite values")
     if len(Wq) == 0 or len(L) == 0 or len(T) == 0:
         return np.ones((len(T), len(L)), dtype=bool)
-    verts, tris = wall_triangles(Wq)
-    scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(o3d.core.Tensor(verts.astype(np.float32)), o3d.core.Tensor(tris.astype(np.uint32)))
+    scene = _raycasting_scene(*wall_triangles(Wq))
     S = max(1, int(params.samples))
     f = (np.arange(S) + 0.5) / S
     P = L[:, None, 0] + f[None, :, None] * (L[:, None, 1] - L[:, None, 0])  # (L, S, 3)
@@ -76,7 +89,7 @@ def line_visibility(lines: np.ndarray, translations: np.ndarray, walls: np.ndarr
         d = P[None] - t[:, None]  # (c, L*S, 3)
         dist = np.linalg.norm(d, axis=-1)
         rays = np.concatenate([np.broadcast_to(t[:, None], d.shape), d], -1).reshape(-1, 6).astype(np.float32)
-        hit = scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy().reshape(len(t), -1)
+        hit = _hits(scene, rays).reshape(len(t), -1)
         # Hidden: a wall crossed before (dist - tolerance); t_hit is in units of |d|.
         free = hit * dist >= dist - params.tolerance
         seen[a:a + per] = free.reshape(len(t), len(L), S).mean(-1) >= params.min_fraction - 1e-9
@@ -109,8 +122,6 @@ def coverage_fields(translations: np.ndarray, verts: np.ndarray, tris: np.ndarra
     into a room the map does not hold) is not covered: no map line can explain the image there,
     and the pose search does not count it against a pose (:mod:`ldlloc.search`).
     """
-    import open3d as o3d
-
     from ldlmap.fields3d import grid_directions
 
     T = np.asarray(translations, dtype=np.float64).reshape(-1, 3)
@@ -118,14 +129,13 @@ def coverage_fields(translations: np.ndarray, verts: np.ndarray, tris: np.ndarra
     out = np.zeros((len(T), len(dirs)), dtype=bool)
     if len(tris) == 0:
         return out.reshape(len(T), rows + 1, 2 * rows)
-    scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(o3d.core.Tensor(np.asarray(verts, np.float32)), o3d.core.Tensor(np.asarray(tris, np.uint32)))
+    scene = _raycasting_scene(verts, tris)
     per = max(1, int(max_rays) // len(dirs))
     for a in range(0, len(T), per):
         t = T[a:a + per]
         rays = np.concatenate([np.broadcast_to(t[:, None], (len(t), len(dirs), 3)),
                                np.broadcast_to(dirs[None], (len(t), len(dirs), 3))], -1)
-        hit = scene.cast_rays(o3d.core.Tensor(rays.reshape(-1, 6).astype(np.float32)))["t_hit"].numpy()
+        hit = _hits(scene, rays)
         out[a:a + per] = np.isfinite(hit).reshape(len(t), -1)
     return out.reshape(len(T), rows + 1, 2 * rows)
 
