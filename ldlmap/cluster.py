@@ -42,13 +42,13 @@ def import_ray():
 def parse_address(address: str) -> dict[str, Any]:
     """``ray.init`` arguments for an ``--ray`` value (see :data:`ADDRESS_HELP`)."""
     text = address.strip()
-    if text == "local":
-        return {"num_cpus": None}
+    if text == "local":  # "local" also when RAY_ADDRESS is set: start a cluster here
+        return {"address": "local", "num_cpus": None}
     if text.startswith("local:"):
         n = text[len("local:"):]
         if not n.isdigit() or int(n) < 1:
             raise InputError(f"--ray local:N needs N >= 1 CPUs, got {address!r}")
-        return {"num_cpus": int(n)}
+        return {"address": "local", "num_cpus": int(n)}
     if text == "auto":
         return {"address": "auto"}
     hostport = text[len("ray://"):] if text.startswith("ray://") else text
@@ -84,17 +84,21 @@ def _one_line(exc: BaseException) -> str:
 def ray_session(address: str = "local") -> Iterator[Any]:
     """Yield the ``ray`` module connected to the cluster that ``address`` names; disconnect after
     (which stops a local cluster started here). An existing connection is reused and kept."""
+    kwargs = parse_address(address)  # bad addresses fail even where a connection exists
     ray = import_ray()
     if ray.is_initialized():
         yield ray
         return
-    kwargs = parse_address(address)
     debug = os.environ.get("LDL_DEBUG") == "1"
     try:
         ray.init(**kwargs, include_dashboard=False, log_to_driver=debug, logging_level="info" if debug else "error",
                  runtime_env={"env_vars": {"PYTHONPATH": worker_path()}})
     except Exception as exc:  # ConnectionError, ValueError, RuntimeError: all one-line messages
-        raise InputError(f"cannot start or join the Ray cluster {address!r}: {_one_line(exc)}") from None
+        hint = ""
+        if kwargs.get("address") not in ("local", "auto") and not os.environ.get("RAY_AUTH_MODE"):
+            hint = (" (a cluster started with `ray start` uses token authentication: set RAY_AUTH_MODE=token, "
+                    "with its token in ~/.ray/auth_token or RAY_AUTH_TOKEN)")
+        raise InputError(f"cannot start or join the Ray cluster {address!r}: {_one_line(exc)}{hint}") from None
     try:
         yield ray
     finally:
