@@ -21,6 +21,7 @@ that ``resume`` completes.
 
 from __future__ import annotations
 
+import os
 from collections import Counter
 from pathlib import Path
 from typing import Callable
@@ -29,16 +30,17 @@ from ldlloc.evaluate import QueryResult, ResultsWriter
 from ldlloc.pipeline import LocalizeParams
 from ldlloc.run import MapCache, failed_result, localize_query, query_key, run_meta
 from ldlmap.cluster import RETRIES, TaskDone, WorkerInfo, as_completed, check_resources, current_worker, \
-    failure_reason, ray_session, stop
+    enter_folder, failure_reason, ray_session, stop
 
 
 class SceneLocalizer:
     """Ray actor: one scene's map, loaded once, and the queries of that scene."""
 
-    def __init__(self, maps_dir: str, scene: str, params: LocalizeParams, device: str,
+    def __init__(self, cwd: str, maps_dir: str, scene: str, params: LocalizeParams, device: str,
                  save_vis: str | None = None, threads: int = 0):
         from ldlmap.errors import LdlError
 
+        enter_folder(cwd)  # relative paths (maps, images, pictures) as on the driver
         if threads:
             import torch
 
@@ -55,7 +57,8 @@ class SceneLocalizer:
 
 
 def _label(r: QueryResult) -> str:
-    return f"{r.split} {r.scene}: " + ("failed" if r.status == "failed" else f"{r.t_error_m:.3f} m {r.r_error_deg:.2f} deg")
+    err = "failed" if r.status == "failed" else f"{r.t_error_m:.3f} m {r.r_error_deg:.2f} deg"
+    return f"{r.split} {r.scene}: {err}"
 
 
 def run_queries_ray(queries: list, maps_dir: str | Path, output: str | Path, params: LocalizeParams = LocalizeParams(),
@@ -74,7 +77,7 @@ def run_queries_ray(queries: list, maps_dir: str | Path, output: str | Path, par
         actor_cls = ray.remote(SceneLocalizer).options(**check_resources(ray, device, max(1, threads)),
                                                        max_restarts=RETRIES, max_task_retries=RETRIES)
         vis = None if save_vis is None else str(save_vis)
-        actors = {s: actor_cls.remote(str(maps_dir), s, params, device, vis, threads) for s in remaining}
+        actors = {s: actor_cls.remote(os.getcwd(), str(maps_dir), s, params, device, vis, threads) for s in remaining}
         refs = {actors[q.scene].localize.remote(q): q for q in todo}
         finished: set = set()
         arrived: list[QueryResult] = []  # results not yet in the file

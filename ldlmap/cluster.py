@@ -131,6 +131,15 @@ class WorkerInfo:
         return f"{self.pid}@{self.node}"
 
 
+def enter_folder(cwd: str) -> None:
+    """Work in the driver's folder ``cwd`` (call first in a task or an actor), so that relative
+    paths mean the same as on the driver. Workers of a cluster joined by ``auto`` or an address
+    start in the folder of its ``ray start``; a folder missing on a node is left alone (absolute
+    paths on a shared filesystem then still work)."""
+    if os.path.isdir(cwd):
+        os.chdir(cwd)
+
+
 def current_worker() -> WorkerInfo:
     """This worker process (call inside a task or an actor)."""
     import ray

@@ -14,19 +14,22 @@ build interrupted in a worker removes its temporary file) and re-raises.
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 from typing import Any, Callable
 
 from ldlmap.build import BuildParams
 from ldlmap.cluster import RETRIES, TaskDone, WorkerInfo, as_completed, check_resources, current_worker, \
-    failure_reason, ray_session, stop
+    enter_folder, failure_reason, ray_session, stop
 from ldlmap.errors import InputError
 from ldlmap.prepare import SceneOutcome, prepare_dataset
 
 
-def build_scene(root: str, kind: str, maps_dir: str | None, params: BuildParams | None, scene: str,
+def build_scene(cwd: str, root: str, kind: str, maps_dir: str | None, params: BuildParams | None, scene: str,
                 options: dict[str, Any]) -> tuple[SceneOutcome, WorkerInfo]:
-    """The Ray task: build (or skip) one scene's map with the plain path; where it ran."""
+    """The Ray task: build (or skip) one scene's map with the plain path, in the driver's folder
+    ``cwd``; where it ran."""
+    enter_folder(cwd)
     (outcome,) = prepare_dataset(root, kind, maps_dir, params, scenes=[scene], **options)
     return outcome, current_worker()
 
@@ -50,8 +53,9 @@ def prepare_dataset_ray(root: str | Path, kind: str | None, maps_dir: str | Path
     device = params.device if params is not None else "cpu"
     with ray_session(address) as ray:
         task = ray.remote(build_scene).options(**check_resources(ray, device), max_retries=RETRIES)
-        refs = {task.remote(str(ds.root), ds.kind, None if maps_dir is None else str(maps_dir), params, scene,
-                            options): scene for scene in todo}
+        maps_arg = None if maps_dir is None else str(maps_dir)
+        refs = {task.remote(os.getcwd(), str(ds.root), ds.kind, maps_arg, params, scene, options): scene
+                for scene in todo}
         outcomes: dict[str, SceneOutcome] = {}
         try:
             for batch in as_completed(list(refs)):

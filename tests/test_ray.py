@@ -154,7 +154,7 @@ def test_run_on_ray_gives_the_same_results_with_an_actor_killed(cluster, demo_da
     def progress(event) -> None:
         scene = event.label.split()[1].rstrip(":")
         workers.append((scene, event.worker.pid if event.worker else None))
-        if not killed and event.worker is not None:  # the first result's actor still has queries queued: kill its process
+        if not killed and event.worker is not None:  # its actor still has queries queued: kill its process
             os.kill(event.worker.pid, signal.SIGKILL)
             killed.append((scene, event.worker.pid))
 
