@@ -77,11 +77,15 @@ def run_queries_ray(queries: list, maps_dir: str | Path, output: str | Path, par
         actor_cls = ray.remote(SceneLocalizer).options(**check_resources(ray, device, max(1, threads)),
                                                        max_restarts=RETRIES, max_task_retries=RETRIES)
         vis = None if save_vis is None else str(save_vis)
-        actors = {s: actor_cls.remote(os.getcwd(), str(maps_dir), s, params, device, vis, threads) for s in remaining}
-        refs = {actors[q.scene].localize.remote(q): q for q in todo}
+        actors: dict = {}
+        refs: dict = {}
         finished: set = set()
         arrived: list[QueryResult] = []  # results not yet in the file
         try:
+            for s in remaining:
+                actors[s] = actor_cls.remote(os.getcwd(), str(maps_dir), s, params, device, vis, threads)
+            for q in todo:
+                refs[actors[q.scene].localize.remote(q)] = q
             for batch in as_completed(list(refs)):
                 for ref, value, exc in batch:
                     q = refs[ref]

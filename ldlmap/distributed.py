@@ -54,10 +54,11 @@ def prepare_dataset_ray(root: str | Path, kind: str | None, maps_dir: str | Path
     with ray_session(address) as ray:
         task = ray.remote(build_scene).options(**check_resources(ray, device), max_retries=RETRIES)
         maps_arg = None if maps_dir is None else str(maps_dir)
-        refs = {task.remote(os.getcwd(), str(ds.root), ds.kind, maps_arg, params, scene, options): scene
-                for scene in todo}
+        refs: dict = {}
         outcomes: dict[str, SceneOutcome] = {}
         try:
+            for scene in todo:
+                refs[task.remote(os.getcwd(), str(ds.root), ds.kind, maps_arg, params, scene, options)] = scene
             for batch in as_completed(list(refs)):
                 for ref, value, exc in batch:
                     scene = refs[ref]
