@@ -96,8 +96,8 @@ def ray_session(address: str = "local") -> Iterator[Any]:
     except Exception as exc:  # ConnectionError, ValueError, RuntimeError: all one-line messages
         hint = ""
         if kwargs.get("address") not in ("local", "auto") and not os.environ.get("RAY_AUTH_MODE"):
-            hint = (" (a cluster started with `ray start` uses token authentication: set RAY_AUTH_MODE=token, "
-                    "with its token in ~/.ray/auth_token or RAY_AUTH_TOKEN)")
+            hint = (" (if the cluster uses token authentication, set RAY_AUTH_MODE=token, with its token in "
+                    "~/.ray/auth_token or RAY_AUTH_TOKEN)")
         raise InputError(f"cannot start or join the Ray cluster {address!r}: {_one_line(exc)}{hint}") from None
     try:
         yield ray
