@@ -11,7 +11,7 @@ DEMO_DIR ?= demo_out
 
 install: sysdeps
 	$(PIP) install "$(TORCH)"
-	$(PIP) install -e ".[dev]"
+	$(PIP) install -e ".[dev,ray]"
 
 # open3d's wheel links against libusb-1.0 (and libgomp); install them when we can (root + apt).
 sysdeps:
@@ -24,7 +24,7 @@ sysdeps:
 	fi
 
 test:
-	$(PYTHON) -m pytest -q -n 2 tests
+	$(PYTHON) -m pytest -q -n 2 --dist loadgroup tests
 
 demo:
 	bash scripts/demo.sh $(DEMO_DIR)

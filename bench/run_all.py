@@ -15,6 +15,9 @@ Benchmarks (in this order; names for ``--only``):
 - ``geometric``: geometric refinement on the synthetic extreme, robot and change_robot splits with
   lines-only maps (true edges, extracted scan lines) and SIFT maps; writes ``bench/geometric.json``
   (bench_geometric.py)
+- ``ray``: ``prepare`` of 4 scenes and ``run`` of all their splits on a local Ray cluster with 1 and 2
+  workers, and the projected time of OmniScenes and Stanford 2D-3D-S on 8 workers; writes
+  ``bench/ray.json`` (bench_ray.py; 15-30 min on 2 cores, so only with ``--only ray``)
 - ``real``: real ZInD panoramas against their layout maps, room and floor level; writes
   ``bench/real.json`` (bench_real.py; prints a note and measures nothing when the real data,
   ``--data`` / ``$LDL_REAL_DATA`` / ``../shared/data``, is absent)
@@ -47,7 +50,9 @@ BENCHES: dict[str, tuple[str, list[str], list[str]]] = {
     "multiroom": ("bench_multiroom.py", [], ["--rooms", "2", "--per-split", "1", "--no-room-lambda"]),
     "real": ("bench_real.py", [], ["--levels", "room"]),
     "geometric": ("bench_geometric.py", [], ["--quick"]),
+    "ray": ("bench_ray.py", [], ["--quick"]),
 }
+ON_REQUEST = {"ray"}  # slow: run only when named in --only
 DEVICE_AWARE = {"render", "ldf", "localize", "ablation"}
 THREAD_AWARE = {"render", "ldf", "build", "localize", "ablation", "real", "geometric"}
 
@@ -63,7 +68,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--keep-going", action="store_true", help="run the others when one fails")
     args = ap.parse_args(argv)
 
-    names = list(BENCHES) if not args.only else [n.strip() for n in args.only.split(",") if n.strip()]
+    names = [n for n in BENCHES if n not in ON_REQUEST] if not args.only else [n.strip() for n in args.only.split(",") if n.strip()]
     unknown = [n for n in names if n not in BENCHES]
     if unknown:
         print(f"error: unknown benchmark(s) {', '.join(unknown)}; valid: {', '.join(BENCHES)}", file=sys.stderr)

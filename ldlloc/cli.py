@@ -7,7 +7,7 @@ from typing import Optional
 
 import typer
 
-from ldlmap.cli_common import console, make_app
+from ldlmap.cli_common import console, make_app, ray_option
 
 app = make_app("ldlloc", "Localize panoramas against LDL maps with line distance functions.")
 
@@ -149,8 +149,11 @@ def run(
     resume: bool = typer.Option(False, "--resume", help="Skip queries already in the results file."),
     save_vis: Optional[Path] = typer.Option(None, "--save-vis", help="Write a picture per query into this folder."),
     threads: int = THREADS,
+    ray: Optional[str] = ray_option(),
 ) -> None:
-    """Localize every query of a dataset split (or all splits) and print accuracy tables."""
+    """Localize every query of a dataset split (or all splits) and print accuracy tables.
+
+    With --ray, one Ray actor per scene map serves its queries (one GPU each with --device cuda)."""
     from ldlloc.evaluate import summary_table, timing_table
     from ldlloc.run import run_queries
     from ldlmap.datasets import open_dataset
@@ -173,17 +176,24 @@ def run(
     maps = maps or Path(root) / "maps"
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
-    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(),
-                  console=console, transient=True) as bar:
-        task = bar.add_task("localizing", total=len(queries))
+    args = (queries, maps, output, params, device, resume, save_vis)
+    meta = {"dataset": kind, "root": str(root), "splits": split or "all", **level}
+    if ray is not None:  # one Ray actor per scene map (ldlloc/distributed.py)
+        from ldlloc.distributed import run_queries_ray
+        from ldlmap.cluster import ThroughputBar
 
-        def progress(r) -> None:
-            err = "failed" if r.status == "failed" else f"{r.t_error_m:.3f} m {r.r_error_deg:.2f} deg"
-            bar.update(task, advance=1, description=f"{r.split} {r.scene}: {err}")
+        with ThroughputBar(console, "localizing") as bar:
+            results = run_queries_ray(*args, meta=meta, progress=bar, address=ray, threads=threads)
+    else:
+        with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(),
+                      console=console, transient=True) as bar:
+            task = bar.add_task("localizing", total=len(queries))
 
-        results = run_queries(queries, maps, output, params, device, resume, save_vis,
-                              meta={"dataset": kind, "root": str(root), "splits": split or "all", **level},
-                              progress=progress)
+            def progress(r) -> None:
+                err = "failed" if r.status == "failed" else f"{r.t_error_m:.3f} m {r.r_error_deg:.2f} deg"
+                bar.update(task, advance=1, description=f"{r.split} {r.scene}: {err}")
+
+            results = run_queries(*args, meta=meta, progress=progress)
     console.print(summary_table(results, "scene", f"{kind} by scene"))
     console.print(summary_table(results, "split", f"{kind} by split"))
     console.print(timing_table(results))

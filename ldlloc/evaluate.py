@@ -172,7 +172,12 @@ class ResultsWriter:
         return {r.name for r in self.results}
 
     def add(self, result: QueryResult) -> None:
-        self.results = [r for r in self.results if r.name != result.name] + [result]
+        self.extend([result])
+
+    def extend(self, results: list[QueryResult]) -> None:
+        """Add (or replace, by name) several results and rewrite the files once."""
+        latest = {r.name: r for r in results}  # one record per query, the last one given
+        self.results = [r for r in self.results if r.name not in latest] + list(latest.values())
         self.flush()
 
     def flush(self) -> None:

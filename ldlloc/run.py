@@ -84,33 +84,55 @@ class MapCache:
         return got
 
 
+def query_key(q) -> tuple[str, str, str]:
+    """The order in which a run localizes (and records) its queries: by scene, split, name."""
+    return q.scene, q.split, q.name
+
+
+def run_meta(params: LocalizeParams, device: str, meta: dict | None = None) -> dict:
+    """The results file's ``meta``: the caller's fields plus device, parameters and tilt prior."""
+    return {**(meta or {}), "device": device, "params": asdict(params),
+            "max_tilt_deg": params.max_tilt_deg, "upright_max_tilt_deg": UPRIGHT_MAX_TILT_DEG}
+
+
+def failed_result(q, params: LocalizeParams, message: str, seconds: float | None = None) -> QueryResult:
+    """The ``failed`` record of query ``q``, with its reason."""
+    return QueryResult(image=str(q.image), scene=q.scene, split=q.split, name=q.name, status="failed",
+                       message=message, seconds={} if seconds is None else {"total": seconds},
+                       rotation_prior=rotation_prior_name(max_tilt_for(q, params)))
+
+
+def localize_query(cache: MapCache, q, params: LocalizeParams, save_vis: str | Path | None = None) -> QueryResult:
+    """Localize one dataset query against its scene's map; an :class:`LdlError` becomes a failed record."""
+    t0 = time.perf_counter()
+    tilt = max_tilt_for(q, params)
+    try:
+        loc = cache.get(q.scene)
+        img = load_image(q.image)
+        res = loc.localize(img, max_tilt_deg=180.0 if tilt is None else tilt)
+        r = result_from_localization(q, res)
+        if save_vis is not None:
+            from ldlloc.visualize import save_localization_picture
+
+            save_localization_picture(img, res, loc.map, Path(save_vis) / q.split / f"{q.scene}_{Path(q.image).stem}.jpg")
+    except LdlError as exc:
+        r = failed_result(q, params, str(exc), time.perf_counter() - t0)
+    return r
+
+
 def run_queries(queries: list, maps_dir: str | Path, output: str | Path, params: LocalizeParams = LocalizeParams(),
                 device: str = "cpu", resume: bool = False, save_vis: str | Path | None = None,
                 meta: dict | None = None, progress: Callable[[QueryResult], None] | None = None) -> list[QueryResult]:
-    """Localize ``queries`` (from :mod:`ldlmap.datasets`) and write results as they finish."""
-    meta = {**(meta or {}), "device": device, "params": asdict(params),
-            "max_tilt_deg": params.max_tilt_deg, "upright_max_tilt_deg": UPRIGHT_MAX_TILT_DEG}
-    writer = ResultsWriter(output, meta=meta, resume=resume)
+    """Localize ``queries`` (from :mod:`ldlmap.datasets`) and write results as they finish.
+
+    :func:`ldlloc.distributed.run_queries_ray` does the same on a Ray cluster."""
+    writer = ResultsWriter(output, meta=run_meta(params, device, meta), resume=resume)
     done = writer.done()
     cache = MapCache(Path(maps_dir), params, device)
-    for q in sorted(queries, key=lambda q: (q.scene, q.split, q.name)):
+    for q in sorted(queries, key=query_key):
         if q.name in done:
             continue
-        t0 = time.perf_counter()
-        tilt = max_tilt_for(q, params)
-        try:
-            loc = cache.get(q.scene)
-            img = load_image(q.image)
-            res = loc.localize(img, max_tilt_deg=180.0 if tilt is None else tilt)
-            r = result_from_localization(q, res)
-            if save_vis is not None:
-                from ldlloc.visualize import save_localization_picture
-
-                save_localization_picture(img, res, loc.map, Path(save_vis) / q.split / f"{q.scene}_{Path(q.image).stem}.jpg")
-        except LdlError as exc:
-            r = QueryResult(image=str(q.image), scene=q.scene, split=q.split, name=q.name, status="failed",
-                            message=str(exc), seconds={"total": time.perf_counter() - t0},
-                            rotation_prior=rotation_prior_name(tilt))
+        r = localize_query(cache, q, params, save_vis)
         writer.add(r)
         if progress:
             progress(r)

@@ -11,7 +11,7 @@ from typing import Optional
 
 import typer
 
-from ldlmap.cli_common import console, make_app
+from ldlmap.cli_common import console, make_app, ray_option
 
 app = make_app("ldlmap", "Build LDL maps (3D lines, principal directions, features) and synthetic datasets.")
 
@@ -231,8 +231,11 @@ def prepare(
     line_files: bool = typer.Option(False, "--line-files", help="Use the dataset's 3D line files instead of extracting lines."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Rebuild maps that are up to date."),
     device: str = typer.Option("cpu", "--device", help="cpu | cuda."),
+    ray: Optional[str] = ray_option(),
 ) -> None:
-    """Build one map per scene of a dataset root, skipping maps that are up to date."""
+    """Build one map per scene of a dataset root, skipping maps that are up to date.
+
+    With --ray, one Ray task per scene (one GPU each with --device cuda)."""
     from rich.table import Table
 
     from ldlmap.build import params_with
@@ -256,18 +259,25 @@ def prepare(
                          weights=str(weights) if weights else None, num_translations=num_trans, num_views=num_views,
                          device=device, trans_spacing=trans_spacing,
                          camera_height=parse_band(camera_height, "--camera-height"))
-    with _progress_bar() as bar:
-        task = bar.add_task("scenes", total=None)
-        done_scenes: set[str] = set()
+    options = dict(overwrite=overwrite, use_line_files=line_files, scenes=scene or None, map_level=map_level)
+    if ray is not None:  # one Ray task per scene (ldlmap/distributed.py)
+        from ldlmap.cluster import ThroughputBar
+        from ldlmap.distributed import prepare_dataset_ray
 
-        def progress(scene_name: str, stage: str, done: int, total: int) -> None:
-            if stage in ("write", "up-to-date", "failed"):
-                done_scenes.add(scene_name)
-            bar.update(task, description=f"{scene_name}: {stage}", completed=len(done_scenes))
+        with ThroughputBar(console, "scenes") as bar:
+            outcomes = prepare_dataset_ray(root, kind, maps, params, progress=bar, address=ray, **options)
+    else:
+        with _progress_bar() as bar:
+            task = bar.add_task("scenes", total=None)
+            done_scenes: set[str] = set()
 
-        outcomes = prepare_dataset(root, kind, maps, params, overwrite=overwrite, use_line_files=line_files,
-                                   scenes=scene or None, progress=progress, map_level=map_level)
-        bar.update(task, total=len(outcomes), completed=len(outcomes), description="scenes")
+            def progress(scene_name: str, stage: str, done: int, total: int) -> None:
+                if stage in ("write", "up-to-date", "failed"):
+                    done_scenes.add(scene_name)
+                bar.update(task, description=f"{scene_name}: {stage}", completed=len(done_scenes))
+
+            outcomes = prepare_dataset(root, kind, maps, params, progress=progress, **options)
+            bar.update(task, total=len(outcomes), completed=len(outcomes), description="scenes")
     table = Table(title=f"maps of {root} ({kind}" + (f", {map_level} level)" if kind == "zind" else ")"))
     for col in ("scene", "status", "map", "seconds", "note"):
         table.add_column(col)

@@ -58,3 +58,13 @@ def make_app(name: str, help: str) -> typer.Typer:
         pass
 
     return app
+
+
+def ray_option():
+    """``--ray ADDRESS`` of the batch commands (``prepare``, ``run``): run on a Ray cluster."""
+    return typer.Option(None, "--ray", metavar="ADDRESS",
+                        help="Run on a Ray cluster (needs Ray: the toolkit's ray extra, which `make install` "
+                             "installs): local (start one on this machine, all cores), local:N (N CPUs), auto (join "
+                             "the one started here with `ray start`), HOST:PORT (its head node) or ray://HOST:PORT. "
+                             "Inputs and outputs are read and written where the workers run: a shared filesystem "
+                             "on several machines.")

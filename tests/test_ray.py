@@ -1,0 +1,265 @@
+"""`ldlmap prepare --ray` and `ldlloc run --ray` on a local Ray cluster started here (2 CPUs).
+
+One cluster for the module (``cluster`` fixture; under pytest-xdist the ``ray`` group keeps these
+tests on one worker, see the Makefile's ``--dist loadgroup``); the commands' ``--ray local`` reuse
+its connection. The Ray paths must give the plain paths' maps byte for byte and the same
+results but for the timings, also when a worker process is killed mid-task or the run is
+interrupted and resumed; without ``--ray`` Ray is never imported.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from ldlloc.cli import app as loc_app
+from ldlmap.cli import app as map_app
+
+pytestmark = pytest.mark.xdist_group("ray")
+runner = CliRunner()
+REPO = Path(__file__).resolve().parents[1]
+BUILD = ["--num-views", "2", "--num-trans", "60"]  # small maps: the comparison, not the accuracy
+
+
+@pytest.fixture(scope="module")
+def cluster():
+    from ldlmap.cluster import ray_session
+
+    with ray_session("local:2") as ray:
+        yield ray
+
+
+@pytest.fixture(scope="module")
+def scans(demo_dataset, tmp_path_factory) -> Path:
+    """An OmniScenes root with the demo rooms' scans thinned to a tenth, and an empty scan."""
+    from ldlmap.io.pointcloud import read_point_cloud
+    from ldlmap.synth.scan import write_ply
+
+    root = tmp_path_factory.mktemp("scans")
+    (root / "pcd").mkdir()
+    for scene in ("synthroom_1", "synthroom_2"):
+        pc = read_point_cloud(demo_dataset / "pcd" / f"{scene}.ply")
+        write_ply(root / "pcd" / f"{scene}.ply", pc.points[::10], pc.colors[::10])
+    (root / "pcd" / "broken_1.txt").write_text("")
+    return root
+
+
+@pytest.fixture(scope="module")
+def plain_run(demo_dataset, tmp_path_factory) -> Path:
+    """Results of the plain `ldlloc run` over the robot split (10 queries, 2 maps)."""
+    out = tmp_path_factory.mktemp("plain") / "robot.json"
+    res = runner.invoke(loc_app, ["run", "--root", str(demo_dataset), "--split", "robot", "--output", str(out)])
+    assert res.exit_code == 0, res.output
+    return out
+
+
+def _ancestors(pid: int) -> list[int]:
+    out = []
+    while pid > 1:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+        pid = int(stat[stat.rindex(")") + 2:].split()[1])
+        out.append(pid)
+    return out
+
+
+def _ray_workers(title: str) -> list[int]:
+    """Pids of this test's Ray worker processes running a task named ``title`` (Ray sets the
+    process title to ``ray::<task>``)."""
+    pids = []
+    for p in Path("/proc").iterdir():
+        try:
+            if p.name.isdigit() and (p / "cmdline").read_bytes().startswith(f"ray::{title}\0".encode()) \
+                    and os.getpid() in _ancestors(int(p.name)):
+                pids.append(int(p.name))
+        except OSError:
+            continue
+    return pids
+
+
+def _kill_first_worker(title: str, after_s: float, killed: list[int], timeout_s: float = 120.0) -> threading.Thread:
+    """A thread that SIGKILLs the first worker seen running ``title`` once it has run ``after_s``."""
+    def loop() -> None:
+        first_seen: dict[int, float] = {}
+        end = time.monotonic() + timeout_s
+        while not killed and time.monotonic() < end:
+            for pid in _ray_workers(title):
+                first_seen.setdefault(pid, time.monotonic())
+                if time.monotonic() - first_seen[pid] >= after_s:
+                    os.kill(pid, signal.SIGKILL)
+                    killed.append(pid)
+                    return
+            time.sleep(0.1)
+
+    t = threading.Thread(target=loop, daemon=True)
+    t.start()
+    return t
+
+
+def _without_timings(path: Path) -> dict:
+    data = json.loads(path.read_text())
+    for q in data["queries"]:
+        q.pop("seconds")
+    data["summary"].pop("median_seconds")
+    return data
+
+
+def _csv_without_timings(path: Path) -> list[list[str]]:
+    rows = list(csv.reader(io.StringIO(path.read_text())))
+    keep = [i for i, name in enumerate(rows[0]) if not name.startswith("sec_")]
+    return [[row[i] for i in keep] for row in rows]
+
+
+def test_prepare_on_ray_gives_the_same_maps_with_a_worker_killed(cluster, scans, tmp_path):
+    plain = runner.invoke(map_app, ["prepare", str(scans), "--maps", str(tmp_path / "plain"), *BUILD])
+    killed: list[int] = []
+    killer = _kill_first_worker("build_scene", 1.0, killed)
+    on_ray = runner.invoke(map_app, ["prepare", str(scans), "--maps", str(tmp_path / "ray"), *BUILD, "--ray", "local"])
+    killer.join()
+    assert killed, "no build task was seen running"
+    for res in (plain, on_ray):  # the empty scan fails alone, once, with its reason; the others are built
+        assert res.exit_code == 1 and "Traceback" not in res.output, res.output
+        last = res.output.strip().splitlines()[-1]
+        assert last.startswith("error: 1 of 3 scene(s) failed: broken_1:"), last
+    assert plain.output.strip().splitlines()[-1] == on_ray.output.strip().splitlines()[-1]
+    for scene in ("synthroom_1", "synthroom_2"):
+        assert (tmp_path / "ray" / f"{scene}.h5").read_bytes() == (tmp_path / "plain" / f"{scene}.h5").read_bytes()
+    assert not (tmp_path / "ray" / "broken_1.h5").exists()
+    # Maps up to date: skipped on the workers too.
+    res = runner.invoke(map_app, ["prepare", str(scans), "--maps", str(tmp_path / "ray"), *BUILD, "--ray", "local",
+                                  "--scene", "synthroom_1", "--scene", "synthroom_2"])
+    assert res.exit_code == 0 and res.output.count("up-to-date") == 2, res.output
+
+
+def test_run_on_ray_gives_the_same_results_with_an_actor_killed(cluster, demo_dataset, plain_run, tmp_path):
+    from ldlloc.distributed import run_queries_ray
+    from ldlloc.pipeline import LocalizeParams
+    from ldlmap.datasets import open_dataset
+
+    ds = open_dataset(demo_dataset, "omniscenes")
+    workers: list[tuple[str, int]] = []  # (scene, pid) of each result, in arrival order
+    killed: list[tuple[str, int]] = []
+
+    def progress(event) -> None:
+        scene = event.label.split()[1].rstrip(":")
+        workers.append((scene, event.worker.pid if event.worker else None))
+        if not killed and event.worker is not None:  # its actor still has queries queued: kill its process
+            os.kill(event.worker.pid, signal.SIGKILL)
+            killed.append((scene, event.worker.pid))
+
+    out = tmp_path / "robot.json"
+    meta = {"dataset": "omniscenes", "root": str(demo_dataset), "splits": ["robot"]}
+    results = run_queries_ray(ds.queries(["robot"]), demo_dataset / "maps", out, LocalizeParams(), meta=meta,
+                              progress=progress)
+    scene, pid = killed[0]
+    after = [p for s, p in workers[1:] if s == scene]
+    assert after and all(p != pid for p in after), workers  # a restarted actor served the rest of its scene
+    assert len(results) == 10 and len({r.name for r in results}) == 10
+    assert _without_timings(out) == _without_timings(plain_run)  # same records, same order
+    assert _csv_without_timings(out.with_suffix(".csv")) == _csv_without_timings(plain_run.with_suffix(".csv"))
+
+
+def test_interrupted_ray_run_resumes(cluster, demo_dataset, plain_run, tmp_path):
+    """Ctrl-C leaves a results file that --resume completes; a missing map fails its queries once."""
+    from ldlloc.distributed import run_queries_ray
+    from ldlloc.pipeline import LocalizeParams
+    from ldlmap.datasets import open_dataset
+
+    maps = tmp_path / "maps"
+    maps.mkdir()
+    (maps / "synthroom_1.h5").symlink_to(demo_dataset / "maps" / "synthroom_1.h5")  # synthroom_2 has no map
+    out = tmp_path / "robot.json"
+    seen = []
+
+    def progress(event) -> None:
+        seen.append(event)
+        if len(seen) == 3:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        run_queries_ray(open_dataset(demo_dataset, "omniscenes").queries(["robot"]), maps, out, LocalizeParams(),
+                        progress=progress)
+    first = json.loads(out.read_text())["queries"]
+    assert len(first) == 3 and len({q["name"] for q in first}) == 3
+    deadline = time.monotonic() + 30  # the actors were killed: their CPUs come back
+    while cluster.available_resources().get("CPU", 0) < 2 and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert cluster.available_resources().get("CPU", 0) == 2
+    res = runner.invoke(loc_app, ["run", "--root", str(demo_dataset), "--split", "robot", "--maps", str(maps),
+                                  "--output", str(out), "--resume", "--ray", "local"])
+    assert res.exit_code == 0, res.output
+    data = json.loads(out.read_text())
+    names = [q["name"] for q in data["queries"]]
+    assert len(names) == 10 and len(set(names)) == 10 and names[:3] == [q["name"] for q in first]
+    plain = {q["name"]: q for q in json.loads(plain_run.read_text())["queries"]}
+    for q in data["queries"]:
+        if q["scene"] == "synthroom_2":
+            assert q["status"] == "failed" and q["message"].startswith("map not found"), q
+        else:
+            assert q["status"] != "failed" and q["R"] == plain[q["name"]]["R"] and q["t"] == plain[q["name"]]["t"]
+    assert out.with_suffix(".csv").read_text().count("\n") == 11
+
+
+def _one_error_line(res) -> str:
+    lines = [line for line in res.output.splitlines() if line.strip()]
+    assert res.exit_code == 1 and "Traceback" not in res.output, res.output
+    assert len(lines) == 1 and lines[0].startswith("error:"), res.output
+    return lines[0]
+
+
+def test_bad_ray_input_is_one_error_line(cluster, demo_dataset, tmp_path):
+    run = ["run", "--root", str(demo_dataset), "--split", "robot", "--output", str(tmp_path / "r.json")]
+    assert "--ray must be" in _one_error_line(runner.invoke(loc_app, [*run, "--ray", "nonsense"]))
+    assert "local:N" in _one_error_line(runner.invoke(loc_app, [*run, "--ray", "local:0"]))
+    line = _one_error_line(runner.invoke(loc_app, [*run, "--ray", "127.0.0.1:1"]))
+    assert "cannot reach the Ray cluster" in line
+    assert "no GPU" in _one_error_line(runner.invoke(loc_app, [*run, "--ray", "local", "--device", "cuda"]))
+    assert not (tmp_path / "r.json").exists()
+
+
+def test_without_ray_flag_ray_is_not_imported(demo_dataset, plain_run, scans, tmp_path):
+    """In a fresh interpreter: the plain commands never import Ray; a missing Ray is one error line."""
+    script = f"""
+import sys
+from typer.testing import CliRunner
+from ldlloc.cli import app as loc_app
+from ldlmap.cli import app as map_app
+r = CliRunner()
+res = r.invoke(map_app, ["prepare", {str(scans)!r}, "--maps", {str(tmp_path / 'maps')!r}, "--scene", "broken_1"])
+assert res.exit_code == 1 and "broken_1" in res.output, res.output
+res = r.invoke(loc_app, ["run", "--root", {str(demo_dataset)!r}, "--split", "robot", "--output", {str(plain_run)!r},
+                         "--resume"])
+assert res.exit_code == 0, res.output
+assert "ray" not in sys.modules and "ldlmap.cluster" not in sys.modules, sorted(m for m in sys.modules if "ray" in m)
+sys.modules["ray"] = None  # as if Ray were not installed
+res = r.invoke(map_app, ["prepare", {str(scans)!r}, "--ray", "local"])
+print(res.output)
+"""
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")])}
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, env=env, timeout=300)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    lines = [line for line in proc.stdout.splitlines() if line.strip()]
+    assert len(lines) == 1 and lines[0].startswith("error: --ray needs Ray"), proc.stdout
+
+
+def test_worker_imports_this_source_tree(cluster):
+    """The workers import the toolkit from the driver's source folder (runtime_env PYTHONPATH)."""
+    import ldlmap
+
+    def where() -> str:
+        import ldlmap
+
+        return ldlmap.__file__
+
+    assert cluster.get(cluster.remote(where).remote()) == ldlmap.__file__
