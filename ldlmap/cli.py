@@ -164,6 +164,8 @@ def build(
     output: Optional[Path] = typer.Option(None, "-o", "--output", help="Map file (default: INPUT with .h5)."),
     lines_file: Optional[Path] = typer.Option(None, "--lines", help="3D line file to use instead of extracting lines "
                                               "(Line3D++ .txt/.obj, 3DLineDetection .txt, ours)."),
+    images: Optional[Path] = typer.Option(None, "--images", help="COLMAP model without fused.ply: its photos, to "
+                                          "reconstruct 3D lines from (default: the workspace's images folder)."),
     features: str = typer.Option("sift", "--features", help="Local features for refinement: sift | superpoint | none."),
     weights: Optional[Path] = typer.Option(None, "--weights", help="SuperPoint checkpoint (else $LDL_SUPERPOINT_WEIGHTS, cache, download)."),
     num_trans: Optional[int] = typer.Option(None, "--num-trans", help="N_t candidate translations (default 800)."),
@@ -193,7 +195,9 @@ def build(
         def progress(stage: str, done: int, total: int) -> None:
             bar.update(task, description=f"{input_path.name}: {stage}", completed=done, total=total)
 
-        report = build_map(input_path, output, lines_file, params, progress=progress)
+        report = build_map(input_path, output, lines_file, params, progress=progress, images_path=images)
+    if report.counts.get("note"):
+        console.print(report.counts["note"], soft_wrap=True)
     table = Table(title=f"map {report.path}")
     table.add_column("stage")
     table.add_column("seconds", justify="right")
