@@ -232,7 +232,8 @@ def prepare(
     trans_spacing: Optional[float] = TRANS_SPACING,
     camera_height: Optional[str] = CAMERA_HEIGHT,
     scene: Optional[list[str]] = typer.Option(None, "--scene", help="Only these scenes (repeatable)."),
-    line_files: bool = typer.Option(False, "--line-files", help="Use the dataset's 3D line files instead of extracting lines."),
+    line_files: bool = typer.Option(False, "--line-files", help="Use the dataset's 3D line files (pcd_line/) instead of "
+                                    "extracting lines; a scene without a scan gets a lines-only map (features none)."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Rebuild maps that are up to date."),
     device: str = typer.Option("cpu", "--device", help="cpu | cuda."),
 ) -> None:
@@ -242,7 +243,7 @@ def prepare(
     from ldlmap.build import params_with
     from ldlmap.datasets import MAP_LEVELS, open_dataset
     from ldlmap.errors import InputError
-    from ldlmap.prepare import default_params, prepare_dataset
+    from ldlmap.prepare import LINES_ONLY_NOTE, default_params, prepare_dataset
 
     if map_level not in MAP_LEVELS:
         raise InputError(f"--map-level must be {' or '.join(MAP_LEVELS)}, got {map_level!r}")
@@ -279,6 +280,10 @@ def prepare(
         secs = f"{o.report.seconds['total']:.1f}" if o.report else "-"
         table.add_row(o.scene, o.status, str(o.map_path), secs, o.message)
     console.print(table)
+    lines_only = [o.scene for o in outcomes if o.message == LINES_ONLY_NOTE]
+    if lines_only:
+        console.print(f"{len(lines_only)} scene(s) without a scan, lines-only map(s) from their line files (features "
+                      f"none): {', '.join(lines_only)}", soft_wrap=True)
     failed = [o for o in outcomes if o.status == "failed"]
     if failed:
         raise InputError(f"{len(failed)} of {len(outcomes)} scene(s) failed: " + "; ".join(f"{o.scene}: {o.message}" for o in failed))
