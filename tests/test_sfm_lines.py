@@ -8,7 +8,6 @@ model with observations and far outliers, no dense cloud).
 from __future__ import annotations
 
 import shutil
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -151,14 +150,14 @@ def test_lines_match_the_true_edges(workspace) -> None:
     long_true = edges[seen3 & (np.linalg.norm(edges[:, 1] - edges[:, 0], axis=1) > 0.1 * extent)]
     precision = line_precision_recall(long_pred, edges)[0]
     recall = line_precision_recall(L, long_true)[1]
-    # Measured 0.63 and 0.37 (bench/bench_colmap_lines.py): long lines are true edges, a third of
+    # Measured 0.65 and 0.35 (bench/bench_colmap_lines.py): long lines are true edges, a third of
     # the long edges that three photos see are found (LSD misses low-contrast edges).
     assert precision >= 0.5 and recall >= 0.3, (precision, recall)
     # Lines that are not mesh edges lie on its surfaces (texture and poster lines), not in the air.
     s = np.linspace(0.1, 0.9, 5)
     P = (L[:, None, 0] + s[None, :, None] * (L[:, None, 1] - L[:, None, 0])).reshape(-1, 3)
     on_surface = (Renderer(mesh).distance(P).reshape(len(L), -1) <= 0.03).mean(1) >= 0.8
-    assert on_surface.mean() >= 0.8, on_surface.mean()
+    assert on_surface.mean() >= 0.85, on_surface.mean()  # measured 0.96
 
 
 def test_build_maps_a_model_from_its_photos(workspace, tmp_path) -> None:
