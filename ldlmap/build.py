@@ -3,8 +3,9 @@
 Stages (paper section 3.1, DESIGN.md 5.1-5.4), each timed:
 
 1. ``load``: a colored point cloud (.ply/.pcd/.txt), a mesh (sampled with its texture colors),
-   a COLMAP model folder (dense ``fused.ply`` when present, camera centres as translation
-   priors), or only a 3D line file (a lines-only map).
+   a COLMAP model folder (dense ``fused.ply`` when present, else 3D lines from its photos for a
+   lines-only map, :mod:`ldlmap.colmap_input`; camera centres as translation priors), or only a
+   3D line file (a lines-only map).
 2. ``lines``: 3D lines from the cloud (or the ``--lines`` file), then the length filter
    ``lambda (b_x + b_y + b_z) / 3``.
 3. ``principal``: the 3 principal directions by voting, and each kept line's group.

@@ -85,14 +85,19 @@ class SfmLines:
 # ------------------------------------------------------------------------------ 2D segments
 
 
-def read_gray(path: Path, max_size: int) -> np.ndarray | None:
+_REDUCED = {2: "IMREAD_REDUCED_GRAYSCALE_2", 4: "IMREAD_REDUCED_GRAYSCALE_4", 8: "IMREAD_REDUCED_GRAYSCALE_8"}
+
+
+def read_gray(path: Path, max_size: int, size_hint: int = 0) -> np.ndarray | None:
     """Contrast-stretched grey photo, downscaled so its longer side is at most ``max_size``;
-    None when it cannot be read."""
+    None when it cannot be read. ``size_hint``: the photo's longer side when known (the camera's):
+    a large JPEG is then decoded at a reduced scale directly."""
     import cv2
 
     from ldlmap.imageproc import stretch_contrast
 
-    img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    r = max([k for k in _REDUCED if size_hint >= k * max_size], default=1)
+    img = cv2.imread(str(path), getattr(cv2, _REDUCED[r]) if r > 1 else cv2.IMREAD_GRAYSCALE)
     if img is None:
         return None
     s = min(1.0, max_size / max(img.shape))
@@ -478,7 +483,7 @@ def reconstruct_lines(model, images_dir: str | Path, params: SfmLinesParams = Sf
     perspective = [v for v in cv.views if not _is_spherical(v.camera)]
     views, grays = [], []
     for v in perspective:
-        g = read_gray(images_dir / v.name, params.max_image_size)
+        g = read_gray(images_dir / v.name, params.max_image_size, max(v.camera.width, v.camera.height))
         if g is not None:
             views.append(v)
             grays.append(g)
