@@ -15,6 +15,8 @@ Benchmarks (in this order; names for ``--only``):
 - ``geometric``: geometric refinement on the synthetic extreme, robot and change_robot splits with
   lines-only maps (true edges, extracted scan lines) and SIFT maps; writes ``bench/geometric.json``
   (bench_geometric.py)
+- ``colmap``: 3D lines of synthetic COLMAP models from their photos (no fused.ply), stages,
+  precision / recall against the true edges, the lines-only map build (bench_colmap_lines.py)
 - ``ray``: ``prepare`` of 4 scenes and ``run`` of all their splits on a local Ray cluster with 1 and 2
   workers, and the projected time of OmniScenes and Stanford 2D-3D-S on 8 workers; writes
   ``bench/ray.json`` (bench_ray.py; 15-30 min on 2 cores, so only with ``--only ray``)
@@ -48,6 +50,7 @@ BENCHES: dict[str, tuple[str, list[str], list[str]]] = {
     "localize": ("bench_localize.py", [], ["--quick"]),
     "ablation": ("bench_ablation.py", [], ["--quick"]),
     "multiroom": ("bench_multiroom.py", [], ["--rooms", "2", "--per-split", "1", "--no-room-lambda"]),
+    "colmap": ("bench_colmap_lines.py", [], ["--seeds", "10", "--photos", "8", "--no-map"]),
     "real": ("bench_real.py", [], ["--levels", "room"]),
     "geometric": ("bench_geometric.py", [], ["--quick"]),
     "ray": ("bench_ray.py", [], ["--quick"]),

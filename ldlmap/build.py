@@ -3,8 +3,9 @@
 Stages (paper section 3.1, DESIGN.md 5.1-5.4), each timed:
 
 1. ``load``: a colored point cloud (.ply/.pcd/.txt), a mesh (sampled with its texture colors),
-   a COLMAP model folder (dense ``fused.ply`` when present, camera centres as translation
-   priors), or only a 3D line file (a lines-only map).
+   a COLMAP model folder (dense ``fused.ply`` when present, else 3D lines from its photos for a
+   lines-only map, :mod:`ldlmap.colmap_input`; camera centres as translation priors), or only a
+   3D line file (a lines-only map).
 2. ``lines``: 3D lines from the cloud (or the ``--lines`` file), then the length filter
    ``lambda (b_x + b_y + b_z) / 3``.
 3. ``principal``: the 3 principal directions by voting, and each kept line's group.
@@ -77,11 +78,15 @@ class SceneInput:
     prior_centers: np.ndarray | None
     source: str
     walkable: Any = None  # ldlmap.translations.Walkable: where cameras stand (maps without a scan)
+    note: str = ""  # how the input was turned into a cloud or lines, when worth telling (COLMAP models)
 
 
-def load_input(path: str | Path, lines_path: str | Path | None, mesh_samples: int) -> SceneInput:
-    """Read any supported input (cloud, mesh, COLMAP model, or a line file alone)."""
-    from ldlmap.io.colmap import is_colmap_model, read_colmap_model, resolve_model_dir
+def load_input(path: str | Path, lines_path: str | Path | None, mesh_samples: int,
+               images: str | Path | None = None) -> SceneInput:
+    """Read any supported input (cloud, mesh, COLMAP model, or a line file alone); ``images``: a
+    COLMAP model's photos (:mod:`ldlmap.colmap_input`)."""
+    from ldlmap.colmap_input import colmap_scene_input
+    from ldlmap.io.colmap import is_colmap_model, resolve_model_dir
     from ldlmap.io.linefiles import read_lines
     from ldlmap.io.pointcloud import SUPPORTED_SUFFIXES, read_point_cloud
 
@@ -91,9 +96,9 @@ def load_input(path: str | Path, lines_path: str | Path | None, mesh_samples: in
     lines = read_lines(lines_path) if lines_path is not None else None
     model_dir = resolve_model_dir(p) if p.is_dir() else None
     if model_dir is not None and is_colmap_model(model_dir):
-        scene = read_colmap_model(model_dir)
-        cloud = scene.cloud
-        return SceneInput(cloud.points, cloud.colors, lines, scene.camera_centers, f"colmap:{model_dir}")
+        return colmap_scene_input(model_dir, lines, images)
+    if images is not None:
+        raise InputError(f"--images goes with a COLMAP model folder, not {p}")
     if p.is_dir():
         raise InputError(f"{p} is a folder but not a COLMAP model (cameras/images/points3D .bin or .txt)")
     suffix = p.suffix.lower()
@@ -165,8 +170,10 @@ def compute_features(points: np.ndarray, colors: np.ndarray, translations: np.nd
 
 def build_map(input_path: str | Path, output: str | Path | None = None, lines_path: str | Path | None = None,
               params: BuildParams = BuildParams(), name: str | None = None,
-              progress: Callable[[str, int, int], None] | None = None) -> BuildReport:
+              progress: Callable[[str, int, int], None] | None = None,
+              images_path: str | Path | None = None) -> BuildReport:
     """Build the LDL map of one scene and write it to ``output`` (default: input with ``.h5``).
+    ``images_path``: the photos of a COLMAP model without ``fused.ply`` (default: its workspace's).
 
     ``progress(stage, done, total)`` is called as stages advance (for a progress bar).
     """
@@ -174,9 +181,11 @@ def build_map(input_path: str | Path, output: str | Path | None = None, lines_pa
     output = Path(output) if output is not None else input_path.with_suffix(".h5")
     _check_params(params)
     tick = time.perf_counter()
-    src = load_input(input_path, lines_path, params.mesh_samples)
+    src = load_input(input_path, lines_path, params.mesh_samples, images_path)
     load_seconds = time.perf_counter() - tick
     config = {"input": str(input_path), "lines_file": str(lines_path) if lines_path else None}
+    if images_path is not None:
+        config["images"] = str(images_path)
     return build_from_input(src, output, params, name or input_path.stem, progress, config, load_seconds)
 
 
@@ -332,6 +341,7 @@ def build_from_input(src: SceneInput, output: Path, params: BuildParams, name: s
         "views": features.num_views if features else 0,
         "keypoints": int(len(features.xyz)) if features else 0,
         "size_mb": output.stat().st_size / 1e6,
+        "note": src.note,
     }
     return report
 

@@ -164,6 +164,8 @@ def build(
     output: Optional[Path] = typer.Option(None, "-o", "--output", help="Map file (default: INPUT with .h5)."),
     lines_file: Optional[Path] = typer.Option(None, "--lines", help="3D line file to use instead of extracting lines "
                                               "(Line3D++ .txt/.obj, 3DLineDetection .txt, ours)."),
+    images: Optional[Path] = typer.Option(None, "--images", help="COLMAP model without fused.ply: its photos, to "
+                                          "reconstruct 3D lines from (default: the workspace's images folder)."),
     features: str = typer.Option("sift", "--features", help="Local features for refinement: sift | superpoint | none."),
     weights: Optional[Path] = typer.Option(None, "--weights", help="SuperPoint checkpoint (else $LDL_SUPERPOINT_WEIGHTS, cache, download)."),
     num_trans: Optional[int] = typer.Option(None, "--num-trans", help="N_t candidate translations (default 800)."),
@@ -193,7 +195,9 @@ def build(
         def progress(stage: str, done: int, total: int) -> None:
             bar.update(task, description=f"{input_path.name}: {stage}", completed=done, total=total)
 
-        report = build_map(input_path, output, lines_file, params, progress=progress)
+        report = build_map(input_path, output, lines_file, params, progress=progress, images_path=images)
+    if report.counts.get("note"):
+        console.print(report.counts["note"], soft_wrap=True)
     table = Table(title=f"map {report.path}")
     table.add_column("stage")
     table.add_column("seconds", justify="right")
@@ -228,7 +232,8 @@ def prepare(
     trans_spacing: Optional[float] = TRANS_SPACING,
     camera_height: Optional[str] = CAMERA_HEIGHT,
     scene: Optional[list[str]] = typer.Option(None, "--scene", help="Only these scenes (repeatable)."),
-    line_files: bool = typer.Option(False, "--line-files", help="Use the dataset's 3D line files instead of extracting lines."),
+    line_files: bool = typer.Option(False, "--line-files", help="Use the dataset's 3D line files (pcd_line/) instead of "
+                                    "extracting lines; a scene without a scan gets a lines-only map (features none)."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Rebuild maps that are up to date."),
     device: str = typer.Option("cpu", "--device", help="cpu | cuda."),
     ray: Optional[str] = ray_option(),
@@ -241,7 +246,7 @@ def prepare(
     from ldlmap.build import params_with
     from ldlmap.datasets import MAP_LEVELS, open_dataset
     from ldlmap.errors import InputError
-    from ldlmap.prepare import default_params, prepare_dataset
+    from ldlmap.prepare import LINES_ONLY_NOTE, default_params, prepare_dataset
 
     if map_level not in MAP_LEVELS:
         raise InputError(f"--map-level must be {' or '.join(MAP_LEVELS)}, got {map_level!r}")
@@ -285,6 +290,10 @@ def prepare(
         secs = f"{o.report.seconds['total']:.1f}" if o.report else "-"
         table.add_row(o.scene, o.status, str(o.map_path), secs, o.message)
     console.print(table)
+    lines_only = [o.scene for o in outcomes if o.message == LINES_ONLY_NOTE]
+    if lines_only:
+        console.print(f"{len(lines_only)} scene(s) without a scan, lines-only map(s) from their line files (features "
+                      f"none): {', '.join(lines_only)}", soft_wrap=True)
     failed = [o for o in outcomes if o.status == "failed"]
     if failed:
         raise InputError(f"{len(failed)} of {len(outcomes)} scene(s) failed: " + "; ".join(f"{o.scene}: {o.message}" for o in failed))

@@ -225,6 +225,23 @@ def _find_file(folder: Path, stems: Iterable[str], extensions: Iterable[str]) ->
     return None
 
 
+def _line_file_scenes(folder: Path) -> set[str]:
+    """Scene names of the 3D line files in ``folder``: ``<scene>lines.txt``, ``<scene>_lines.txt``
+    or ``<scene>.txt`` / ``.obj`` (what ``line_file`` looks for)."""
+    if not folder.is_dir():
+        return set()
+    out = set()
+    for p in folder.iterdir():
+        if p.is_file() and p.suffix.lower() in (".txt", ".obj") and not p.name.startswith("."):
+            stem = p.stem
+            for suffix in ("_lines", "lines"):
+                if stem.endswith(suffix) and len(stem) > len(suffix):
+                    stem = stem[: -len(suffix)]
+                    break
+            out.add(stem)
+    return out
+
+
 def _visible_dirs(folder: Path) -> list[Path]:
     return sorted(p for p in folder.iterdir() if p.is_dir() and not p.name.startswith("."))
 
@@ -249,8 +266,8 @@ class OmniScenes:
     def __init__(self, root: str | Path) -> None:
         self.root = _require_root(root, "OmniScenes")
         has_pano = any(p.name.endswith("_pano") for p in _visible_dirs(self.root))
-        if not has_pano and not (self.root / "pcd").is_dir():
-            raise InputError(f"not an OmniScenes root (no <split>_pano or pcd folder): {self.root}")
+        if not has_pano and not (self.root / "pcd").is_dir() and not (self.root / "pcd_line").is_dir():
+            raise InputError(f"not an OmniScenes root (no <split>_pano, pcd or pcd_line folder): {self.root}")
 
     def __repr__(self) -> str:
         return f"OmniScenes({str(self.root)!r})"
@@ -282,11 +299,13 @@ class OmniScenes:
         return [(d, *self._parse_scene_folder(split, d)) for d in _visible_dirs(pano_dir)]
 
     def scenes(self) -> list[str]:
-        """Scene (point cloud) names: clouds in ``pcd/`` and rooms that have queries."""
+        """Scene (point cloud) names: clouds in ``pcd/``, line files in ``pcd_line/`` and rooms
+        that have queries."""
         names: set[str] = set()
         pcd = self.root / "pcd"
         if pcd.is_dir():
             names |= {p.stem for p in pcd.iterdir() if p.suffix.lower() in POINT_CLOUD_EXTENSIONS and not p.name.startswith(".")}
+        names |= _line_file_scenes(self.root / "pcd_line")
         for split in self.splits():
             names |= {room for _, room, _ in self._scene_folders(split)}
         return sorted(names, key=_natural_key)
@@ -345,8 +364,8 @@ class Stanford2D3DS:
 
     def __init__(self, root: str | Path) -> None:
         self.root = _require_root(root, "Stanford 2D-3D-S")
-        if not (self.root / "pano").is_dir() and not (self.root / "pcd").is_dir():
-            raise InputError(f"not a Stanford 2D-3D-S root (no pano or pcd folder): {self.root}")
+        if not any((self.root / sub).is_dir() for sub in ("pano", "pcd", "pcd_line")):
+            raise InputError(f"not a Stanford 2D-3D-S root (no pano, pcd or pcd_line folder): {self.root}")
 
     def __repr__(self) -> str:
         return f"Stanford2D3DS({str(self.root)!r})"
@@ -377,11 +396,14 @@ class Stanford2D3DS:
         return out
 
     def scenes(self) -> list[str]:
-        """Scene keys ``area_N/<room>_<n>``: clouds in ``pcd/area_N`` and rooms with panoramas."""
+        """Scene keys ``area_N/<room>_<n>``: clouds in ``pcd/area_N``, line files in
+        ``pcd_line/area_N`` and rooms with panoramas."""
         names: set[str] = set()
         for area in self._areas("pcd"):
             names |= {f"{area}/{p.stem}" for p in (self.root / "pcd" / area).iterdir()
                       if p.suffix.lower() in POINT_CLOUD_EXTENSIONS and not p.name.startswith(".")}
+        for area in self._areas("pcd_line"):
+            names |= {f"{area}/{n}" for n in _line_file_scenes(self.root / "pcd_line" / area)}
         for area in self.splits():
             names |= {f"{area}/{room}" for _, _, room in self._panos(area)}
         return sorted(names, key=_natural_key)
@@ -547,15 +569,16 @@ class ZInD:
 
 def detect_kind(root: str | Path) -> str:
     """Guess the layout of ``root``: ``"zind"`` (``<home>/zind_data.json``, or a home folder),
-    ``"stanford"`` (``pano/area_*``) or ``"omniscenes"``."""
+    ``"stanford"`` (``area_*`` folders in ``pano``, ``pcd`` or ``pcd_line``) or ``"omniscenes"``."""
     from ldlmap.io.zind import ZIND_JSON
 
     r = _require_root(root, "dataset")
     if (r / ZIND_JSON).is_file() or any((p / ZIND_JSON).is_file() for p in _visible_dirs(r)):
         return "zind"
-    if (r / "pano").is_dir() and any(p.name.startswith("area_") for p in _visible_dirs(r / "pano")):
-        return "stanford"
-    if any(p.name.endswith("_pano") for p in _visible_dirs(r)) or (r / "pcd").is_dir():
+    for sub in ("pano", "pcd", "pcd_line"):
+        if (r / sub).is_dir() and any(p.name.startswith("area_") for p in _visible_dirs(r / sub)):
+            return "stanford"
+    if any(p.name.endswith("_pano") for p in _visible_dirs(r)) or (r / "pcd").is_dir() or (r / "pcd_line").is_dir():
         return "omniscenes"
     raise InputError(f"no recognisable dataset layout in {r} (expected OmniScenes <split>_pano/, "
                      "Stanford 2D-3D-S pano/area_N/ or ZInD <home>/zind_data.json; see datasets/README.md)")

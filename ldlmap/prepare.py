@@ -6,6 +6,11 @@ newer than its point cloud (and line file) and was built with the same parameter
 rebuilds everything. Stanford 2D-3D-S uses the paper's grid translations (N_t = 1700) unless
 parameters say otherwise.
 
+With ``use_line_files`` (``ldlmap prepare --line-files``) maps take their 3D lines from the
+dataset's line files (``pcd_line/``), beside the scan when there is one; a scene with a line file
+and no scan gets a lines-only map (features ``none``, candidate translations spaced over the
+lines' free space, :func:`ldlmap.build.build_lines_map`), and its outcome says so.
+
 ZInD has no scans: each scene's map is a lines-only map of its room layouts
 (:meth:`ldlmap.datasets.ZInD.layout_scene`: wall corners, floor and flat-ceiling edges, door,
 window and opening frames) with candidate translations spaced over the rooms' polygons and
@@ -33,6 +38,9 @@ DATASET_DEFAULTS = {
 }
 
 
+LINES_ONLY_NOTE = "no scan: lines-only map of the line file (features none)"
+
+
 @dataclass
 class SceneOutcome:
     scene: str
@@ -54,8 +62,9 @@ def _comparable(config: dict) -> dict:
     return json.loads(json.dumps({k: config.get(k) for k in sorted(keys)}))  # tuples as lists
 
 
-def is_up_to_date(map_path: Path, sources: list[Path], params: BuildParams) -> bool:
-    """True when ``map_path`` exists, is newer than every source and used the same parameters."""
+def is_up_to_date(map_path: Path, sources: list[Path], params: BuildParams, inputs: dict | None = None) -> bool:
+    """True when ``map_path`` exists, is newer than every source and used the same parameters
+    (and the same ``inputs``: build-config entries such as the line file it was built with)."""
     from ldlmap.mapfile import read_map_header
 
     if not map_path.exists():
@@ -67,7 +76,10 @@ def is_up_to_date(map_path: Path, sources: list[Path], params: BuildParams) -> b
         header = read_map_header(map_path)
     except LdlError:
         return False
-    return _comparable(header["build_config"]) == _comparable(asdict(params))
+    config = header["build_config"]
+    if any(config.get(k) != v for k, v in (inputs or {}).items()):
+        return False
+    return _comparable(config) == _comparable(asdict(params))
 
 
 def prepare_dataset(root: str | Path, kind: str | None, maps_dir: str | Path | None = None,
@@ -96,15 +108,16 @@ def prepare_dataset(root: str | Path, kind: str | None, maps_dir: str | Path | N
     for scene in todo:
         target = maps_dir / f"{scene}.h5"
         try:
-            sources, build = _scene_build(ds, scene, use_line_files)
-            if not overwrite and is_up_to_date(target, sources, params):
-                out.append(SceneOutcome(scene, target, "up-to-date"))
+            sources, scene_params, build, note = _scene_build(ds, scene, use_line_files, params)
+            inputs = None if ds.kind == "zind" else _inputs(sources, note)
+            if not overwrite and is_up_to_date(target, sources, scene_params, inputs):
+                out.append(SceneOutcome(scene, target, "up-to-date", note))
                 if progress:
                     progress(scene, "up-to-date", 1, 1)
                 continue
             cb = (lambda stage, d, t, s=scene: progress(s, stage, d, t)) if progress else None
-            rep = build(target, params, scene.replace("/", "_"), cb)
-            out.append(SceneOutcome(scene, target, "built", report=rep))
+            rep = build(target, scene_params, scene.replace("/", "_"), cb)
+            out.append(SceneOutcome(scene, target, "built", note, report=rep))
         except LdlError as exc:
             out.append(SceneOutcome(scene, target, "failed", str(exc)))
             if progress:
@@ -112,20 +125,49 @@ def prepare_dataset(root: str | Path, kind: str | None, maps_dir: str | Path | N
     return out
 
 
-def _scene_build(ds, scene: str, use_line_files: bool) -> tuple[list[Path | None], Callable[..., BuildReport]]:
-    """The files a scene's map is built from (for the up-to-date check) and a function
-    ``build(target, params, name, progress)`` that builds it: from the scan (and the dataset's line
-    file), or, for ZInD, a lines-only map of the room layouts (``build_lines_map``)."""
+def _inputs(sources: list[Path | None], note: str) -> dict:
+    """The build-config entries a map of these sources records (``build_map`` / ``build_lines_map``)."""
+    if note == LINES_ONLY_NOTE:
+        return {"input": f"lines:{sources[0]}", "lines_file": None}
+    return {"input": str(sources[0]), "lines_file": str(sources[1]) if len(sources) > 1 and sources[1] else None}
+
+
+def _scene_build(ds, scene: str, use_line_files: bool,
+                 params: BuildParams) -> tuple[list[Path | None], BuildParams, Callable[..., BuildReport], str]:
+    """What a scene's map is built from: the source files (for the up-to-date check), the
+    parameters, a function ``build(target, params, name, progress)`` and a note for the user.
+
+    From the scan (with the dataset's 3D line file when ``use_line_files``); with
+    ``use_line_files`` and no scan, a lines-only map of the line file (features ``none``); for
+    ZInD, a lines-only map of the room layouts (``build_lines_map``)."""
     if ds.kind == "zind":
         def build_layout(target: Path, params: BuildParams, name: str, progress) -> BuildReport:
             lines, walkable = ds.layout_scene(scene)
             return build_lines_map(lines, target, params, name=name, walkable=walkable, source=f"zind:{scene}",
                                    progress=progress)
 
-        return [ds.json_path(scene)], build_layout
-    cloud = ds.point_cloud(scene)
-    lines = ds.line_file(scene) if use_line_files else None
-    if use_line_files and lines is None:
-        raise InputError(f"no line file for scene {scene}")
-    return [cloud, lines], lambda target, params, name, progress: build_map(cloud, target, lines, params, name=name,
-                                                                           progress=progress)
+        return [ds.json_path(scene)], params, build_layout, ""
+    lines = ds.line_file(scene)
+    try:
+        cloud = ds.point_cloud(scene)
+    except InputError as exc:
+        if lines is None or not use_line_files:
+            hint = f" (its 3D line file {lines} maps with --line-files)" if lines is not None else ""
+            raise InputError(f"{exc}{hint}") from None
+        cloud = None
+    if not use_line_files:
+        return [cloud], params, lambda target, p, name, progress: build_map(cloud, target, None, p, name=name,
+                                                                           progress=progress), ""
+    if lines is None:
+        raise InputError(f"no 3D line file for scene {scene} (looked for <scene>lines.txt, <scene>_lines.txt, "
+                         f"<scene>.txt or .obj in pcd_line/)")
+    if cloud is not None:
+        return [cloud, lines], params, lambda target, p, name, progress: build_map(cloud, target, lines, p, name=name,
+                                                                                  progress=progress), ""
+
+    def build_lines_only(target: Path, p: BuildParams, name: str, progress) -> BuildReport:
+        from ldlmap.io.linefiles import read_lines
+
+        return build_lines_map(read_lines(lines), target, p, name=name, source=f"lines:{lines}", progress=progress)
+
+    return [lines], replace(params, features="none"), build_lines_only, LINES_ONLY_NOTE

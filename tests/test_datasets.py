@@ -293,3 +293,85 @@ def test_reader_on_generated_synthetic_dataset(tmp_path: Path) -> None:
         assert q.scene in ds.scenes() and q.scene_state == ("scene_2" if q.split.startswith("change_") else "scene_1")
     for scene in ds.scenes():
         assert ds.point_cloud(scene).suffix == ".ply" and ds.mesh_file(scene) is not None
+
+
+# ------------------------------------------------------------------- maps from pcd_line/ (prepare)
+
+
+def _write_3dlinedetection(path: Path, edges: np.ndarray, step: float = 0.05) -> None:
+    """Rows ``x y z line_id``: points every ``step`` along each edge (ends included), as distributed."""
+    rows = []
+    for k, (a, b) in enumerate(edges):
+        n = max(2, int(np.ceil(np.linalg.norm(b - a) / step)) + 1)
+        pts = a + np.linspace(0, 1, n)[:, None] * (b - a)
+        rows.append(np.column_stack([pts, np.full(n, k)]))
+    path.parent.mkdir(parents=True, exist_ok=True)
+    np.savetxt(path, np.concatenate(rows), fmt="%.5f %.5f %.5f %d")
+
+
+def _line_file_tree(root: Path) -> dict[str, np.ndarray]:
+    """OmniScenes-like root: room_1 has only pcd_line/room_1lines.txt, room_2 a scan and a line file."""
+    from tests._room_cloud import box_room
+
+    edges = {}
+    for seed, scene in ((1, "room_1"), (2, "room_2")):
+        pts, e = box_room(seed=seed, density=300.0)
+        edges[scene] = e
+        _write_3dlinedetection(root / "pcd_line" / f"{scene}lines.txt", e)
+        if scene == "room_2":
+            rgb = np.random.default_rng(seed).integers(0, 256, (len(pts), 3))
+            (root / "pcd").mkdir(parents=True, exist_ok=True)
+            np.savetxt(root / "pcd" / f"{scene}.txt", np.column_stack([pts, rgb]), fmt="%.4f %.4f %.4f %d %d %d")
+    R, t = _random_pose(np.random.default_rng(3))
+    _touch(root / "robot_pano" / "robot_room_1_scene_1" / "0000.jpg")
+    (root / "robot_pose" / "robot_room_1_scene_1").mkdir(parents=True)
+    write_pose_txt(root / "robot_pose" / "robot_room_1_scene_1" / "0000.txt", R, t)
+    return edges
+
+
+def test_line_files_alone_make_scenes(tmp_path: Path) -> None:
+    (tmp_path / "omni" / "pcd_line").mkdir(parents=True)
+    (tmp_path / "omni" / "pcd_line" / "room_7lines.txt").write_text("0 0 0 1\n1 0 0 1\n")
+    (tmp_path / "omni" / "pcd_line" / "hall_2_lines.obj").write_text("v 0 0 0\nv 1 0 0\nl 1 2\n")
+    assert detect_kind(tmp_path / "omni") == "omniscenes"
+    ds = OmniScenes(tmp_path / "omni")
+    assert ds.scenes() == ["hall_2", "room_7"]
+    assert ds.line_file("hall_2").name == "hall_2_lines.obj"
+    with pytest.raises(InputError, match="no point cloud for scene room_7"):
+        ds.point_cloud("room_7")
+    _touch(tmp_path / "stan" / "pcd_line" / "area_2" / "office_3lines.txt", b"0 0 0 1\n")
+    assert detect_kind(tmp_path / "stan") == "stanford"
+    st = Stanford2D3DS(tmp_path / "stan")
+    assert st.scenes() == ["area_2/office_3"] and st.line_file("office_3").parent.name == "area_2"
+
+
+def test_prepare_with_line_files(tmp_path: Path) -> None:
+    from typer.testing import CliRunner
+
+    from ldlmap.cli import app
+    from ldlmap.mapfile import read_map
+
+    runner = CliRunner()
+    root = tmp_path / "omni"
+    edges = _line_file_tree(root)
+    args = ["prepare", str(root), "--features", "none", "--num-trans", "60", "--trans-spacing", "1.0"]
+    # Without --line-files the scene without a scan fails, pointing at its line file.
+    res = runner.invoke(app, args)
+    assert res.exit_code == 1 and "Traceback" not in res.output
+    assert "no point cloud for scene room_1" in res.output and "--line-files" in res.output
+    res = runner.invoke(app, args + ["--line-files"])
+    assert res.exit_code == 0, res.output
+    assert "1 scene(s) without a scan, lines-only map(s) from their line files (features none): room_1" in res.output
+    lines_only, with_scan = read_map(root / "maps" / "room_1.h5"), read_map(root / "maps" / "room_2.h5")
+    assert lines_only.lines_only and lines_only.cloud_points is None
+    assert lines_only.config["features"] == "none" and lines_only.config["translations"]["method"] == "spacing"
+    assert np.allclose(lines_only.lines_raw, edges["room_1"], atol=1e-4)  # the file's lines, ends as written
+    assert with_scan.cloud_points is not None and len(with_scan.cloud_points) > 1000  # the scan beside the lines
+    assert np.allclose(with_scan.lines_raw, edges["room_2"], atol=1e-4)
+    assert with_scan.config["translations"]["method"] == "octree"
+    again = runner.invoke(app, args + ["--line-files"])
+    assert again.exit_code == 0 and again.output.count("up-to-date") == 2, again.output
+    # A scan without a line file cannot use --line-files.
+    (root / "pcd_line" / "room_2lines.txt").unlink()
+    res = runner.invoke(app, args + ["--line-files", "--overwrite"])
+    assert res.exit_code == 1 and "no 3D line file for scene room_2" in res.output

@@ -87,3 +87,58 @@ def test_colmap_bad_inputs(tmp_path: Path) -> None:
     with pytest.raises(InputError, match="cannot read COLMAP model") as info:
         read_colmap_model(tmp_path)
     assert "\n" not in str(info.value)
+
+
+def _pinhole_model(tmp_path: Path) -> tuple[Path, np.ndarray, dict]:
+    """A PINHOLE model: 3 photos looking at 40 points, each point observed where it projects
+    (photo 0 also observes nothing at one keypoint); returns (model dir, points, centres)."""
+    import pycolmap
+
+    from ldlmap.synth.sfm import look_rotation
+
+    rng = np.random.default_rng(3)
+    rec = pycolmap.Reconstruction()
+    cam = pycolmap.Camera.create_from_model_id(1, pycolmap.CameraModelId.PINHOLE, 300.0, 320, 240)
+    cam.params = [300.0, 310.0, 160.0, 120.0]
+    rec.add_camera_with_trivial_rig(cam)
+    X = rng.uniform([-1, 4, -1], [1, 6, 1], (40, 3))
+    centers = {}
+    obs = []
+    for i in range(3):
+        C = np.array([i - 1.0, 0.0, 0.0])
+        R = look_rotation(np.pi / 2, 0.0, 0.0)  # looking along +y
+        xc = (X - C) @ R.T
+        uv = xc[:, :2] / xc[:, 2:] * [300.0, 310.0] + [160.0, 120.0]
+        kp = np.vstack([uv, [[5.0, 5.0]]])  # last keypoint has no 3D point
+        name = f"p{i}.jpg"
+        rec.add_image_with_trivial_frame(pycolmap.Image(name=name, keypoints=kp, camera_id=1, image_id=i + 1),
+                                         pycolmap.Rigid3d(pycolmap.Rotation3d(R), -R @ C))
+        centers[name] = C
+        obs.append(uv)
+    for k, x in enumerate(X):
+        rec.add_point3D(x, pycolmap.Track([pycolmap.TrackElement(i + 1, k) for i in range(3)]), np.zeros(3, np.uint8))
+    model = tmp_path / "ws" / "sparse" / "0"
+    model.mkdir(parents=True)
+    rec.write_binary(str(model))
+    return model, X, centers
+
+
+def test_views_with_observations(tmp_path: Path) -> None:
+    from ldlmap.io.colmap import find_images_dir, read_colmap_views
+
+    model, X, centers = _pinhole_model(tmp_path)
+    cv = read_colmap_views(model)
+    assert [v.name for v in cv.views] == sorted(centers)
+    for v in cv.views:
+        assert np.allclose(v.center, centers[v.name])
+        assert len(v.obs_xy) == len(X)  # the keypoint without a 3D point is left out
+        # Each observation is where its point projects (R, t: COLMAP's cam_from_world).
+        xc = cv.points[v.obs_point] @ v.rot_cam_from_world.T + v.trans_cam_from_world
+        assert np.allclose(v.camera.img_from_cam(xc), v.obs_xy, atol=1e-6)
+    assert np.allclose(np.sort(cv.points, axis=0), np.sort(X, axis=0))
+    # The photos: <workspace>/images beside sparse/0, found only when it holds one of them.
+    assert find_images_dir(model, ["p0.jpg"]) is None
+    (tmp_path / "ws" / "images").mkdir()
+    assert find_images_dir(model, ["p0.jpg"]) is None
+    (tmp_path / "ws" / "images" / "p1.jpg").write_bytes(b"x")
+    assert find_images_dir(model, ["p0.jpg", "p1.jpg"]) == tmp_path / "ws" / "images"

@@ -5,6 +5,11 @@ the newer ``rigs``/``frames`` files) is read with ``pycolmap.Reconstruction``. A
 ``fused.ply`` (COLMAP's ``stereo_fusion`` output) in the model folder, its parent, or the usual
 ``<workspace>/dense/fused.ply`` / ``dense/0/fused.ply`` next to ``sparse/0`` is used when present:
 it is what the map should be built from, the sparse points being too few for rendering.
+
+Without a dense cloud, :func:`read_colmap_views` gives what 3D lines can be reconstructed from
+(:mod:`ldlmap.sfm_lines`): each registered image's camera, pose and observations of the sparse
+points, and :func:`find_images_dir` the photos, by default ``<workspace>/images`` beside
+``sparse/0`` as COLMAP lays a workspace out (``dense/0/images`` for ``dense/0/sparse``).
 """
 
 from __future__ import annotations
@@ -12,6 +17,7 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -70,21 +76,7 @@ def read_colmap_model(path: str | os.PathLike, use_dense: bool = True) -> Colmap
     Raises :class:`InputError` when the folder is missing, is not a COLMAP model, cannot be
     parsed, or has no 3D points and no dense cloud.
     """
-    import pycolmap
-
-    p = Path(path)
-    if not p.exists():
-        raise InputError(f"COLMAP model folder not found: {p}")
-    model = resolve_model_dir(p)
-    if model is None:
-        raise InputError(f"not a COLMAP sparse model (expected cameras, images, points3D .bin or .txt): {p}")
-    p = model
-    try:
-        rec = pycolmap.Reconstruction(str(p))
-    except (ValueError, RuntimeError) as exc:
-        detail = str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__
-        raise InputError(f"cannot read COLMAP model {p}: {detail}") from None
-
+    p, rec = _open_reconstruction(path)
     pts3d = list(rec.points3D.values())
     xyz = np.array([q.xyz for q in pts3d], dtype=np.float64).reshape(-1, 3)
     rgb = np.array([q.color for q in pts3d], dtype=np.uint8).reshape(-1, 3)
@@ -103,3 +95,71 @@ def read_colmap_model(path: str | os.PathLike, use_dense: bool = True) -> Colmap
         sparse.validate(p)
     return ColmapScene(points=sparse, camera_centers=centers, dense=dense,
                        image_names=tuple(im.name for im in images), dense_path=dense_path)
+
+
+@dataclass(frozen=True, eq=False)
+class ColmapView:
+    """One registered image: camera, pose (COLMAP frame: x right, y down, z forward), observations."""
+
+    name: str  # image name, relative to the images folder
+    camera: Any  # pycolmap.Camera: projection with its distortion (cam_from_img / img_from_cam)
+    rot_cam_from_world: np.ndarray  # (3, 3)
+    trans_cam_from_world: np.ndarray  # (3,): x_cam = R X + t
+    center: np.ndarray  # (3,) camera centre in world coordinates
+    obs_xy: np.ndarray  # (n, 2) pixels of the observed sparse points (first pixel's centre at 0.5)
+    obs_point: np.ndarray  # (n,) row of each observed point in ColmapViews.points
+
+
+@dataclass(frozen=True, eq=False)
+class ColmapViews:
+    """The registered images of a model (sorted by name) and its sparse points."""
+
+    views: tuple[ColmapView, ...]
+    points: np.ndarray  # (P, 3) sparse 3D points
+    model_dir: Path
+    reconstruction: Any = None  # the pycolmap.Reconstruction the cameras belong to (kept alive)
+
+
+def _open_reconstruction(path: str | os.PathLike):
+    import pycolmap
+
+    p = Path(path)
+    if not p.exists():
+        raise InputError(f"COLMAP model folder not found: {p}")
+    model = resolve_model_dir(p)
+    if model is None:
+        raise InputError(f"not a COLMAP sparse model (expected cameras, images, points3D .bin or .txt): {p}")
+    try:
+        return model, pycolmap.Reconstruction(str(model))
+    except (ValueError, RuntimeError) as exc:
+        detail = str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__
+        raise InputError(f"cannot read COLMAP model {model}: {detail}") from None
+
+
+def read_colmap_views(path: str | os.PathLike) -> ColmapViews:
+    """Registered images with their cameras, poses and sparse-point observations."""
+    model, rec = _open_reconstruction(path)
+    ids = np.array(sorted(rec.point3D_ids()), dtype=np.int64)
+    xyz = np.array([rec.points3D[int(i)].xyz for i in ids], dtype=np.float64).reshape(-1, 3)
+    views = []
+    for im in sorted((im for im in rec.images.values() if im.has_pose), key=lambda im: im.name):
+        obs = [p for p in im.points2D if p.has_point3D()]
+        pid = np.array([p.point3D_id for p in obs], dtype=np.int64)
+        xy = np.array([p.xy for p in obs], dtype=np.float64).reshape(-1, 2)
+        row = np.searchsorted(ids, pid)
+        ok = (row < len(ids)) & (ids[np.minimum(row, len(ids) - 1)] == pid) if len(ids) else np.zeros(len(pid), bool)
+        pose = im.cam_from_world()
+        R = np.asarray(pose.rotation.matrix(), dtype=np.float64)
+        t = np.asarray(pose.translation, dtype=np.float64).reshape(3)
+        views.append(ColmapView(im.name, im.camera, R, t, -R.T @ t, xy[ok], row[ok]))
+    return ColmapViews(tuple(views), xyz, model, rec)
+
+
+def find_images_dir(model_dir: str | os.PathLike, names: tuple[str, ...] | list[str]) -> Path | None:
+    """The folder holding the model's photos: ``images`` in the model folder, its parent or the
+    workspace above ``sparse/<k>``; the first that holds at least one of ``names``."""
+    p = Path(model_dir)
+    for cand in (p / "images", p.parent / "images", p.parent.parent / "images"):
+        if cand.is_dir() and any((cand / n).is_file() for n in names):
+            return cand
+    return None
