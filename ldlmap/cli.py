@@ -90,14 +90,19 @@ def lines(
     output: Path = typer.Option(..., "-o", "--output", help="Output .obj; a .txt with the same stem is written too."),
     lam: float = typer.Option(0.1, "--lambda", help="Length filter: drop lines shorter than lambda (bx+by+bz)/3."),
     no_filter: bool = typer.Option(False, "--no-filter", help="Write all extracted lines (no length filter)."),
-    png: Optional[Path] = typer.Option(None, "--png", help="Also write a top-view picture of the lines."),
+    png: Optional[Path] = typer.Option(None, "--png", help="Also write a top-view picture of the lines "
+                                       "(.png, .jpg, .jpeg, .bmp, .tif, .tiff, .webp)."),
 ) -> None:
     """Extract 3D line segments from a point cloud and write them as .obj and .txt."""
     from ldlmap.errors import LdlError
     from ldlmap.io.pointcloud import read_point_cloud
     from ldlmap.lines3d import draw_top_view, extract_lines_with_stats, filter_by_length, write_line_files
+    from ldlmap.pictures import check_picture_path
     from ldlmap.principal3d import principal_directions_3d
 
+    if png is not None:
+        check_picture_path(png, "--png")
+    _refuse_line_file(input_path)
     pc = read_point_cloud(input_path)
     raw, stats = extract_lines_with_stats(pc.points)
     lo, hi = pc.bounds()
@@ -114,6 +119,18 @@ def lines(
         principal = principal_directions_3d(out_lines) if len(out_lines) else None
         draw_top_view(out_lines, png, principal=principal, dropped=None if no_filter else raw[~mask])
         console.print(f"wrote {png}", soft_wrap=True)
+
+
+def _refuse_line_file(path: Path) -> None:
+    """One line saying what to do when `ldlmap lines` is given a 3D line file instead of a scan."""
+    from ldlmap.errors import InputError
+    from ldlmap.io.linefiles import LINE_FORMAT_NAMES, sniff_line_file
+
+    kind = sniff_line_file(path) if path.is_file() else None
+    if kind is not None:
+        raise InputError(f"{path} is a 3D line file ({LINE_FORMAT_NAMES[kind]}), not a scan: it has its lines "
+                         f"already; build a map with `ldlmap build {path}` (lines-only) or "
+                         f"`ldlmap build SCAN --lines {path}`")
 
 
 @app.command()
@@ -176,12 +193,17 @@ def build(
     trans_spacing: Optional[float] = TRANS_SPACING,
     camera_height: Optional[str] = CAMERA_HEIGHT,
     device: str = typer.Option("cpu", "--device", help="Torch device for rendering and SuperPoint: cpu | cuda."),
-    png: Optional[Path] = typer.Option(None, "--png", help="Also write a picture of the map (top view + panorama with lines)."),
+    png: Optional[Path] = typer.Option(None, "--png", help="Also write a picture of the map (top view + panorama "
+                                       "with lines; .png, .jpg, .jpeg, .bmp, .tif, .tiff, .webp)."),
 ) -> None:
     """Build an LDL map (3D lines, principal directions, translations, features) from a scan."""
     from rich.table import Table
 
     from ldlmap.build import BuildParams, build_map, params_with
+    from ldlmap.pictures import check_picture_path
+
+    if png is not None:
+        check_picture_path(png, "--png")
 
     params = params_with(BuildParams(), features=features, weights=str(weights) if weights else None,
                          num_translations=num_trans, translation_method=method, num_views=num_views, lam=lam,
