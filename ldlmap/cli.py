@@ -41,6 +41,7 @@ def info(map_path: Path = typer.Argument(..., help="An LDL map (.h5) written by 
         ("format version", str(h["format_version"])),
         ("3D lines (raw -> kept)", f"{h['num_lines_raw']} -> {h['num_lines']} (kept ratio {h['kept_ratio']:.3f}, "
                                    f"length threshold {h['length_threshold']:.3f} m)"),
+        *_principal_rows(h),
         ("candidate translations", _translations_summary(h)),
         ("cloud points stored", str(h["num_cloud_points"])),
         ("features", "none (lines-only map)" if h["feature_backend"] is None else
@@ -53,6 +54,22 @@ def info(map_path: Path = typer.Argument(..., help="An LDL map (.h5) written by 
     for k, v in rows:
         table.add_row(k, v)
     console.print(table)
+
+
+def _principal_rows(header: dict) -> list[tuple[str, str]]:
+    """Table rows: the 3 principal directions (unit vectors, world frame) with their line counts,
+    the angles between them, and the lines in no group."""
+    import numpy as np
+
+    P, counts = np.asarray(header["principal_directions"], dtype=np.float64), header["line_group_counts"]
+    vecs = "\n".join(f"d{i} = [{P[i, 0]: .4f}, {P[i, 1]: .4f}, {P[i, 2]: .4f}]"
+                     + (f"  {counts[i]} lines" if counts else "") for i in range(3))
+    ang = {f"d{i}-d{j}": np.degrees(np.arccos(np.clip(P[i] @ P[j], -1.0, 1.0))) for i, j in ((0, 1), (0, 2), (1, 2))}
+    rows = [("principal directions", vecs),
+            ("angles between them", ", ".join(f"{k} {v:.2f} deg" for k, v in ang.items()))]
+    if counts:
+        rows.append(("lines in no group", str(counts[-1])))
+    return rows
 
 
 def _translations_summary(header: dict) -> str:
