@@ -21,31 +21,57 @@ console = Console(width=None if sys.stdout.isatty() or os.environ.get("COLUMNS")
 err_console = Console(stderr=True, width=None if sys.stderr.isatty() or os.environ.get("COLUMNS") else 400)
 
 
-def fail(message: str, code: int = 1) -> None:
-    """Print ``error: message`` as one line on stderr and exit with ``code``."""
-    err_console.print(f"[bold red]error:[/] {message}", highlight=False, soft_wrap=True)
+def fail(message: str, code: int = 1, as_json: bool = False) -> None:
+    """Print ``error: message`` as one line on stderr (or ``{"error": message}`` on stdout when
+    ``as_json``) and exit with ``code``."""
+    if as_json:
+        import json
+
+        typer.echo(json.dumps({"error": message}))
+    else:
+        err_console.print(f"[bold red]error:[/] {message}", highlight=False, soft_wrap=True)
     raise typer.Exit(code)
+
+
+def _wants_json(args: list[str]) -> bool:
+    """Whether the command line asks for JSON output (``--json`` before any ``--``)."""
+    return "--json" in args[:args.index("--")] if "--" in args else "--json" in args
+
+
+def _usage_error() -> type:
+    """Click's UsageError (typer vendors click from 0.16 on; older typer uses click itself)."""
+    try:
+        from typer._click.exceptions import UsageError
+    except ImportError:  # pragma: no cover - older typer
+        from click.exceptions import UsageError
+    return UsageError
 
 
 class _ErrorHandlingGroup(TyperGroup):
     def invoke(self, ctx: click.Context):  # noqa: D401 - click API
         from ldlmap.errors import LdlError
 
+        as_json = _wants_json([*getattr(ctx, "_protected_args", []), *ctx.args])
+        debug = os.environ.get("LDL_DEBUG") == "1"
         try:
             return super().invoke(ctx)
         except (click.exceptions.Exit, click.ClickException, click.Abort):
             raise
         except LdlError as exc:
-            if os.environ.get("LDL_DEBUG") == "1":
+            if debug:
                 raise
-            fail(str(exc))
+            fail(str(exc), as_json=as_json)
         except OSError as exc:
-            if os.environ.get("LDL_DEBUG") == "1":
+            if debug:
                 raise
             where = f": {exc.filename}" if getattr(exc, "filename", None) else ""
-            fail(f"{exc.strerror or exc}{where}")
+            fail(f"{exc.strerror or exc}{where}", as_json=as_json)
         except KeyboardInterrupt:
-            fail("interrupted", code=130)
+            fail("interrupted", code=130, as_json=as_json)
+        except _usage_error() as exc:
+            if not as_json:
+                raise
+            fail(exc.format_message(), code=exc.exit_code, as_json=True)
 
 
 def make_app(name: str, help: str) -> typer.Typer:
