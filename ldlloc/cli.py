@@ -253,3 +253,7 @@ def report(results: Path = typer.Argument(..., help="Results JSON written by `ld
     console.print(summary_table(rs, "split", f"{results} by split"))
     console.print(timing_table(rs))
     _print_search_summary(rs)
+
+
+if __name__ == "__main__":  # python3 -m ldlloc.cli
+    app()

@@ -317,3 +317,7 @@ def prepare(
     failed = [o for o in outcomes if o.status == "failed"]
     if failed:
         raise InputError(f"{len(failed)} of {len(outcomes)} scene(s) failed: " + "; ".join(f"{o.scene}: {o.message}" for o in failed))
+
+
+if __name__ == "__main__":  # python3 -m ldlmap.cli
+    app()
