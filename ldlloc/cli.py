@@ -7,7 +7,7 @@ from typing import Optional
 
 import typer
 
-from ldlmap.cli_common import console, make_app
+from ldlmap.cli_common import console, import_heavy, make_app
 
 app = make_app("ldlloc", "Localize panoramas against LDL maps with line distance functions.")
 
@@ -111,6 +111,7 @@ def localize(
         check_picture_path(vis, "--vis")
     truth = read_pose_file(gt) if gt is not None else None
     img = load_image(pano)
+    import_heavy("torch", "cv2", "h5py")
     _set_threads(threads)
     tick = time.perf_counter()
     m = read_map(map_path, load_cloud=False)

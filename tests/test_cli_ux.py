@@ -251,3 +251,22 @@ def test_help_runs_as_a_module(module):
     out = subprocess.run([sys.executable, "-m", module, "--help"], cwd=ROOT, capture_output=True, text=True,
                          env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin", "COLUMNS": "120"})
     assert out.returncode == 0 and "Usage" in out.stdout and ("localize" in out.stdout or "build" in out.stdout)
+
+
+def test_distance_fields_reject_non_finite_float16_values():
+    """Setup checks the float16 fields from their bits (a float16 pass took up to 0.5 s per map)."""
+    from ldlloc.fields import DistanceFields
+    from ldlmap.errors import InputError
+
+    G = 4
+    d = np.random.default_rng(0).uniform(0, 1.5, size=(3, 3, G + 1, 2 * G)).astype(np.float16)
+    d[0, 0, 0, 0] = -0.0  # finite values of either sign pass
+    d[0, 0, 0, 1] = -1.0
+    DistanceFields.from_arrays(d, {"rows": G})
+    for bad in (np.nan, np.inf, -np.inf):
+        e = d.copy()
+        e[2, 1, G, 2 * G - 1] = bad
+        with pytest.raises(InputError, match="NaN or infinite"):
+            DistanceFields.from_arrays(e, {"rows": G})
+        with pytest.raises(InputError, match="NaN or infinite"):
+            DistanceFields.from_arrays(e.astype(np.float32), {"rows": G})
