@@ -154,7 +154,7 @@ def test_localize_gt_prints_errors_and_threshold(demo_dataset, tmp_path):
     R, t = read_pose_txt(pose)
     assert out["t_error_m"] == pytest.approx(np.linalg.norm(np.array(out["t"]) - t), abs=1e-5)
     assert out["t_error_m"] < 0.1 and out["r_error_deg"] < 5 and out["localized"] is True
-    assert out["gt"] == str(pose) and set(out["load_seconds"]) == {"read_map", "setup"}
+    assert out["gt"] == str(pose) and set(out["load_seconds"]) == {"read_map", "wait_map", "setup"}
     assert has_format(tmp_path / "v.png", ".png")
     # A known pose 1 m away: the same estimate is 1 m off and not localized (text output).
     far = tmp_path / "far.txt"
@@ -197,6 +197,16 @@ def test_json_errors_are_json(tmp_path):
         assert needle in json.loads(res.stdout)["error"], res.stdout
     # Without --json the same error stays one plain line.
     assert "image not found" in error_line(runner.invoke(loc_app, ["localize", str(missing), str(img)]))
+    # With a readable panorama, the missing map (read in a thread beside the imports) is the error.
+    import cv2
+
+    pano = tmp_path / "real.png"
+    cv2.imwrite(str(pano), np.zeros((8, 16, 3), np.uint8))
+    res = runner.invoke(loc_app, ["localize", str(missing), str(pano), "--json"])
+    assert res.exit_code == 1 and "map not found" in json.loads(res.stdout)["error"]
+    (tmp_path / "bad.h5").write_text("not a map")
+    res = runner.invoke(loc_app, ["localize", str(tmp_path / "bad.h5"), str(pano), "--json"])
+    assert res.exit_code == 1 and "HDF5" in json.loads(res.stdout)["error"]
 
 
 def test_a_failed_localization_is_a_json_error(demo_dataset, tmp_path):
