@@ -23,6 +23,9 @@ Benchmarks (in this order; names for ``--only``):
 - ``real``: real ZInD panoramas against their layout maps, room and floor level; writes
   ``bench/real.json`` (bench_real.py; prints a note and measures nothing when the real data,
   ``--data`` / ``$LDL_REAL_DATA`` / ``../shared/data``, is absent)
+- ``startup``: ``ldlmap --help``, ``ldlloc --help`` and one ``ldlloc localize`` as fresh processes,
+  wall and CPU seconds with localize's stages (map read, setup, query, the rest); writes
+  ``bench/startup.json`` (bench_startup.py)
 
 Each runs in its own Python process (so one's memory and threads do not skew the next). Data
 and maps are cached under ``bench/.cache/``; the first run generates them. ``--quick`` runs
@@ -54,10 +57,11 @@ BENCHES: dict[str, tuple[str, list[str], list[str]]] = {
     "real": ("bench_real.py", [], ["--levels", "room"]),
     "geometric": ("bench_geometric.py", [], ["--quick"]),
     "ray": ("bench_ray.py", [], ["--quick"]),
+    "startup": ("bench_startup.py", [], ["--runs", "1"]),
 }
 ON_REQUEST = {"ray"}  # slow: run only when named in --only
 DEVICE_AWARE = {"render", "ldf", "localize", "ablation"}
-THREAD_AWARE = {"render", "ldf", "build", "localize", "ablation", "real", "geometric"}
+THREAD_AWARE = {"render", "ldf", "build", "localize", "ablation", "real", "geometric", "startup"}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -39,6 +39,7 @@ from typing import Any, Iterable
 import numpy as np
 
 from ldlmap.errors import InputError, atomic_file, require_file
+from ldlmap.geometry import rotation_error_deg, translation_error
 
 # (name, metres, degrees): the paper's thresholds; the second is the headline accuracy.
 THRESHOLDS: tuple[tuple[str, float, float], ...] = (
@@ -49,6 +50,15 @@ THRESHOLDS: tuple[tuple[str, float, float], ...] = (
 STAGES = ("lines2d", "rotation", "search", "refine", "total")
 GOOD_T_M = 0.5  # a top-K candidate is "good" within 0.5 m and 10 degrees of the truth
 GOOD_R_DEG = 10.0
+
+
+def pose_errors(rot_est: np.ndarray, center_est: np.ndarray, rot_true: np.ndarray, center_true: np.ndarray) -> dict:
+    """``t_error_m``, ``r_error_deg`` of an estimated pose against the truth, and ``localized``:
+    both under the headline threshold (``THRESHOLDS[1]``: 0.1 m and 5 degrees)."""
+    t_err = translation_error(center_est, center_true)
+    r_err = rotation_error_deg(rot_est, rot_true)
+    _, t_max, r_max = THRESHOLDS[1]
+    return {"t_error_m": t_err, "r_error_deg": r_err, "localized": bool(t_err < t_max and r_err < r_max)}
 
 
 @dataclass

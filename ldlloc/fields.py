@@ -48,6 +48,14 @@ if TYPE_CHECKING:  # pragma: no cover
 FIELD_KIND = "equirect_nodes"  # the only grid kind written by ldlmap.fields3d (version 1)
 
 
+def _all_finite(a: np.ndarray) -> bool:
+    """``np.isfinite(a).all()``; for float16 from the bits (finite unless the exponent bits are all
+    ones), 20x faster than a float16 pass, which cost localization's setup 0.2-0.5 s per map."""
+    if a.dtype == np.float16:
+        return int((a.view(np.uint16) & 0x7FFF).max(initial=0)) < 0x7C00
+    return bool(np.isfinite(a).all())
+
+
 @dataclass
 class DistanceFields:
     """Distance fields of one map prepared for look-ups (build once per map, reuse per query)."""
@@ -74,12 +82,12 @@ class DistanceFields:
         if rows != d.shape[2] - 1:
             raise InputError(f"distance fields: attrs say {rows} rows, the array has {d.shape[2] - 1}")
         n_t, ng = d.shape[0], d.shape[1]
+        if not _all_finite(d):
+            raise InputError("distance fields contain NaN or infinite values")
         dt = dtype or (torch.float16 if d.dtype == np.float16 else torch.float32)
         # (N_t, g, nodes) -> (nodes, g, N_t): one contiguous row of all values per grid node.
         t = torch.as_tensor(np.ascontiguousarray(d.reshape(n_t, ng, -1).transpose(2, 1, 0)))
         table = t.reshape(t.shape[0], ng * n_t).to(device=device, dtype=dt).contiguous()
-        if not bool(torch.isfinite(table).all()):
-            raise InputError("distance fields contain NaN or infinite values")
         return cls(table, rows, n_t, ng)
 
     @classmethod

@@ -162,6 +162,16 @@ class Localizer:
 
             opts = {"weights": params.weights, "device": device} if want == "superpoint" else {}
             self.backend = get_backend(want, **opts)
+        self._prepare()
+
+    def _prepare(self) -> None:
+        """One-time work done here, not in the first query's timed stages: the vanishing points'
+        voting sphere and, for feature refinement, pycolmap's import (spherical PnP)."""
+        from ldlmap.geometry import half_icosphere_points
+
+        half_icosphere_points(self.params.principal.icosphere_level)
+        if self.refine_enabled:
+            import pycolmap  # noqa: F401
 
     def _refine_and_keep(self, arcs: np.ndarray, rotations: np.ndarray, centers: np.ndarray,
                          translation_index: np.ndarray, n: int):

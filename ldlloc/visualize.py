@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ldlmap.pictures import draw_arcs, project_lines, write_png
+from ldlmap.pictures import draw_arcs, project_lines, write_picture
 
 
 def localization_picture(image_rgb: np.ndarray, loc, ldl_map) -> np.ndarray:
@@ -43,19 +43,8 @@ def _title(img: np.ndarray, text: str, scale: float) -> None:
 
 
 def save_localization_picture(image_rgb: np.ndarray, loc, ldl_map, path: str | Path) -> Path:
-    """Write :func:`localization_picture` (PNG, or JPEG when ``path`` ends in .jpg) atomically."""
-    import cv2
-
-    from ldlmap.errors import InputError, atomic_file
-
-    pic = localization_picture(image_rgb, loc, ldl_map)
-    path = Path(path)
-    if path.suffix.lower() == ".png":
-        return write_png(path, pic)
-    with atomic_file(path, suffix=".jpg") as tmp:
-        if not cv2.imwrite(str(tmp), pic, [cv2.IMWRITE_JPEG_QUALITY, 90]):
-            raise InputError(f"could not write {path}")
-    return path
+    """Write :func:`localization_picture` atomically, in the format of ``path``'s extension."""
+    return write_picture(path, localization_picture(image_rgb, loc, ldl_map))
 
 
 __all__ = ["localization_picture", "save_localization_picture"]

@@ -87,7 +87,7 @@ def load_input(path: str | Path, lines_path: str | Path | None, mesh_samples: in
     COLMAP model's photos (:mod:`ldlmap.colmap_input`)."""
     from ldlmap.colmap_input import colmap_scene_input
     from ldlmap.io.colmap import is_colmap_model, resolve_model_dir
-    from ldlmap.io.linefiles import read_lines
+    from ldlmap.io.linefiles import LINE_FORMAT_NAMES, read_lines, sniff_line_file
     from ldlmap.io.pointcloud import SUPPORTED_SUFFIXES, read_point_cloud
 
     p = Path(path)
@@ -102,6 +102,12 @@ def load_input(path: str | Path, lines_path: str | Path | None, mesh_samples: in
     if p.is_dir():
         raise InputError(f"{p} is a folder but not a COLMAP model (cameras/images/points3D .bin or .txt)")
     suffix = p.suffix.lower()
+    kind = sniff_line_file(p)  # by content: a line file's rows could pass for a small point cloud
+    if kind is not None and lines is not None:
+        raise InputError(f"{p} is a 3D line file ({LINE_FORMAT_NAMES[kind]}), not a scan: give it alone "
+                         f"(`ldlmap build {p}`), or a scan with --lines")
+    if kind is not None:
+        return SceneInput(None, None, read_lines(p), None, f"lines:{p}")
     if suffix in SUPPORTED_SUFFIXES:
         try:
             cloud = read_point_cloud(p, mesh_samples=mesh_samples)

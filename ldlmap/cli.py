@@ -41,6 +41,7 @@ def info(map_path: Path = typer.Argument(..., help="An LDL map (.h5) written by 
         ("format version", str(h["format_version"])),
         ("3D lines (raw -> kept)", f"{h['num_lines_raw']} -> {h['num_lines']} (kept ratio {h['kept_ratio']:.3f}, "
                                    f"length threshold {h['length_threshold']:.3f} m)"),
+        *_principal_rows(h),
         ("candidate translations", _translations_summary(h)),
         ("cloud points stored", str(h["num_cloud_points"])),
         ("features", "none (lines-only map)" if h["feature_backend"] is None else
@@ -53,6 +54,22 @@ def info(map_path: Path = typer.Argument(..., help="An LDL map (.h5) written by 
     for k, v in rows:
         table.add_row(k, v)
     console.print(table)
+
+
+def _principal_rows(header: dict) -> list[tuple[str, str]]:
+    """Table rows: the 3 principal directions (unit vectors, world frame) with their line counts,
+    the angles between them, and the lines in no group."""
+    import numpy as np
+
+    P, counts = np.asarray(header["principal_directions"], dtype=np.float64), header["line_group_counts"]
+    vecs = "\n".join(f"d{i} = [{P[i, 0]: .4f}, {P[i, 1]: .4f}, {P[i, 2]: .4f}]"
+                     + (f"  {counts[i]} lines" if counts else "") for i in range(3))
+    ang = {f"d{i}-d{j}": np.degrees(np.arccos(np.clip(P[i] @ P[j], -1.0, 1.0))) for i, j in ((0, 1), (0, 2), (1, 2))}
+    rows = [("principal directions", vecs),
+            ("angles between them", ", ".join(f"{k} {v:.2f} deg" for k, v in ang.items()))]
+    if counts:
+        rows.append(("lines in no group", str(counts[-1])))
+    return rows
 
 
 def _translations_summary(header: dict) -> str:
@@ -90,14 +107,19 @@ def lines(
     output: Path = typer.Option(..., "-o", "--output", help="Output .obj; a .txt with the same stem is written too."),
     lam: float = typer.Option(0.1, "--lambda", help="Length filter: drop lines shorter than lambda (bx+by+bz)/3."),
     no_filter: bool = typer.Option(False, "--no-filter", help="Write all extracted lines (no length filter)."),
-    png: Optional[Path] = typer.Option(None, "--png", help="Also write a top-view picture of the lines."),
+    png: Optional[Path] = typer.Option(None, "--png", help="Also write a top-view picture of the lines "
+                                       "(.png, .jpg, .jpeg, .bmp, .tif, .tiff, .webp)."),
 ) -> None:
     """Extract 3D line segments from a point cloud and write them as .obj and .txt."""
     from ldlmap.errors import LdlError
     from ldlmap.io.pointcloud import read_point_cloud
     from ldlmap.lines3d import draw_top_view, extract_lines_with_stats, filter_by_length, write_line_files
+    from ldlmap.pictures import check_picture_path
     from ldlmap.principal3d import principal_directions_3d
 
+    if png is not None:
+        check_picture_path(png, "--png")
+    _refuse_line_file(input_path)
     pc = read_point_cloud(input_path)
     raw, stats = extract_lines_with_stats(pc.points)
     lo, hi = pc.bounds()
@@ -114,6 +136,18 @@ def lines(
         principal = principal_directions_3d(out_lines) if len(out_lines) else None
         draw_top_view(out_lines, png, principal=principal, dropped=None if no_filter else raw[~mask])
         console.print(f"wrote {png}", soft_wrap=True)
+
+
+def _refuse_line_file(path: Path) -> None:
+    """One line saying what to do when `ldlmap lines` is given a 3D line file instead of a scan."""
+    from ldlmap.errors import InputError
+    from ldlmap.io.linefiles import LINE_FORMAT_NAMES, sniff_line_file
+
+    kind = sniff_line_file(path) if path.is_file() else None
+    if kind is not None:
+        raise InputError(f"{path} is a 3D line file ({LINE_FORMAT_NAMES[kind]}), not a scan: it has its lines "
+                         f"already; build a map with `ldlmap build {path}` (lines-only) or "
+                         f"`ldlmap build SCAN --lines {path}`")
 
 
 @app.command()
@@ -178,12 +212,17 @@ def build(
     trans_spacing: Optional[float] = TRANS_SPACING,
     camera_height: Optional[str] = CAMERA_HEIGHT,
     device: str = typer.Option("cpu", "--device", help="Torch device for rendering and SuperPoint: cpu | cuda."),
-    png: Optional[Path] = typer.Option(None, "--png", help="Also write a picture of the map (top view + panorama with lines)."),
+    png: Optional[Path] = typer.Option(None, "--png", help="Also write a picture of the map (top view + panorama "
+                                       "with lines; .png, .jpg, .jpeg, .bmp, .tif, .tiff, .webp)."),
 ) -> None:
     """Build an LDL map (3D lines, principal directions, translations, features) from a scan."""
     from rich.table import Table
 
     from ldlmap.build import BuildParams, build_map, params_with
+    from ldlmap.pictures import check_picture_path
+
+    if png is not None:
+        check_picture_path(png, "--png")
 
     params = params_with(BuildParams(), features=features, weights=str(weights) if weights else None,
                          num_translations=num_trans, translation_method=method, num_views=num_views, lam=lam,
@@ -297,3 +336,7 @@ def prepare(
     failed = [o for o in outcomes if o.status == "failed"]
     if failed:
         raise InputError(f"{len(failed)} of {len(outcomes)} scene(s) failed: " + "; ".join(f"{o.scene}: {o.message}" for o in failed))
+
+
+if __name__ == "__main__":  # python3 -m ldlmap.cli
+    app()

@@ -206,6 +206,19 @@ def read_stanford_pose(path: str | Path, alignment: str | Path | None = None) ->
     return R, t
 
 
+def read_pose_file(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
+    """A query's known pose ``(R, t)`` from the file format its dataset stores it in: an
+    OmniScenes 3x4 ``[R | t]`` ``.txt`` (:func:`read_pose_txt`) or a Stanford 2D-3D-S
+    ``*_pose.json`` (:func:`read_stanford_pose`)."""
+    p = Path(path)
+    if p.suffix.lower() == ".json":
+        return read_stanford_pose(p)
+    if p.suffix.lower() == ".txt":
+        return read_pose_txt(p)
+    raise InputError(f"unsupported pose file {p}: use a 3x4 [R | t] .txt (OmniScenes) or a *_pose.json "
+                     "(Stanford 2D-3D-S)")
+
+
 def _as_split_list(split: str | Sequence[str] | None, available: list[str], what: str) -> list[str]:
     if split is None:
         return list(available)

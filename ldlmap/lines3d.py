@@ -1001,7 +1001,7 @@ def top_view_image(lines: np.ndarray, size: int = 1000, principal: np.ndarray | 
 
 def draw_top_view(lines: np.ndarray, path: str, size: int = 1000, principal: np.ndarray | None = None,
                   dropped: np.ndarray | None = None) -> None:
-    """Write :func:`top_view_image` as a PNG, atomically."""
-    from ldlmap.pictures import write_png
+    """Write :func:`top_view_image` atomically, in the format of ``path``'s extension."""
+    from ldlmap.pictures import write_picture
 
-    write_png(path, top_view_image(lines, size, principal, dropped))
+    write_picture(path, top_view_image(lines, size, principal, dropped))

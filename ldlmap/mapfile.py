@@ -228,30 +228,43 @@ def write_map(path: str | Path, m: LdlMap) -> Path:
 
 
 def read_map_header(path: str | Path) -> dict[str, Any]:
-    """Format version, name, build config and sizes of a map, without loading arrays."""
+    """Format version, name, build config and sizes of a map, its principal directions (3, 3) and
+    kept lines per principal group (``line_group_counts``: group -> count, -1 = none), without
+    loading the large arrays."""
 
     path = require_file(path, "map")
     with _open(path) as h5:
         _check_version(h5, path)
-        info = {
-            "format_version": int(h5.attrs["format_version"]),
-            "name": str(h5.attrs.get("name", path.stem)),
-            "build_config": json.loads(h5.attrs.get("build_config", "{}")),
-            "library_versions": json.loads(h5.attrs.get("library_versions", "{}")),
-            "num_lines_raw": int(h5["lines/raw"].shape[0]),
-            "num_lines": int(h5["lines/segments"].shape[0]),
-            "kept_ratio": float(h5["lines"].attrs["kept_ratio"]),
-            "length_threshold": float(h5["lines"].attrs["length_threshold"]),
-            "num_translations": int(h5["translations/centers"].shape[0]),
-            "num_cloud_points": int(h5["cloud/points"].shape[0]) if "cloud/points" in h5 else 0,
-            "feature_backend": str(h5["features"].attrs["backend"]) if "features" in h5 else None,
-            "num_views": int(h5["features/view_centers"].shape[0]) if "features" in h5 else 0,
-            "num_keypoints": int(h5["features/xyz"].shape[0]) if "features" in h5 else 0,
-            "fields": sorted(h5["fields"].keys()) if "fields" in h5 else [],
-            "line_visibility": "lines/visibility" in h5,
-            "file_size_bytes": path.stat().st_size,
-        }
+        try:
+            info = {
+                "format_version": int(h5.attrs["format_version"]),
+                "name": str(h5.attrs.get("name", path.stem)),
+                "build_config": json.loads(h5.attrs.get("build_config", "{}")),
+                "library_versions": json.loads(h5.attrs.get("library_versions", "{}")),
+                "num_lines_raw": int(h5["lines/raw"].shape[0]),
+                "num_lines": int(h5["lines/segments"].shape[0]),
+                "kept_ratio": float(h5["lines"].attrs["kept_ratio"]),
+                "length_threshold": float(h5["lines"].attrs["length_threshold"]),
+                "num_translations": int(h5["translations/centers"].shape[0]),
+                "num_cloud_points": int(h5["cloud/points"].shape[0]) if "cloud/points" in h5 else 0,
+                "feature_backend": str(h5["features"].attrs["backend"]) if "features" in h5 else None,
+                "num_views": int(h5["features/view_centers"].shape[0]) if "features" in h5 else 0,
+                "num_keypoints": int(h5["features/xyz"].shape[0]) if "features" in h5 else 0,
+                "fields": sorted(h5["fields"].keys()) if "fields" in h5 else [],
+                "line_visibility": "lines/visibility" in h5,
+                "principal_directions": np.asarray(h5["principal/directions"][()], dtype=np.float64),
+                "line_group_counts": _group_counts(h5["lines/groups"][()]) if "lines/groups" in h5 else {},
+                "file_size_bytes": path.stat().st_size,
+            }
+        except (KeyError, OSError, ValueError) as exc:
+            raise InputError(f"corrupt LDL map {path}: {exc}") from None
     return info
+
+
+def _group_counts(groups: np.ndarray) -> dict[int, int]:
+    """Lines per principal group: ``{0: n0, 1: n1, 2: n2, -1: unassigned}`` (zeros kept)."""
+    g = np.asarray(groups, dtype=np.int64)
+    return {k: int(np.sum(g == k)) for k in (0, 1, 2, -1)}
 
 
 def _open(path: Path):

@@ -52,14 +52,32 @@ def project_lines(lines_world: np.ndarray, rot_cam_from_world: np.ndarray, cente
     return normalize(cam_from_world(np.asarray(lines_world).reshape(-1, 2, 3), rot_cam_from_world, center))
 
 
-def write_png(path: str | Path, image_bgr: np.ndarray) -> Path:
-    """Write a PNG atomically."""
+# Picture formats OpenCV's imwrite writes from the extension alone (lower case).
+PICTURE_SUFFIXES: tuple[str, ...] = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp")
+
+
+def check_picture_path(path: str | Path, option: str = "picture") -> Path:
+    """``path`` as a Path when its extension names a format in :data:`PICTURE_SUFFIXES`, else a
+    one-line :class:`InputError` naming ``option`` (call it before any work is done)."""
+    p = Path(path)
+    if p.suffix.lower() not in PICTURE_SUFFIXES:
+        raise InputError(f"{option} {p}: cannot write {p.suffix or 'a file without extension'} pictures; "
+                         f"use {', '.join(PICTURE_SUFFIXES)}")
+    return p
+
+
+def write_picture(path: str | Path, image_bgr: np.ndarray, quality: int = 90) -> Path:
+    """Write a BGR picture atomically in the format its extension names (JPEG / WebP at ``quality``)."""
     import cv2
 
-    with atomic_file(path, suffix=".png") as tmp:
-        if not cv2.imwrite(str(tmp), image_bgr):
-            raise InputError(f"could not write PNG {path}")
-    return Path(path)
+    p = check_picture_path(path)
+    ext = p.suffix.lower()
+    flags = {".jpg": [cv2.IMWRITE_JPEG_QUALITY, quality], ".jpeg": [cv2.IMWRITE_JPEG_QUALITY, quality],
+             ".webp": [cv2.IMWRITE_WEBP_QUALITY, quality]}.get(ext, [])
+    with atomic_file(p) as tmp:  # the temporary name keeps the extension: imwrite picks the format
+        if not cv2.imwrite(str(tmp), np.ascontiguousarray(image_bgr), flags):
+            raise InputError(f"could not write picture {p}")
+    return p
 
 
 def map_picture(ldl_map, path: str | Path, width: int = 1024) -> Path:
@@ -84,4 +102,4 @@ def map_picture(ldl_map, path: str | Path, width: int = 1024) -> Path:
     pano = draw_arcs(pano, project_lines(ldl_map.lines, np.eye(3), t), ldl_map.line_groups)
     top = top_view_image(ldl_map.lines, size=height, principal=ldl_map.principal_directions,
                          dropped=ldl_map.lines_raw)
-    return write_png(path, np.concatenate([top, pano], axis=1))
+    return write_picture(path, np.concatenate([top, pano], axis=1))

@@ -20,6 +20,7 @@ row has ``1 + 6 n + 1 + 6 m`` columns with integer ``n`` and ``m``, else 3DLineD
 from __future__ import annotations
 
 import os
+import re
 from pathlib import Path
 
 import numpy as np
@@ -182,6 +183,66 @@ def detect_txt_format(path: str | os.PathLike) -> str:
     if rows and all(_line3dpp_row_problem(r) is None for r in rows):
         return "line3dpp"
     return "3dlinedetection"
+
+
+# Names of the formats that :func:`sniff_line_file` recognises, for messages.
+LINE_FORMAT_NAMES = {"ldl": "LDL lines .txt", "line3dpp": "Line3D++ .txt", "3dlinedetection": "3DLineDetection .txt",
+                     "obj": "Line3D++ / LDL .obj"}
+_OBJ_RECORD = re.compile(rb"^([lf])[ \t]", re.MULTILINE)
+
+
+def sniff_line_file(path: str | os.PathLike, max_rows: int = 200) -> str | None:
+    """The line-file format of ``path`` judged from its content (a key of :data:`LINE_FORMAT_NAMES`),
+    or None when it looks like anything else (a point cloud, a mesh, unreadable).
+
+    Cheap and never raising for content: a ``.txt`` is judged by its first ``max_rows`` data rows
+    (our header; Line3D++ rows; 3DLineDetection rows of a column count a point cloud cannot have
+    (not 3 or 6, at least 4) ending in an integer line id), an ``.obj`` by having ``l`` records and
+    no ``f`` record.
+    """
+    p = Path(path)
+    ext = p.suffix.lower()
+    try:
+        if ext == ".obj":
+            return "obj" if _obj_has_lines_only(p) else None
+        if ext != ".txt":
+            return None
+        with open(p, encoding="utf-8") as f:
+            head = [line for _, line in zip(range(max_rows + 50), f)]
+    except (OSError, UnicodeDecodeError):
+        return None
+    data = [ln for ln in head if ln.strip() and not ln.lstrip().startswith("#")][:max_rows]
+    if head and head[0].strip() == HEADER:
+        return "ldl"
+    try:
+        rows = [np.array([float(x) for x in ln.replace(",", " ").split()]) for ln in data]
+    except ValueError:
+        return None
+    if not rows or not all(np.all(np.isfinite(r)) for r in rows):
+        return None
+    if all(_line3dpp_row_problem(r) is None for r in rows):
+        return "line3dpp"
+    ncols = {len(r) for r in rows}
+    if len(ncols) == 1 and min(ncols) >= 4 and min(ncols) != 6 and all(r[-1] == round(r[-1]) for r in rows):
+        return "3dlinedetection"
+    return None
+
+
+def _obj_has_lines_only(p: Path, chunk: int = 1 << 23) -> bool:
+    """Whether an OBJ file has ``l`` records and no ``f`` record (stops at the first ``f``)."""
+    has_lines, carry = False, b""
+    with open(p, "rb") as f:
+        while True:
+            block = f.read(chunk)
+            text = carry + block
+            cut = text.rfind(b"\n") + 1 if block else len(text)  # whole lines; the rest goes with the next block
+            text, carry = text[:cut], text[cut:]
+            for m in _OBJ_RECORD.finditer(text):
+                if m.group(1) == b"f":
+                    return False
+                has_lines = True
+            if not block:
+                return has_lines
 
 
 def read_lines(path: str | os.PathLike) -> np.ndarray:
