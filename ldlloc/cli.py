@@ -107,6 +107,9 @@ def localize(
            "num_matches": loc.num_matches, "num_inliers": loc.num_inliers, "rotation_prior": loc.rotation_prior,
            "refine_method": loc.refine_method, "refine_residual_deg": loc.refine_residual_deg,
            "seconds": {k: round(v, 4) for k, v in loc.seconds.items()}, "candidates": loc.candidate_dicts(6)}
+    in_pose = loc.input_frame_pose()  # maps built from another frame (SfM): the pose there too
+    if in_pose is not None:
+        out["input_frame"] = {"R": np.round(in_pose[0], 8).tolist(), "t": np.round(in_pose[1], 6).tolist()}
     if vis is not None:
         from ldlloc.visualize import save_localization_picture
 
@@ -118,6 +121,10 @@ def localize(
     console.print(f"[bold]{pano.name}[/]: {loc.status}" + (f" ({loc.message})" if loc.message else ""), soft_wrap=True)
     console.print(f"t = [{t[0]:.4f}, {t[1]:.4f}, {t[2]:.4f}] m (camera centre, world)", soft_wrap=True)
     console.print("R (world to camera) =\n" + "\n".join("  [" + ", ".join(f"{x: .6f}" for x in row) + "]" for row in R))
+    if in_pose is not None:
+        ti = in_pose[1]
+        console.print(f"in the map's input frame: t = [{ti[0]:.4f}, {ti[1]:.4f}, {ti[2]:.4f}] (input units), "
+                      "R: see --json (input_frame)", soft_wrap=True)
     console.print(f"{loc.num_lines} lines, {loc.num_rotations} candidate rotations ({loc.rotation_prior}), "
                   f"{loc.num_matches} matches, "
                   f"{loc.num_inliers} inliers; " + ", ".join(f"{k} {v:.3f} s" for k, v in loc.seconds.items()),
