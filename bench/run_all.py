@@ -18,6 +18,8 @@ Benchmarks (in this order; names for ``--only``):
 - ``real``: real ZInD panoramas against their layout maps, room and floor level; writes
   ``bench/real.json`` (bench_real.py; prints a note and measures nothing when the real data,
   ``--data`` / ``$LDL_REAL_DATA`` / ``../shared/data``, is absent)
+- ``sfm``: SfM-like Line3D++ maps (issue 12): kept lines, principal directions and up axis,
+  before and after (bench_sfm.py; ``--localize ROOT`` when run alone also localizes)
 
 Each runs in its own Python process (so one's memory and threads do not skew the next). Data
 and maps are cached under ``bench/.cache/``; the first run generates them. ``--quick`` runs
@@ -47,9 +49,10 @@ BENCHES: dict[str, tuple[str, list[str], list[str]]] = {
     "multiroom": ("bench_multiroom.py", [], ["--rooms", "2", "--per-split", "1", "--no-room-lambda"]),
     "real": ("bench_real.py", [], ["--levels", "room"]),
     "geometric": ("bench_geometric.py", [], ["--quick"]),
+    "sfm": ("bench_sfm.py", [], ["--seeds", "0"]),
 }
 DEVICE_AWARE = {"render", "ldf", "localize", "ablation"}
-THREAD_AWARE = {"render", "ldf", "build", "localize", "ablation", "real", "geometric"}
+THREAD_AWARE = {"render", "ldf", "build", "localize", "ablation", "real", "geometric", "sfm"}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -61,7 +61,9 @@ class BuildParams:
     # metres) for candidate translations; None: the layout's when known, else floor to ceiling
     up: str = "auto"  # the input's up axis: auto (cameras, else the lines; ldlmap.gravity) | x | y | z | -x | -y | -z
     scale: float = 1.0  # input coordinates are multiplied by this first (SfM frames: metres per unit)
-    min_kept_lines: int = 100  # length filter floor: keep at least min(this, half the lines), the longest
+    min_kept_lines: int = 100  # length filter floor: keep at least min(this, half the lines), the longest ...
+    min_kept_length_share: float = 0.6  # ... and the longest holding this share of the total line length
+    # (scans keep 0.69-0.77 of it under the paper's threshold; an SfM map of short pieces 0.02)
     max_kept_lines: int = 3000  # length filter cap: keep at most this many, the longest
     orthonormal_directions: bool = True  # principal directions: the nearest Manhattan frame (paper's assumption)
 
@@ -218,8 +220,9 @@ def _check_params(params: BuildParams) -> None:
     parse_up(params.up)
     if not (np.isfinite(params.scale) and params.scale > 0):
         raise InputError(f"--scale must be > 0, got {params.scale}")
-    if params.min_kept_lines < 0 or params.max_kept_lines < 1:
-        raise InputError(f"kept-line bounds must be >= 0 and >= 1, got {params.min_kept_lines}, {params.max_kept_lines}")
+    if params.min_kept_lines < 0 or params.max_kept_lines < 1 or not 0 <= params.min_kept_length_share <= 1:
+        raise InputError(f"kept-line bounds must be >= 0, >= 1 and a share in [0, 1], got {params.min_kept_lines}, "
+                         f"{params.max_kept_lines}, {params.min_kept_length_share}")
     if not (np.isfinite(params.trans_spacing) and params.trans_spacing > 0):
         raise InputError(f"translation spacing must be > 0 m, got {params.trans_spacing}")
     ch = params.camera_height
@@ -337,11 +340,11 @@ def build_from_input(src: SceneInput, output: Path, params: BuildParams, name: s
     extent = float(np.mean(bmax - bmin))
     if scale_warning(extent):
         report.warnings.append(scale_warning(extent))
-    lam, floor = params.lam, min(params.min_kept_lines, (len(lines_raw) + 1) // 2)
+    lam, floor, share = params.lam, min(params.min_kept_lines, (len(lines_raw) + 1) // 2), params.min_kept_length_share
     if params.min_line_length is not None:
-        lam, floor = float(params.min_line_length / max(extent, 1e-12)), 0  # the user's threshold, exactly
+        lam, floor, share = float(params.min_line_length / max(extent, 1e-12)), 0, 0.0  # the user's threshold, exactly
     lines, kept, threshold = filter_by_length(lines_raw, bmin, bmax, lam, min_keep=floor,
-                                              max_keep=params.max_kept_lines)
+                                              max_keep=params.max_kept_lines, min_length_share=share)
     if len(lines) == 0:
         raise InputError(f"no 3D line is longer than the length threshold {threshold:.3f} m")
     paper_threshold = length_threshold(bmin, bmax, lam)

@@ -6,26 +6,27 @@ Sources, first that applies:
 2. registered cameras (COLMAP): photos are mostly upright, so the mean of the images' +y axes
    (image down) in world coordinates points down; used when they agree (mean resultant length
    >= ``min_camera_agreement``: random orientations give ~1 / sqrt(M));
-3. the lines (:func:`up_from_lines`): the principal direction with the most line length in
-   excess of the scene's proportions. The edges of a plain box hold line length along each axis
-   in proportion to its extent; a room or building adds vertical edges beyond that (wall corners,
-   door and window jambs, furniture legs and sides: on the synthetic rooms 39-47 % of the line
-   length is vertical for 19-21 % of the extent). Score per direction: its share of the line
-   length along the three (within 5 degrees) minus its share of their robust extents, plus the
-   share of all the length
-   that it explains as vertical or horizontal: a vertical explains horizontal edges of every
-   azimuth (walls at any angle, turned furniture), a horizontal axis only its own lines and those
-   exactly perpendicular to it, so off-Manhattan horizontals, or a second horizontal direction
-   that is not at 90 degrees (the issue-12 facade), count for the true vertical. Lines do not
-   tell up from down: the sign puts more line length below the middle of the scene (furniture,
-   doors and windows stand on the floor: 57-74 % of it on the synthetic rooms), a guess that the
-   build reports. A bare box, or a facade without depth, leaves the axis ambiguous: ``--up``.
+3. the lines (:func:`up_from_lines`), a heuristic scored per principal direction, sum of:
+
+   * its share of the line length along the three directions (within 5 degrees) minus its share
+     of their robust extents: a plain box has edge length along each axis in proportion to its
+     extent, and a room or building adds vertical edges beyond that (wall corners, door and
+     window jambs, furniture legs and sides: the true edges of 9 synthetic rooms are 39-50 %
+     vertical for 19-24 % of the extent; box rooms with boxes 24-26 % for 21 %);
+   * the share of all the length it explains as vertical or horizontal: a vertical explains
+     horizontal edges of every azimuth (walls at any angle, turned furniture), a horizontal axis
+     only its own lines and those exactly perpendicular to it, so off-Manhattan horizontals, or
+     a second horizontal direction that is not at 90 degrees (issue 12), count for the vertical;
+   * how lopsided the line length is along it: gravity puts furniture, doors and windows on the
+     floor (60-74 % of the length below the middle in those rooms). The same share gives the
+     sign, the floor side down: a guess that the build reports. A bare box, or a facade without depth, leaves the axis ambiguous: ``--up``.
 
 An estimate from the user or the cameras is then snapped to the lines' principal direction
 within ``snap_deg`` (photos tilted up at a facade bias the camera mean; a frame's axis is only
 roughly vertical): the vertical edges of the structure are the precise vertical. A frame whose up
 lies within ``keep_deg`` of +z is kept as it is (scans and datasets are levelled; the search
-tolerates small tilts), so z-up inputs give the identity.
+tolerates small tilts), so z-up inputs give the identity; from the lines alone, whose sign is a
+guess, so is one whose up lies within ``keep_deg`` of -z (never turn a scan upside down).
 """
 
 from __future__ import annotations

@@ -148,14 +148,16 @@ def length_threshold(bounds_min: np.ndarray, bounds_max: np.ndarray, lam: float 
 
 
 def filter_by_length(lines: np.ndarray, bounds_min: np.ndarray, bounds_max: np.ndarray, lam: float = 0.1,
-                     min_keep: int = 0, max_keep: int | None = None) -> tuple[np.ndarray, np.ndarray, float]:
+                     min_keep: int = 0, max_keep: int | None = None,
+                     min_length_share: float = 0.0) -> tuple[np.ndarray, np.ndarray, float]:
     """Drop segments shorter than ``lam * (b_x + b_y + b_z) / 3`` (paper, lambda = 0.1).
 
-    ``min_keep`` / ``max_keep``: keep at least ``min(min_keep, N)`` and at most ``max_keep`` lines,
-    the longest (dense SfM maps of many short pieces keep almost nothing under the paper's
-    threshold; huge maps would keep too many). The returned threshold is then the shortest kept
-    length. Returns ``(kept_lines (M, 2, 3), kept_mask (N,) bool, threshold)``; the kept ratio that
-    the 2D filter matches is ``kept_mask.mean()``.
+    Floor and cap, for maps the paper's threshold does not fit: keep at least ``min(min_keep, N)``
+    lines and at least the longest lines holding ``min_length_share`` of the total line length
+    (a dense SfM map of short pieces keeps almost nothing under the threshold), and at most
+    ``max_keep`` (huge maps), the longest first; the returned threshold is then the shortest
+    kept length. Returns ``(kept_lines (M, 2, 3), kept_mask (N,) bool, threshold)``; the kept
+    ratio that the 2D filter matches is ``kept_mask.mean()``.
     """
     L = _check_lines(lines)
     thr = length_threshold(bounds_min, bounds_max, lam)
@@ -163,6 +165,9 @@ def filter_by_length(lines: np.ndarray, bounds_min: np.ndarray, bounds_max: np.n
     mask = length >= thr
     order = np.argsort(-length, kind="stable")
     floor = min(int(min_keep), len(L))
+    if min_length_share > 0 and len(L):
+        share = np.cumsum(length[order]) / max(float(length.sum()), 1e-300)
+        floor = max(floor, min(int(np.searchsorted(share, min(min_length_share, 1.0) - 1e-12)) + 1, len(L)))
     if mask.sum() < floor:
         mask[order[:floor]] = True
         thr = float(length[order[floor - 1]])

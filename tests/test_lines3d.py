@@ -57,6 +57,11 @@ def test_filter_floor_and_cap_keep_the_longest():
     kept, mask, thr = filter_by_length(lines, [0, 0, 0], [6, 4, 3], lam=0.1, max_keep=7)
     assert mask.sum() == 7 and np.array_equal(np.sort(length[mask]), np.sort(length)[-7:])
     assert thr == pytest.approx(length[mask].min())
+    # A floor by length: the longest lines that hold 40 % of all the line length.
+    kept, mask, thr = filter_by_length(lines, [0, 0, 0], [6, 4, 3], lam=0.1, min_length_share=0.4)
+    order = np.sort(length)[::-1]
+    n = int(np.argmax(np.cumsum(order) >= 0.4 * length.sum())) + 1
+    assert mask.sum() == n > 20 and thr == pytest.approx(order[n - 1])
     # The floor never asks for more lines than there are; the paper's filter is the default.
     assert filter_by_length(lines[:30], [0, 0, 0], [6, 4, 3], min_keep=100)[1].all()
     assert np.array_equal(filter_by_length(lines, [0, 0, 0], [6, 4, 3], min_keep=10)[1], paper)
