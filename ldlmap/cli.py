@@ -269,6 +269,8 @@ def prepare(
                              "is not possible (leave it out or use none)")
         if line_files:
             raise InputError("ZInD has no 3D line files: its maps are built from the room layouts")
+        if (up or "auto").lower() not in ("auto", "z", "+z") or (scale is not None and scale != 1.0):
+            raise InputError("ZInD maps are built metric and z-up from the room layouts: --up and --scale do not apply")
         ds.scenes()  # reads and validates every home's zind_data.json before anything is printed
         console.print(f"ZInD: lines-only maps from the room layouts, one per {map_level} (features: none)")
     params = params_with(default_params(kind), features=features or ("none" if kind == "zind" else "sift"),

@@ -19,7 +19,8 @@ Sources, first that applies:
      a second horizontal direction that is not at 90 degrees (issue 12), count for the vertical;
    * how lopsided the line length is along it: gravity puts furniture, doors and windows on the
      floor (60-74 % of the length below the middle in those rooms). The same share gives the
-     sign, the floor side down: a guess that the build reports. A bare box, or a facade without depth, leaves the axis ambiguous: ``--up``.
+     sign, the floor side down: a guess that the build reports. A bare box, or a facade without
+     depth, leaves the axis ambiguous: ``--up``.
 
 An estimate from the user or the cameras is then snapped to the lines' principal direction
 within ``snap_deg`` (photos tilted up at a facade bias the camera mean; a frame's axis is only

@@ -294,3 +294,23 @@ def test_colmap_cameras_set_the_up_axis(demo_dataset, tmp_path):
     mapped = apply(m.input_to_map, np.array(centers))
     assert all(np.linalg.norm(m.translations - c, axis=1).min() < 1e-4 for c in mapped)
     assert min(angle_deg(np.abs(p), Z) for p in m.principal_directions) < 1.0
+
+
+def test_layout_maps_stay_in_their_frame(tmp_path):
+    """Room layouts are built metric and z-up: --up / --scale are refused, auto keeps the identity."""
+    from ldlmap.build import BuildParams, build_lines_map
+    from ldlmap.translations import Walkable
+
+    poly = np.array([[0, 0], [4, 0], [4, 3], [0, 3]], dtype=float)
+    floor = np.column_stack([poly, np.zeros(4)])
+    ceiling = floor + [0, 0, 2.5]
+    lines = np.concatenate([np.stack([floor, np.roll(floor, -1, 0)], 1), np.stack([ceiling, np.roll(ceiling, -1, 0)], 1),
+                            np.stack([floor, ceiling], 1)])
+    walk = Walkable(polygons=(poly,), z_range=(1.4, 1.4))
+    params = BuildParams(features="none", distance_fields=False)
+    report = build_lines_map(lines, tmp_path / "room.h5", params, walkable=walk)
+    assert read_map(report.path).config["frame"]["up_source"] == "layout" and not report.notes
+    for bad in ({"up": "x"}, {"scale": 2.0}):
+        with pytest.raises(InputError, match="layouts"):
+            build_lines_map(lines, tmp_path / "bad.h5", BuildParams(features="none", **bad), walkable=walk)
+    assert not (tmp_path / "bad.h5").exists()
