@@ -26,6 +26,8 @@ Benchmarks (in this order; names for ``--only``):
 - ``startup``: ``ldlmap --help``, ``ldlloc --help`` and one ``ldlloc localize`` as fresh processes,
   wall and CPU seconds with localize's stages (map read, setup, query, the rest); writes
   ``bench/startup.json`` (bench_startup.py)
+- ``sfm``: SfM-like Line3D++ maps (issue 12): kept lines, principal directions and up axis,
+  before and after (bench_sfm.py; ``--localize ROOT`` when run alone also localizes)
 
 Each runs in its own Python process (so one's memory and threads do not skew the next). Data
 and maps are cached under ``bench/.cache/``; the first run generates them. ``--quick`` runs
@@ -58,10 +60,11 @@ BENCHES: dict[str, tuple[str, list[str], list[str]]] = {
     "geometric": ("bench_geometric.py", [], ["--quick"]),
     "ray": ("bench_ray.py", [], ["--quick"]),
     "startup": ("bench_startup.py", [], ["--runs", "1"]),
+    "sfm": ("bench_sfm.py", [], ["--seeds", "0"]),
 }
 ON_REQUEST = {"ray"}  # slow: run only when named in --only
 DEVICE_AWARE = {"render", "ldf", "localize", "ablation"}
-THREAD_AWARE = {"render", "ldf", "build", "localize", "ablation", "real", "geometric", "startup"}
+THREAD_AWARE = {"render", "ldf", "build", "localize", "ablation", "real", "geometric", "startup", "sfm"}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -125,6 +125,9 @@ def localize(
     if truth is not None:
         out.update(pose_errors(loc.rot_cam_from_world, loc.center, *truth), gt=str(gt))
     out["candidates"] = loc.candidate_dicts(6)
+    in_pose = loc.input_frame_pose()  # maps built from another frame (SfM): the pose there too
+    if in_pose is not None:
+        out["input_frame"] = {"R": np.round(in_pose[0], 8).tolist(), "t": np.round(in_pose[1], 6).tolist()}
     if vis is not None:
         from ldlloc.visualize import save_localization_picture
 
@@ -173,6 +176,10 @@ def _print_localization(pano: Path, loc, loading: dict, errors: Optional[dict], 
     console.print(f"[bold]{pano.name}[/]: {loc.status}" + (f" ({loc.message})" if loc.message else ""), soft_wrap=True)
     console.print(f"t = [{t[0]:.4f}, {t[1]:.4f}, {t[2]:.4f}] m (camera centre, world)", soft_wrap=True)
     console.print("R (world to camera) =\n" + "\n".join("  [" + ", ".join(f"{x: .6f}" for x in row) + "]" for row in R))
+    if in_pose is not None:
+        ti = in_pose[1]
+        console.print(f"in the map's input frame: t = [{ti[0]:.4f}, {ti[1]:.4f}, {ti[2]:.4f}] (input units), "
+                      "R: see --json (input_frame)", soft_wrap=True)
     console.print(f"{loc.num_lines} lines, {loc.num_rotations} candidate rotations ({loc.rotation_prior}), "
                   f"{loc.num_matches} matches, "
                   f"{loc.num_inliers} inliers; " + ", ".join(f"{k} {v:.3f} s" for k, v in loc.seconds.items())

@@ -87,6 +87,7 @@ class QueryResult:
     best_candidate_t_error_m: float | None = None  # errors of the best of the K (best_candidate)
     best_candidate_r_error_deg: float | None = None
     first_good_rank: int | None = None  # 1-based rank of the first candidate within 0.5 m / 10 deg
+    input_frame: dict | None = None  # maps built from another frame (SfM): the pose {R, t} in that frame
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> "QueryResult":

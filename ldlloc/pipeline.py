@@ -87,10 +87,19 @@ class Localization:
     rotations: np.ndarray | None = None  # (N_r, 3, 3) all candidate rotations (after the prior)
     candidates_loss: np.ndarray | None = None  # (K,) search loss of each top-K pose (lower is better)
     rotation_prior: str = "free"  # "free" or "upright<=Xdeg" (see rotation_prior_name)
+    input_to_map: np.ndarray | None = None  # the map's input -> map similarity when not the identity
 
     @property
     def status(self) -> str:
         return "ok" if self.refined else "coarse"
+
+    def input_frame_pose(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """The final pose ``(R, t)`` in the map's input frame (SfM maps), None when it is the map's."""
+        if self.input_to_map is None:
+            return None
+        from ldlmap.frame import pose_to_input
+
+        return pose_to_input(self.rot_cam_from_world, self.center, self.input_to_map)
 
     def candidate_dicts(self, digits: int | None = None) -> list[dict]:
         """The top-K search poses, best first: ``[{"R": 3x3, "t": [3], "loss": float}, ...]``.
@@ -249,6 +258,7 @@ class Localizer:
         from ldlloc.principal import candidate_rotations, filter_by_tilt, labels_for_rotations, vanishing_points
         from ldlloc.refine import keep_near_lines, refine_candidates
         from ldlloc.search import search_poses
+        from ldlmap.frame import is_identity
 
         p, m = self.params, self.map
         img = np.asarray(image_rgb)
@@ -301,7 +311,8 @@ class Localizer:
                            num_rotations=len(rots), num_lines=len(arcs), refined=False, arcs=arcs,
                            arc_groups=labels[res.rotation_index[0]], rotations=rots.rotations,
                            candidates_loss=np.asarray(res.losses, dtype=np.float64),
-                           rotation_prior=rotation_prior_name(tilt))
+                           rotation_prior=rotation_prior_name(tilt),
+                           input_to_map=None if is_identity(m.input_to_map) else m.input_to_map)
         if self.refine_enabled:
             feats = self.backend.extract(img, max_keypoints=p.max_keypoints)
             if p.privacy:

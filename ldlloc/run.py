@@ -38,15 +38,27 @@ def max_tilt_for(q, params: LocalizeParams) -> float | None:
 
 
 def result_from_localization(q, loc: Localization) -> QueryResult:
-    """A results record for dataset query ``q`` (with ground truth) and its localization."""
-    cand_t = [translation_error(c, q.center) for c in np.asarray(loc.candidates_center)]
-    cand_r = [rotation_error_deg(R, q.rot_cam_from_world) for R in np.asarray(loc.candidates_rot)]
+    """A results record for dataset query ``q`` (with ground truth) and its localization.
+
+    The ground truth is in the dataset's frame, the map's input frame: on a map built with another
+    frame (``--up``, ``--scale``) it is moved into the map frame, where errors are in metres.
+    """
+    gt_rot, gt_center = q.rot_cam_from_world, q.center
+    input_frame = None
+    if loc.input_to_map is not None:
+        from ldlmap.frame import pose_to_map
+
+        gt_rot, gt_center = pose_to_map(gt_rot, gt_center, loc.input_to_map)
+        R_in, t_in = loc.input_frame_pose()
+        input_frame = {"R": R_in.tolist(), "t": t_in.tolist()}
+    cand_t = [translation_error(c, gt_center) for c in np.asarray(loc.candidates_center)]
+    cand_r = [rotation_error_deg(R, gt_rot) for R in np.asarray(loc.candidates_rot)]
     best = best_candidate(cand_t, cand_r)
     return QueryResult(
         image=str(q.image), scene=q.scene, split=q.split, name=q.name,
         R=np.asarray(loc.rot_cam_from_world).tolist(), t=np.asarray(loc.center).tolist(),
-        t_error_m=translation_error(loc.center, q.center),
-        r_error_deg=rotation_error_deg(loc.rot_cam_from_world, q.rot_cam_from_world),
+        t_error_m=translation_error(loc.center, gt_center),
+        r_error_deg=rotation_error_deg(loc.rot_cam_from_world, gt_rot),
         seconds={k: float(v) for k, v in loc.seconds.items()},
         num_rotations=int(loc.num_rotations), num_matches=int(loc.num_matches), num_inliers=int(loc.num_inliers),
         refined=bool(loc.refined), status=loc.status, message=loc.message,
@@ -54,7 +66,7 @@ def result_from_localization(q, loc: Localization) -> QueryResult:
         refine_method=loc.refine_method, refine_residual_deg=loc.refine_residual_deg,
         best_candidate_t_error_m=None if best is None else float(cand_t[best]),
         best_candidate_r_error_deg=None if best is None else float(cand_r[best]),
-        first_good_rank=first_good_rank(cand_t, cand_r),
+        first_good_rank=first_good_rank(cand_t, cand_r), input_frame=input_frame,
     )
 
 

@@ -4,11 +4,14 @@ Stages (paper section 3.1, DESIGN.md 5.1-5.4), each timed:
 
 1. ``load``: a colored point cloud (.ply/.pcd/.txt), a mesh (sampled with its texture colors),
    a COLMAP model folder (dense ``fused.ply`` when present, else 3D lines from its photos for a
-   lines-only map, :mod:`ldlmap.colmap_input`; camera centres as translation priors), or only a
-   3D line file (a lines-only map).
-2. ``lines``: 3D lines from the cloud (or the ``--lines`` file), then the length filter
-   ``lambda (b_x + b_y + b_z) / 3``.
-3. ``principal``: the 3 principal directions by voting, and each kept line's group.
+   lines-only map, :mod:`ldlmap.colmap_input`; camera centres as translation priors, their down
+   axes for gravity), or only a 3D line file (a lines-only map).
+2. ``lines``: 3D lines from the cloud (or the ``--lines`` file); the input is scaled by
+   ``--scale`` first and, once the lines are known, rotated into z-up (:mod:`ldlmap.gravity`;
+   the similarity is stored as ``input_to_map``, :mod:`ldlmap.frame`); then the length filter
+   ``lambda (b_x + b_y + b_z) / 3`` of the robust box, with a floor and a cap on the kept count.
+3. ``principal``: the 3 principal directions by voting, made the nearest orthonormal (Manhattan)
+   frame, and each kept line's group.
 4. ``translations``: N_t candidate camera centres in the free space of the scan.
    ``fields``: when ``distance_fields``, each translation's 3 decomposed 3D line distance
    functions sampled on a spherical grid (:mod:`ldlmap.fields3d`) for the fast pose search.
@@ -57,6 +60,13 @@ class BuildParams:
     # lattice this many metres apart (a true camera is then within spacing / sqrt(2) in xy)
     camera_height: tuple[float, float] | None = None  # maps without a scan: camera-height band (world z,
     # metres) for candidate translations; None: the layout's when known, else floor to ceiling
+    up: str = "auto"  # the input's up axis: auto (cameras, else the lines; ldlmap.gravity) | x | y | z | -x | -y | -z
+    scale: float = 1.0  # input coordinates are multiplied by this first (SfM frames: metres per unit)
+    min_kept_lines: int = 100  # length filter floor: keep at least min(this, half the lines), the longest ...
+    min_kept_length_share: float = 0.6  # ... and the longest holding this share of the total line length
+    # (scans keep 0.69-0.77 of it under the paper's threshold; an SfM map of short pieces 0.02)
+    max_kept_lines: int = 3000  # length filter cap: keep at most this many, the longest
+    orthonormal_directions: bool = True  # principal directions: the nearest Manhattan frame (paper's assumption)
 
 
 @dataclass
@@ -66,6 +76,8 @@ class BuildReport:
     path: Path
     seconds: dict[str, float] = field(default_factory=dict)
     counts: dict[str, Any] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)  # what the build decided (e.g. the frame), one line each
+    warnings: list[str] = field(default_factory=list)  # what the user should check, one line each
 
 
 @dataclass
@@ -79,6 +91,7 @@ class SceneInput:
     source: str
     walkable: Any = None  # ldlmap.translations.Walkable: where cameras stand (maps without a scan)
     note: str = ""  # how the input was turned into a cloud or lines, when worth telling (COLMAP models)
+    camera_down: np.ndarray | None = None  # (M, 3) registered cameras' image-down axes (gravity)
 
 
 def load_input(path: str | Path, lines_path: str | Path | None, mesh_samples: int,
@@ -216,6 +229,14 @@ def _check_params(params: BuildParams) -> None:
         raise InputError(f"unknown feature backend {params.features!r}; valid: sift, superpoint, none")
     if params.min_line_length is not None and not params.min_line_length > 0:
         raise InputError(f"minimum line length must be > 0 m, got {params.min_line_length}")
+    from ldlmap.frame import parse_up
+
+    parse_up(params.up)
+    if not (np.isfinite(params.scale) and params.scale > 0):
+        raise InputError(f"--scale must be > 0, got {params.scale}")
+    if params.min_kept_lines < 0 or params.max_kept_lines < 1 or not 0 <= params.min_kept_length_share <= 1:
+        raise InputError(f"kept-line bounds must be >= 0, >= 1 and a share in [0, 1], got {params.min_kept_lines}, "
+                         f"{params.max_kept_lines}, {params.min_kept_length_share}")
     if not (np.isfinite(params.trans_spacing) and params.trans_spacing > 0):
         raise InputError(f"translation spacing must be > 0 m, got {params.trans_spacing}")
     ch = params.camera_height
@@ -246,13 +267,56 @@ def scene_translations(src: SceneInput, lines: np.ndarray, lines_raw: np.ndarray
     return T, info
 
 
+def _transformed(src: SceneInput, lines: np.ndarray | None, A: np.ndarray) -> tuple[SceneInput, np.ndarray | None]:
+    """``src`` and ``lines`` mapped by the similarity ``A`` (camera down axes rotated only)."""
+    from ldlmap.frame import apply, decompose, is_identity
+
+    if is_identity(A):
+        return src, lines
+    _, R, _ = decompose(A)
+
+    def f(X):
+        return None if X is None else apply(A, X)
+
+    down = None if src.camera_down is None else np.asarray(src.camera_down, dtype=np.float64) @ R.T
+    return replace(src, points=f(src.points), lines=f(src.lines), prior_centers=f(src.prior_centers),
+                   camera_down=down), f(lines)
+
+
+def map_frame(src: SceneInput, lines_raw: np.ndarray, params: BuildParams) -> tuple[np.ndarray, dict, str, bool]:
+    """The rotation input -> map (z up) of an already scaled input, its record for the map's
+    config, a one-line note for the user ("" when the input frame is kept) and whether the
+    note is a warning (the lines barely told the up axis)."""
+    from ldlmap.frame import parse_up
+    from ldlmap.gravity import estimate_up, map_rotation
+
+    up = parse_up(params.up)
+    if src.walkable is not None:  # room layouts are built metric and z-up
+        if up is not None and not np.allclose(up, [0, 0, 1]):
+            raise InputError(f"--up {params.up} does not apply to room layouts (already z-up)")
+        return np.eye(3), {"up_source": "layout", "rotation_deg": 0.0}, "", False
+    est, principal = estimate_up(lines_raw, up, src.camera_down)
+    R = map_rotation(est, principal)
+    deg = float(np.degrees(np.arccos(np.clip((np.trace(R) - 1) / 2, -1.0, 1.0))))
+    info = {"up_source": est.source, "up_input": [round(float(x), 6) for x in est.up], "rotation_deg": deg,
+            "snapped_deg": est.snapped_deg, "camera_agreement": est.camera_agreement, "sign_share": est.sign_share}
+    if deg == 0.0:
+        return R, info, "", False
+    how = {"user": f"--up {params.up}", "cameras": "the cameras", "lines": "the lines"}[est.source]
+    snap = f", snapped {est.snapped_deg:.1f} deg onto the lines' vertical" if est.snapped_deg else ""
+    note = (f"frame: input up = ({est.up[0]:.3f}, {est.up[1]:.3f}, {est.up[2]:.3f}) from {how}{snap}; "
+            f"rotated {deg:.1f} deg into z-up" + (f" ({est.note})" if est.note else ""))
+    return R, info, note, est.weak
+
+
 def build_from_input(src: SceneInput, output: Path, params: BuildParams, name: str,
                      progress: Callable[[str, int, int], None] | None = None, config: dict | None = None,
                      load_seconds: float = 0.0) -> BuildReport:
     """Build and write the map of a loaded :class:`SceneInput` (the stages after ``load``)."""
-    from ldlmap.lines3d import Lines3DParams, extract_lines, filter_by_length
+    from ldlmap.frame import scale_warning, similarity
+    from ldlmap.lines3d import Lines3DParams, extract_lines, filter_by_length, length_threshold, robust_bounds
     from ldlmap.mapfile import LdlMap, write_map
-    from ldlmap.principal3d import assign_line_groups, line_directions, principal_directions_3d
+    from ldlmap.principal3d import assign_line_groups, line_directions, manhattan_frame, principal_directions_3d
 
     report = BuildReport(output)
     report.seconds["load"] = load_seconds
@@ -270,22 +334,44 @@ def build_from_input(src: SceneInput, output: Path, params: BuildParams, name: s
 
     if src.points is not None and len(src.points) < 100:
         raise InputError(f"point cloud has only {len(src.points)} points: too few to build a map")
+    if params.scale != 1.0:
+        if src.walkable is not None:
+            raise InputError("--scale does not apply to room layouts (already metric)")
+        src, _ = _transformed(src, None, similarity(params.scale))
     if src.lines is not None:
         lines_raw = src.lines
     else:
         lines_raw = extract_lines(src.points, src.colors, Lines3DParams(lam=params.lam))
     if len(lines_raw) == 0:
         raise InputError("no 3D lines found in the input")
+    rot, frame_info, note, weak = map_frame(src, lines_raw, params)
+    input_to_map = similarity(params.scale, rot)
+    src, lines_raw = _transformed(src, lines_raw, similarity(1.0, rot))
+    if note:
+        (report.warnings if weak else report.notes).append(note)
     pts_for_bounds = src.points if src.points is not None else lines_raw.reshape(-1, 3)
-    bmin, bmax = pts_for_bounds.min(0), pts_for_bounds.max(0)
-    lam = params.lam
+    bmin, bmax = robust_bounds(pts_for_bounds)  # far outliers do not stretch thresholds
+    extent = float(np.mean(bmax - bmin))
+    if scale_warning(extent):
+        report.warnings.append(scale_warning(extent))
+    lam, floor, share = params.lam, min(params.min_kept_lines, (len(lines_raw) + 1) // 2), params.min_kept_length_share
     if params.min_line_length is not None:
-        lam = float(params.min_line_length / np.mean(bmax - bmin))  # the lambda giving that threshold
-    lines, kept, threshold = filter_by_length(lines_raw, bmin, bmax, lam)
+        lam, floor, share = float(params.min_line_length / max(extent, 1e-12)), 0, 0.0  # the user's threshold, exactly
+    lines, kept, threshold = filter_by_length(lines_raw, bmin, bmax, lam, min_keep=floor,
+                                              max_keep=params.max_kept_lines, min_length_share=share)
     if len(lines) == 0:
         raise InputError(f"no 3D line is longer than the length threshold {threshold:.3f} m")
+    paper_threshold = length_threshold(bmin, bmax, lam)
+    rule = "threshold" if threshold == paper_threshold else ("floor" if threshold < paper_threshold else "cap")
     stage("lines")
     principal = principal_directions_3d(lines)
+    deviation = np.zeros(3)
+    if params.orthonormal_directions:
+        principal, deviation = manhattan_frame(lines, principal)
+        if deviation.max() > 5.0:
+            report.warnings.append(
+                f"the lines' principal directions are up to {deviation.max():.0f} deg off the nearest orthogonal "
+                "(Manhattan) frame, which the map uses: noisy lines or a non-rectangular building")
     groups = assign_line_groups(line_directions(lines)[0], principal)
     stage("principal")
     translations, trans_info = scene_translations(src, lines, lines_raw, params)
@@ -325,7 +411,11 @@ def build_from_input(src: SceneInput, output: Path, params: BuildParams, name: s
         keep.sort()
         cloud_pts = src.points[keep]
         cloud_cols = src.colors[keep] if src.colors is not None else None
-    config = {**asdict(params), **(config or {}), "source": src.source, "translations": trans_info}
+    config = {**asdict(params), **(config or {}), "source": src.source, "translations": trans_info,
+              "frame": frame_info,
+              "length_filter": {"rule": rule, "threshold": float(threshold), "lambda_threshold": paper_threshold,
+                                "robust_extent": extent},
+              "principal_deviation_deg": [round(float(x), 3) for x in deviation]}
     if params.features == "none" or src.points is None:
         config["features"] = "none"
     m = LdlMap(
@@ -336,6 +426,7 @@ def build_from_input(src: SceneInput, output: Path, params: BuildParams, name: s
         principal_directions=principal, translations=translations,
         cloud_points=cloud_pts, cloud_colors=cloud_cols, features=features, config=config,
         fields=fields, fields_attrs=fields_attrs, visibility=visibility, coverage=coverage,
+        input_to_map=input_to_map,
     )
     write_map(output, m)
     stage("write")
@@ -348,6 +439,7 @@ def build_from_input(src: SceneInput, output: Path, params: BuildParams, name: s
         "keypoints": int(len(features.xyz)) if features else 0,
         "size_mb": output.stat().st_size / 1e6,
         "note": src.note,
+        "frame_rotation_deg": frame_info["rotation_deg"], "scale": float(params.scale),
     }
     return report
 

@@ -23,6 +23,10 @@ TRANS_SPACING = typer.Option(None, "--trans-spacing", help="Maps without a scan 
                              "candidate translations this many metres apart (default 0.3).")
 CAMERA_HEIGHT = typer.Option(None, "--camera-height", metavar="MIN:MAX", help="Maps without a scan: camera-height "
                              "band in metres (e.g. 1.2:1.7; default: ZInD's camera height, else floor to ceiling).")
+UP = typer.Option(None, "--up", help="The input's up axis: x, y, z, -x, -y, -z, or auto (default: the COLMAP cameras' "
+                  "down axes, else the lines' vertical structure); the map is rotated into z-up once.")
+SCALE = typer.Option(None, "--scale", help="Multiply the input coordinates by this (metres per input unit: 0.001 "
+                     "for millimetres, the scale of an SfM frame); default 1.")
 
 
 @app.command()
@@ -211,6 +215,8 @@ def build(
                                                "mean extent, e.g. 0.45)."),
     trans_spacing: Optional[float] = TRANS_SPACING,
     camera_height: Optional[str] = CAMERA_HEIGHT,
+    up: Optional[str] = UP,
+    scale: Optional[float] = SCALE,
     device: str = typer.Option("cpu", "--device", help="Torch device for rendering and SuperPoint: cpu | cuda."),
     png: Optional[Path] = typer.Option(None, "--png", help="Also write a picture of the map (top view + panorama "
                                        "with lines; .png, .jpg, .jpeg, .bmp, .tif, .tiff, .webp)."),
@@ -227,7 +233,7 @@ def build(
     params = params_with(BuildParams(), features=features, weights=str(weights) if weights else None,
                          num_translations=num_trans, translation_method=method, num_views=num_views, lam=lam,
                          min_line_length=min_length, device=device, trans_spacing=trans_spacing,
-                         camera_height=parse_band(camera_height, "--camera-height"))
+                         camera_height=parse_band(camera_height, "--camera-height"), up=up, scale=scale)
     with _progress_bar() as bar:
         task = bar.add_task(f"building map of {input_path.name}", total=None)
 
@@ -247,12 +253,23 @@ def build(
     console.print(f"{c['lines_raw']} lines -> {c['lines']} kept (ratio {c['kept_ratio']:.3f}), "
                   f"{c['translations']} translations, {c['keypoints']} keypoints in {c['views']} views "
                   f"({params.features if c['views'] else 'no features'}), {c['size_mb']:.1f} MB", soft_wrap=True)
+    _print_notes(report)
     if png is not None:
         from ldlmap.mapfile import read_map
         from ldlmap.pictures import map_picture
 
         map_picture(read_map(report.path), png)
         console.print(f"wrote {png}", soft_wrap=True)
+
+
+def _print_notes(report) -> None:
+    """The build's notes on stdout and its warnings as ``warning:`` lines on stderr."""
+    from ldlmap.cli_common import err_console
+
+    for line in report.notes:
+        console.print(line, soft_wrap=True, highlight=False)
+    for line in report.warnings:
+        err_console.print(f"[bold yellow]warning:[/] {line}", soft_wrap=True, highlight=False)
 
 
 @app.command()
@@ -270,6 +287,8 @@ def prepare(
     num_views: Optional[int] = typer.Option(None, "--num-views", help="Views rendered for features (default 40)."),
     trans_spacing: Optional[float] = TRANS_SPACING,
     camera_height: Optional[str] = CAMERA_HEIGHT,
+    up: Optional[str] = UP,
+    scale: Optional[float] = SCALE,
     scene: Optional[list[str]] = typer.Option(None, "--scene", help="Only these scenes (repeatable)."),
     line_files: bool = typer.Option(False, "--line-files", help="Use the dataset's 3D line files (pcd_line/) instead of "
                                     "extracting lines; a scene without a scan gets a lines-only map (features none)."),
@@ -297,12 +316,14 @@ def prepare(
                              "is not possible (leave it out or use none)")
         if line_files:
             raise InputError("ZInD has no 3D line files: its maps are built from the room layouts")
+        if (up or "auto").lower() not in ("auto", "z", "+z") or (scale is not None and scale != 1.0):
+            raise InputError("ZInD maps are built metric and z-up from the room layouts: --up and --scale do not apply")
         ds.scenes()  # reads and validates every home's zind_data.json before anything is printed
         console.print(f"ZInD: lines-only maps from the room layouts, one per {map_level} (features: none)")
     params = params_with(default_params(kind), features=features or ("none" if kind == "zind" else "sift"),
                          weights=str(weights) if weights else None, num_translations=num_trans, num_views=num_views,
                          device=device, trans_spacing=trans_spacing,
-                         camera_height=parse_band(camera_height, "--camera-height"))
+                         camera_height=parse_band(camera_height, "--camera-height"), up=up, scale=scale)
     options = dict(overwrite=overwrite, use_line_files=line_files, scenes=scene or None, map_level=map_level)
     if ray is not None:  # one Ray task per scene (ldlmap/distributed.py)
         from ldlmap.cluster import ThroughputBar

@@ -32,7 +32,8 @@ def colmap_scene_input(model_dir: str | Path, lines=None, images: str | Path | N
     if lines is not None or scene.dense is not None:
         cloud = scene.cloud
         note = f"dense cloud {scene.dense_path}" if scene.dense is not None else ""
-        return SceneInput(cloud.points, cloud.colors, lines, scene.camera_centers, source, note=note)
+        return SceneInput(cloud.points, cloud.colors, lines, scene.camera_centers, source, note=note,
+                          camera_down=scene.camera_down)
     if images is not None:
         images = Path(images)
         if not images.is_dir():
@@ -49,4 +50,5 @@ def colmap_scene_input(model_dir: str | Path, lines=None, images: str | Path | N
     rec = reconstruct_lines(read_colmap_views(model_dir), images, params or SfmLinesParams())
     note = (f"no fused.ply: {rec.counts['lines']} 3D lines reconstructed from {rec.counts['photos']} photos in "
             f"{images} ({sum(rec.seconds.values()):.1f} s)")
-    return SceneInput(None, None, rec.lines, scene.camera_centers, f"colmap-lines:{model_dir}", note=note)
+    return SceneInput(None, None, rec.lines, scene.camera_centers, f"colmap-lines:{model_dir}", note=note,
+                      camera_down=scene.camera_down)

@@ -5,7 +5,8 @@ datasets are readable with plain h5py::
 
     /                       attrs: format_version (int), name (str), created_with (str),
                             build_config (JSON str), library_versions (JSON str)
-    /cloud/bounds_min       (3,) float64   bounding box of the input cloud, metres
+    /cloud/bounds_min       (3,) float64   robust bounding box of the input cloud (or line end points), metres:
+                            the 2-98 % percentile box grown by 10 %, within the full box
     /cloud/bounds_max       (3,) float64
     /cloud/points           (P, 3) float32 subsampled colored cloud (for pictures and checks)
     /cloud/colors           (P, 3) uint8   RGB
@@ -20,6 +21,9 @@ datasets are readable with plain h5py::
     /coverage/mapped        (N_t, G + 1, 2G) uint8  optional: 1 where the direction of node (i, j)
                             (the fields' grid) seen from translation t meets a mapped surface
                             (walls, floors, ceilings of a layout); 0 where it leaves the map
+    /frame/input_to_map     (4, 4) float64  optional: similarity X_map = s R X_input from the build's input
+                            frame (SfM: any up axis, any unit) to this map's (metric, z up); maps
+                            without it were built in their input frame (identity)
     /translations/view_index (N_t,) int32  index of the rendered view that serves each candidate
                             (only when features are present)
     /features               attrs: backend ('sift' | 'superpoint'), descriptor_dim, width, height
@@ -101,6 +105,7 @@ class LdlMap:
     line_lambda: float = 0.1
     visibility: np.ndarray | None = None  # (N_t, L) bool: kept lines seen from each translation (None: all)
     coverage: np.ndarray | None = None  # (N_t, G + 1, 2G) bool: directions meeting a mapped surface
+    input_to_map: np.ndarray | None = None  # (4, 4) similarity from the build's input frame (None: identity)
 
     @property
     def lines_only(self) -> bool:
@@ -136,6 +141,11 @@ def validate_map(m: LdlMap) -> None:
         _check_array("coverage", m.coverage, (len(m.translations), None, None), "b")
         if m.coverage.shape[2] != 2 * (m.coverage.shape[1] - 1) or m.coverage.shape[1] < 3:
             raise InputError(f"map field coverage has shape {m.coverage.shape}, expected (N_t, G + 1, 2G)")
+    if m.input_to_map is not None:
+        from ldlmap.frame import decompose
+
+        _check_array("input_to_map", m.input_to_map, (4, 4))
+        decompose(m.input_to_map)
     if m.cloud_points is not None:
         _check_array("cloud_points", m.cloud_points, (None, 3))
         if m.cloud_colors is not None:
@@ -200,6 +210,8 @@ def write_map(path: str | Path, m: LdlMap) -> Path:
             if m.coverage is not None:
                 h5.create_group("coverage").create_dataset("mapped", data=np.asarray(m.coverage, np.uint8), **_COMPRESS)
             h5.create_group("principal")["directions"] = np.asarray(m.principal_directions, np.float64)
+            if m.input_to_map is not None:
+                h5.create_group("frame")["input_to_map"] = np.asarray(m.input_to_map, np.float64)
             t = h5.create_group("translations")
             t["centers"] = np.asarray(m.translations, np.float32)
             f = m.features
@@ -252,6 +264,7 @@ def read_map_header(path: str | Path) -> dict[str, Any]:
                 "num_keypoints": int(h5["features/xyz"].shape[0]) if "features" in h5 else 0,
                 "fields": sorted(h5["fields"].keys()) if "fields" in h5 else [],
                 "line_visibility": "lines/visibility" in h5,
+                "input_to_map": h5["frame/input_to_map"][()].tolist() if "frame/input_to_map" in h5 else None,
                 "principal_directions": np.asarray(h5["principal/directions"][()], dtype=np.float64),
                 "line_group_counts": _group_counts(h5["lines/groups"][()]) if "lines/groups" in h5 else {},
                 "file_size_bytes": path.stat().st_size,
@@ -333,6 +346,7 @@ def read_map(path: str | Path, load_cloud: bool = True) -> LdlMap:
                 config=json.loads(h5.attrs.get("build_config", "{}")),
                 visibility=lines_grp["visibility"][()].astype(bool) if "visibility" in lines_grp else None,
                 coverage=h5["coverage/mapped"][()].astype(bool) if "coverage/mapped" in h5 else None,
+                input_to_map=h5["frame/input_to_map"][()].astype(np.float64) if "frame/input_to_map" in h5 else None,
             )
         except (KeyError, OSError, ValueError) as exc:
             raise InputError(f"corrupt LDL map {path}: {exc}") from None

@@ -48,7 +48,10 @@ def _free_space(P: np.ndarray, clearance: float, params: TranslationParams):
     """Free voxel mask (X, Y, Z) bool, grid origin (3,) and voxel size."""
     from scipy import ndimage
 
-    lo, hi = P.min(0), P.max(0)
+    from ldlmap.lines3d import robust_bounds
+
+    lo, hi = robust_bounds(P)  # far outliers neither stretch the grid nor occupy it
+    P = P[np.all((P >= lo) & (P <= hi), axis=1)]  # the box's own points: all of them unless outliers
     extent = float((hi - lo).max())
     h = max(params.voxel, extent / params.max_cells)
     dims = np.maximum(np.ceil((hi - lo) / h).astype(np.int64), 1) + 1

@@ -9,7 +9,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from ldlmap.errors import InputError
-from ldlmap.geometry import colmap_cam_from_world
+from ldlmap.geometry import colmap_cam_from_world, pose_from_colmap
 from ldlmap.io.colmap import read_colmap_model
 from ldlmap.io.pointcloud import PointCloud, write_point_cloud
 
@@ -56,6 +56,11 @@ def test_read_written_model(tmp_path: Path, text: bool) -> None:
     want = np.concatenate([xyz, rgb.astype(float)], 1)
     assert np.allclose(_sorted_rows(got), _sorted_rows(want), atol=1e-9 if not text else 1e-6)
     assert scene.dense is None and scene.cloud is scene.points
+    # Each image's down axis (COLMAP +y) in the world is our camera's -z (DESIGN.md conventions).
+    for name, down in zip(scene.image_names, scene.camera_down):
+        im = rec.find_image_with_name(name)
+        R, _ = pose_from_colmap(im.cam_from_world().rotation.matrix(), im.cam_from_world().translation)
+        np.testing.assert_allclose(down, -R[2], atol=1e-9 if not text else 1e-6)
     # A workspace folder resolves to sparse/0.
     assert read_colmap_model(tmp_path).image_names == scene.image_names
 

@@ -8,7 +8,7 @@ import pytest
 from tests._room_cloud import box_room
 from ldlmap.errors import InputError
 from ldlmap.lines3d import (Lines3DParams, extract_lines, extract_lines_with_stats, filter_by_length,
-                            length_threshold, line_precision_recall, merge_collinear)
+                            length_threshold, line_precision_recall, merge_collinear, robust_bounds)
 
 
 def seg(a, b) -> np.ndarray:
@@ -34,6 +34,52 @@ def test_filter_rejects_bad_shapes_and_nans():
     bad[0, 0, 0] = np.nan
     with pytest.raises(InputError):
         filter_by_length(bad, [0, 0, 0], [1, 1, 1])
+
+
+def _short_and_long(rng, n_short=2000, n_long=20):
+    """Many short pieces (0.02-0.2 m) and a few long lines (1-3 m) in a 6 x 4 x 3 m box."""
+    def segs(n, lo, hi):
+        a = rng.uniform([0, 0, 0], [6, 4, 3], (n, 3))
+        d = rng.normal(size=(n, 3))
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        return np.stack([a, a + rng.uniform(lo, hi, (n, 1)) * d], 1)
+    return np.concatenate([segs(n_short, 0.02, 0.2), segs(n_long, 1.0, 3.0)])
+
+
+def test_filter_floor_and_cap_keep_the_longest():
+    lines = _short_and_long(np.random.default_rng(0))
+    length = np.linalg.norm(lines[:, 1] - lines[:, 0], axis=1)
+    _, paper, thr = filter_by_length(lines, [0, 0, 0], [6, 4, 3], lam=0.1)
+    assert paper.sum() == 20 and thr == pytest.approx(0.1 * 13 / 3)  # the paper keeps 1 %
+    kept, mask, thr = filter_by_length(lines, [0, 0, 0], [6, 4, 3], lam=0.1, min_keep=100)
+    assert mask.sum() == 100 and len(kept) == 100 and mask[paper].all()
+    assert thr == pytest.approx(length[mask].min()) and length[~mask].max() <= thr
+    kept, mask, thr = filter_by_length(lines, [0, 0, 0], [6, 4, 3], lam=0.1, max_keep=7)
+    assert mask.sum() == 7 and np.array_equal(np.sort(length[mask]), np.sort(length)[-7:])
+    assert thr == pytest.approx(length[mask].min())
+    # A floor by length: the longest lines that hold 40 % of all the line length.
+    kept, mask, thr = filter_by_length(lines, [0, 0, 0], [6, 4, 3], lam=0.1, min_length_share=0.4)
+    order = np.sort(length)[::-1]
+    n = int(np.argmax(np.cumsum(order) >= 0.4 * length.sum())) + 1
+    assert mask.sum() == n > 20 and thr == pytest.approx(order[n - 1])
+    # The floor never asks for more lines than there are; the paper's filter is the default.
+    assert filter_by_length(lines[:30], [0, 0, 0], [6, 4, 3], min_keep=100)[1].all()
+    assert np.array_equal(filter_by_length(lines, [0, 0, 0], [6, 4, 3], min_keep=10)[1], paper)
+
+
+def test_robust_bounds_ignore_far_outliers():
+    rng = np.random.default_rng(1)
+    P = rng.uniform([0, 0, 0], [6, 4, 3], (5000, 3))
+    lo, hi = robust_bounds(P)
+    np.testing.assert_allclose(lo, P.min(0))  # a clean scene keeps its full box (the paper's)
+    np.testing.assert_allclose(hi, P.max(0))
+    Q = np.concatenate([P, [[500, 0, 0], [-300, 40, 2], [0, 0, 900], [3, -800, 1], [1e4, 1e4, 1e4]]])
+    lo2, hi2 = robust_bounds(Q)
+    np.testing.assert_allclose(lo2, lo, atol=0.05)
+    np.testing.assert_allclose(hi2, hi, atol=0.05)
+    lines = rng.uniform(0, 1, (10, 2, 3))
+    assert filter_by_length(lines, lo2, hi2)[2] == pytest.approx(length_threshold(lo, hi), rel=0.02)
+    assert length_threshold(Q.min(0), Q.max(0)) > 100 * length_threshold(lo2, hi2)  # what min / max gave
 
 
 # ------------------------------------------------------------------------------------ metric

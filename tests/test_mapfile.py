@@ -115,3 +115,25 @@ def test_corrupt_and_missing_files(tmp_path):
         del h5["lines/segments"]
     with pytest.raises(InputError, match="corrupt"):
         read_map(p)
+
+
+def test_optional_input_frame_transform(tmp_path):
+    """``/frame/input_to_map`` (SfM maps) is optional: maps without it read as the identity (None)."""
+    from ldlmap.frame import similarity
+    from ldlmap.geometry import rotation_from_axis_angle
+
+    m = make_map(with_features=False)
+    assert read_map(write_map(tmp_path / "plain.h5", m)).input_to_map is None
+    assert read_map_header(tmp_path / "plain.h5")["input_to_map"] is None
+    A = similarity(0.37, rotation_from_axis_angle(np.array([1.0, 2.0, 3.0]), 1.2), [1.0, -2.0, 0.5])
+    m.input_to_map = A
+    r = read_map(write_map(tmp_path / "sfm.h5", m))
+    np.testing.assert_allclose(r.input_to_map, A)
+    np.testing.assert_allclose(read_map_header(tmp_path / "sfm.h5")["input_to_map"], A)
+    with h5py.File(tmp_path / "sfm.h5", "r") as h5:
+        assert h5.attrs["format_version"] == FORMAT_VERSION  # still version 1
+    for bad in (np.eye(3), np.diag([1.0, 1.0, 2.0, 1.0]), np.diag([-1.0, 1.0, 1.0, 1.0])):
+        m.input_to_map = bad
+        with pytest.raises(InputError):
+            write_map(tmp_path / "bad.h5", m)
+    assert not (tmp_path / "bad.h5").exists()

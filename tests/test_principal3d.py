@@ -8,7 +8,7 @@ import pytest
 from ldlmap.errors import InputError
 from ldlmap.geometry import rotation_from_axis_angle
 from ldlmap.lines3d import extract_lines, filter_by_length
-from ldlmap.principal3d import assign_line_groups, principal_directions_3d
+from ldlmap.principal3d import assign_line_groups, manhattan_frame, principal_directions_3d
 from tests._room_cloud import box_room
 
 
@@ -73,3 +73,32 @@ def test_principal_directions_of_extracted_lines_in_rotated_room():
     err = _angle_to_axes(P, axes)
     assert np.all(err < 2.0), err
     assert np.linalg.det(P) > 0
+
+
+def _angle(a: np.ndarray, b: np.ndarray) -> float:
+    return float(np.degrees(np.arccos(np.clip(abs(a @ b), -1, 1))))
+
+
+def test_manhattan_frame_is_orthonormal_and_keeps_vertical_and_main_horizontal():
+    """Issue 12: two voted directions 33 deg apart; the frame keeps the vertical and the best
+    supported horizontal pair, and reports how far the votes were from it."""
+    rng = np.random.default_rng(3)
+    R = rotation_from_axis_angle(rng.normal(size=3), 0.8)
+    v, h1 = R @ [0, 0, 1.0], R @ [1.0, 0, 0]
+    h2 = R @ [np.cos(np.radians(33)), np.sin(np.radians(33)), 0]  # a second wing, 33 deg off h1
+    lines = _lines_along(np.stack([v, h1, h2]), rng, n_per=(40, 40, 30))
+    P = principal_directions_3d(lines)
+    assert min(_angle(P[i], P[j]) for i in range(3) for j in range(i)) < 40  # the votes: not orthogonal
+    F, dev = manhattan_frame(lines, P, up=v)
+    np.testing.assert_allclose(F @ F.T, np.eye(3), atol=1e-9)
+    assert np.linalg.det(F) > 0
+    assert min(_angle(f, v) for f in F) < 1.0 and min(_angle(f, h1) for f in F) < 1.0
+    assert dev.max() == pytest.approx(57.0, abs=1.5) and np.sort(dev)[1] < 1.0
+    assert all(_angle(F[i], P[i]) == pytest.approx(dev[i]) for i in range(3))  # rows follow the votes' order
+    # An orthogonal scene: the frame is the voted triplet (within the voting precision).
+    lines = _lines_along(R.T, rng)
+    P = principal_directions_3d(lines)
+    F, dev = manhattan_frame(lines, P, up=v)
+    assert dev.max() < 1.0 and all(_angle(F[i], P[i]) < 1.0 for i in range(3))
+    with pytest.raises(InputError):
+        manhattan_frame(lines, P[:2])

@@ -159,3 +159,20 @@ def test_lines_only_map_records_spacing_and_info_prints_it(tmp_path):
     for bad in (["--camera-height", "1.6:1.2"], ["--camera-height", "tall"], ["--trans-spacing", "-1"]):
         res = runner.invoke(app, ["build", str(tmp_path / "room.obj"), "-o", str(tmp_path / "bad.h5"), *bad])
         assert res.exit_code == 1 and "error:" in res.output and not (tmp_path / "bad.h5").exists(), bad
+
+
+def test_far_outliers_neither_stretch_nor_fill_the_free_space(room):
+    """SfM maps have a few far outlier points / segments: the free-space grid is fitted to the bulk."""
+    from ldlmap.translations import spaced_translations
+
+    pts, to_room, _ = room
+    far = np.array([[80.0, -60.0, 40.0], [-70.0, 90.0, -30.0], [200.0, 5.0, 1.0]])
+    C0 = candidate_translations(pts, 200, "octree", 0.25)
+    C = candidate_translations(np.concatenate([pts, far]), 200, "octree", 0.25)
+    R = to_room(C)
+    assert np.all((R > [-0.05, -0.05, -0.05]) & (R < np.array(SIZE) + 0.05)), "inside the room"
+    assert abs(len(C) - len(C0)) <= 10
+    lines = _layout_lines(L_ROOM, 2.5)
+    outliers = np.stack([far, far + 0.3], axis=1)
+    C = spaced_translations(np.concatenate([lines, outliers]), 0.3, z_range=(1.5, 1.5))
+    assert len(C) > 50 and np.all((C[:, :2] > -0.2) & (C[:, :2] < [5.2, 4.2]))

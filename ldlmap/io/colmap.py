@@ -36,6 +36,7 @@ class ColmapScene:
     dense: PointCloud | None = None  # fused.ply when found
     image_names: tuple[str, ...] = field(default=())  # names of the registered images, same order
     dense_path: Path | None = None
+    camera_down: np.ndarray | None = None  # (M, 3) each image's +y axis (image down) in world coordinates
 
     @property
     def cloud(self) -> PointCloud:
@@ -82,6 +83,8 @@ def read_colmap_model(path: str | os.PathLike, use_dense: bool = True) -> Colmap
     rgb = np.array([q.color for q in pts3d], dtype=np.uint8).reshape(-1, 3)
     images = sorted((im for im in rec.images.values() if im.has_pose), key=lambda im: im.name)
     centers = np.array([im.projection_center() for im in images], dtype=np.float64).reshape(-1, 3)
+    # cam_from_world rotation R_c: row 1 is the camera's +y axis (image down, any camera model) in the world.
+    down = np.array([im.cam_from_world().rotation.matrix()[1] for im in images], dtype=np.float64).reshape(-1, 3)
 
     dense, dense_path = None, None
     if use_dense:
@@ -94,7 +97,7 @@ def read_colmap_model(path: str | os.PathLike, use_dense: bool = True) -> Colmap
     if len(sparse):
         sparse.validate(p)
     return ColmapScene(points=sparse, camera_centers=centers, dense=dense,
-                       image_names=tuple(im.name for im in images), dense_path=dense_path)
+                       image_names=tuple(im.name for im in images), dense_path=dense_path, camera_down=down)
 
 
 @dataclass(frozen=True, eq=False)
