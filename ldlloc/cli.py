@@ -176,6 +176,7 @@ def _print_localization(pano: Path, loc, loading: dict, errors: Optional[dict], 
     console.print(f"[bold]{pano.name}[/]: {loc.status}" + (f" ({loc.message})" if loc.message else ""), soft_wrap=True)
     console.print(f"t = [{t[0]:.4f}, {t[1]:.4f}, {t[2]:.4f}] m (camera centre, world)", soft_wrap=True)
     console.print("R (world to camera) =\n" + "\n".join("  [" + ", ".join(f"{x: .6f}" for x in row) + "]" for row in R))
+    in_pose = loc.input_frame_pose()  # maps built from another frame (SfM): the pose there too
     if in_pose is not None:
         ti = in_pose[1]
         console.print(f"in the map's input frame: t = [{ti[0]:.4f}, {ti[1]:.4f}, {ti[2]:.4f}] (input units), "
