@@ -59,6 +59,10 @@ class GeometricParams:
     # 0.1 m / 3 deg; 31 with these two settings)
     vp_weight: float = 5.0  # weight of each arc's vanishing-point residual (``n . R p_g``), against 1
     # per matched point: parallel lines keep pointing at their vanishing points while the translation moves
+    support_weight: float = 1.0  # the winner maximizes -loss / max|loss| + this x map-line support
+    support_deg: float = 1.0  # a map line's point is supported within this angle of a query arc
+    support_within: float = 0.25  # only poses whose loss is within this fraction of the best compete
+    # on support (the others cannot win; symmetric twins on the real home were within 15 %)
     keep_within: float = 0.05  # the caller keeps a refined pose when its exact loss is at most this
     # fraction worse than its coarse pose's (the inlier loss, tau = 0.1 rad, cannot see a few cm:
     # a pose refined to 3 cm may count a few inliers less than the coarse one 11 cm off)
@@ -279,3 +283,45 @@ def _gauss_newton_step(R, t, X, L, match, huber, damping, fix_rotation=False, vp
 def _apply(R, t, v):
     """Pose after the update ``v`` (K, 6): ``R Exp(w)`` (w in the world frame) and ``t + dt``."""
     return R @ _so3_exp(v[:, :3]), t + v[:, 3:]
+
+
+def map_line_support(arcs: np.ndarray, rotations: np.ndarray, centers: np.ndarray, lines: np.ndarray,
+                     line_groups: np.ndarray, visible: np.ndarray | None = None, tol_deg: float = 1.0,
+                     samples: int = 24, band_deg: float = 70.0) -> np.ndarray:
+    """Share (K,) of what each pose's map predicts that the image shows: of the points along the
+    map's grouped lines (seen from the pose: ``visible`` (K, L), None: all) that project within
+    ``band_deg`` of the horizon (the detector's cap hides the poles), those within ``tol_deg`` of a
+    query arc's great circle and extent. The inlier loss counts the query's lines that the map
+    explains; this counts the map's lines that the query confirms, so a symmetric twin that puts a
+    door or window frame where the image shows a plain wall loses support. One float32 matmul per
+    pose (the four dot products of the points with each arc's normal, end planes and middle)."""
+    import torch
+
+    A = np.asarray(arcs, dtype=np.float64)
+    if len(A) == 0:
+        return np.zeros(len(rotations))
+    s, e = A[:, 0], A[:, 1]
+    n = np.cross(s, e)
+    n /= np.linalg.norm(n, axis=1, keepdims=True).clip(1e-12)
+    V = torch.as_tensor(np.concatenate([n, np.cross(n, s), np.cross(e, n), s + e], 0).T, dtype=torch.float32)  # (3, 4N)
+    N = len(A)
+    tol = np.sin(np.radians(tol_deg))
+    L_all = np.asarray(lines, dtype=np.float64)
+    grouped = np.asarray(line_groups) >= 0
+    f = (np.arange(samples) + 0.5) / samples
+    sin_band = np.sin(np.radians(band_deg))
+    out = np.zeros(len(rotations))
+    for k in range(len(rotations)):
+        L = L_all[grouped if visible is None else grouped & np.asarray(visible[k], dtype=bool)]
+        if len(L) == 0:
+            continue
+        P = (L[:, None, 0] + f[None, :, None] * (L[:, None, 1] - L[:, None, 0])).reshape(-1, 3)
+        d = (P - centers[k]) @ np.asarray(rotations[k]).T
+        d /= np.linalg.norm(d, axis=1, keepdims=True).clip(1e-12)
+        d = d[np.abs(d[:, 2]) < sin_band]
+        if len(d) == 0:
+            continue
+        D = torch.as_tensor(d, dtype=torch.float32) @ V  # (P, 4N)
+        near = (D[:, :N].abs() < tol) & (D[:, N:2 * N] > -tol) & (D[:, 2 * N:3 * N] > -tol) & (D[:, 3 * N:] > 0)
+        out[k] = float(near.any(1).float().mean())
+    return out

@@ -210,13 +210,28 @@ class Localizer:
         return g, kept, best
 
     def _refine_geometric(self, out: "Localization", arcs: np.ndarray, res) -> None:
-        """Refine the best of the top-K poses from lines alone; the candidate with the best loss wins."""
+        """Refine the best of the top-K poses from lines alone; the winner has the best loss and
+        map-line support together (:func:`ldlloc.geometric.map_line_support`)."""
+        from ldlloc.geometric import map_line_support
         from ldlloc.principal import assign_arcs_to_principal
 
         m, p = self.map, self.params
         n = max(1, min(len(res.centers), int(p.geometric.max_poses)))  # the others keep their coarse poses
         g, kept, loss = self._refine_and_keep(arcs, res.rotations, res.centers, res.translation_index, n)
-        k = int(np.argmin(loss))
+        rots, centers = res.rotations.copy(), res.centers.copy()
+        rots[:n][kept[:n]], centers[:n][kept[:n]] = g.rotations[kept[:n]], g.centers[kept[:n]]
+        score = -loss / max(float(np.abs(loss).max()), 1e-12)
+        if p.geometric.support_weight > 0:  # the close contenders compete on map-line support too
+            top = np.flatnonzero(score >= score.max() - p.geometric.support_within)
+            vis = None
+            if m.visibility is not None:  # the lines seen from each pose's nearest candidate translation
+                near = np.linalg.norm(centers[top, None] - m.translations[None], axis=-1).argmin(1)
+                vis = m.visibility[near]
+            support = map_line_support(arcs, rots[top], centers[top], m.lines, m.line_groups, vis, p.geometric.support_deg)
+            full = np.full(len(score), -np.inf)
+            full[top] = score[top] + p.geometric.support_weight * support
+            score = full
+        k = int(np.argmax(score))
         out.coarse_rot, out.coarse_center = res.rotations[k], res.centers[k]
         out.rot_cam_from_world, out.center = (g.rotations[k], g.centers[k]) if kept[k] else (res.rotations[k], res.centers[k])
         out.arc_groups = assign_arcs_to_principal(arcs, (out.rot_cam_from_world @ m.principal_directions.T).T,
