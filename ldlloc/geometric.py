@@ -249,34 +249,35 @@ def _vp_residuals(R, n2, P3, arc_group):
     return torch.where(valid, r, torch.zeros_like(r)), J * valid[..., None]
 
 
+def _huber_weights(r, huber):
+    """Iteratively re-weighted least squares weights of residuals ``r`` for a Huber threshold."""
+    import torch
+
+    a = r.abs()
+    return torch.where(a < huber, torch.ones_like(a), huber / a.clamp_min(1e-12))
+
+
 def _gauss_newton_step(R, t, X, L, match, huber, damping, fix_rotation=False, vp=None):
     """One damped, Huber-weighted Gauss-Newton step for all K poses; ``fix_rotation``: the
     translation only; ``vp``: ``(n2, P3, arc_group, weight)`` adds the vanishing-point residuals."""
     import torch
 
     r0, J = _residuals_and_jacobian(R, t, X, L, match)  # (K, X), (K, X, 6)
-    a = r0.abs()
-    w = torch.where(a < huber, torch.ones_like(a), huber / a.clamp_min(1e-12)) * (match >= 0)
+    w = _huber_weights(r0, huber) * (match >= 0)
     H = torch.einsum("kxi,kx,kxj->kij", J, w, J)
     b = -torch.einsum("kxi,kx,kx->ki", J, w, r0)
-    if fix_rotation:
-        step = torch.zeros_like(b)
-        Ht = H[:, 3:, 3:]
-        lam = damping * torch.diagonal(Ht, dim1=-2, dim2=-1).mean(-1, keepdim=True).clamp_min(1e-12) + 1e-9
-        step[:, 3:] = torch.nan_to_num(torch.linalg.solve(Ht + torch.diag_embed(lam.expand(-1, 3)), b[:, 3:, None])[..., 0])
-        return _apply(R, t, step)
-    if vp is not None:
+    if vp is not None and not fix_rotation:
         n2, P3, arc_group, weight = vp
         rv, Jv = _vp_residuals(R, n2, P3, arc_group)
-        av = rv.abs()
-        wv = weight * torch.where(av < huber, torch.ones_like(av), huber / av.clamp_min(1e-12)) * (arc_group >= 0)
+        wv = weight * _huber_weights(rv, huber) * (arc_group >= 0)
         H[:, :3, :3] += torch.einsum("kni,kn,knj->kij", Jv, wv, Jv)
         b[:, :3] -= torch.einsum("kni,kn,kn->ki", Jv, wv, rv)
-    diag = torch.diagonal(H, dim1=-2, dim2=-1)
-    lam = damping * diag.mean(-1, keepdim=True).clamp_min(1e-12) + 1e-9
-    H = H + torch.diag_embed(lam.expand(-1, 6))
-    step = torch.linalg.solve(H, b[..., None])[..., 0]
-    step = torch.nan_to_num(step)
+    free = slice(3, 6) if fix_rotation else slice(0, 6)  # the parameters this step moves
+    Hf = H[:, free, free]
+    lam = damping * torch.diagonal(Hf, dim1=-2, dim2=-1).mean(-1, keepdim=True).clamp_min(1e-12) + 1e-9
+    step = torch.zeros_like(b)
+    step[:, free] = torch.nan_to_num(torch.linalg.solve(Hf + torch.diag_embed(lam.expand(-1, Hf.shape[-1])),
+                                                        b[:, free, None])[..., 0])
     return _apply(R, t, step)
 
 
