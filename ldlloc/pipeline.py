@@ -233,7 +233,7 @@ class Localizer:
             score = full
         k = int(np.argmax(score))
         out.coarse_rot, out.coarse_center = res.rotations[k], res.centers[k]
-        out.rot_cam_from_world, out.center = (g.rotations[k], g.centers[k]) if kept[k] else (res.rotations[k], res.centers[k])
+        out.rot_cam_from_world, out.center = rots[k], centers[k]
         out.arc_groups = assign_arcs_to_principal(arcs, (out.rot_cam_from_world @ m.principal_directions.T).T,
                                                   p.principal.group_tol)
         out.refined = bool(kept[k])
