@@ -3,7 +3,8 @@
 Both programs are Typer apps made by :func:`make_app`; its click group turns
 :class:`~ldlmap.errors.LdlError` (and ``OSError``) raised anywhere in a command into one line
 ``error: <message>`` on stderr and exit code 1, both for the installed scripts and for Typer's
-``CliRunner`` in tests. Set ``LDL_DEBUG=1`` to get the traceback instead.
+``CliRunner`` in tests. Any other exception is a bug of ours: one line ``error: internal error
+(...)`` and exit code 70. Set ``LDL_DEBUG=1`` to get the traceback instead.
 """
 
 from __future__ import annotations
@@ -19,6 +20,9 @@ from typer.core import TyperGroup
 # When output goes to a file or a CI log, Rich would assume 80 columns and squeeze the tables.
 console = Console(width=None if sys.stdout.isatty() or os.environ.get("COLUMNS") else 132)
 err_console = Console(stderr=True, width=None if sys.stderr.isatty() or os.environ.get("COLUMNS") else 400)
+
+
+INTERNAL_ERROR = 70  # EX_SOFTWARE: an exception no check of ours anticipated (a bug to report)
 
 
 def fail(message: str, code: int = 1, as_json: bool = False) -> None:
@@ -72,6 +76,15 @@ class _ErrorHandlingGroup(TyperGroup):
             if not as_json:
                 raise
             fail(exc.format_message(), code=exc.exit_code, as_json=True)
+        except MemoryError:
+            if debug:
+                raise
+            fail("out of memory (the input or an option asks for more than this machine has)", as_json=as_json)
+        except Exception as exc:  # a bug of ours: still one line, with its own exit code
+            if debug:
+                raise
+            fail(f"internal error ({type(exc).__name__}: {exc}); please report it, with LDL_DEBUG=1 for the "
+                 "traceback", code=INTERNAL_ERROR, as_json=as_json)
 
 
 _as_script = False  # True in a CLI process (``_ScriptApp.__call__``), False under CliRunner (tests)

@@ -15,6 +15,7 @@ from typer.testing import CliRunner
 
 from ldlloc.cli import app as loc_app
 from ldlmap.cli import app as map_app
+from tests._hostile import error_line
 
 runner = CliRunner()
 ROOT = Path(__file__).resolve().parents[1]
@@ -26,14 +27,6 @@ LINE_FILES = {
     "lsd3d.txt": "0 0 0 1\n0.5 0 0 1\n1 0 0 1\n0 0 0 2\n0 1 0 2\n",
     "lines.obj": "v 0 0 0\nv 1 0 0\nv 1 1 0\nl 1 2\nl 2 3\n",
 }
-
-
-def error_line(res, code: int = 1) -> str:
-    lines = [line for line in res.output.splitlines() if line.strip()]
-    assert res.exit_code == code, res.output
-    assert "Traceback" not in res.output
-    assert len(lines) == 1 and lines[0].startswith("error:"), res.output
-    return lines[0]
 
 
 # ---------------------------------------------------------------------------- 1: line files
