@@ -14,11 +14,15 @@ re-score), each of the K poses is optimized continuously:
    within the line's extent; points farther than the association angle stay unmatched.
 3. Gauss-Newton on the point-to-great-circle residuals ``x . n_l`` with Huber weights
    (iteratively re-weighted), all K poses batched, over the 6 pose parameters (rotation vector
-   applied in the world frame, and the camera centre), with exact Jacobians. The rotation is also
+   applied in the world frame, and the camera centre), with exact Jacobians. A point's Jacobian is
+   linear in the point (``D_l x``), so the normal equations sum over lines, not points
+   (``D_l S_l D_l^T`` with ``S_l`` the weighted scatter of the line's points). The rotation is also
    held by the vanishing points: each grouped arc's great circle should pass through its group's
    direction (residual ``n . R p_g``, rotation only), and the first ``fixed_rotation_rounds``
    move the translation alone, the rotation from the search being already good to about a degree.
 4. Steps 2-3 repeat while the association angle shrinks (``assoc_deg`` -> ``final_assoc_deg``).
+   Poses that meet a better-ranked one (``merge_m``, ``merge_deg``) go on as one. Each pose works
+   on the lines seen from its candidate translation; all in float32 about the poses' mean centre.
 
 A refinement that moves the pose by more than ``max_move_m`` or ``max_turn_deg`` (FGPL's 1 m and
 60 deg), or that ends with fewer than ``min_points`` matched points, is rejected: that candidate
@@ -39,9 +43,9 @@ from ldlmap.errors import InputError
 class GeometricParams:
     """Parameters of :func:`refine_poses_geometric`."""
 
-    max_poses: int = 10  # refine the best this many of the K search poses (the rest stay coarse;
-    # on the real home 10 gave the accuracy of all 20 in two thirds of the time)
-    samples: int = 5  # points per 2D arc
+    max_poses: int = 20  # refine the best this many of the K search poses (the rest stay coarse);
+    # on the real home, the right pose of a 180-degree twin was 19th of 20
+    samples: int = 3  # points per 2D arc (5 gave the same real-home accuracy at 1.3x the time)
     rounds: int = 10  # association rounds
     steps: int = 2  # Gauss-Newton steps per round
     assoc_deg: float = 12.0  # association angle of the first round ...
@@ -63,6 +67,9 @@ class GeometricParams:
     support_deg: float = 1.0  # a map line's point is supported within this angle of a query arc
     support_within: float = 0.25  # only poses whose loss is within this fraction of the best compete
     # on support (the others cannot win; symmetric twins on the real home were within 15 %)
+    merge_m: float = 0.01  # poses that come within this (and merge_deg) of a better-ranked one during
+    merge_deg: float = 0.2  # refinement share its result from then on (0: never; on the synthetic
+    # scenes most of the top 20 meet within a few rounds)
     keep_within: float = 0.05  # the caller keeps a refined pose when its exact loss is at most this
     # fraction worse than its coarse pose's (the inlier loss, tau = 0.1 rad, cannot see a few cm:
     # a pose refined to 3 cm may count a few inliers less than the coarse one 11 cm off)
@@ -105,10 +112,11 @@ def _sample_arcs(arcs, samples: int):
 
 
 def _line_geometry(R, t, L):
-    """Camera-frame unit normals (K, L, 3) of the lines' great circles and their projected ends."""
+    """Camera-frame unit normals (K, L, 3) of the great circles of the poses' lines (K, L, 2, 3) and
+    their projected ends."""
     import torch
 
-    a, b = L[None, :, 0] - t[:, None], L[None, :, 1] - t[:, None]  # (K, L, 3) world, from t
+    a, b = L[:, :, 0] - t[:, None], L[:, :, 1] - t[:, None]  # (K, L, 3) world, from t
     m = torch.linalg.cross(a, b, dim=-1)
     n = torch.einsum("kij,klj->kli", R, m)
     n = n / torch.linalg.vector_norm(n, dim=-1, keepdim=True).clamp_min(1e-12)
@@ -132,107 +140,160 @@ def refine_poses_geometric(arcs: np.ndarray, rotations: np.ndarray, centers: np.
     A = np.asarray(arcs, dtype=np.float64)
     if A.ndim != 3 or A.shape[1:] != (2, 3) or not np.isfinite(A).all():
         raise InputError(f"arcs must be finite with shape (N, 2, 3), got {A.shape}")
-    R0 = torch.as_tensor(np.asarray(rotations, dtype=np.float64)).reshape(-1, 3, 3)
-    t0 = torch.as_tensor(np.asarray(centers, dtype=np.float64)).reshape(-1, 3)
+    # float32 throughout (twice as fast as float64 here), about an origin at the poses' mean centre
+    # so that maps in large coordinates (UTM) keep their precision.
+    dt = torch.float32
+    C0 = np.asarray(centers, dtype=np.float64).reshape(-1, 3)
+    origin = C0.mean(0)
+    R0 = torch.as_tensor(np.asarray(rotations, dtype=np.float64).reshape(-1, 3, 3), dtype=dt)
+    t0 = torch.as_tensor(C0 - origin, dtype=dt)
     K = len(R0)
-    dt = torch.float64
+    # Each pose works on its own list of the grouped lines it sees (padded to the longest list; the
+    # padding has group -1 and is never matched): (K, Lk, 2, 3) lines and (K, Lk) groups.
     grp = np.asarray(line_groups, dtype=np.int64)
-    keep_l = grp >= 0
-    L = torch.as_tensor(np.asarray(lines, dtype=np.float64)[keep_l])
-    G3 = torch.as_tensor(grp[keep_l])
-    if visible is not None:  # only lines seen from at least one of the poses take part
-        keep_l &= np.asarray(visible, dtype=bool).any(0)
-        L = torch.as_tensor(np.asarray(lines, dtype=np.float64)[keep_l])
-        G3 = torch.as_tensor(grp[keep_l])
-    vis = torch.ones((K, int(keep_l.sum())), dtype=torch.bool) if visible is None else \
-        torch.as_tensor(np.asarray(visible, dtype=bool)[:, keep_l])
-    P3 = torch.as_tensor(np.asarray(principal, dtype=np.float64))
+    seen = np.tile(grp >= 0, (K, 1)) if visible is None else np.asarray(visible, dtype=bool) & (grp >= 0)
+    slots, real = _padded_members(torch.as_tensor(seen))
+    L = torch.as_tensor(np.asarray(lines, dtype=np.float64) - origin, dtype=dt)[slots]
+    G3 = torch.where(real, torch.as_tensor(grp)[slots], torch.full_like(slots, -1))
+    P3 = torch.as_tensor(np.asarray(principal, dtype=np.float64), dtype=dt)
     arcs_t = torch.as_tensor(A, dtype=dt)
     X, arc_of = _sample_arcs(arcs_t, max(1, int(params.samples)))
+    XX = (X[:, :, None] * X[:, None, :]).reshape(-1, 9)
     n2 = torch.linalg.cross(arcs_t[:, 0], arcs_t[:, 1], dim=-1)
     n2 = n2 / torch.linalg.vector_norm(n2, dim=-1, keepdim=True).clamp_min(1e-12)
     margin = np.sin(np.radians(params.extent_margin_deg))
     huber = np.sin(np.radians(params.huber_deg))
     R, t = R0.clone(), t0.clone()
-    match = torch.full((K, len(X)), -1, dtype=torch.long)
+    rep = torch.arange(K)  # the pose whose refinement each pose shares (itself, or a better-ranked twin)
+    active = torch.arange(K)  # the poses still refined, in rank order
     rounds = max(1, int(params.rounds))
     for k in range(rounds):
+        if k > 0 and params.merge_m > 0:  # poses that met a better-ranked one follow it from here on
+            keep_a, twin = _merge_twins(R, t, params.merge_m, params.merge_deg)
+            rep[active] = active[twin]
+            active, R, t, L, G3 = active[keep_a], R[keep_a], t[keep_a], L[keep_a], G3[keep_a]
         thr = np.sin(np.radians(params.assoc_deg + (params.final_assoc_deg - params.assoc_deg) * k / max(rounds - 1, 1)))
-        match, arc_group = _associate(R, t, X, arc_of, n2, L, G3, vis, P3, params.group_tol, margin, thr)
+        match, arc_group = _associate(R, t, X, arc_of, n2, L, G3, P3, params.group_tol, margin, thr)
         vp = (n2, P3, arc_group, params.vp_weight) if params.vp_weight > 0 else None
         for _ in range(max(1, int(params.steps))):
-            R, t = _gauss_newton_step(R, t, X, L, match, max(huber, thr / 3), params.damping,
+            R, t = _gauss_newton_step(R, t, X, XX, L, match, max(huber, thr / 3), params.damping,
                                       fix_rotation=k < params.fixed_rotation_rounds, vp=vp)
-    r = _residuals_and_jacobian(R, t, X, L, match)[0].abs().masked_fill_(match < 0, float("nan"))
+    r = _point_residuals(_line_operators(R, t, L)[0], X, match).abs().masked_fill_(match < 0, float("nan"))
+    for _ in range(K):  # follow merges to the pose that was refined to the end
+        rep = rep[rep]
+    slot = torch.full((K,), -1, dtype=torch.long)
+    slot[active] = torch.arange(len(active))
+    at = slot[rep]  # (K,) each pose's row among the active ones
+    R, t, match, r = R[at], t[at], match[at], r[at]
     matched = (match >= 0).sum(1)
     med = torch.nan_to_num(torch.nanmedian(r, dim=1).values, nan=1.0)  # sine; 1 (90 deg) when none matched
     move = torch.linalg.vector_norm(t - t0, dim=-1)
     turn = torch.rad2deg(torch.arccos(((torch.einsum("kij,kij->k", R, R0) - 1) / 2).clamp(-1, 1)))
     ok = (move <= params.max_move_m) & (turn <= params.max_turn_deg) & (matched >= params.min_points) \
         & torch.isfinite(t).all(-1) & torch.isfinite(R).all((-1, -2))
-    R = torch.where(ok[:, None, None], R, R0)
-    t = torch.where(ok[:, None], t, t0)
-    return GeometricResult(R.numpy(), t.numpy(), ok.numpy(), matched.numpy(),
-                           np.degrees(np.arcsin(med.clamp(max=1.0).numpy())))
+    keep = ok.numpy()
+    U, _, Vt = np.linalg.svd(R.double().numpy())  # the nearest rotations (float32 steps drift ~1e-7)
+    rots = np.where(keep[:, None, None], U @ Vt, np.asarray(rotations, dtype=np.float64).reshape(-1, 3, 3))
+    cens = np.where(keep[:, None], t.double().numpy() + origin, C0)
+    return GeometricResult(rots, cens, keep, matched.numpy(), np.degrees(np.arcsin(med.clamp(max=1.0).double().numpy())))
 
 
-def _associate(R, t, X, arc_of, n2, L, G3, vis, P3, group_tol, margin, thr):
-    """(K, X) index of the line matched to each point (-1: none), see the module docstring.
+def _merge_twins(R, t, merge_m: float, merge_deg: float):
+    """Which of the (rank-ordered) poses to keep refining (A,) bool, and for each pose the first one
+    within ``merge_m`` and ``merge_deg`` of it (A,) (itself when none is earlier): poses that have
+    met go on as one."""
+    import torch
 
-    Per pose and principal group, the points of that group meet only the lines of that group
-    (a third of the pairs): one float32 matmul for the four dot products of each point with each
-    line (distance to its circle, the two extent planes, the near side)."""
+    near = torch.cdist(t, t) < merge_m
+    cos = (torch.einsum("aij,bij->ab", R, R) - 1) / 2
+    near &= cos > np.cos(np.radians(merge_deg))
+    first = torch.argmax(near.to(torch.uint8), dim=1)  # the diagonal is True: first <= own index
+    return first == torch.arange(len(R)), first
+
+
+def _padded_members(member):
+    """Indices (B, M) of the True entries of each row of ``member`` (B, N), padded to the largest
+    row count M, and which of them are real (B, M)."""
+    import torch
+
+    count = member.sum(1)
+    order = torch.sort((~member).to(torch.uint8), dim=1, stable=True).indices[:, :max(int(count.max()), 1)]
+    return order, torch.arange(order.shape[1], device=member.device)[None] < count[:, None]
+
+
+def _associate(R, t, X, arc_of, n2, L, G3, P3, group_tol, margin, thr):
+    """(K, X) index of the line matched to each point (-1: none) among the pose's lines ``L``
+    (K, Lk, 2, 3) with groups ``G3`` (K, Lk), see the module docstring, and (K, N) the principal
+    group of each arc under each pose (-1: none).
+
+    The points of group ``g`` under pose ``k`` meet only the pose's lines of group ``g``: the
+    K x 3 (pose, group) blocks are padded to common sizes and batched, one float32 matmul for the
+    four dot products of each point with each line (distance to its circle, the two extent planes,
+    the near side)."""
     import torch
 
     f = torch.float32
+    K, nx = len(R), len(X)
     # Group of each arc under each pose: the principal direction its great circle passes through.
     d = torch.einsum("kij,gj->kgi", R, P3)  # (K, 3, 3) R p_g
     c = torch.einsum("ni,kgi->kng", n2, d).abs()  # (K, N, 3)
     cmin, g2 = c.min(-1)
     g2 = torch.where(cmin < group_tol, g2, torch.full_like(g2, -1))
-    gx = torch.gather(g2, 1, arc_of[None].expand(len(R), -1))  # (K, X)
+    gx = torch.gather(g2, 1, arc_of[None].expand(K, -1))  # (K, X)
+    groups = torch.arange(3, device=X.device)
+    pts, pts_ok = _padded_members((gx[:, None, :] == groups[None, :, None]).reshape(K * 3, nx))  # (3K, P)
+    lns, lns_ok = _padded_members((G3[:, None, :] == groups[None, :, None]).reshape(K * 3, -1))
     n, s, e = _line_geometry(R, t, L)  # (K, L, 3)
     V = torch.stack([n, torch.linalg.cross(n, s, dim=-1), torch.linalg.cross(e, n, dim=-1), s + e], 2).to(f)  # (K, L, 4, 3)
-    Xf = X.to(f)
-    match = torch.full(gx.shape, -1, dtype=torch.long)
-    for g in range(3):
-        lines_g = torch.nonzero(G3 == g).reshape(-1)
-        if len(lines_g) == 0:
-            continue
-        for k in range(len(R)):  # K x 3 blocks: the points of group g under pose k
-            pts = torch.nonzero(gx[k] == g).reshape(-1)
-            if len(pts) == 0:
-                continue
-            lk = lines_g[vis[k, lines_g]]
-            if len(lk) == 0:
-                continue
-            dots = torch.matmul(V[k, lk].reshape(-1, 3), Xf[pts].T).reshape(len(lk), 4, len(pts))
-            ok = (dots[:, 1] > -margin) & (dots[:, 2] > -margin) & (dots[:, 3] > 0)
-            dist = dots[:, 0].abs().masked_fill_(~ok, 2.0)
-            best, idx = dist.min(0)
-            match[k, pts] = torch.where(best < thr, lk[idx], torch.full_like(idx, -1))
-    return match, g2
+    pose = torch.arange(K, device=X.device).repeat_interleave(3)[:, None]  # (3K, 1)
+    Vb = V[pose, lns]  # (3K, Lb, 4, 3)
+    dots = torch.matmul(Vb.reshape(K * 3, -1, 3), X.to(f)[pts].transpose(1, 2)).reshape(K * 3, lns.shape[1], 4, -1)
+    ok = (dots[:, :, 1] > -margin) & (dots[:, :, 2] > -margin) & (dots[:, :, 3] > 0) & lns_ok[..., None]
+    best, idx = dots[:, :, 0].abs().masked_fill_(~ok, 2.0).min(1)  # (3K, P)
+    line = torch.where(best < thr, torch.gather(lns, 1, idx), torch.full_like(idx, -1))
+    match = torch.full((K, nx + 1), -1, dtype=torch.long, device=X.device)  # column nx: the padding
+    match[pose.expand_as(pts), torch.where(pts_ok, pts, torch.full_like(pts, nx))] = line
+    return match[:, :nx], g2
 
 
-def _residuals_and_jacobian(R, t, X, L, match):
-    """Residuals ``x . n_l`` (K, X) and their exact derivatives (K, X, 6) by the update of
-    :func:`_apply`: with ``y = R^T x`` and ``m = (P1 - t) x (P2 - t)``, ``r = y . m / |m|``,
-    ``dr/dw = -(y x m_hat)`` and ``dr/dt = ((y - r m_hat) x (P2 - P1)) / |m|``. Unmatched: 0."""
+def _skew(v):
+    """Cross-product matrices (..., 3, 3) of vectors (..., 3): ``_skew(a) @ b == a x b``."""
+    import torch
+
+    z = torch.zeros_like(v[..., 0])
+    return torch.stack([z, -v[..., 2], v[..., 1], v[..., 2], z, -v[..., 0], -v[..., 1], v[..., 0], z],
+                       -1).reshape(v.shape + (3,))
+
+
+def _line_operators(R, t, L):
+    """Per pose and line (``L``: (K, L, 2, 3), each pose's lines): the camera-frame unit normal ``n`` (K, L, 3) of the plane through the
+    camera centre and the line, and ``D`` (K, L, 6, 3) such that a point ``x`` on the sphere has
+    the residual ``r = n . x`` and the exact derivatives ``D x`` by the update of :func:`_apply`.
+
+    With ``y = R^T x``, ``m = (P1 - t) x (P2 - t)``, ``m^ = m / |m|`` and ``d = (P2 - P1) / |m|``:
+    ``r = y . m^``, ``dr/dw = m^ x y`` and ``dr/dt = (y - r m^) x d``; both are linear in ``x``, so
+    the points matched to one line share one 3 x 6 operator and the normal equations sum over
+    lines (:func:`_gauss_newton_step`) instead of over points."""
+    import torch
+
+    a, b = L[:, :, 0] - t[:, None], L[:, :, 1] - t[:, None]  # (K, L, 3) world, from t
+    m = torch.linalg.cross(a, b, dim=-1)
+    norm = torch.linalg.vector_norm(m, dim=-1, keepdim=True).clamp_min(1e-12)
+    mh, d = m / norm, (b - a) / norm
+    Rt = R.transpose(-1, -2)[:, None]  # (K, 1, 3, 3)
+    d_w = _skew(mh) @ Rt
+    d_t = -(_skew(d) + torch.linalg.cross(mh, d, dim=-1)[..., None] * mh[..., None, :]) @ Rt
+    n = torch.einsum("kij,klj->kli", R, mh)
+    return n, torch.cat([d_w, d_t], -2)
+
+
+def _point_residuals(n, X, match):
+    """Residuals ``x . n_l`` (K, X) of the points to their matched lines' great circles (0: unmatched)."""
     import torch
 
     j = match.clamp_min(0)
-    P1, P2 = L[j, 0], L[j, 1]  # (K, X, 3) ends of each point's line
-    tt = t[:, None, :]
-    m = torch.linalg.cross(P1 - tt, P2 - tt, dim=-1)
-    norm = torch.linalg.vector_norm(m, dim=-1, keepdim=True).clamp_min(1e-12)
-    mh = m / norm
-    y = torch.einsum("kji,xj->kxi", R, X)  # R^T x
-    r = (y * mh).sum(-1)
-    d_w = -torch.linalg.cross(y, mh, dim=-1)
-    d_t = torch.linalg.cross(y - r[..., None] * mh, P2 - P1, dim=-1) / norm
-    valid = (match >= 0)
-    J = torch.cat([d_w, d_t], -1) * valid[..., None]
-    return torch.where(valid, r, torch.zeros_like(r)), J
+    r = (torch.gather(n, 1, j[..., None].expand(-1, -1, 3)) * X).sum(-1)
+    return torch.where(match >= 0, r, torch.zeros_like(r))
 
 
 def _vp_residuals(R, n2, P3, arc_group):
@@ -257,15 +318,24 @@ def _huber_weights(r, huber):
     return torch.where(a < huber, torch.ones_like(a), huber / a.clamp_min(1e-12))
 
 
-def _gauss_newton_step(R, t, X, L, match, huber, damping, fix_rotation=False, vp=None):
-    """One damped, Huber-weighted Gauss-Newton step for all K poses; ``fix_rotation``: the
-    translation only; ``vp``: ``(n2, P3, arc_group, weight)`` adds the vanishing-point residuals."""
+def _gauss_newton_step(R, t, X, XX, L, match, huber, damping, fix_rotation=False, vp=None):
+    """One damped, Huber-weighted Gauss-Newton step for all K poses; ``XX`` (X, 9): the points'
+    outer products ``x x^T``; ``fix_rotation``: the translation only; ``vp``: ``(n2, P3, arc_group,
+    weight)`` adds the vanishing-point residuals. The normal equations gather the points per line
+    (:func:`_line_operators`): ``H = sum_l D_l S_l D_l^T`` and ``b = -sum_l D_l S_l n_l`` with
+    ``S_l = sum_x w_x x x^T`` over the points matched to line ``l``."""
     import torch
 
-    r0, J = _residuals_and_jacobian(R, t, X, L, match)  # (K, X), (K, X, 6)
+    n, D = _line_operators(R, t, L)  # (K, L, 3), (K, L, 6, 3)
+    K, nl = n.shape[:2]
+    r0 = _point_residuals(n, X, match)
     w = _huber_weights(r0, huber) * (match >= 0)
-    H = torch.einsum("kxi,kx,kxj->kij", J, w, J)
-    b = -torch.einsum("kxi,kx,kx->ki", J, w, r0)
+    slot = (match.clamp_min(0) + nl * torch.arange(K, device=match.device)[:, None]).reshape(-1)
+    S = torch.zeros((K * nl, 9), dtype=X.dtype, device=X.device).index_add_(
+        0, slot, (w[..., None] * XX).reshape(-1, 9)).reshape(K, nl, 3, 3)
+    DS = D @ S  # (K, L, 6, 3)
+    H = torch.einsum("klai,klbi->kab", DS, D)
+    b = -torch.einsum("klai,kli->ka", DS, n)
     if vp is not None and not fix_rotation:
         n2, P3, arc_group, weight = vp
         rv, Jv = _vp_residuals(R, n2, P3, arc_group)

@@ -227,7 +227,11 @@ class Localizer:
             if m.visibility is not None:  # the lines seen from each pose's nearest candidate translation
                 near = np.linalg.norm(centers[top, None] - m.translations[None], axis=-1).argmin(1)
                 vis = m.visibility[near]
-            support = map_line_support(arcs, rots[top], centers[top], m.lines, m.line_groups, vis, p.geometric.support_deg)
+            # poses refined as one (GeometricParams.merge_m) are the same pose: one support each
+            _, first, back = np.unique(np.concatenate([rots[top].reshape(-1, 9), centers[top]], 1), axis=0,
+                                       return_index=True, return_inverse=True)
+            support = map_line_support(arcs, rots[top[first]], centers[top[first]], m.lines, m.line_groups,
+                                       None if vis is None else vis[first], p.geometric.support_deg)[back.reshape(-1)]
             full = np.full(len(score), -np.inf)
             full[top] = score[top] + p.geometric.support_weight * support
             score = full

@@ -50,6 +50,20 @@ def test_batched_poses_equal_one_at_a_time():
     assert np.linalg.norm(batch.centers[2] - t) < 1e-6, "a start at the true pose stays there"
 
 
+def test_poses_that_meet_are_refined_once():
+    """Two starts at one pose are refined as one (GeometricParams.merge_m) and end where each
+    would alone; a third, different start is unaffected."""
+    lines, groups, views = _views(2, seed=5)
+    arcs, R, t, R0, t0 = views[0]
+    starts_R, starts_t = np.stack([R0, R0, views[1][3]]), np.stack([t0, t0, views[1][4]])
+    batch = refine_poses_geometric(arcs, starts_R, starts_t, lines, groups, np.eye(3))
+    np.testing.assert_array_equal(batch.centers[0], batch.centers[1])
+    np.testing.assert_array_equal(batch.rotations[0], batch.rotations[1])
+    alone = refine_poses_geometric(arcs, starts_R, starts_t, lines, groups, np.eye(3), params=GeometricParams(merge_m=0))
+    np.testing.assert_allclose(batch.centers, alone.centers, atol=1e-5)
+    np.testing.assert_allclose(batch.rotations, alone.rotations, atol=1e-5)
+
+
 def test_divergence_and_too_little_evidence_are_flagged():
     lines, groups, views = _views(1, seed=7)
     arcs, R, t, R0, t0 = views[0]
@@ -62,6 +76,34 @@ def test_divergence_and_too_little_evidence_are_flagged():
     # A refinement allowed to move only 1 cm from a start 0.4 m off is flagged as diverged.
     res = refine_poses_geometric(arcs, R0[None], t0[None], lines, groups, np.eye(3), params=GeometricParams(max_move_m=0.01))
     assert not res.accepted[0] and np.array_equal(res.centers[0], t0)
+
+
+def test_line_jacobian_matches_finite_differences():
+    """The per-line operators give each point's residual ``n . x`` and its exact derivatives ``D x``
+    by the pose update; the normal equations summed per line equal the sum over points."""
+    import torch
+
+    from ldlloc.geometric import _apply, _line_operators
+
+    rng = np.random.default_rng(1)
+    R = torch.as_tensor(rotation_from_axis_angle(rng.normal(size=3), 0.4)[None])
+    t = torch.as_tensor(rng.normal(size=(1, 3)) * 0.3)
+    L = torch.as_tensor(rng.normal(size=(1, 5, 2, 3)) * 2)
+    X = torch.as_tensor(normalize(rng.normal(size=(5, 3))))  # point i on line i
+    n, D = _line_operators(R, t, L)
+    r = (n[0] * X).sum(-1)
+    J = torch.einsum("lai,li->la", D[0], X)  # (5, 6)
+    eps = 1e-6
+    for i in range(6):
+        v = torch.zeros((1, 6), dtype=torch.float64)
+        v[0, i] = eps
+        rp = (_line_operators(*_apply(R, t, v), L)[0][0] * X).sum(-1)
+        v[0, i] = -eps
+        rm = (_line_operators(*_apply(R, t, v), L)[0][0] * X).sum(-1)
+        assert torch.allclose((rp - rm) / (2 * eps), J[:, i], atol=1e-6)
+    S = X[:, :, None] * X[:, None, :]  # one point per line: S_l = x x^T
+    H_lines = torch.einsum("lai,lij,lbj->ab", D[0], S, D[0])
+    assert torch.allclose(H_lines, J.T @ J) and torch.allclose(torch.einsum("lai,lij,lj->a", D[0], S, n[0]), J.T @ r)
 
 
 def test_vanishing_point_jacobian_matches_finite_differences():
