@@ -20,7 +20,7 @@ import shutil
 import socket
 import tempfile
 from pathlib import Path
-from typing import Iterable, Iterator
+from typing import Callable, Iterable, Iterator
 
 
 class LdlError(Exception):
@@ -78,6 +78,30 @@ def refuse_overwriting_inputs(inputs: Iterable[str | os.PathLike], outputs: Iter
             if _holds(out, src):
                 raise LdlError(f"output {out} would replace the folder that holds the input {src}; write it "
                                "elsewhere")
+
+
+HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
+
+
+def starts_with(path: str | os.PathLike, signature: bytes) -> bool:
+    """Whether the file ``path`` begins with ``signature`` (False when unreadable)."""
+    try:
+        with open(path, "rb") as fh:
+            return fh.read(len(signature)) == signature
+    except OSError:
+        return False
+
+
+def refuse_replacing_other_files(path: str | os.PathLike, is_ours: Callable[[Path], bool], what: str,
+                                 overwrite: bool = False) -> None:
+    """Raise :class:`LdlError` when ``path`` exists and is not a ``what`` (``is_ours``: one this
+    command writes, which a new run replaces as a user expects), unless ``overwrite``. A folder is
+    never replaced by a file."""
+    p = Path(path)
+    if p.is_dir():
+        raise LdlError(f"output {p} is a folder; give a file name")
+    if p.exists() and not overwrite and not is_ours(p):
+        raise LdlError(f"output {p} exists and is not {what}; use --overwrite to replace it, or another name")
 
 
 def _umask() -> int:
