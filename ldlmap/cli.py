@@ -298,7 +298,7 @@ def check_build_options(num_trans: Optional[int] = None, num_views: Optional[int
     check_range(num_views, "--num-views", 1, MAX_VIEWS, integer=True)
     check_range(lam, "--lambda", 0.0, 1.0)
     check_range(min_length, "--min-line-length", 0.0, 1000.0)
-    check_range(trans_spacing, "--trans-spacing", 0.05, 100.0, why="metres between candidate translations")
+    check_range(trans_spacing, "--trans-spacing", 1e-3, 1e6, why="input units between candidate translations")
     check_range(scale, "--scale", 1e-6, 1e6, why="metres per input unit")
     check_device(device)
 

@@ -290,7 +290,7 @@ def load_spec(path: str | os.PathLike) -> SceneSpec:
 def _make_ccw(spec: SceneSpec) -> SceneSpec:
     """Reverse a clockwise footprint, remapping wall indices and offsets."""
     fp = np.asarray(spec.footprint, dtype=np.float64)
-    if len(fp) < 3 or pg.simple_polygon_problem(fp) is not None or pg.signed_area(fp) > 0:
+    if not 3 <= len(fp) <= MAX_VERTICES or pg.simple_polygon_problem(fp) is not None or pg.signed_area(fp) > 0:
         return spec  # validation reports problems; counter-clockwise needs nothing
     k = len(fp)
     lengths = spec.wall_lengths()
@@ -344,8 +344,6 @@ def _at_most(value: float, limit: float, path: str, why: str = "") -> None:
 
 def _validate_size(spec: SceneSpec, fp: np.ndarray) -> None:
     """Bounds that keep a room's memory and time finite: extent, corners, item counts, seed."""
-    if len(fp) > MAX_VERTICES:
-        raise InputError(f"spec field 'footprint' has {len(fp)} corners, at most {MAX_VERTICES} are supported")
     extent = fp.max(axis=0) - fp.min(axis=0) if len(fp) else np.zeros(2)
     _at_most(float(extent.max()), MAX_ROOM_EXTENT, "footprint", "room width or depth in metres")
     _at_most(spec.ceiling_height, MAX_CEILING, "ceiling_height")
@@ -360,6 +358,8 @@ def validate_spec(spec: SceneSpec) -> None:
     if not spec.name or any(c in spec.name for c in "/\\ \t\n") or spec.name in (".", ".."):
         raise InputError(f"spec field 'name' must be a non-empty name without spaces or slashes, got {spec.name!r}")
     fp = np.asarray(spec.footprint, dtype=np.float64).reshape(-1, 2)
+    if len(fp) > MAX_VERTICES:  # before the simplicity check, quadratic in the corners
+        raise InputError(f"spec field 'footprint' has {len(fp)} corners, at most {MAX_VERTICES} are supported")
     problem = pg.simple_polygon_problem(fp)
     if problem is not None:
         raise InputError(f"spec field 'footprint' {problem}")
