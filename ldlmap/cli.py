@@ -185,7 +185,8 @@ def synth(
     if spec and preset:
         raise InputError("use either --preset or --spec, not both")
     check_dataset_seed(seed)
-    check_range(width, "--width", MIN_WIDTH, MAX_WIDTH, integer=True)
+    check_range(width, "--width", MIN_WIDTH, MAX_WIDTH, integer=True,
+                why="rendering holds about 450 bytes per pixel")
     check_range(per_split, "--per-split", 0, MAX_PER_SPLIT, integer=True)
     refuse_overwriting_inputs(spec or [], [out])
     refuse_replacing_other_dataset(out, overwrite)

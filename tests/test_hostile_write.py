@@ -64,6 +64,7 @@ REPLACING_INPUTS = [
     (["synth", "{r}", "--overwrite"], "is not a dataset written by `ldlmap synth`"),
     (["synth", "{r}/folder/..", "--overwrite"], "is not a dataset written by `ldlmap synth`"),
     (["synth", "{r}/ds"], "output folder is not empty"),
+    (["synth", "{r}/notes.txt", "--overwrite"], "is not a folder"),
 ]
 
 
@@ -174,7 +175,7 @@ def test_lines_replaces_its_own_outputs_and_the_stale_temporaries(tmp_path):
     from ldlmap.errors import _host
     from tests._room_cloud import box_room
 
-    pts, _ = box_room(seed=1, size=(3.0, 2.5, 2.4), n_boxes=1, density=1500.0)
+    pts, _ = box_room(seed=1, size=(3.0, 2.5, 2.4), n_boxes=1, density=600.0)
     np.savetxt(tmp_path / "room.xyz.txt", pts, fmt="%.4f")
     dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True,
                           text=True).stdout.strip()

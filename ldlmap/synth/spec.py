@@ -46,10 +46,10 @@ MAX_ROOM_EXTENT = 100.0  # m, footprint width or depth
 MAX_CEILING = 20.0  # m
 MAX_VERTICES = 256  # footprint corners
 MAX_ITEMS = 200  # objects, openings and posters, each
-MAX_WIDTH = 4096  # px, panorama width: a render holds a few hundred bytes per pixel (about 2 GB at this width)
+MAX_WIDTH = 4096  # px, panorama width: a render holds about 450 bytes per pixel (about 4 GB at this width)
 MAX_COUNT = 1000  # panoramas per split
 MAX_BLUR_PX = 200.0  # px at W = 1024: motion blur averages one shifted copy per pixel of length
-MAX_SCAN_POINTS = 10_000_000  # scan points: about 150 bytes each while sampling (1.5 GB at this bound)
+MAX_SCAN_POINTS = 5_000_000  # scan points: about 600 bytes each while sampling (3 GB at this bound)
 MAX_DENSITY = 1e6  # scan points per m^2
 MAX_HOLES = 10_000
 MAX_STATIONS = 256
@@ -443,7 +443,7 @@ def _in_range(value: float, lo: float, hi: float, path: str, positive: bool = Fa
 
 
 def _validate_capture(c: CaptureSpec) -> None:
-    _in_range(c.width, 16, MAX_WIDTH, "capture.width", why="rendering holds a few hundred bytes per pixel")
+    _in_range(c.width, 16, MAX_WIDTH, "capture.width", why="rendering holds about 450 bytes per pixel")
     _positive(c.height, "capture.height")
     if c.width != 2 * c.height:
         raise InputError(f"spec field 'capture.width' must be twice capture.height, got {c.width}x{c.height}")
@@ -473,7 +473,7 @@ def _validate_scan(s: ScanSpec) -> None:
     _in_range(s.noise_std, 0, MAX_METRES, "scan.noise_std")
     _in_range(s.density, 0, MAX_DENSITY, "scan.density", positive=True)
     _in_range(s.max_points, 0, MAX_SCAN_POINTS, "scan.max_points", positive=True,
-              why="sampling holds about 150 bytes per point")
+              why="sampling holds about 600 bytes per point")
     if not 0 <= s.uneven <= 1:
         raise InputError(f"spec field 'scan.uneven' must be in [0, 1], got {s.uneven}")
     _in_range(s.holes, 0, MAX_HOLES, "scan.holes")
