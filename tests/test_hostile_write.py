@@ -65,6 +65,8 @@ REPLACING_INPUTS = [
     (["synth", "{r}/folder/..", "--overwrite"], "is not a dataset written by `ldlmap synth`"),
     (["synth", "{r}/ds"], "output folder is not empty"),
     (["synth", "{r}/notes.txt", "--overwrite"], "is not a folder"),
+    # A failed run leaves an existing output as it was (lines.txt: a line file it may replace).
+    (["lines", "{r}/scan.ply", "-o", "{r}/lines.obj"], "scan.ply"),
 ]
 
 
