@@ -11,7 +11,7 @@ from typing import Optional
 
 import typer
 
-from ldlmap.cli_common import console, make_app, ray_option
+from ldlmap.cli_common import check_device, check_range, console, make_app, ray_option
 
 app = make_app("ldlmap", "Build LDL maps (3D lines, principal directions, features) and synthetic datasets.")
 
@@ -113,16 +113,24 @@ def lines(
     no_filter: bool = typer.Option(False, "--no-filter", help="Write all extracted lines (no length filter)."),
     png: Optional[Path] = typer.Option(None, "--png", help="Also write a top-view picture of the lines "
                                        "(.png, .jpg, .jpeg, .bmp, .tif, .tiff, .webp)."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace existing output files that are not line "
+                                   "files (line files written before are replaced without it)."),
 ) -> None:
     """Extract 3D line segments from a point cloud and write them as .obj and .txt."""
-    from ldlmap.errors import LdlError
+    from ldlmap.errors import LdlError, refuse_overwriting_inputs, refuse_replacing_other_files
+    from ldlmap.io.linefiles import sniff_line_file
     from ldlmap.io.pointcloud import read_point_cloud
     from ldlmap.lines3d import draw_top_view, extract_lines_with_stats, filter_by_length, write_line_files
     from ldlmap.pictures import check_picture_path
     from ldlmap.principal3d import principal_directions_3d
 
+    check_range(lam, "--lambda", 0.0, 1.0)
     if png is not None:
         check_picture_path(png, "--png")
+    line_outputs = [output.with_suffix(".obj"), output.with_suffix(".txt")]
+    refuse_overwriting_inputs([input_path], [*line_outputs, png])
+    for path in line_outputs:
+        refuse_replacing_other_files(path, lambda p: sniff_line_file(p) is not None, "a 3D line file", overwrite)
     _refuse_line_file(input_path)
     pc = read_point_cloud(input_path)
     raw, stats = extract_lines_with_stats(pc.points)
@@ -160,7 +168,7 @@ def synth(
     preset: Optional[str] = typer.Option(None, "--preset", help="Random-room preset (demo, standard; multiroom: 4 demo rooms "
                                           "in one scan, one scene multiroom_1); default demo."),
     spec: Optional[list[Path]] = typer.Option(None, "--spec", help="Scene spec .toml (repeatable); replaces --preset."),
-    seed: int = typer.Option(0, "--seed", help="Random seed: same seed, identical files."),
+    seed: int = typer.Option(0, "--seed", help="Random seed in [0, 2**32): same seed, identical files."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace a non-empty OUT folder."),
     no_illumination: bool = typer.Option(False, "--no-illumination", help="Skip the extreme_* illumination splits."),
     width: Optional[int] = typer.Option(None, "--width", help="Panorama width (height = width / 2); default from the spec."),
@@ -170,11 +178,18 @@ def synth(
     """Generate a synthetic panoramic dataset: scans, meshes, 3D edges, panoramas with poses."""
     from rich.table import Table
 
-    from ldlmap.errors import InputError
-    from ldlmap.synth.generate import generate_dataset
+    from ldlmap.errors import InputError, refuse_overwriting_inputs
+    from ldlmap.synth.generate import MAX_PER_SPLIT, MAX_WIDTH, MIN_WIDTH, check_dataset_seed, generate_dataset, \
+        refuse_replacing_other_dataset
 
     if spec and preset:
         raise InputError("use either --preset or --spec, not both")
+    check_dataset_seed(seed)
+    check_range(width, "--width", MIN_WIDTH, MAX_WIDTH, integer=True,
+                why="rendering holds about 450 bytes per pixel")
+    check_range(per_split, "--per-split", 0, MAX_PER_SPLIT, integer=True)
+    refuse_overwriting_inputs(spec or [], [out])
+    refuse_replacing_other_dataset(out, overwrite)
     s = generate_dataset(out, preset=preset, spec_paths=spec or [], seed=seed, overwrite=overwrite,
                          progress=not quiet, illumination=not no_illumination, width=width, per_split=per_split)
     table = Table(title=f"synthetic dataset {s.out} (seed {s.seed}, {s.width}x{s.height})")
@@ -220,15 +235,24 @@ def build(
     device: str = typer.Option("cpu", "--device", help="Torch device for rendering and SuperPoint: cpu | cuda."),
     png: Optional[Path] = typer.Option(None, "--png", help="Also write a picture of the map (top view + panorama "
                                        "with lines; .png, .jpg, .jpeg, .bmp, .tif, .tiff, .webp)."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing output that is not an HDF5 "
+                                   "file (a map built before is replaced without it)."),
 ) -> None:
     """Build an LDL map (3D lines, principal directions, translations, features) from a scan."""
     from rich.table import Table
 
     from ldlmap.build import BuildParams, build_map, params_with
+    from ldlmap.errors import refuse_overwriting_inputs
     from ldlmap.pictures import check_picture_path
+    from ldlmap.prepare import refuse_replacing_non_map
 
+    check_build_options(num_trans=num_trans, num_views=num_views, lam=lam, min_length=min_length,
+                        trans_spacing=trans_spacing, scale=scale, device=device)
     if png is not None:
         check_picture_path(png, "--png")
+    output = output if output is not None else input_path.with_suffix(".h5")
+    refuse_overwriting_inputs([input_path, lines_file, images, weights], [output, png])
+    refuse_replacing_non_map(output, overwrite)
 
     params = params_with(BuildParams(), features=features, weights=str(weights) if weights else None,
                          num_translations=num_trans, translation_method=method, num_views=num_views, lam=lam,
@@ -260,6 +284,24 @@ def build(
 
         map_picture(read_map(report.path), png)
         console.print(f"wrote {png}", soft_wrap=True)
+
+
+MAX_TRANSLATIONS = 20_000  # N_t: the distance fields take ~50 kB per candidate (1 GB at this bound)
+MAX_VIEWS = 1000  # views rendered for features (40 by default; each costs a rendering and a feature pass)
+
+
+def check_build_options(num_trans: Optional[int] = None, num_views: Optional[int] = None, lam: Optional[float] = None,
+                        min_length: Optional[float] = None, trans_spacing: Optional[float] = None,
+                        scale: Optional[float] = None, device: str = "cpu") -> None:
+    """Bounds on the numeric options of `build` and `prepare` and the device, before any work."""
+    check_range(num_trans, "--num-trans", 1, MAX_TRANSLATIONS, integer=True,
+                why="the distance fields take about 50 kB per candidate translation")
+    check_range(num_views, "--num-views", 1, MAX_VIEWS, integer=True)
+    check_range(lam, "--lambda", 0.0, 1.0)
+    check_range(min_length, "--min-line-length", 0.0, 1000.0)
+    check_range(trans_spacing, "--trans-spacing", 1e-3, 1e6, why="input units between candidate translations")
+    check_range(scale, "--scale", 1e-6, 1e6, why="metres per input unit")
+    check_device(device)
 
 
 def _print_notes(report) -> None:
@@ -308,6 +350,8 @@ def prepare(
 
     if map_level not in MAP_LEVELS:
         raise InputError(f"--map-level must be {' or '.join(MAP_LEVELS)}, got {map_level!r}")
+    check_build_options(num_trans=num_trans, num_views=num_views, trans_spacing=trans_spacing, scale=scale,
+                        device=device)
     ds = open_dataset(root, dataset or (None if root else "omniscenes"), map_level=map_level)
     root, kind = Path(ds.root), ds.kind
     if kind == "zind":

@@ -139,6 +139,45 @@ def make_app(name: str, help: str) -> typer.Typer:
     return app
 
 
+def check_range(value: float | int | None, option: str, lo: float, hi: float, integer: bool = False,
+                why: str = "") -> None:
+    """Raise a one-line :class:`~ldlmap.errors.InputError` unless ``value`` (None passes) is a finite
+    number in ``[lo, hi]`` (``why``: what the bound protects, appended to the message); call it
+    before any work is done."""
+    import math
+
+    from ldlmap.errors import InputError
+
+    if value is None:
+        return
+    if not math.isfinite(value) or not lo <= value <= hi:
+        show = (lambda v: str(int(v))) if integer else (lambda v: f"{v:g}")
+        got = show(value) if math.isfinite(value) else str(value)
+        raise InputError(f"{option} must be {'an integer' if integer else 'a number'} in [{show(lo)}, {show(hi)}], "
+                         f"got {got}" + (f" ({why})" if why else ""))
+
+
+def check_device(device: str, option: str = "--device") -> None:
+    """``cpu``, or ``cuda`` / ``cuda:N`` on a machine where torch sees that GPU (checked before any work)."""
+    import re
+
+    from ldlmap.errors import InputError
+
+    m = re.fullmatch(r"cuda(?::(\d+))?", device)
+    if device == "cpu":
+        return
+    if m is None:
+        raise InputError(f"{option} must be cpu, cuda or cuda:N, got {device!r}")
+    import_heavy("torch")
+    import torch
+
+    count = torch.cuda.device_count() if torch.cuda.is_available() else 0
+    index = int(m.group(1) or 0)
+    if index >= count:
+        raise InputError(f"{option} {device}: " + ("no CUDA GPU is available here (torch sees none); use --device "
+                                                   "cpu" if count == 0 else f"this machine has {count} CUDA GPU(s)"))
+
+
 def ray_option():
     """``--ray ADDRESS`` of the batch commands (``prepare``, ``run``): run on a Ray cluster."""
     return typer.Option(None, "--ray", metavar="ADDRESS",

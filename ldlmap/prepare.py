@@ -28,7 +28,8 @@ from pathlib import Path
 from typing import Callable
 
 from ldlmap.build import BuildParams, BuildReport, build_lines_map, build_map
-from ldlmap.errors import InputError, LdlError
+from ldlmap.errors import HDF5_SIGNATURE, InputError, LdlError, refuse_overwriting_inputs, \
+    refuse_replacing_other_files, starts_with
 
 # Paper hyperparameters per dataset (supplementary): N_t and the translation sampling.
 DATASET_DEFAULTS = {
@@ -48,6 +49,12 @@ class SceneOutcome:
     status: str  # built | up-to-date | failed
     message: str = ""
     report: BuildReport | None = None
+
+
+def refuse_replacing_non_map(output: Path, overwrite: bool = False) -> None:
+    """An existing ``output`` is replaced by a build only when it is an HDF5 file (a map built
+    before), or with ``overwrite``; a folder never."""
+    refuse_replacing_other_files(output, lambda p: starts_with(p, HDF5_SIGNATURE), "an HDF5 map", overwrite)
 
 
 def default_params(kind: str, base: BuildParams = BuildParams()) -> BuildParams:
@@ -109,6 +116,8 @@ def prepare_dataset(root: str | Path, kind: str | None, maps_dir: str | Path | N
         target = maps_dir / f"{scene}.h5"
         try:
             sources, scene_params, build, note = _scene_build(ds, scene, use_line_files, params)
+            refuse_overwriting_inputs(sources, [target])
+            refuse_replacing_non_map(target, overwrite)
             inputs = None if ds.kind == "zind" else _inputs(sources, note)
             if not overwrite and is_up_to_date(target, sources, scene_params, inputs):
                 out.append(SceneOutcome(scene, target, "up-to-date", note))

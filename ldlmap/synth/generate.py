@@ -32,14 +32,17 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
-from ldlmap.errors import InputError, atomic_dir
+from ldlmap.errors import InputError, LdlError, atomic_dir
 from ldlmap.synth.poses import sample_poses
 from ldlmap.synth.render import Renderer, apply_illumination
+from ldlmap.synth.spec import MAX_COUNT as MAX_PER_SPLIT
+from ldlmap.synth.spec import MAX_WIDTH, SEED_LIMIT
 
 GENERATOR_VERSION = "1.0"
 BASE_SPLITS = ("robot", "handheld", "extreme", "change_robot", "change_handheld")
 ILLUMINATION_SPLITS = ("extreme_intensity", "extreme_gamma", "extreme_white_balance")
 JPEG_QUALITY = 95
+MIN_WIDTH = 16  # px, smallest panorama width
 _STREAM = {"scan": 1, "change": 2, "robot": 10, "handheld": 11, "extreme": 12, "change_robot": 13,
            "change_handheld": 14}
 
@@ -91,10 +94,10 @@ def capture_settings(capture: Any, width: int | None = None, per_split: int | No
         W, H = int(width), int(width) // 2
     else:
         W, H = int(capture.width), int(capture.height)
-    if W < 16 or W % 2 or H != W // 2:
-        raise InputError(f"panorama size must be W x W/2 with an even W >= 16, got {W} x {H}")
-    if any(n < 0 for n in counts.values()):
-        raise InputError("panorama counts per split must be >= 0")
+    if W < MIN_WIDTH or W > MAX_WIDTH or W % 2 or H != W // 2:
+        raise InputError(f"panorama size must be W x W/2 with an even W in [{MIN_WIDTH}, {MAX_WIDTH}], got {W} x {H}")
+    if any(not 0 <= n <= MAX_PER_SPLIT for n in counts.values()):
+        raise InputError(f"panorama counts per split must be in [0, {MAX_PER_SPLIT}], got {max(counts.values())}")
     blur = {s: float(v.blur_px) for s, v in views.items()}
     blur.update({f"change_{s}": blur[s] for s in ("robot", "handheld")})
     ill = capture.illumination
@@ -176,6 +179,29 @@ def write_split_panoramas(tmp: Path, name: str, spec: Any, idx: int, cap: Captur
     return written
 
 
+def check_dataset_seed(seed: int) -> None:
+    """A dataset seed in ``[0, 2**32)`` (the random streams take it as one 32-bit word)."""
+    if not 0 <= int(seed) < SEED_LIMIT:
+        raise InputError(f"--seed must be in [0, 2**32), got {seed}")
+
+
+def is_synth_dataset(folder: Path) -> bool:
+    """Whether ``folder`` holds a dataset written by :func:`generate_dataset` (its ``dataset.json``)."""
+    try:
+        return json.loads((Path(folder) / "dataset.json").read_text()).get("generator") == "ldlmap.synth"
+    except (OSError, ValueError, AttributeError):
+        return False
+
+
+def refuse_replacing_other_dataset(out: Path, overwrite: bool) -> None:
+    """``--overwrite`` replaces a synthetic dataset written before, never another non-empty folder
+    (a typo in OUT must not delete a user's files)."""
+    out = Path(out)
+    if overwrite and out.is_dir() and any(out.iterdir()) and not is_synth_dataset(out):
+        raise LdlError(f"output folder {out} is not a dataset written by `ldlmap synth` (no dataset.json of ours): "
+                       "--overwrite does not replace it; remove it yourself or choose another folder")
+
+
 def load_specs(preset: str | None, spec_paths: Sequence[Path], seed: int) -> list[tuple[str, Any]]:
     """``(room name, spec)`` pairs: the spec files when given (room = the spec's name), else
     ``random_spec(preset, seed, i)`` for the preset's scenes (room ``synthroom``)."""
@@ -199,6 +225,7 @@ def generate_dataset(out: Path, preset: str | None = "demo", spec_paths: Sequenc
     """
     from ldlmap.synth.multiroom import generate_multiroom, is_multiroom_preset
 
+    check_dataset_seed(seed)
     if not spec_paths and is_multiroom_preset(preset):
         return generate_multiroom(out, preset, seed, overwrite=overwrite, progress=progress,
                                   illumination=illumination, width=width, per_split=per_split)

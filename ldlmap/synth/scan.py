@@ -105,8 +105,9 @@ def sample_scan(mesh: SceneMesh, scan_spec: Any = None, rng: np.random.Generator
     points = points[keep]
     colors = renderer.surface_color(tri[keep], bary[keep], points)
     if p.holes > 0 and len(points):
-        centres = points[rng.choice(len(points), p.holes, replace=False)]
-        radii = rng.uniform(0.5 * p.hole_radius, p.hole_radius, p.holes)
+        holes = min(p.holes, len(points))  # a tiny scan cannot have more holes than points
+        centres = points[rng.choice(len(points), holes, replace=False)]
+        radii = rng.uniform(0.5 * p.hole_radius, p.hole_radius, holes)
         alive = np.ones(len(points), dtype=bool)
         for c, r in zip(centres, radii):
             alive &= np.einsum("nc,nc->n", points - c, points - c) > r * r

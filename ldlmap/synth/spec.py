@@ -41,6 +41,24 @@ PANEL_OFFSET = 0.01  # m, door/window panel in front of the wall
 POSTER_OFFSET = 0.005  # m, posters in front of the wall
 
 
+# Bounds on spec fields (checked before any work): beyond them a room takes unbounded memory or time.
+MAX_ROOM_EXTENT = 100.0  # m, footprint width or depth
+MAX_CEILING = 20.0  # m
+MAX_VERTICES = 256  # footprint corners
+MAX_ITEMS = 200  # objects, openings and posters, each
+MAX_WIDTH = 4096  # px, panorama width: a render holds about 450 bytes per pixel (about 4 GB at this width)
+MAX_COUNT = 1000  # panoramas per split
+MAX_BLUR_PX = 200.0  # px at W = 1024: motion blur averages one shifted copy per pixel of length
+MAX_SCAN_POINTS = 5_000_000  # scan points: about 600 bytes each while sampling (3 GB at this bound)
+MAX_DENSITY = 1e6  # scan points per m^2
+MAX_HOLES = 10_000
+MAX_STATIONS = 256
+MAX_CHANGES = 100  # objects moved, removed or added
+MAX_GAIN = 100.0  # illumination intensity, gamma and white-balance gains
+MAX_METRES = 100.0  # any other length (clearances, jitters, shifts, noise, hole radii, camera heights)
+SEED_LIMIT = 2**32  # seeds feed numpy streams as 32-bit words: 1 and 2**32 + 1 would give identical data
+
+
 # --------------------------------------------------------------------------------- dataclasses
 
 
@@ -272,7 +290,7 @@ def load_spec(path: str | os.PathLike) -> SceneSpec:
 def _make_ccw(spec: SceneSpec) -> SceneSpec:
     """Reverse a clockwise footprint, remapping wall indices and offsets."""
     fp = np.asarray(spec.footprint, dtype=np.float64)
-    if len(fp) < 3 or pg.simple_polygon_problem(fp) is not None or pg.signed_area(fp) > 0:
+    if not 3 <= len(fp) <= MAX_VERTICES or pg.simple_polygon_problem(fp) is not None or pg.signed_area(fp) > 0:
         return spec  # validation reports problems; counter-clockwise needs nothing
     k = len(fp)
     lengths = spec.wall_lengths()
@@ -319,15 +337,34 @@ def _non_negative(value: float, path: str) -> None:
         raise InputError(f"spec field '{path}' must be >= 0, got {value}")
 
 
+def _at_most(value: float, limit: float, path: str, why: str = "") -> None:
+    if not value <= limit:
+        raise InputError(f"spec field '{path}' must be at most {limit:g}, got {value:g}" + (f" ({why})" if why else ""))
+
+
+def _validate_size(spec: SceneSpec, fp: np.ndarray) -> None:
+    """Bounds that keep a room's memory and time finite: extent, corners, item counts, seed."""
+    extent = fp.max(axis=0) - fp.min(axis=0) if len(fp) else np.zeros(2)
+    _at_most(float(extent.max()), MAX_ROOM_EXTENT, "footprint", "room width or depth in metres")
+    _at_most(spec.ceiling_height, MAX_CEILING, "ceiling_height")
+    for key in ("objects", "openings", "posters"):
+        _at_most(len(getattr(spec, key)), MAX_ITEMS, key, "number of entries")
+    if not 0 <= spec.seed < SEED_LIMIT:
+        raise InputError(f"spec field 'seed' must be in [0, 2**32), got {spec.seed}")
+
+
 def validate_spec(spec: SceneSpec) -> None:
     """Raise :class:`InputError` naming the field when ``spec`` is not a valid scene."""
     if not spec.name or any(c in spec.name for c in "/\\ \t\n") or spec.name in (".", ".."):
         raise InputError(f"spec field 'name' must be a non-empty name without spaces or slashes, got {spec.name!r}")
     fp = np.asarray(spec.footprint, dtype=np.float64).reshape(-1, 2)
+    if len(fp) > MAX_VERTICES:  # before the simplicity check, quadratic in the corners
+        raise InputError(f"spec field 'footprint' has {len(fp)} corners, at most {MAX_VERTICES} are supported")
     problem = pg.simple_polygon_problem(fp)
     if problem is not None:
         raise InputError(f"spec field 'footprint' {problem}")
     _positive(spec.ceiling_height, "ceiling_height")
+    _validate_size(spec, fp)
     for key in ("wall_material", "floor_material", "ceiling_material"):
         if getattr(spec, key) not in MATERIALS:
             raise InputError(f"spec field '{key}' must be one of {', '.join(MATERIALS)}, got {getattr(spec, key)!r}")
@@ -398,41 +435,50 @@ def _check_no_overlap_on_wall(spans: list, box: tuple[float, float, float, float
     spans.append(box)
 
 
+def _in_range(value: float, lo: float, hi: float, path: str, positive: bool = False, why: str = "") -> None:
+    """``value`` in ``[lo, hi]`` (``(lo, hi]`` when ``positive``), else a one-line error naming the field."""
+    if not (value > lo if positive else value >= lo):
+        raise InputError(f"spec field '{path}' must be {'>' if positive else '>='} {lo:g}, got {value}")
+    _at_most(value, hi, path, why)
+
+
 def _validate_capture(c: CaptureSpec) -> None:
-    _positive(c.width, "capture.width")
+    _in_range(c.width, 16, MAX_WIDTH, "capture.width", why="rendering holds about 450 bytes per pixel")
     _positive(c.height, "capture.height")
     if c.width != 2 * c.height:
         raise InputError(f"spec field 'capture.width' must be twice capture.height, got {c.width}x{c.height}")
-    _non_negative(c.min_clearance, "capture.min_clearance")
+    _in_range(c.min_clearance, 0, MAX_METRES, "capture.min_clearance")
     for name in ("robot", "handheld", "extreme"):
         v: ViewSpec = getattr(c, name)
-        _non_negative(v.count, f"capture.{name}.count")
-        _positive(v.camera_height, f"capture.{name}.camera_height")
-        _non_negative(v.height_jitter, f"capture.{name}.height_jitter")
-        _non_negative(v.blur_px, f"capture.{name}.blur_px")
+        _in_range(v.count, 0, MAX_COUNT, f"capture.{name}.count")
+        _in_range(v.camera_height, 0, MAX_METRES, f"capture.{name}.camera_height", positive=True)
+        _in_range(v.height_jitter, 0, MAX_METRES, f"capture.{name}.height_jitter")
+        _in_range(v.blur_px, 0, MAX_BLUR_PX, f"capture.{name}.blur_px")
         if not 0 <= v.max_tilt_deg <= 180:
             raise InputError(f"spec field 'capture.{name}.max_tilt_deg' must be in [0, 180], got {v.max_tilt_deg}")
     ch = c.change
-    for key in ("count", "moved", "removed", "added"):
-        _non_negative(getattr(ch, key), f"capture.change.{key}")
-    _non_negative(ch.max_shift, "capture.change.max_shift")
-    _non_negative(ch.max_turn_deg, "capture.change.max_turn_deg")
+    _in_range(ch.count, 0, MAX_COUNT, "capture.change.count")
+    for key in ("moved", "removed", "added"):
+        _in_range(getattr(ch, key), 0, MAX_CHANGES, f"capture.change.{key}")
+    _in_range(ch.max_shift, 0, MAX_METRES, "capture.change.max_shift")
+    _in_range(ch.max_turn_deg, 0, 180, "capture.change.max_turn_deg")
     il = c.illumination
-    _positive(il.intensity, "capture.illumination.intensity")
-    _positive(il.gamma, "capture.illumination.gamma")
+    _in_range(il.intensity, 0, MAX_GAIN, "capture.illumination.intensity", positive=True)
+    _in_range(il.gamma, 0, MAX_GAIN, "capture.illumination.gamma", positive=True)
     for j, g in enumerate(il.white_balance):
-        _positive(g, f"capture.illumination.white_balance[{j}]")
+        _in_range(g, 0, MAX_GAIN, f"capture.illumination.white_balance[{j}]", positive=True)
 
 
 def _validate_scan(s: ScanSpec) -> None:
-    _non_negative(s.noise_std, "scan.noise_std")
-    _positive(s.density, "scan.density")
-    _positive(s.max_points, "scan.max_points")
+    _in_range(s.noise_std, 0, MAX_METRES, "scan.noise_std")
+    _in_range(s.density, 0, MAX_DENSITY, "scan.density", positive=True)
+    _in_range(s.max_points, 0, MAX_SCAN_POINTS, "scan.max_points", positive=True,
+              why="sampling holds about 600 bytes per point")
     if not 0 <= s.uneven <= 1:
         raise InputError(f"spec field 'scan.uneven' must be in [0, 1], got {s.uneven}")
-    _non_negative(s.holes, "scan.holes")
-    _non_negative(s.hole_radius, "scan.hole_radius")
-    _positive(s.stations, "scan.stations")
+    _in_range(s.holes, 0, MAX_HOLES, "scan.holes")
+    _in_range(s.hole_radius, 0, MAX_METRES, "scan.hole_radius")
+    _in_range(s.stations, 0, MAX_STATIONS, "scan.stations", positive=True)
 
 
 # ------------------------------------------------------------------------------ spec -> TOML
