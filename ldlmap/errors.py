@@ -16,7 +16,7 @@ import os
 import shutil
 import tempfile
 from pathlib import Path
-from typing import Iterator
+from typing import Iterable, Iterator
 
 
 class LdlError(Exception):
@@ -39,6 +39,41 @@ def require_file(path: str | os.PathLike, what: str = "file") -> Path:
     if not p.is_file():
         raise InputError(f"{what} is not a file: {p}")
     return p
+
+
+def _same_path(a: Path, b: Path) -> bool:
+    """Whether ``a`` and ``b`` name the same file or folder (symlinks resolved, hard links too)."""
+    if a.resolve() == b.resolve():
+        return True
+    try:
+        return a.exists() and b.exists() and os.path.samefile(a, b)
+    except OSError:
+        return False
+
+
+def _holds(folder: Path, path: Path) -> bool:
+    """Whether ``path`` lies inside ``folder`` (both resolved; ``folder`` itself excluded)."""
+    return folder.resolve() in path.resolve().parents
+
+
+def refuse_overwriting_inputs(inputs: Iterable[str | os.PathLike], outputs: Iterable[str | os.PathLike]) -> None:
+    """Raise :class:`LdlError` when writing ``outputs`` would replace one of ``inputs``.
+
+    ``outputs`` lists every path a command writes, the files it writes beside its main output
+    included (``ldlmap lines`` writes a ``.txt`` beside the ``.obj``); an output that is the same
+    file as an input (same resolved path, a symlink or a hard link to it), or a folder the command
+    replaces that holds an input, is refused in one line naming both. ``None`` entries are skipped.
+    Call it before any work is done.
+    """
+    ins = [Path(p) for p in inputs if p is not None]
+    for out in (Path(p) for p in outputs if p is not None):
+        for src in ins:
+            if _same_path(out, src):
+                raise LdlError(f"output {out} would replace the input {src}; write it elsewhere (another name "
+                               "or folder)")
+            if _holds(out, src):
+                raise LdlError(f"output {out} would replace the folder that holds the input {src}; write it "
+                               "elsewhere")
 
 
 def _umask() -> int:
