@@ -443,7 +443,7 @@ class ResultsWriter:
     def _sync_csv(self) -> None:
         """Rewrite the CSV when it does not match the JSON (a run killed between the two writes)."""
         try:
-            current = self.csv_path.read_text()
+            current = self.csv_path.read_bytes().decode()  # as written: csv rows end in \r\n
         except (OSError, UnicodeDecodeError):
             current = None
         if current != results_csv(self.results):
