@@ -32,16 +32,45 @@ MAX_TILT = typer.Option(None, "--max-tilt", metavar="DEG",
                              "10 by default for datasets whose panoramas are upright (zind).")
 
 
-def _set_threads(threads: int) -> None:
-    """Torch intra-op threads (0: torch's default). On a CPU shared with other work, 1 is faster."""
+MAX_THREADS = 1024  # --threads above this is a typo (100000 made torch segfault)
+MAX_TOP_K = 1000  # --top-k: each kept pose is refined; more than this is a typo, not a method
+
+
+def _check_threads(threads: int) -> int:
+    """``--threads`` within 0..:data:`MAX_THREADS`, checked before torch sees it."""
     from ldlmap.errors import InputError
 
-    if threads < 0:
-        raise InputError(f"--threads must be >= 0, got {threads}")
-    if threads:
+    if not 0 <= threads <= MAX_THREADS:
+        raise InputError(f"--threads must be 0 (torch's default) to {MAX_THREADS}, got {threads}")
+    return threads
+
+
+def _set_threads(threads: int) -> None:
+    """Torch intra-op threads (0: torch's default). On a CPU shared with other work, 1 is faster."""
+    if _check_threads(threads):
         import torch
 
         torch.set_num_threads(threads)
+
+
+def _check_device(device: str, local: bool = True) -> str:
+    """``--device``: cpu, cuda or cuda:N; with ``local`` (the work runs here), CUDA must be available."""
+    import re
+
+    from ldlmap.errors import InputError
+
+    if device != "cpu" and not re.fullmatch(r"cuda(:\d{1,3})?", device):
+        raise InputError(f"--device must be cpu, cuda or cuda:N, got {device!r}")
+    if device != "cpu" and local:
+        import_heavy("torch")
+        import torch
+
+        if not torch.cuda.is_available():
+            raise InputError("CUDA is not available here (no GPU, or torch built without CUDA); use --device cpu")
+        index = int(device.split(":")[1]) if ":" in device else 0
+        if index >= torch.cuda.device_count():
+            raise InputError(f"--device {device}: this machine has {torch.cuda.device_count()} CUDA device(s)")
+    return device
 
 
 def _params(top_k: int, loss: str, no_decompose: bool, no_refine: bool, privacy: bool,
@@ -54,8 +83,8 @@ def _params(top_k: int, loss: str, no_decompose: bool, no_refine: bool, privacy:
 
     if loss not in LOSS_KINDS:
         raise InputError(f"unknown loss {loss!r}; valid: {', '.join(LOSS_KINDS)}")
-    if top_k < 1:
-        raise InputError(f"--top-k must be at least 1, got {top_k}")
+    if not 1 <= top_k <= MAX_TOP_K:
+        raise InputError(f"--top-k must be 1 to {MAX_TOP_K}, got {top_k}")
     from ldlloc.pipeline import REFINE_MODES
 
     if refine not in REFINE_MODES:
@@ -105,11 +134,16 @@ def localize(
     from ldlmap.datasets import read_pose_file
     from ldlmap.pictures import check_picture_path
 
+    from ldlmap.errors import refuse_overwriting_inputs
+
     params = _params(top_k, loss, no_decompose, no_refine, privacy, features, weights, max_tilt, refine)
+    _check_threads(threads)
     if vis is not None:
         check_picture_path(vis, "--vis")
+        refuse_overwriting_inputs([map_path, pano, gt, weights], [vis])
     truth = read_pose_file(gt) if gt is not None else None
     img = load_image(pano)
+    _check_device(device)
     m, loading = _read_map_while_importing(map_path, threads)
     tick = time.perf_counter()
     localizer = Localizer(m, params, device)
@@ -128,16 +162,18 @@ def localize(
     in_pose = loc.input_frame_pose()  # maps built from another frame (SfM): the pose there too
     if in_pose is not None:
         out["input_frame"] = {"R": np.round(in_pose[0], 8).tolist(), "t": np.round(in_pose[1], 6).tolist()}
-    if vis is not None:
-        from ldlloc.visualize import save_localization_picture
+    if vis is not None:  # a picture that cannot be written is a warning: the result stands
+        from ldlloc.run import write_query_picture
 
-        save_localization_picture(img, loc, m, vis)
+        out["picture_error"] = write_query_picture(img, loc, m, vis)
     if as_json:
         typer.echo(json.dumps(out, indent=1))
         return
     _print_localization(pano, loc, loading, out if truth is not None else None, gt)
-    if vis is not None:
+    if vis is not None and out["picture_error"] is None:
         console.print(f"wrote {vis}", soft_wrap=True)
+    elif vis is not None:
+        console.print(f"[yellow]warning:[/] picture {vis} not written ({out['picture_error']})", soft_wrap=True)
 
 
 def _read_map_while_importing(map_path: Path, threads: int):
@@ -202,7 +238,8 @@ def run(
     split: Optional[list[str]] = typer.Option(None, "--split", help="Split(s) to run (repeatable; default all)."),
     scene: Optional[str] = typer.Option(None, "--scene", help="Only queries of this scene."),
     maps: Optional[Path] = typer.Option(None, "--maps", help="Folder of the maps (default ROOT/maps)."),
-    output: Optional[Path] = typer.Option(None, "--output", "-o", help="Results JSON (a CSV is written beside it)."),
+    output: Optional[Path] = typer.Option(None, "--output", "-o", help="Results JSON, a .json name (a CSV of the "
+                                          "same name is written beside it; a run holds NAME.json.lock while it writes)."),
     device: str = DEVICE,
     top_k: int = TOP_K,
     loss: str = LOSS,
@@ -213,7 +250,10 @@ def run(
     features: Optional[str] = FEATURES,
     weights: Optional[Path] = WEIGHTS,
     max_tilt: Optional[float] = MAX_TILT,
-    resume: bool = typer.Option(False, "--resume", help="Skip queries already in the results file."),
+    resume: bool = typer.Option(False, "--resume", help="Skip queries already in the results file, retry its failed "
+                                "ones; refuses options other than the file's (see --resume-any-options)."),
+    resume_any_options: bool = typer.Option(False, "--resume-any-options", help="With --resume: allow options other "
+                                            "than the file's (the file's meta records the earlier ones)."),
     save_vis: Optional[Path] = typer.Option(None, "--save-vis", help="Write a picture per query into this folder."),
     threads: int = THREADS,
     ray: Optional[str] = ray_option(),
@@ -221,12 +261,17 @@ def run(
     """Localize every query of a dataset split (or all splits) and print accuracy tables.
 
     With --ray, one Ray actor per scene map serves its queries (one GPU each with --device cuda)."""
-    from ldlloc.evaluate import summary_table, timing_table
+    from ldlloc.evaluate import check_results_path, summary_table, timing_table
     from ldlloc.run import run_queries
     from ldlmap.datasets import open_dataset
     from ldlmap.errors import InputError
 
     params = _params(top_k, loss, no_decompose, no_refine, privacy, features, weights, max_tilt, refine)
+    _check_threads(threads)
+    if output is not None:
+        check_results_path(output)
+    if resume_any_options and not resume:
+        raise InputError("--resume-any-options goes with --resume")
     from ldlmap.datasets import MAP_LEVELS
 
     if map_level is not None and map_level not in MAP_LEVELS:
@@ -237,20 +282,24 @@ def run(
     queries = ds.queries(split or None, scene)
     if not queries:
         raise InputError(f"no queries in {root} for split(s) {', '.join(split or ['all'])}")
-    _set_threads(threads)
     tag = "-".join(split) if split else "all"
     output = output or Path("results") / f"{kind}_{tag}.json"
     maps = maps or Path(root) / "maps"
+    _refuse_replacing_run_inputs(queries, maps, output, save_vis, weights)
+    _check_device(device, local=ray is None)
+    _set_threads(threads)
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
     args = (queries, maps, output, params, device, resume, save_vis)
     meta = {"dataset": kind, "root": str(root), "splits": split or "all", **level}
+    say = lambda message: console.print(message, soft_wrap=True, highlight=False)  # noqa: E731
+    opts = {"meta": meta, "any_options": resume_any_options, "say": say}
     if ray is not None:  # one Ray actor per scene map (ldlloc/distributed.py)
         from ldlloc.distributed import run_queries_ray
         from ldlmap.cluster import ThroughputBar
 
         with ThroughputBar(console, "localizing") as bar:
-            results = run_queries_ray(*args, meta=meta, progress=bar, address=ray, threads=threads)
+            results = run_queries_ray(*args, **opts, progress=bar, address=ray, threads=threads)
     else:
         with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(),
                       console=console, transient=True) as bar:
@@ -260,7 +309,7 @@ def run(
                 err = "failed" if r.status == "failed" else f"{r.t_error_m:.3f} m {r.r_error_deg:.2f} deg"
                 bar.update(task, advance=1, description=f"{r.split} {r.scene}: {err}")
 
-            results = run_queries(*args, meta=meta, progress=progress)
+            results = run_queries(*args, **opts, progress=progress)
     console.print(summary_table(results, "scene", f"{kind} by scene"))
     console.print(summary_table(results, "split", f"{kind} by split"))
     console.print(timing_table(results))
@@ -273,7 +322,31 @@ def run(
         console.print(f"[yellow]failed[/] {r.name}: {r.message}", soft_wrap=True)
     if len(failed) > 10:
         console.print(f"... and {len(failed) - 10} more failures (see {output})", soft_wrap=True)
-    console.print(f"wrote {output} and {output.with_suffix('.csv')}", soft_wrap=True)
+    no_picture = [r for r in results if r.picture_error]
+    if no_picture:
+        console.print(f"[yellow]warning:[/] {len(no_picture)} pictures not written (first: {no_picture[0].picture_error}); "
+                      f"their results are kept", soft_wrap=True)
+    csv_path = output.with_suffix(".csv")
+    console.print(f"wrote {output}" + (f" and {csv_path}" if csv_path.exists() else f" ({csv_path} not written)"),
+                  soft_wrap=True)
+
+
+def _refuse_replacing_run_inputs(queries: list, maps: Path, output: Path, save_vis: Optional[Path],
+                                 weights: Optional[Path]) -> None:
+    """One line, before any work, when the results or a picture would replace a panorama, a pose file or
+    a map of the run."""
+    from ldlloc.evaluate import results_outputs
+    from ldlloc.run import picture_path
+    from ldlmap.errors import refuse_overwriting_inputs
+
+    inputs = [p for p in (weights, *{maps / f"{q.scene}.h5" for q in queries}, *{q.pose_file for q in queries},
+                          *(q.image for q in queries)) if p is not None]
+    refuse_overwriting_inputs(inputs, results_outputs(output))
+    if save_vis is not None:  # one picture per query: compare resolved paths in a set, not pair by pair
+        resolved = {p.resolve(): p for p in inputs}
+        pictures = {picture_path(save_vis, q).resolve(): picture_path(save_vis, q) for q in queries}
+        clash = resolved.keys() & pictures.keys()
+        refuse_overwriting_inputs([resolved[k] for k in clash], [pictures[k] for k in clash])
 
 
 def _print_search_summary(results) -> None:

@@ -28,7 +28,7 @@ from typing import Callable
 
 from ldlloc.evaluate import QueryResult, ResultsWriter
 from ldlloc.pipeline import LocalizeParams
-from ldlloc.run import MapCache, failed_result, localize_query, query_key, run_meta
+from ldlloc.run import MapCache, failed_result, localize_query, open_results, query_key
 from ldlmap.cluster import RETRIES, TaskDone, WorkerInfo, as_completed, check_resources, current_worker, \
     enter_folder, failure_reason, ray_session, stop
 
@@ -64,10 +64,18 @@ def _label(r: QueryResult) -> str:
 def run_queries_ray(queries: list, maps_dir: str | Path, output: str | Path, params: LocalizeParams = LocalizeParams(),
                     device: str = "cpu", resume: bool = False, save_vis: str | Path | None = None,
                     meta: dict | None = None, progress: Callable[[TaskDone], None] | None = None,
-                    address: str = "local", threads: int = 0) -> list[QueryResult]:
+                    address: str = "local", threads: int = 0, any_options: bool = False,
+                    say: Callable[[str], None] | None = None) -> list[QueryResult]:
     """:func:`ldlloc.run.run_queries` on a Ray cluster (``address``: see
     :data:`ldlmap.cluster.ADDRESS_HELP`); ``threads``: torch threads (and CPUs) per actor."""
-    writer = ResultsWriter(output, meta=run_meta(params, device, meta), resume=resume)
+    with open_results(output, params, device, meta, resume, any_options, queries, say) as writer:
+        return _run_on_ray(writer, queries, maps_dir, params, device, save_vis, progress, address, threads)
+
+
+def _run_on_ray(writer: ResultsWriter, queries: list, maps_dir: str | Path, params: LocalizeParams, device: str,
+                save_vis: str | Path | None, progress: Callable[[TaskDone], None] | None, address: str,
+                threads: int) -> list[QueryResult]:
+    """The body of :func:`run_queries_ray`, writing through the open (locked) ``writer``."""
     done = writer.done()
     todo = [q for q in sorted(queries, key=query_key) if q.name not in done]
     if not todo:  # everything is in the results file already: nothing to start

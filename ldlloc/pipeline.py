@@ -118,20 +118,72 @@ class Localization:
 REFINE_MODES = ("auto", "features", "geometric", "both", "none")
 
 
+WORK_WIDTH = 2048  # panoramas wider than this are resized to WORK_WIDTH x WORK_WIDTH / 2 on reading
+# (the real panoramas the defaults were tuned on are 2048 x 1024; an 8192 x 4096 one overflowed
+# OpenCV's remap and would only cost time)
+MAX_PANORAMA_WIDTH = 16384  # larger panoramas are refused before decoding (16384 x 8192: 400 MB decoded)
+MIN_PANORAMA_WIDTH = 64  # smaller ones hold no lines to speak of
+
+
 def load_image(path: str | Path) -> np.ndarray:
-    """Read an RGB panorama (uint8, W = 2 H); one-line errors for missing or broken images."""
+    """Read an RGB panorama (uint8, W = 2 H) at the working resolution: one wider than
+    :data:`WORK_WIDTH` is resized to it (``INTER_AREA``) right after decoding. Grey, 16-bit and
+    RGBA images are converted; missing, unreadable, empty, corrupt, truncated, absurdly large or
+    tiny images, and those not 2:1, are one-line :class:`InputError`\\ s."""
+    import os
+
     import cv2
 
     from ldlmap.errors import require_file
 
     p = require_file(path, "image")
+    if not os.access(p, os.R_OK):
+        raise InputError(f"cannot read image (permission denied): {p}")
+    if p.stat().st_size == 0:
+        raise InputError(f"image file is empty: {p}")
+    header = _image_header_size(p)
+    if header is not None and max(header) > MAX_PANORAMA_WIDTH:  # before decoding it (EXIF may turn it)
+        _check_panorama_size(header, p)
     img = cv2.imread(str(p), cv2.IMREAD_COLOR)
     if img is None:
         raise InputError(f"cannot decode image (corrupt or unsupported format): {p}")
-    h, w = img.shape[:2]
+    _check_panorama_size((img.shape[1], img.shape[0]), p)
+    if img.shape[1] > WORK_WIDTH:
+        img = cv2.resize(img, (WORK_WIDTH, WORK_WIDTH // 2), interpolation=cv2.INTER_AREA)
+    return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+
+
+def _check_panorama_size(size: tuple[int, int], p: Path) -> None:
+    """One-line errors for a (width, height) that is too large, not 2:1 or too small."""
+    w, h = size
+    if max(w, h) > MAX_PANORAMA_WIDTH:
+        raise InputError(f"panorama too large: {p} is {w}x{h} (at most {MAX_PANORAMA_WIDTH}x"
+                         f"{MAX_PANORAMA_WIDTH // 2}; it is resized to {WORK_WIDTH}x{WORK_WIDTH // 2} anyway)")
     if w != 2 * h:
         raise InputError(f"not an equirectangular panorama (width must be 2 x height): {p} is {w}x{h}")
-    return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+    if w < MIN_PANORAMA_WIDTH:
+        raise InputError(f"panorama too small: {p} is {w}x{h} (at least {MIN_PANORAMA_WIDTH}x{MIN_PANORAMA_WIDTH // 2})")
+
+
+def _image_header_size(p: Path) -> tuple[int, int] | None:
+    """(width, height) from a PNG or JPEG header, read before decoding (None: another format, or
+    no size found); raises for a JPEG without its end marker (truncated)."""
+    with open(p, "rb") as f:
+        head = f.read(1 << 16)
+        if head.startswith(b"\x89PNG\r\n\x1a\n") and len(head) >= 24 and head[12:16] == b"IHDR":
+            return int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big")
+        if not head.startswith(b"\xff\xd8"):
+            return None
+        f.seek(max(0, p.stat().st_size - 4096))
+        if b"\xff\xd9" not in f.read():
+            raise InputError(f"truncated JPEG (no end marker): {p}")
+    i = 2
+    while i + 9 <= len(head) and head[i] == 0xFF:  # JPEG segments up to the frame header (SOFn)
+        marker, length = head[i + 1], int.from_bytes(head[i + 2:i + 4], "big")
+        if 0xC0 <= marker <= 0xCF and marker not in (0xC4, 0xC8, 0xCC):
+            return int.from_bytes(head[i + 7:i + 9], "big"), int.from_bytes(head[i + 5:i + 7], "big")
+        i += 2 + length
+    return None
 
 
 class Localizer:

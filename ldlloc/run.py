@@ -2,9 +2,12 @@
 
 Each query is localized against the map of its scene (``<maps>/<scene>.h5``, as written by
 ``ldlmap prepare``). A query that cannot be localized (missing map or image, corrupt image, no
-lines, wrong feature backend) becomes a ``failed`` record with its message, and the run goes on.
-Results are written after every query (:class:`ldlloc.evaluate.ResultsWriter`), so an
-interrupted run loses nothing and ``resume`` skips the queries already done.
+lines, wrong feature backend, or any other error) becomes a ``failed`` record with its message,
+and the run goes on; a ``--save-vis`` picture that cannot be written is a warning recorded beside
+the result (``picture_error``), never a failed query. Results are written after every query
+(:class:`ldlloc.evaluate.ResultsWriter`, under its lock), so an interrupted run loses nothing and
+``resume`` skips the queries already done and retries the failed ones (a map built since, a
+panorama fixed).
 
 Upright prior per query (:func:`max_tilt_for`): ``params.max_tilt_deg`` (``--max-tilt``) when
 given, always (180: free rotation); otherwise :data:`ldlloc.pipeline.UPRIGHT_MAX_TILT_DEG` for
@@ -115,7 +118,9 @@ def failed_result(q, params: LocalizeParams, message: str, seconds: float | None
 
 
 def localize_query(cache: MapCache, q, params: LocalizeParams, save_vis: str | Path | None = None) -> QueryResult:
-    """Localize one dataset query against its scene's map; an :class:`LdlError` becomes a failed record."""
+    """Localize one dataset query against its scene's map. Any error (a toolkit error, or anything
+    else a bad panorama or map provokes) becomes this query's ``failed`` record, never the run's
+    end; a picture that cannot be written is recorded (``picture_error``) beside the result."""
     t0 = time.perf_counter()
     tilt = max_tilt_for(q, params)
     try:
@@ -123,29 +128,64 @@ def localize_query(cache: MapCache, q, params: LocalizeParams, save_vis: str | P
         img = load_image(q.image)
         res = loc.localize(img, max_tilt_deg=180.0 if tilt is None else tilt)
         r = result_from_localization(q, res)
-        if save_vis is not None:
-            from ldlloc.visualize import save_localization_picture
-
-            save_localization_picture(img, res, loc.map, Path(save_vis) / q.split / f"{q.scene}_{Path(q.image).stem}.jpg")
     except LdlError as exc:
-        r = failed_result(q, params, str(exc), time.perf_counter() - t0)
+        return failed_result(q, params, str(exc), time.perf_counter() - t0)
+    except Exception as exc:  # noqa: BLE001 - e.g. cv2.error, MemoryError: one query's failure, not the run's
+        return failed_result(q, params, f"internal error ({type(exc).__name__}: {exc})", time.perf_counter() - t0)
+    if save_vis is not None:
+        r.picture_error = write_query_picture(img, res, loc.map, picture_path(save_vis, q))
     return r
+
+
+def picture_path(save_vis: str | Path, q) -> Path:
+    """Where ``--save-vis`` writes the picture of query ``q``."""
+    return Path(save_vis) / q.split / f"{q.scene}_{Path(q.image).stem}.jpg"
+
+
+def write_query_picture(img: np.ndarray, res: Localization, ldl_map, path: Path) -> str | None:
+    """Write a query's picture; returns why it could not be written (None when written)."""
+    from ldlloc.visualize import save_localization_picture
+
+    try:
+        save_localization_picture(img, res, ldl_map, path)
+    except (LdlError, OSError) as exc:
+        return getattr(exc, "strerror", None) or str(exc)
+    return None
 
 
 def run_queries(queries: list, maps_dir: str | Path, output: str | Path, params: LocalizeParams = LocalizeParams(),
                 device: str = "cpu", resume: bool = False, save_vis: str | Path | None = None,
-                meta: dict | None = None, progress: Callable[[QueryResult], None] | None = None) -> list[QueryResult]:
+                meta: dict | None = None, progress: Callable[[QueryResult], None] | None = None,
+                any_options: bool = False, say: Callable[[str], None] | None = None) -> list[QueryResult]:
     """Localize ``queries`` (from :mod:`ldlmap.datasets`) and write results as they finish.
 
-    :func:`ldlloc.distributed.run_queries_ray` does the same on a Ray cluster."""
-    writer = ResultsWriter(output, meta=run_meta(params, device, meta), resume=resume)
-    done = writer.done()
-    cache = MapCache(Path(maps_dir), params, device)
-    for q in sorted(queries, key=query_key):
-        if q.name in done:
-            continue
-        r = localize_query(cache, q, params, save_vis)
-        writer.add(r)
-        if progress:
-            progress(r)
-    return writer.results
+    ``resume``: skip the queries the results file holds, except failed ones (retried); refuses
+    other options than the file's unless ``any_options``. ``say``: where warnings and the resume
+    summary go (one line each). :func:`ldlloc.distributed.run_queries_ray` does the same on a Ray
+    cluster."""
+    with open_results(output, params, device, meta, resume, any_options, queries, say) as writer:
+        done = writer.done()
+        cache = MapCache(Path(maps_dir), params, device)
+        for q in sorted(queries, key=query_key):
+            if q.name in done:
+                continue
+            r = localize_query(cache, q, params, save_vis)
+            writer.add(r)
+            if progress:
+                progress(r)
+        return writer.results
+
+
+def open_results(output: str | Path, params: LocalizeParams, device: str, meta: dict | None, resume: bool,
+                 any_options: bool, queries: list, say: Callable[[str], None] | None) -> ResultsWriter:
+    """The locked :class:`ResultsWriter` of a run; on ``resume`` says how many of ``queries`` are
+    done and how many failed ones are retried."""
+    writer = ResultsWriter(output, meta=run_meta(params, device, meta), resume=resume, any_options=any_options,
+                           warn=say)
+    if resume and say is not None:
+        names = {q.name for q in queries}
+        done, retry = len(writer.done() & names), len(writer.failed() & names)
+        say(f"resuming {writer.path}: {done} of {len(names)} queries done, {len(names) - done - retry} to run, "
+            f"{retry} failed ones retried" + (" (options mixed: --resume-any-options)" if any_options
+                                                and "mixed_options" in writer.meta else ""))
+    return writer

@@ -89,6 +89,7 @@ class Query:
     name: str = ""  # stable id, e.g. ``extreme/room_1_scene_2/00012``
     scene_state: str = ""  # ``scene_2`` (OmniScenes capture session), the Stanford area or the ZInD home
     upright: bool = False  # captured upright (ZInD): localization may use an upright rotation prior
+    pose_file: Path | None = None  # where the ground truth was read (never to be written over)
 
 
 @runtime_checkable
@@ -126,18 +127,30 @@ def _check_pose(R: np.ndarray, t: np.ndarray, source: Path) -> None:
                          f"det = {np.linalg.det(R):.3g}): {source}")
 
 
+MAX_POSE_BYTES = 1 << 20  # a pose file is a few hundred bytes; a larger one is not a pose file
+
+
+def _read_pose_text(p: Path) -> str:
+    """The text of pose file ``p``; one-line errors for a missing, unreadable, binary or huge file."""
+    try:
+        if p.is_dir():
+            raise InputError(f"pose file is a folder: {p}")
+        if p.stat().st_size > MAX_POSE_BYTES:
+            raise InputError(f"not a pose file ({p.stat().st_size} bytes; a pose file is a few hundred): {p}")
+        return p.read_text()
+    except FileNotFoundError:
+        raise InputError(f"pose file not found: {p}") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"cannot read pose file {p}: {getattr(exc, 'strerror', None) or exc}") from None
+
+
 def read_pose_txt(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     """Read an OmniScenes pose file: a 3x4 ``[R | t]`` (a 4x4 with last row 0 0 0 1 is accepted).
 
     Returns ``(R, t)`` exactly as stored (R world->camera, t camera centre).
     """
     p = Path(path)
-    try:
-        text = p.read_text()
-    except FileNotFoundError:
-        raise InputError(f"pose file not found: {p}") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"cannot read pose file {p}: {exc}") from None
+    text = _read_pose_text(p)
     rows = [line.replace(",", " ").split() for line in text.splitlines()]
     rows = [r for r in rows if r and not r[0].startswith("#")]
     try:
@@ -147,8 +160,8 @@ def read_pose_txt(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     if M.shape == (4, 4) and np.allclose(M[3], [0, 0, 0, 1]):
         M = M[:3]
     if M.shape != (3, 4):
-        raise InputError(f"malformed pose file (expected a 3x4 [R | t] matrix, got shape "
-                         f"{'x'.join(map(str, M.shape)) if M.ndim == 2 else 'ragged'}): {p}")
+        got = "x".join(map(str, M.shape)) if M.ndim == 2 else "empty" if M.size == 0 else "ragged"
+        raise InputError(f"malformed pose file (expected a 3x4 [R | t] matrix, got {got}): {p}")
     R, t = M[:, :3].copy(), M[:, 3].copy()
     _check_pose(R, t, p)
     return R, t
@@ -183,11 +196,11 @@ def read_stanford_pose(path: str | Path, alignment: str | Path | None = None) ->
     """
     p = Path(path)
     try:
-        data = json.loads(p.read_text())
-    except FileNotFoundError:
-        raise InputError(f"pose file not found: {p}") from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise InputError(f"cannot read pose JSON {p}: {exc}") from None
+        data = json.loads(_read_pose_text(p))
+    except (json.JSONDecodeError, RecursionError) as exc:
+        raise InputError(f"cannot read pose JSON {p}: {exc if isinstance(exc, ValueError) else 'nested too deeply'}") from None
+    if not isinstance(data, dict):
+        raise InputError(f"pose JSON must be an object with camera_location and final_camera_rotation: {p}")
     try:
         t = np.asarray(data["camera_location"], dtype=np.float64)
         angles = np.asarray(data["final_camera_rotation"], dtype=np.float64)
@@ -343,7 +356,7 @@ class OmniScenes:
                         raise InputError(f"no pose file for query {img} (expected {pose_path})")
                     R, t = read_pose_txt(pose_path)
                     out.append(Query(image=img, scene=room, split=s, rot_cam_from_world=R, center=t,
-                                     name=f"{s}/{room}_{state}/{img.stem}", scene_state=state))
+                                     name=f"{s}/{room}_{state}/{img.stem}", scene_state=state, pose_file=pose_path))
         return out
 
     def point_cloud(self, scene: str) -> Path:
@@ -452,7 +465,7 @@ class Stanford2D3DS:
                 align = pose_dir / f"{room}.txt"
                 R, t = read_stanford_pose(pose, align if align.is_file() else None)
                 out.append(Query(image=img, scene=key, split=area, rot_cam_from_world=R, center=t,
-                                 name=f"{key}/{cam}", scene_state=area))
+                                 name=f"{key}/{cam}", scene_state=area, pose_file=pose))
         return out
 
     def point_cloud(self, scene: str) -> Path:
@@ -551,7 +564,7 @@ class ZInD:
                     continue
                 out.append(Query(image=p.image, scene=key, split=name, rot_cam_from_world=p.rot_cam_from_world,
                                  center=p.center, name=f"{name}/{p.floor}/{p.partial_room}/{p.pano}",
-                                 scene_state=name, upright=True))
+                                 scene_state=name, upright=True, pose_file=self.json_path(name)))
         return out
 
     def _parse_scene(self, scene: str) -> tuple[str, str, list[str] | None]:

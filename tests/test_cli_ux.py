@@ -194,7 +194,7 @@ def test_json_errors_are_json(tmp_path):
     import cv2
 
     pano = tmp_path / "real.png"
-    cv2.imwrite(str(pano), np.zeros((8, 16, 3), np.uint8))
+    cv2.imwrite(str(pano), np.zeros((64, 128, 3), np.uint8))  # the smallest panorama ldlloc reads
     res = runner.invoke(loc_app, ["localize", str(missing), str(pano), "--json"])
     assert res.exit_code == 1 and "map not found" in json.loads(res.stdout)["error"]
     (tmp_path / "bad.h5").write_text("not a map")

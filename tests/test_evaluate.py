@@ -36,9 +36,11 @@ def test_writer_is_resumable(tmp_path):
     data = json.loads(out.read_text())
     assert len(data["queries"]) == 2 and data["summary"]["accuracy"]["0.1m_5deg"] == 0.5
     assert out.with_suffix(".csv").read_text().count("\n") == 3
+    w.close()  # releases the file's lock: a second writer would be refused while it is held
     w2 = ResultsWriter(out, resume=True)
     assert w2.done() == {"a", "b"}
     w2.add(res("b", 0.02, 1.0, split="robot"))  # replaces, does not duplicate
+    w2.close()
     qs, meta = load_results(out)
     assert len(qs) == 2 and meta["device"] == "cpu"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["results.csv", "results.json"]
