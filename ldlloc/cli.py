@@ -7,7 +7,7 @@ from typing import Optional
 
 import typer
 
-from ldlmap.cli_common import console, import_heavy, make_app, ray_option
+from ldlmap.cli_common import check_device, check_range, console, import_heavy, make_app, ray_option
 
 app = make_app("ldlloc", "Localize panoramas against LDL maps with line distance functions.")
 
@@ -38,10 +38,7 @@ MAX_TOP_K = 1000  # --top-k: each kept pose is refined; more than this is a typo
 
 def _check_threads(threads: int) -> int:
     """``--threads`` within 0..:data:`MAX_THREADS`, checked before torch sees it."""
-    from ldlmap.errors import InputError
-
-    if not 0 <= threads <= MAX_THREADS:
-        raise InputError(f"--threads must be 0 (torch's default) to {MAX_THREADS}, got {threads}")
+    check_range(threads, "--threads", 0, MAX_THREADS, integer=True, why="0: torch's default")
     return threads
 
 
@@ -51,26 +48,6 @@ def _set_threads(threads: int) -> None:
         import torch
 
         torch.set_num_threads(threads)
-
-
-def _check_device(device: str, local: bool = True) -> str:
-    """``--device``: cpu, cuda or cuda:N; with ``local`` (the work runs here), CUDA must be available."""
-    import re
-
-    from ldlmap.errors import InputError
-
-    if device != "cpu" and not re.fullmatch(r"cuda(:\d{1,3})?", device):
-        raise InputError(f"--device must be cpu, cuda or cuda:N, got {device!r}")
-    if device != "cpu" and local:
-        import_heavy("torch")
-        import torch
-
-        if not torch.cuda.is_available():
-            raise InputError("CUDA is not available here (no GPU, or torch built without CUDA); use --device cpu")
-        index = int(device.split(":")[1]) if ":" in device else 0
-        if index >= torch.cuda.device_count():
-            raise InputError(f"--device {device}: this machine has {torch.cuda.device_count()} CUDA device(s)")
-    return device
 
 
 def _params(top_k: int, loss: str, no_decompose: bool, no_refine: bool, privacy: bool,
@@ -83,8 +60,7 @@ def _params(top_k: int, loss: str, no_decompose: bool, no_refine: bool, privacy:
 
     if loss not in LOSS_KINDS:
         raise InputError(f"unknown loss {loss!r}; valid: {', '.join(LOSS_KINDS)}")
-    if not 1 <= top_k <= MAX_TOP_K:
-        raise InputError(f"--top-k must be 1 to {MAX_TOP_K}, got {top_k}")
+    check_range(top_k, "--top-k", 1, MAX_TOP_K, integer=True)
     from ldlloc.pipeline import REFINE_MODES
 
     if refine not in REFINE_MODES:
@@ -143,7 +119,7 @@ def localize(
         refuse_overwriting_inputs([map_path, pano, gt, weights], [vis])
     truth = read_pose_file(gt) if gt is not None else None
     img = load_image(pano)
-    _check_device(device)
+    check_device(device)
     m, loading = _read_map_while_importing(map_path, threads)
     tick = time.perf_counter()
     localizer = Localizer(m, params, device)
@@ -286,7 +262,7 @@ def run(
     output = output or Path("results") / f"{kind}_{tag}.json"
     maps = maps or Path(root) / "maps"
     _refuse_replacing_run_inputs(queries, maps, output, save_vis, weights)
-    _check_device(device, local=ray is None)
+    check_device(device, local=ray is None)
     _set_threads(threads)
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 

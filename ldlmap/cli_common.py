@@ -157,15 +157,16 @@ def check_range(value: float | int | None, option: str, lo: float, hi: float, in
                          f"got {got}" + (f" ({why})" if why else ""))
 
 
-def check_device(device: str, option: str = "--device") -> None:
-    """``cpu``, or ``cuda`` / ``cuda:N`` on a machine where torch sees that GPU (checked before any work)."""
+def check_device(device: str, option: str = "--device", local: bool = True) -> str:
+    """``cpu``, or ``cuda`` / ``cuda:N`` (checked before any work); with ``local`` (the work runs
+    here, not on a Ray cluster) torch must see that GPU."""
     import re
 
     from ldlmap.errors import InputError
 
-    m = re.fullmatch(r"cuda(?::(\d+))?", device)
-    if device == "cpu":
-        return
+    m = re.fullmatch(r"cuda(?::(\d{1,3}))?", device)
+    if device == "cpu" or (m is not None and not local):
+        return device
     if m is None:
         raise InputError(f"{option} must be cpu, cuda or cuda:N, got {device!r}")
     import_heavy("torch")
@@ -174,8 +175,10 @@ def check_device(device: str, option: str = "--device") -> None:
     count = torch.cuda.device_count() if torch.cuda.is_available() else 0
     index = int(m.group(1) or 0)
     if index >= count:
-        raise InputError(f"{option} {device}: " + ("no CUDA GPU is available here (torch sees none); use --device "
-                                                   "cpu" if count == 0 else f"this machine has {count} CUDA GPU(s)"))
+        raise InputError(f"{option} {device}: " + ("CUDA is not available here (no GPU, or torch built without "
+                                                   "CUDA); use --device cpu" if count == 0 else
+                                                   f"this machine has {count} CUDA GPU(s)"))
+    return device
 
 
 def ray_option():

@@ -29,7 +29,7 @@ def _cuda_case() -> tuple[str, str]:
     """``--device cuda`` here: refused without CUDA; with CUDA, an index this machine lacks."""
     import torch
 
-    return ("cuda:99", "CUDA device(s)") if torch.cuda.is_available() else ("cuda", "CUDA is not available")
+    return ("cuda:99", "CUDA GPU(s)") if torch.cuda.is_available() else ("cuda", "CUDA is not available")
 
 
 # (case, extra options, words of the error line); each also for `run` unless marked localize-only
