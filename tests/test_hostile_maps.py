@@ -303,3 +303,88 @@ def test_checksums_are_json_of_every_dataset(good_map):
         names = []
         h5.visititems(lambda n, o: names.append(n) if isinstance(o, h5py.Dataset) else None)
     assert sorted(sums["datasets"]) == sorted(names) and isinstance(sums["attrs"], int)
+
+
+# ----------------------------------------------------------------- coordinate origin and unit
+
+
+@pytest.fixture(scope="module")
+def room_cloud():
+    """A small box room centred on the origin with colours from its normals (edges show in renders)."""
+    import open3d as o3d
+
+    from tests._room_cloud import box_room
+
+    P, _ = box_room(seed=0, density=800, size=(5.0, 4.0, 2.6))
+    P = P - np.round(np.median(P, axis=0))
+    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(P))
+    pc.estimate_normals(o3d.geometry.KDTreeSearchParamKNN(12))
+    return P, (60 + 180 * np.abs(np.asarray(pc.normals))).astype(np.uint8)
+
+
+UTM = np.array([512345.0, 4123456.0, 12.0])  # easting, northing, height: float32 spacing 0.25-0.5 m there
+
+
+def test_utm_scan_localizes_like_the_same_scan_at_the_origin(tmp_path, room_cloud):
+    """The map of a scan in UTM coordinates is recentred (float32 storage would snap it to
+    0.25-0.5 m); its poses, given in the input frame, match the un-offset map's within 1 cm."""
+    from ldlloc.pipeline import Localizer, LocalizeParams
+    from ldlmap.build import BuildParams, build_map
+    from ldlmap.frame import apply, invert
+    from ldlmap.geometry import rotation_from_axis_angle
+    from ldlmap.io.pointcloud import PointCloud, write_point_cloud
+    from ldlmap.render import PointRenderer, RenderParams
+
+    P, colors = room_cloud
+    params = BuildParams(features="none", num_translations=100, distance_fields=False)
+    maps = {}
+    for name, X in (("plain", P), ("utm", P + UTM)):
+        write_point_cloud(tmp_path / f"{name}.ply", PointCloud(X, colors))
+        report = build_map(tmp_path / f"{name}.ply", tmp_path / f"{name}.h5", params=params)
+        maps[name] = read_map(report.path)
+    assert "centred on (512345, 4123456, 12)" in report.notes[0]
+    plain, utm = maps["plain"], maps["utm"]
+    assert np.abs(utm.lines).max() < 10  # stored near the origin
+    back = invert(utm.input_to_map)
+    # Line extraction sees the same points up to float64 rounding (1e-9 m): a borderline piece or
+    # two may differ, the candidate translations do not.
+    assert abs(len(utm.lines) - len(plain.lines)) <= 0.05 * len(plain.lines)
+    np.testing.assert_allclose(apply(back, utm.translations) - UTM, plain.translations, atol=1e-3)
+    true_center = np.array([0.3, -0.4, -0.1])
+    img = PointRenderer(P, colors, RenderParams(width=512, height=256)).render(
+        rotation_from_axis_angle(np.array([0.0, 0.0, 1.0]), 0.4), true_center).rgb
+    a = Localizer(plain, LocalizeParams()).localize(img)
+    b = Localizer(utm, LocalizeParams()).localize(img)
+    rot_b, center_b = b.input_frame_pose()
+    assert np.linalg.norm(center_b - UTM - a.center) < 0.01
+    assert np.degrees(np.arccos(np.clip((np.trace(rot_b.T @ a.rot_cam_from_world) - 1) / 2, -1, 1))) < 0.1
+    assert np.linalg.norm(a.center - true_center) < 0.1  # and it localizes at all
+
+
+@pytest.mark.parametrize("factor,words", [(1000.0, "--scale 0.001"), (2e6, "--scale s")])
+def test_scan_in_another_unit_is_refused_in_one_line(tmp_path, room_cloud, factor, words):
+    """Millimetres (or a x2e6 scene that used to exhaust 24 GB): one line naming --scale, before
+    any grid is allocated, and no map left behind."""
+    from ldlmap.io.pointcloud import PointCloud, write_point_cloud
+
+    P, colors = room_cloud
+    write_point_cloud(tmp_path / "mm.ply", PointCloud(P[::10] * factor, colors[::10]))
+    before = snapshot(tmp_path)
+    res = runner.invoke(app, ["build", str(tmp_path / "mm.ply"), "-o", str(tmp_path / "mm.h5"), "--features", "none"])
+    line = assert_clean_failure(res, tmp_path, before).lower()
+    assert words in line and "millimetres" in line, line
+
+
+def test_lattice_that_would_exhaust_memory_is_refused_with_an_estimate(tmp_path):
+    """A lines-only map with a tiny --trans-spacing: the lattice size is estimated first."""
+    from ldlmap.io.linefiles import write_lines_txt
+
+    rng = np.random.default_rng(0)
+    a = rng.uniform(0, 5, size=(40, 3))
+    segs = np.stack([a, a + np.eye(3)[np.arange(40) % 3] * 1.5], axis=1)
+    write_lines_txt(tmp_path / "l.txt", segs)
+    before = snapshot(tmp_path)
+    res = runner.invoke(app, ["build", str(tmp_path / "l.txt"), "-o", str(tmp_path / "l.h5"),
+                              "--trans-spacing", "0.00001"])
+    line = assert_clean_failure(res, tmp_path, before)
+    assert "GiB" in line and "--trans-spacing" in line, line
