@@ -283,6 +283,11 @@ def _transformed(src: SceneInput, lines: np.ndarray | None, A: np.ndarray) -> tu
                    camera_down=down), f(lines)
 
 
+def _input_points(src: SceneInput) -> np.ndarray:
+    """The points that say where the input lies: the cloud, else the lines' end points."""
+    return src.points if src.points is not None else np.asarray(src.lines, dtype=np.float64).reshape(-1, 3)
+
+
 def map_frame(src: SceneInput, lines_raw: np.ndarray, params: BuildParams) -> tuple[np.ndarray, dict, str, bool]:
     """The rotation input -> map (z up) of an already scaled input, its record for the map's
     config, a one-line note for the user ("" when the input frame is kept) and whether the
@@ -313,7 +318,7 @@ def build_from_input(src: SceneInput, output: Path, params: BuildParams, name: s
                      progress: Callable[[str, int, int], None] | None = None, config: dict | None = None,
                      load_seconds: float = 0.0) -> BuildReport:
     """Build and write the map of a loaded :class:`SceneInput` (the stages after ``load``)."""
-    from ldlmap.frame import scale_warning, similarity
+    from ldlmap.frame import check_extent, recentring_offset, scale_warning, similarity
     from ldlmap.lines3d import Lines3DParams, extract_lines, filter_by_length, length_threshold, robust_bounds
     from ldlmap.mapfile import LdlMap, write_map
     from ldlmap.principal3d import assign_line_groups, line_directions, manhattan_frame, principal_directions_3d
@@ -338,6 +343,13 @@ def build_from_input(src: SceneInput, output: Path, params: BuildParams, name: s
         if src.walkable is not None:
             raise InputError("--scale does not apply to room layouts (already metric)")
         src, _ = _transformed(src, None, similarity(params.scale))
+    check_extent(np.subtract(*robust_bounds(_input_points(src))[::-1]))  # before any grid is sized
+    offset = recentring_offset(_input_points(src)) if src.walkable is None else None
+    if offset is not None:  # far from the origin (UTM): work and store relative to the scan's centre
+        src, _ = _transformed(src, None, similarity(1.0, None, -offset))
+        report.notes.append(f"frame: the input lies far from the origin; the map is centred on "
+                            f"({offset[0]:.0f}, {offset[1]:.0f}, {offset[2]:.0f}) (poses in the input frame "
+                            f"are given too)")
     if src.lines is not None:
         lines_raw = src.lines
     else:
@@ -345,7 +357,8 @@ def build_from_input(src: SceneInput, output: Path, params: BuildParams, name: s
     if len(lines_raw) == 0:
         raise InputError("no 3D lines found in the input")
     rot, frame_info, note, weak = map_frame(src, lines_raw, params)
-    input_to_map = similarity(params.scale, rot)
+    shift = np.zeros(3) if offset is None else offset
+    input_to_map = similarity(params.scale, rot, -(rot @ shift))  # X_map = R (s X_input - offset)
     src, lines_raw = _transformed(src, lines_raw, similarity(1.0, rot))
     if note:
         (report.warnings if weak else report.notes).append(note)

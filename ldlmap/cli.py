@@ -31,11 +31,15 @@ SCALE = typer.Option(None, "--scale", help="Multiply the input coordinates by th
 
 @app.command()
 def info(map_path: Path = typer.Argument(..., help="An LDL map (.h5) written by `ldlmap build`.")) -> None:
-    """Print a summary of an LDL map: lines, principal directions, translations, features."""
+    """Print a summary of an LDL map: lines, principal directions, translations, features.
+
+    The whole map is read and validated first (layout, values, checksums): a damaged map fails
+    with one line."""
     from rich.table import Table
 
-    from ldlmap.mapfile import read_map_header
+    from ldlmap.mapfile import read_map, read_map_header
 
+    read_map(map_path)
     h = read_map_header(map_path)
     table = Table(title=f"LDL map {map_path}", show_header=False)
     table.add_column("field", style="bold")
@@ -53,6 +57,7 @@ def info(map_path: Path = typer.Argument(..., help="An LDL map (.h5) written by 
         ("precomputed fields", ", ".join(h["fields"]) or "none"),
         ("line visibility", "per translation (walls hide lines)" if h.get("line_visibility") else "every line seen"),
         ("file size", f"{h['file_size_bytes'] / 1e6:.2f} MB"),
+        ("checksums", "verified" if h["checksummed"] else "none (written before checksums)"),
         ("built with", ", ".join(f"{k} {v}" for k, v in h["library_versions"].items())),
     ]
     for k, v in rows:

@@ -3,7 +3,8 @@
 A map is metric and z-up. ``ldlmap build`` maps its input (cloud, lines, camera centres) once into
 that frame by a similarity ``X_map = s R X_input + t``, stored in the map as the 4x4 matrix
 ``input_to_map`` (``s``: ``--scale``; ``R``: turns the input's up axis to +z, see
-:mod:`ldlmap.gravity`; ``t``: 0). Poses found in the map frame are given back in the input frame
+:mod:`ldlmap.gravity`; ``t``: 0, or the shift that recentres a scan far from the origin, e.g. in
+UTM coordinates, :func:`recentring_offset`). Poses found in the map frame are given back in the input frame
 with :func:`pose_to_input`; ground-truth poses of the input frame go the other way with
 :func:`pose_to_map`. Poses follow DESIGN.md: ``p_cam = R (X - t)``, ``t`` the camera centre.
 """
@@ -100,6 +101,48 @@ def rotation_to_z(up: np.ndarray, horizontal: np.ndarray | None = None) -> np.nd
     v = np.array([u[1], -u[0], 0.0])  # u x z
     K = np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
     return np.eye(3) + K + K @ K / (1 + c)
+
+
+RECENTRE_BEYOND = 1000.0  # metres: farther from the origin, float32 map storage loses millimetres
+MAX_EXTENT = 1000.0  # units: a scan whose robust extent (mean side) is larger is refused (millimetres?)
+
+
+def recentring_offset(points: np.ndarray) -> np.ndarray | None:
+    """The origin (3,) that the map frame moves to, or None when the points are near enough the
+    origin. Maps store float32 coordinates (spacing 0.5 m at 4e6 m, UTM northings): a scan farther
+    than :data:`RECENTRE_BEYOND` from the origin is recentred on its median, rounded to whole
+    metres; ``input_to_map`` records the shift, so poses are still reported in the input frame."""
+    P = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    if len(P) == 0 or np.abs(P).max() <= RECENTRE_BEYOND:
+        return None
+    centre = np.round(np.median(P, axis=0))
+    return centre if np.abs(centre).max() > 0 else None
+
+
+def check_extent(extent_sides: np.ndarray) -> None:
+    """Refuse (one line) a scan whose robust extent looks like another unit than metres: every
+    grid of the build (voxels, plane images, translation lattices) is sized in metres."""
+    sides = np.asarray(extent_sides, dtype=np.float64)
+    mean = float(np.mean(sides))
+    if not np.isfinite(mean) or mean > MAX_EXTENT:
+        dims = " x ".join(f"{x:.0f}" for x in sides)
+        hint = "0.001 (millimetres)" if mean < 1e5 else "S (metres per input unit)"
+        raise InputError(f"the input spans {dims} units (robust extent): far too large for metres (millimetres?). "
+                         f"A map must be in metres: pass --scale {hint}")
+
+
+def check_memory(what: str, nbytes: float, hint: str) -> None:
+    """Refuse (one line, with the estimate) to allocate ``nbytes`` for ``what`` when that exceeds
+    half of this machine's available memory; called before grids sized by the input are built."""
+    import os
+
+    try:
+        available = os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (ValueError, OSError, AttributeError):
+        available = 8 << 30
+    if not nbytes <= 0.5 * available:
+        raise InputError(f"{what} would need about {nbytes / 2**30:.3g} GiB, more than half of the "
+                         f"{available / 2**30:.1f} GiB available: {hint}")
 
 
 def scale_warning(extent: float) -> str | None:

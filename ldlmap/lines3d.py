@@ -432,11 +432,16 @@ def _boundary_segments(Q: np.ndarray, c: np.ndarray, n: np.ndarray, params: Line
     """Boundary polygon sides (M, 2, 3) of one planar region's occupancy image."""
     import cv2
 
+    from ldlmap.frame import check_memory
+
     e1, e2 = _plane_basis(n)
     uv = np.stack([(Q - c) @ e1, (Q - c) @ e2], 1)
     cs = params.cell_size
     pad = params.close_cells + 2
     lo = uv.min(0) - pad * cs
+    h, w = (np.floor((uv.max(0) - lo) / cs)[::-1] + pad + 1).astype(np.float64)
+    check_memory(f"the occupancy image of a {w * cs:.3g} x {h * cs:.3g} plane", h * w * 3,
+                 "is the input in metres (--scale)?")
     ij = np.floor((uv - lo) / cs).astype(np.int64)
     h, w = ij[:, 1].max() + pad + 1, ij[:, 0].max() + pad + 1
     img = np.zeros((h, w), np.uint8)

@@ -46,6 +46,7 @@ and is enough for pose search without refinement.
 from __future__ import annotations
 
 import json
+import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -112,24 +113,58 @@ class LdlMap:
         return self.features is None
 
 
-def _check_array(name: str, a: np.ndarray | None, shape: tuple, dtype_kind: str = "f") -> None:
+def _check_array(name: str, a: np.ndarray | None, shape: tuple, dtype_kind: str = "f", finite: bool = True) -> None:
     if a is None:
         return
     a = np.asarray(a)
     if a.ndim != len(shape) or any(s is not None and s != d for s, d in zip(shape, a.shape)):
         raise InputError(f"map field {name} has shape {a.shape}, expected {shape}")
-    if dtype_kind == "f" and not np.all(np.isfinite(a)):
+    if a.dtype.kind not in _KINDS[dtype_kind]:
+        raise InputError(f"map field {name} has dtype {a.dtype}, expected {_KIND_NAMES[dtype_kind]}")
+    if finite and a.dtype.kind in "fc" and not np.all(np.isfinite(a)):
         raise InputError(f"map field {name} contains NaN or infinite values")
 
 
+# Accepted numpy dtype kinds per expected kind: f float, i integer, u unsigned 8-bit data, b mask.
+_KINDS = {"f": "f", "i": "iu", "u": "u", "b": "ub", "d": "uf"}
+_KIND_NAMES = {"f": "floats", "i": "integers", "u": "unsigned integers", "b": "a 0/1 mask",
+               "d": "uint8 or float descriptors"}
+_MAX_IMAGE_SIDE = 1 << 15  # rendered views: at most this many pixels on a side
+
+
+def _check_range(name: str, value: float, lo: float, hi: float) -> None:
+    if not (np.isfinite(value) and lo <= value <= hi):
+        raise InputError(f"map field {name} is {value}, expected a value in [{lo:g}, {hi:g}]")
+
+
+def _check_principal(P: np.ndarray, orthonormal: bool) -> None:
+    """Three distinct unit directions; an orthonormal right-handed frame when the map says it used
+    the Manhattan frame (maps built before that option record nothing and may be a little off)."""
+    _check_array("principal_directions", P, (3, 3))
+    if not np.allclose(np.linalg.norm(P, axis=1), 1.0, atol=1e-4):
+        raise InputError("map principal directions are not unit vectors")
+    cos = np.abs(P @ P.T)[np.triu_indices(3, 1)]
+    if np.any(cos > 0.9):
+        raise InputError("map principal directions are not three distinct directions")
+    if orthonormal and not (np.allclose(P @ P.T, np.eye(3), atol=1e-4) and np.linalg.det(P) > 0):
+        raise InputError("map principal directions are not an orthonormal right-handed frame")
+
+
 def validate_map(m: LdlMap) -> None:
-    """Check shapes and finiteness of every field; raise InputError on the first problem."""
+    """Check shapes, dtypes, finite values and ranges of every field; raise InputError on the first problem."""
     _check_array("bounds_min", m.bounds_min, (3,))
     _check_array("bounds_max", m.bounds_max, (3,))
+    if np.any(np.asarray(m.bounds_min) > np.asarray(m.bounds_max)):
+        raise InputError("map field bounds_min exceeds bounds_max")
     _check_array("lines_raw", m.lines_raw, (None, 2, 3))
     _check_array("lines", m.lines, (None, 2, 3))
     _check_array("line_groups", m.line_groups, (len(m.lines),), "i")
-    _check_array("principal_directions", m.principal_directions, (3, 3))
+    if len(m.line_groups) and (np.min(m.line_groups) < -1 or np.max(m.line_groups) > 2):
+        raise InputError("map field line_groups holds labels outside -1..2")
+    _check_range("length_threshold", float(m.length_threshold), 0.0, np.inf)
+    _check_range("kept_ratio", float(m.kept_ratio), 0.0, 1.0)
+    _check_range("lambda", float(m.line_lambda), 0.0, np.inf)
+    _check_principal(np.asarray(m.principal_directions), m.config.get("orthonormal_directions") is True)
     _check_array("translations", m.translations, (None, 3))
     if len(m.translations) == 0:
         raise InputError("map has no candidate translations")
@@ -150,20 +185,66 @@ def validate_map(m: LdlMap) -> None:
         _check_array("cloud_points", m.cloud_points, (None, 3))
         if m.cloud_colors is not None:
             _check_array("cloud_colors", m.cloud_colors, (len(m.cloud_points), 3), "u")
-    f = m.features
-    if f is not None:
-        k = len(f.xyz)
-        _check_array("features.view_centers", f.view_centers, (None, 3))
-        _check_array("features.offsets", f.offsets, (f.num_views + 1,), "i")
-        _check_array("features.xyz", f.xyz, (k, 3))
-        _check_array("features.keypoints", f.keypoints, (k, 2))
-        _check_array("features.scores", f.scores, (k,))
-        _check_array("features.descriptors", f.descriptors, (k, None), "u")
-        _check_array("features.translation_view", f.translation_view, (len(m.translations),), "i")
-        if f.offsets[0] != 0 or f.offsets[-1] != k or np.any(np.diff(f.offsets) < 0):
-            raise InputError("map features: offsets do not index the keypoint table")
-        if len(f.translation_view) and (f.translation_view.min() < 0 or f.translation_view.max() >= f.num_views):
-            raise InputError("map features: translation_view out of range")
+    _validate_fields(m)
+    if m.features is not None:
+        _validate_features(m.features, len(m.translations))
+
+
+def _validate_fields(m: LdlMap) -> None:
+    """Precomputed distance fields: (N_t, groups, G + 1, 2G) radians in [0, pi]."""
+    d = m.fields.get("distances")
+    if d is None:
+        return
+    _check_array("fields.distances", d, (len(m.translations), None, None, None), finite=False)
+    if d.shape[1] < 1 or d.shape[2] < 2 or d.shape[3] != 2 * (d.shape[2] - 1):
+        raise InputError(f"map field fields.distances has shape {d.shape}, expected (N_t, groups, G + 1, 2G)")
+    if not _angles_in_range(d, np.pi + 0.01):
+        raise InputError("map field fields.distances holds NaN or angles outside [0, pi]")
+    rows = m.fields_attrs.get("rows")
+    if rows is not None and not (_is_int(rows) and int(rows) == d.shape[2] - 1):
+        raise InputError(f"map fields: attribute rows = {rows!r} does not match the array ({d.shape[2] - 1})")
+
+
+def _angles_in_range(a: np.ndarray, hi: float) -> bool:
+    """Every value finite and in [0, hi]. float16 (the fields' dtype, 40 MB for N_t = 800) is checked
+    on its bits: non-negative finite halves order like their uint16 patterns, NaN/inf/negatives above
+    (-0 excepted), 10x faster than float16 comparisons."""
+    if a.size == 0:
+        return True
+    if a.dtype != np.float16:
+        return bool(np.all(np.isfinite(a)) and a.min() >= 0 and a.max() <= hi)
+    bits = np.ascontiguousarray(a).view(np.uint16)
+    limit = np.array(hi, np.float16).view(np.uint16)
+    top = bits.max()
+    return bool(top <= limit or (top == 0x8000 and (bits & 0x7FFF).max() <= limit))
+
+
+def _validate_features(f: MapFeatures, num_translations: int) -> None:
+    """The ragged keypoint table: sizes, finite values, offsets and view indices in range."""
+    k = len(f.xyz)
+    _check_array("features.view_centers", f.view_centers, (None, 3))
+    _check_array("features.offsets", f.offsets, (f.num_views + 1,), "i")
+    _check_array("features.xyz", f.xyz, (k, 3))
+    _check_array("features.keypoints", f.keypoints, (k, 2))
+    _check_array("features.scores", f.scores, (k,))
+    _check_array("features.descriptors", f.descriptors, (k, None), "d")
+    _check_array("features.translation_view", f.translation_view, (num_translations,), "i")
+    if f.num_views == 0 or f.descriptors.shape[1] == 0:
+        raise InputError("map features: no rendered view or zero-length descriptors")
+    if f.offsets[0] != 0 or f.offsets[-1] != k or np.any(np.diff(f.offsets) < 0):
+        raise InputError("map features: offsets do not index the keypoint table")
+    if len(f.translation_view) and (f.translation_view.min() < 0 or f.translation_view.max() >= f.num_views):
+        raise InputError("map features: translation_view out of range")
+    for side, size in (("width", f.width), ("height", f.height)):
+        if not (_is_int(size) and 0 < int(size) <= _MAX_IMAGE_SIDE):
+            raise InputError(f"map features: {side} {size!r} is not a pixel count in 1..{_MAX_IMAGE_SIDE}")
+    kp = np.asarray(f.keypoints, dtype=np.float64)
+    if k and (kp.min() < -1.0 or kp[:, 0].max() > f.width + 1.0 or kp[:, 1].max() > f.height + 1.0):
+        raise InputError(f"map features: keypoints lie outside the {f.width} x {f.height} views")
+
+
+def _is_int(value: Any) -> bool:
+    return isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_))
 
 
 def _library_versions() -> dict[str, str]:
@@ -236,42 +317,204 @@ def write_map(path: str | Path, m: LdlMap) -> Path:
                     fl.attrs[k] = v
                 for k, v in m.fields.items():
                     fl.create_dataset(k, data=v, **_COMPRESS)
+            h5.flush()
+            h5.attrs[_CHECKSUMS] = json.dumps(_checksums(*_read_datasets(h5, path)), sort_keys=True)
     return path
 
 
-def read_map_header(path: str | Path) -> dict[str, Any]:
-    """Format version, name, build config and sizes of a map, its principal directions (3, 3) and
-    kept lines per principal group (``line_group_counts``: group -> count, -1 = none), without
-    loading the large arrays."""
+# ------------------------------------------------------------------------------------- reading
 
-    path = require_file(path, "map")
-    with _open(path) as h5:
-        _check_version(h5, path)
+_CHECKSUMS = "checksums"  # root attribute (maps written since issue 11): JSON {"datasets": {path: crc32}, "attrs": crc32}
+_H5_ERRORS = (KeyError, OSError, ValueError, TypeError, RuntimeError)  # what h5py raises on a damaged file
+
+# Stored datasets: path -> (kind, shape). Kinds as in ``_KINDS``; a named size (L: kept lines,
+# N: candidate translations, K: keypoints, ...) must be the same in every dataset that names it.
+_SCHEMA: dict[str, tuple[str, tuple]] = {
+    "cloud/bounds_min": ("f", (3,)),
+    "cloud/bounds_max": ("f", (3,)),
+    "cloud/points": ("f", ("P", 3)),
+    "cloud/colors": ("u", ("P", 3)),
+    "lines/raw": ("f", ("L0", 2, 3)),
+    "lines/segments": ("f", ("L", 2, 3)),
+    "lines/groups": ("i", ("L",)),
+    "lines/visibility": ("b", ("N", "L")),
+    "coverage/mapped": ("b", ("N", "C1", "C2")),
+    "principal/directions": ("f", (3, 3)),
+    "frame/input_to_map": ("f", (4, 4)),
+    "translations/centers": ("f", ("N", 3)),
+    "translations/view_index": ("i", ("N",)),
+    "features/view_centers": ("f", ("V", 3)),
+    "features/offsets": ("i", ("V1",)),
+    "features/xyz": ("f", ("K", 3)),
+    "features/keypoints": ("f", ("K", 2)),
+    "features/scores": ("f", ("K",)),
+    "features/descriptors": ("d", ("K", "D")),
+    "fields/distances": ("f", ("N", "F", "G1", "G2")),
+}
+_REQUIRED = ("cloud/bounds_min", "cloud/bounds_max", "lines/raw", "lines/segments", "lines/groups",
+             "principal/directions", "translations/centers")
+_FEATURE_DATASETS = ("features/view_centers", "features/offsets", "features/xyz", "features/keypoints",
+                     "features/scores", "features/descriptors", "translations/view_index")
+_MAX_EXPANSION = 1000  # a dataset may hold at most this many times its file's size (gzip of zeros: ~1000x)
+
+
+def _dataset_items(h5) -> list[tuple[str, Any]]:
+    """Every dataset of the file as ``(path, dataset)``, sorted by path."""
+    import h5py
+
+    out: list[tuple[str, Any]] = []
+    h5.visititems(lambda name, obj: out.append((name, obj)) if isinstance(obj, h5py.Dataset) else None)
+    return sorted(out, key=lambda item: item[0])
+
+
+def _read_datasets(h5, path: Path, max_bytes: int | None = None) -> tuple[dict[str, np.ndarray], list]:
+    """Every dataset's array by path (after a size check against ``max_bytes``) and every object
+    holding attributes (root, groups, datasets), for the checksums."""
+    items = _dataset_items(h5)
+    if max_bytes is not None:
+        for name, ds in items:
+            if ds.size * ds.dtype.itemsize > max_bytes:
+                raise InputError(f"corrupt LDL map {path}: dataset /{name} claims shape {ds.shape}, more than "
+                                 f"its file can hold")
+    data = {name: ds[()] for name, ds in items}
+    objects: list = [h5]
+    h5.visititems(lambda name, obj: objects.append(obj))
+    return data, objects
+
+
+def _bytes_of(value: Any) -> bytes:
+    """A canonical byte string of an array or attribute value (dtype, shape and contents)."""
+    if isinstance(value, str):
+        return b"s" + value.encode("utf-8", "surrogatepass")
+    if isinstance(value, bytes):
+        return b"b" + value
+    a = np.asarray(value)
+    head = f"{a.dtype.str}{a.shape}".encode()
+    if a.dtype.kind == "O":
+        return head + repr(a.tolist()).encode("utf-8", "surrogatepass")
+    return head + np.ascontiguousarray(a).tobytes()
+
+
+def _crc_of_array(a: np.ndarray) -> int:
+    """CRC-32 of an array's dtype, shape and bytes (read in place: no copy of large arrays)."""
+    if a.dtype.kind == "O" or a.ndim == 0:
+        return zlib.crc32(_bytes_of(a))
+    crc = zlib.crc32(f"{a.dtype.str}{a.shape}".encode())
+    return zlib.crc32(np.ascontiguousarray(a).reshape(-1).view(np.uint8), crc)
+
+
+def _checksums(data: dict[str, np.ndarray], objects: list) -> dict[str, Any]:
+    """CRC-32 of every dataset (dtype, shape, bytes) and one over every attribute of every object."""
+    attrs = 0
+    for obj in objects:
+        for key in sorted(obj.attrs.keys()):
+            if obj.name == "/" and key == _CHECKSUMS:
+                continue
+            attrs = zlib.crc32(f"{obj.name}@{key}=".encode() + _bytes_of(obj.attrs[key]), attrs)
+    return {"datasets": {name: _crc_of_array(np.asarray(a)) for name, a in data.items()}, "attrs": attrs}
+
+
+def _verify_checksums(h5, data: dict[str, np.ndarray], objects: list, path: Path) -> bool:
+    """Compare with the stored checksums; False for maps written before checksums (not verifiable)."""
+    if _CHECKSUMS not in h5.attrs:
+        return False
+    try:
+        stored = json.loads(_attr_value(h5, _CHECKSUMS, "str", path))
+        stored_sets, stored_attrs = dict(stored["datasets"]), stored["attrs"]
+    except (ValueError, KeyError, TypeError):
+        raise InputError(f"corrupt LDL map {path}: its checksums attribute is unreadable") from None
+    now = _checksums(data, objects)
+    bad = sorted(k for k in set(now["datasets"]) | set(stored_sets) if now["datasets"].get(k) != stored_sets.get(k))
+    if bad:
+        raise InputError(f"corrupt LDL map {path}: dataset /{bad[0]} fails its checksum (flipped bits, or changed "
+                         f"after it was written): rebuild the map")
+    if now["attrs"] != stored_attrs:
+        raise InputError(f"corrupt LDL map {path}: its attributes fail their checksum (flipped bits, or changed "
+                         f"after it was written): rebuild the map")
+    return True
+
+
+def _attr_value(obj, key: str, kind: str, path: Path, default: Any = None) -> Any:
+    """Attribute ``key`` of ``obj`` checked as ``kind`` (int, float, str, json: a JSON object);
+    ``default`` when absent (None: required)."""
+    where = f"attribute {key} of {obj.name}"
+    if key not in obj.attrs:
+        if default is None:
+            raise InputError(f"corrupt LDL map {path}: {where} is missing")
+        return default
+    v = obj.attrs[key]
+    if kind == "int":
+        if not _is_int(v):
+            raise InputError(f"corrupt LDL map {path}: {where} must be an integer, got {str(v)[:40]!r}")
+        return int(v)
+    if kind == "float":
+        if np.ndim(v) != 0 or not isinstance(v, (int, float, np.integer, np.floating)) or isinstance(v, (bool, np.bool_)):
+            raise InputError(f"corrupt LDL map {path}: {where} must be a number, got {str(v)[:40]!r}")
+        return float(v)
+    if isinstance(v, bytes):
         try:
-            info = {
-                "format_version": int(h5.attrs["format_version"]),
-                "name": str(h5.attrs.get("name", path.stem)),
-                "build_config": json.loads(h5.attrs.get("build_config", "{}")),
-                "library_versions": json.loads(h5.attrs.get("library_versions", "{}")),
-                "num_lines_raw": int(h5["lines/raw"].shape[0]),
-                "num_lines": int(h5["lines/segments"].shape[0]),
-                "kept_ratio": float(h5["lines"].attrs["kept_ratio"]),
-                "length_threshold": float(h5["lines"].attrs["length_threshold"]),
-                "num_translations": int(h5["translations/centers"].shape[0]),
-                "num_cloud_points": int(h5["cloud/points"].shape[0]) if "cloud/points" in h5 else 0,
-                "feature_backend": str(h5["features"].attrs["backend"]) if "features" in h5 else None,
-                "num_views": int(h5["features/view_centers"].shape[0]) if "features" in h5 else 0,
-                "num_keypoints": int(h5["features/xyz"].shape[0]) if "features" in h5 else 0,
-                "fields": sorted(h5["fields"].keys()) if "fields" in h5 else [],
-                "line_visibility": "lines/visibility" in h5,
-                "input_to_map": h5["frame/input_to_map"][()].tolist() if "frame/input_to_map" in h5 else None,
-                "principal_directions": np.asarray(h5["principal/directions"][()], dtype=np.float64),
-                "line_group_counts": _group_counts(h5["lines/groups"][()]) if "lines/groups" in h5 else {},
-                "file_size_bytes": path.stat().st_size,
-            }
-        except (KeyError, OSError, ValueError) as exc:
-            raise InputError(f"corrupt LDL map {path}: {exc}") from None
-    return info
+            v = v.decode("utf-8")
+        except UnicodeDecodeError:
+            v = None
+    if not isinstance(v, str):
+        raise InputError(f"corrupt LDL map {path}: {where} must be text, got {str(v)[:40]!r}")
+    if kind == "json":
+        try:
+            v = json.loads(v)
+        except ValueError:
+            v = None
+        if not isinstance(v, dict):
+            raise InputError(f"corrupt LDL map {path}: {where} is not a JSON object")
+    return v
+
+
+def _open(path: Path):
+    import h5py
+
+    try:
+        return h5py.File(path, "r")
+    except _H5_ERRORS:
+        raise InputError(f"not a readable HDF5 map (corrupt or another format): {path}") from None
+
+
+def _check_version(h5, path: Path) -> None:
+    if "format_version" not in h5.attrs:
+        raise InputError(f"not an LDL map (no format_version attribute): {path}")
+    v = h5.attrs["format_version"]
+    if not _is_int(v):
+        raise InputError(f"corrupt LDL map {path}: format_version must be an integer, got {str(v)[:40]!r}")
+    v = int(v)
+    if v != FORMAT_VERSION:
+        newer = "a newer" if v > FORMAT_VERSION else "an older"
+        raise FormatVersionError(
+            f"map {path} has format version {v}, this ldl-toolkit reads version {FORMAT_VERSION} "
+            f"({newer} version wrote it): rebuild it with `ldlmap build`")
+
+
+def _check_schema(h5, path: Path) -> None:
+    """Every required dataset present, each known one with its kind and a shape consistent with the others."""
+    import h5py
+
+    required = list(_REQUIRED) + (list(_FEATURE_DATASETS) if "features" in h5 else [])
+    required += ["cloud/points"] if "cloud/colors" in h5 else []
+    for name in required:
+        if name not in h5:
+            raise InputError(f"corrupt LDL map {path}: dataset /{name} is missing")
+    sizes: dict[str, int] = {}
+    for name, (kind, shape) in _SCHEMA.items():
+        if name not in h5:
+            continue
+        ds = h5[name]
+        if not isinstance(ds, h5py.Dataset):
+            raise InputError(f"corrupt LDL map {path}: /{name} is not a dataset")
+        if ds.dtype.kind not in _KINDS[kind]:
+            raise InputError(f"corrupt LDL map {path}: dataset /{name} has dtype {ds.dtype}, expected {_KIND_NAMES[kind]}")
+        ok = len(ds.shape) == len(shape)
+        for want, got in zip(shape, ds.shape):
+            ok = ok and (sizes.setdefault(want, got) == got if isinstance(want, str) else want == got)
+        if not ok:
+            expected = "(" + ", ".join(f"{w}={sizes[w]}" if isinstance(w, str) and w in sizes else str(w) for w in shape) + ")"
+            raise InputError(f"corrupt LDL map {path}: dataset /{name} has shape {ds.shape}, expected {expected}")
 
 
 def _group_counts(groups: np.ndarray) -> dict[int, int]:
@@ -280,75 +523,134 @@ def _group_counts(groups: np.ndarray) -> dict[int, int]:
     return {k: int(np.sum(g == k)) for k in (0, 1, 2, -1)}
 
 
-def _open(path: Path):
-    import h5py
+def read_map_header(path: str | Path) -> dict[str, Any]:
+    """Format version, name, build config and sizes of a map, its principal directions (3, 3) and
+    kept lines per principal group (``line_group_counts``: group -> count, -1 = none), without
+    loading the large arrays. The layout (datasets, dtypes, shapes, attributes), the principal
+    directions and group labels are validated; the values of the large arrays and the checksums
+    only by :func:`read_map`."""
+    path = require_file(path, "map")
+    with _open(path) as h5:
+        try:
+            _check_version(h5, path)
+            _check_schema(h5, path)
+            config = _attr_value(h5, "build_config", "json", path, "{}")
+            principal = np.asarray(h5["principal/directions"][()], dtype=np.float64)
+            groups = h5["lines/groups"][()]
+            info = {
+                "format_version": FORMAT_VERSION,
+                "name": _attr_value(h5, "name", "str", path, path.stem),
+                "build_config": config,
+                "library_versions": _attr_value(h5, "library_versions", "json", path, "{}"),
+                "num_lines_raw": int(h5["lines/raw"].shape[0]),
+                "num_lines": int(h5["lines/segments"].shape[0]),
+                "kept_ratio": _attr_value(h5["lines"], "kept_ratio", "float", path),
+                "length_threshold": _attr_value(h5["lines"], "length_threshold", "float", path),
+                "num_translations": int(h5["translations/centers"].shape[0]),
+                "num_cloud_points": int(h5["cloud/points"].shape[0]) if "cloud/points" in h5 else 0,
+                "feature_backend": _attr_value(h5["features"], "backend", "str", path) if "features" in h5 else None,
+                "num_views": int(h5["features/view_centers"].shape[0]) if "features" in h5 else 0,
+                "num_keypoints": int(h5["features/xyz"].shape[0]) if "features" in h5 else 0,
+                "fields": sorted(h5["fields"].keys()) if "fields" in h5 else [],
+                "line_visibility": "lines/visibility" in h5,
+                "input_to_map": h5["frame/input_to_map"][()].tolist() if "frame/input_to_map" in h5 else None,
+                "principal_directions": principal,
+                "line_group_counts": _group_counts(groups),
+                "checksummed": _CHECKSUMS in h5.attrs,
+                "file_size_bytes": path.stat().st_size,
+            }
+            _check_principal(principal, config.get("orthonormal_directions") is True)
+            _check_range("kept_ratio", info["kept_ratio"], 0.0, 1.0)
+            _check_range("length_threshold", info["length_threshold"], 0.0, np.inf)
+            if len(groups) and (groups.min() < -1 or groups.max() > 2):
+                raise InputError("map field line_groups holds labels outside -1..2")
+        except _H5_ERRORS as exc:
+            raise InputError(f"corrupt LDL map {path}: {_short(exc)}") from None
+        except InputError as exc:
+            raise _located(exc, path) from None
+    return info
 
-    try:
-        return h5py.File(path, "r")
-    except OSError:
-        raise InputError(f"not a readable HDF5 map (corrupt or another format): {path}") from None
+
+def _short(exc: BaseException) -> str:
+    """The first line of an exception's message, for a one-line error."""
+    text = str(exc).strip().splitlines()
+    return f"{type(exc).__name__}: {text[0][:200] if text else ''}"
 
 
-def _check_version(h5, path: Path) -> None:
-    if "format_version" not in h5.attrs:
-        raise InputError(f"not an LDL map (no format_version attribute): {path}")
-    v = int(h5.attrs["format_version"])
-    if v != FORMAT_VERSION:
-        newer = "a newer" if v > FORMAT_VERSION else "an older"
-        raise FormatVersionError(
-            f"map {path} has format version {v}, this ldl-toolkit reads version {FORMAT_VERSION} "
-            f"({newer} version wrote it): rebuild it with `ldlmap build`")
+def _located(exc: InputError, path: Path) -> InputError:
+    """``exc`` with the map's path in its message (messages from :func:`validate_map` lack it)."""
+    msg = str(exc)
+    return exc if str(path) in msg else InputError(f"invalid LDL map {path}: {msg}")
 
 
 def read_map(path: str | Path, load_cloud: bool = True) -> LdlMap:
-    """Load and validate a map; raise InputError / FormatVersionError with one-line messages."""
+    """Load and validate a map (layout, values, checksums); raise InputError / FormatVersionError
+    with one-line messages."""
     path = require_file(path, "map")
+    max_bytes = _MAX_EXPANSION * path.stat().st_size + (1 << 26)
     with _open(path) as h5:
-        _check_version(h5, path)
         try:
-            lines_grp = h5["lines"]
-            feats = None
-            if "features" in h5:
-                fg = h5["features"]
-                feats = MapFeatures(
-                    backend=str(fg.attrs["backend"]),
-                    view_centers=fg["view_centers"][()].astype(np.float64),
-                    offsets=fg["offsets"][()],
-                    xyz=fg["xyz"][()],
-                    keypoints=fg["keypoints"][()],
-                    scores=fg["scores"][()],
-                    descriptors=fg["descriptors"][()],
-                    translation_view=h5["translations/view_index"][()],
-                    width=int(fg.attrs.get("width", 1024)),
-                    height=int(fg.attrs.get("height", 512)),
-                )
-            fields, fields_attrs = {}, {}
-            if "fields" in h5:
-                fields = {k: h5["fields"][k][()] for k in h5["fields"].keys()}
-                fields_attrs = dict(h5["fields"].attrs)
-            m = LdlMap(
-                name=str(h5.attrs.get("name", path.stem)),
-                bounds_min=h5["cloud/bounds_min"][()],
-                bounds_max=h5["cloud/bounds_max"][()],
-                lines_raw=lines_grp["raw"][()].astype(np.float64),
-                lines=lines_grp["segments"][()].astype(np.float64),
-                line_groups=lines_grp["groups"][()].astype(np.int64),
-                length_threshold=float(lines_grp.attrs["length_threshold"]),
-                kept_ratio=float(lines_grp.attrs["kept_ratio"]),
-                line_lambda=float(lines_grp.attrs.get("lambda", 0.1)),
-                principal_directions=h5["principal/directions"][()],
-                translations=h5["translations/centers"][()].astype(np.float64),
-                cloud_points=h5["cloud/points"][()] if load_cloud and "cloud/points" in h5 else None,
-                cloud_colors=h5["cloud/colors"][()] if load_cloud and "cloud/colors" in h5 else None,
-                features=feats,
-                fields=fields,
-                fields_attrs=fields_attrs,
-                config=json.loads(h5.attrs.get("build_config", "{}")),
-                visibility=lines_grp["visibility"][()].astype(bool) if "visibility" in lines_grp else None,
-                coverage=h5["coverage/mapped"][()].astype(bool) if "coverage/mapped" in h5 else None,
-                input_to_map=h5["frame/input_to_map"][()].astype(np.float64) if "frame/input_to_map" in h5 else None,
-            )
-        except (KeyError, OSError, ValueError) as exc:
-            raise InputError(f"corrupt LDL map {path}: {exc}") from None
-    validate_map(m)
+            _check_version(h5, path)
+            _check_schema(h5, path)
+            data, objects = _read_datasets(h5, path, max_bytes)
+            _verify_checksums(h5, data, objects, path)
+            m = _map_from(h5, data, path, load_cloud)
+        except _H5_ERRORS as exc:
+            raise InputError(f"corrupt LDL map {path}: {_short(exc)}") from None
+        except InputError as exc:
+            raise _located(exc, path) from None
+    try:
+        validate_map(m)
+    except InputError as exc:
+        raise _located(exc, path) from None
     return m
+
+
+def _map_from(h5, data: dict[str, np.ndarray], path: Path, load_cloud: bool) -> LdlMap:
+    """The :class:`LdlMap` of a file whose layout passed :func:`_check_schema`."""
+    def get(name: str, dtype=None):
+        a = data.get(name)
+        return None if a is None or dtype is None else a.astype(dtype)
+
+    feats = None
+    if "features" in h5:
+        fg = h5["features"]
+        feats = MapFeatures(
+            backend=_attr_value(fg, "backend", "str", path),
+            view_centers=get("features/view_centers", np.float64),
+            offsets=get("features/offsets", np.int64),
+            xyz=data["features/xyz"],
+            keypoints=data["features/keypoints"],
+            scores=data["features/scores"],
+            descriptors=data["features/descriptors"],
+            translation_view=get("translations/view_index", np.int64),
+            width=_attr_value(fg, "width", "int", path, 1024),
+            height=_attr_value(fg, "height", "int", path, 512),
+        )
+        dim = _attr_value(fg, "descriptor_dim", "int", path, feats.descriptors.shape[1])
+        if dim != feats.descriptors.shape[1]:
+            raise InputError(f"map features: descriptor_dim {dim} but descriptors have {feats.descriptors.shape[1]}")
+    has_fields = "fields/distances" in data
+    lines_grp = h5["lines"]
+    return LdlMap(
+        name=_attr_value(h5, "name", "str", path, path.stem),
+        bounds_min=get("cloud/bounds_min", np.float64),
+        bounds_max=get("cloud/bounds_max", np.float64),
+        lines_raw=get("lines/raw", np.float64),
+        lines=get("lines/segments", np.float64),
+        line_groups=get("lines/groups", np.int64),
+        length_threshold=_attr_value(lines_grp, "length_threshold", "float", path),
+        kept_ratio=_attr_value(lines_grp, "kept_ratio", "float", path),
+        line_lambda=_attr_value(lines_grp, "lambda", "float", path, 0.1),
+        principal_directions=get("principal/directions", np.float64),
+        translations=get("translations/centers", np.float64),
+        cloud_points=data.get("cloud/points") if load_cloud else None,
+        cloud_colors=data.get("cloud/colors") if load_cloud else None,
+        features=feats,
+        fields={"distances": data["fields/distances"]} if has_fields else {},
+        fields_attrs=dict(h5["fields"].attrs) if has_fields else {},
+        config=_attr_value(h5, "build_config", "json", path, "{}"),
+        visibility=get("lines/visibility", bool),
+        coverage=get("coverage/mapped", bool),
+        input_to_map=get("frame/input_to_map", np.float64),
+    )

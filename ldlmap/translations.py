@@ -81,8 +81,13 @@ def _free_space(P: np.ndarray, clearance: float, params: TranslationParams):
 
 def points_along_lines(lines: np.ndarray, step: float = 0.05) -> np.ndarray:
     """Points every ``step`` metres along segments (L, 2, 3): stand in for a cloud when only lines are given."""
+    from ldlmap.frame import check_memory
+
     v = lines[:, 1] - lines[:, 0]
-    n = np.maximum(np.ceil(np.linalg.norm(v, axis=1) / step).astype(np.int64), 1) + 1
+    per_line = np.ceil(np.linalg.norm(v, axis=1) / step)
+    check_memory(f"{per_line.sum():.3g} points every {step:g} m along the lines", float(per_line.sum()) * 24 * 6,
+                 "check the input's unit (--scale)")
+    n = np.maximum(per_line.astype(np.int64), 1) + 1
     seg = np.repeat(np.arange(len(lines)), n)
     t = (np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)) / np.repeat(n - 1, n)
     return lines[seg, 0] + t[:, None] * v[seg]
@@ -282,6 +287,11 @@ def _z_levels(z_range: tuple[float, float], spacing: float) -> np.ndarray:
 
 def _centred_lattice(lo: np.ndarray, hi: np.ndarray, spacing: float) -> np.ndarray:
     """(N, 2) square lattice of ``spacing`` over the box [lo, hi], with equal margins on both sides."""
+    from ldlmap.frame import check_memory
+
+    count = float(np.prod(np.floor((np.asarray(hi) - np.asarray(lo)) / spacing) + 1))
+    check_memory(f"a lattice of {count:.3g} candidate translations {spacing:g} m apart", count * 16 * 4,
+                 "raise --trans-spacing, or check the input's unit (--scale)")
     axes = []
     for a, b in zip(lo, hi):
         n = max(1, int(np.floor((b - a) / spacing)) + 1)

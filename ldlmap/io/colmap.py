@@ -132,11 +132,33 @@ def _open_reconstruction(path: str | os.PathLike):
     model = resolve_model_dir(p)
     if model is None:
         raise InputError(f"not a COLMAP sparse model (expected cameras, images, points3D .bin or .txt): {p}")
+    _check_binary_counts(model)
     try:
         return model, pycolmap.Reconstruction(str(model))
-    except (ValueError, RuntimeError) as exc:
+    except (ValueError, RuntimeError, IndexError, MemoryError) as exc:
         detail = str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__
         raise InputError(f"cannot read COLMAP model {model}: {detail}") from None
+
+
+# Smallest record of each binary model file (COLMAP's layout): a camera (id, model, width, height,
+# at least one parameter), an image (id, quaternion, translation, camera id, a name and its NUL,
+# its 2D point count), a 3D point (id, xyz, rgb, error, track length).
+_MIN_RECORD = {"cameras.bin": 4 + 4 + 8 + 8 + 8, "images.bin": 4 + 32 + 24 + 4 + 2 + 8, "points3D.bin": 8 + 24 + 3 + 8 + 8}
+
+
+def _check_binary_counts(model: Path) -> None:
+    """Refuse a binary model file whose leading record count its size cannot hold: pycolmap would
+    try to allocate it (minutes, then std::bad_alloc) or read past the end."""
+    for name, size in _MIN_RECORD.items():
+        f = model / name
+        if not f.is_file():
+            continue
+        data = f.read_bytes()[:8]
+        count = int(np.frombuffer(data, "<u8")[0]) if len(data) == 8 else -1
+        if count < 0 or count * size > f.stat().st_size - 8:
+            raise InputError(f"cannot read COLMAP model {model}: {name} is truncated or corrupt "
+                             f"({'no record count' if count < 0 else f'{count} records declared'}, "
+                             f"{f.stat().st_size} bytes)")
 
 
 def read_colmap_views(path: str | os.PathLike) -> ColmapViews:

@@ -97,7 +97,7 @@ def read_3dlinedetection_txt(path: str | os.PathLike) -> np.ndarray:
         raise InputError(f"{what} {p}: expected at least 4 columns (x y z ... line_id), got {ncol}")
     data = np.stack(rows)
     ids = data[:, -1]
-    if not np.all(ids == np.round(ids)):
+    if not np.all((ids == np.round(ids)) & (np.abs(ids) < 2.0 ** 53)):
         raise InputError(f"{what} {p}: the last column (line id) must hold integers")
     ids = ids.astype(np.int64)
     _, first = np.unique(ids, return_index=True)

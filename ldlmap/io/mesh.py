@@ -45,6 +45,10 @@ def sample_mesh(path: str | os.PathLike, num_points: int, sampling: MeshSampling
         raise InputError(f"unsupported mesh format {p.suffix or '(none)'} for {p}; supported: {', '.join(MESH_FORMATS)}")
     if num_points <= 0:
         raise InputError(f"number of mesh samples must be positive, got {num_points}")
+    if p.suffix.lower() == ".ply":
+        from ldlmap.io.pointcloud import _ply_header
+
+        _ply_header(p)  # counts the file cannot hold are refused before pymeshlab allocates them
     if cfg.method not in ("montecarlo", "poisson"):
         raise InputError(f"unknown mesh sampling method {cfg.method!r}; choose montecarlo or poisson")
     ms = pymeshlab.MeshSet()

@@ -136,13 +136,35 @@ def _ply_header(path: Path) -> _PlyHeader:
                 fmt = w[1]
             elif w[0] == "element":
                 elements.append((w[1], int(w[2]), []))
+                if elements[-1][1] < 0:
+                    raise InputError(f"corrupt PLY header: element {w[1]} has a negative count {w[2]}: {path}")
             elif w[0] == "property" and elements:
                 elements[-1][2].append((w[-1], "list" if w[1] == "list" else _PLY_TYPES[w[1]]))
         except (IndexError, KeyError, ValueError):
             raise InputError(f"corrupt PLY header line {raw.strip()!r}: {path}") from None
     if fmt not in ("ascii", "binary_little_endian", "binary_big_endian"):
         raise InputError(f"unsupported PLY format {fmt or '(none)'}: {path}")
-    return _PlyHeader(fmt, elements, m.end())
+    header = _PlyHeader(fmt, elements, m.end())
+    _check_ply_counts(header, path)
+    return header
+
+
+def _check_ply_counts(h: _PlyHeader, path: Path) -> None:
+    """Refuse element counts that the file's size cannot hold (before anything is allocated):
+    a binary row needs its fixed-size properties (a list at least its 1-byte length), an ASCII
+    row at least 2 bytes (a digit and a separator) per property."""
+    available = path.stat().st_size - h.data_offset
+    need = 0
+    for _, count, props in h.elements:
+        if h.fmt == "ascii":
+            row = 2 * max(len(props), 1)
+        else:
+            row = sum(1 if t == "list" else np.dtype(t).itemsize for _, t in props)
+        need += count * row
+    if need > available:
+        what = ", ".join(f"{count} {name}" for name, count, _ in h.elements)
+        raise InputError(f"corrupt or truncated PLY: its header declares {what}, which need at least {need} bytes, "
+                         f"the file holds {available}: {path}")
 
 
 def _ply_face_count(path: Path) -> int:
