@@ -32,8 +32,6 @@ import numpy as np
 
 from ldlmap.errors import InputError
 
-LINE_SUFFIXES = (".obj", ".txt")
-
 
 @dataclass(frozen=True)
 class BuildParams:
@@ -121,17 +119,8 @@ def load_input(path: str | Path, lines_path: str | Path | None, mesh_samples: in
                          f"(`ldlmap build {p}`), or a scan with --lines")
     if kind is not None:
         return SceneInput(None, None, read_lines(p), None, f"lines:{p}")
-    if suffix in SUPPORTED_SUFFIXES:
-        try:
-            cloud = read_point_cloud(p, mesh_samples=mesh_samples)
-        except InputError:
-            # A .txt/.obj may be a line file rather than a cloud/mesh: try that before failing.
-            if suffix in LINE_SUFFIXES and lines is None:
-                try:
-                    return SceneInput(None, None, read_lines(p), None, f"lines:{p}")
-                except InputError:
-                    pass
-            raise
+    if suffix in SUPPORTED_SUFFIXES:  # not a line file by its content: the cloud's own error, if any
+        cloud = read_point_cloud(p, mesh_samples=mesh_samples)
         return SceneInput(cloud.points, cloud.colors, lines, None, str(p))
     raise InputError(f"unsupported input {p.name}: use a point cloud, mesh, COLMAP model folder or line file "
                      f"({', '.join(SUPPORTED_SUFFIXES)})")

@@ -380,11 +380,11 @@ def test_lattice_that_would_exhaust_memory_is_refused_with_an_estimate(tmp_path)
     from ldlmap.io.linefiles import write_lines_txt
 
     rng = np.random.default_rng(0)
-    a = rng.uniform(0, 5, size=(40, 3))
-    segs = np.stack([a, a + np.eye(3)[np.arange(40) % 3] * 1.5], axis=1)
+    a = rng.uniform(0, 400, size=(40, 3))  # 400 m: large, yet metres (not refused as millimetres)
+    segs = np.stack([a, a + np.eye(3)[np.arange(40) % 3] * 150], axis=1)
     write_lines_txt(tmp_path / "l.txt", segs)
     before = snapshot(tmp_path)
     res = runner.invoke(app, ["build", str(tmp_path / "l.txt"), "-o", str(tmp_path / "l.h5"),
-                              "--trans-spacing", "0.00001"])
+                              "--trans-spacing", "0.001"])
     line = assert_clean_failure(res, tmp_path, before)
     assert "GiB" in line and "--trans-spacing" in line, line

@@ -23,6 +23,8 @@ from ldlmap.gravity import estimate_up, map_rotation
 from ldlmap.mapfile import read_map
 from tests._sfm_lines import rotation_with_up, sfm_like_lines, write_line3dpp_txt
 
+from tests._hostile import error_line
+
 runner = CliRunner()
 Z = np.array([0.0, 0.0, 1.0])
 AXES = {"x": [1, 0, 0], "-x": [-1, 0, 0], "y": [0, 1, 0], "-y": [0, -1, 0], "z": [0, 0, 1], "-z": [0, 0, -1],
@@ -130,7 +132,8 @@ def test_up_axis_from_cameras(room_edges, up):
 
 
 def test_sfm_line_file_build_frame_scale_filter(tmp_path, room_edges):
-    """One SfM-like file in millimetres, up = -y: units warning, then --scale and --up give a
+    """One SfM-like file in millimetres, up = -y: refused in one line naming --scale 0.001 (issue 11:
+    millimetres are detected before any work), then --scale and --up give a
     metric z-up map whose stored transform maps the input onto it; the length filter keeps a
     sensible number of lines and the query keeps 10 %, not the map's kept fraction."""
     from ldlloc.lines2d import query_keep_ratio
@@ -138,8 +141,8 @@ def test_sfm_line_file_build_frame_scale_filter(tmp_path, room_edges):
 
     path, segs, R0 = sfm_file(tmp_path, room_edges, "-y", 1000.0)
     res = runner.invoke(map_app, ["build", str(path), "-o", str(tmp_path / "mm.h5"), "--trans-spacing", "2000"])
-    assert res.exit_code == 0, res.output
-    assert "millimetres" in res.output and "--scale 0.001" in res.output
+    line = error_line(res)
+    assert "millimetres" in line and "--scale 0.001" in line and not (tmp_path / "mm.h5").exists()
     res = runner.invoke(map_app, ["build", str(path), "-o", str(tmp_path / "m.h5"), "--scale", "0.001",
                                   "--up", "-y", "--trans-spacing", "2.0"])
     assert res.exit_code == 0, res.output
