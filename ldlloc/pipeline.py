@@ -251,8 +251,11 @@ class Localizer:
         vis = m.visibility[ti[:n]] if m.visibility is not None else None
         g = refine_poses_geometric(arcs, rotations[:n], centers[:n], m.lines, m.line_groups, m.principal_directions,
                                    vis, p.geometric)
+        # a refined pose is scored with what is seen from the candidate translation nearest to it
+        # (lines behind walls, mapped directions), not from its start's
+        ti_ref = np.linalg.norm(g.centers[:, None] - m.translations[None], axis=-1).argmin(1)
         loss = score_poses(arcs, np.concatenate([g.rotations, rotations]), np.concatenate([g.centers, centers]),
-                           m.lines, m.line_groups, m.principal_directions, np.concatenate([ti[:n], ti]), p.search,
+                           m.lines, m.line_groups, m.principal_directions, np.concatenate([ti_ref, ti]), p.search,
                            m.visibility, m.coverage, self.device, p.principal.group_tol)
         refined, start = loss[:n], loss[n:]
         kept = np.zeros(len(rotations), dtype=bool)
