@@ -274,10 +274,11 @@ def _visible_dirs(folder: Path) -> list[Path]:
 
 def _require_root(root: str | Path, kind: str) -> Path:
     r = Path(root).expanduser()
+    what = f"{kind} dataset root" if kind else "dataset root"
     if not r.exists():
-        raise InputError(f"{kind} dataset root not found: {r} (pass --root, see datasets/README.md)")
+        raise InputError(f"{what} not found: {r} (pass --root, see datasets/README.md)")
     if not r.is_dir():
-        raise InputError(f"{kind} dataset root is not a folder: {r}")
+        raise InputError(f"{what} is not a folder: {r}")
     return r
 
 
@@ -598,7 +599,7 @@ def detect_kind(root: str | Path) -> str:
     ``"stanford"`` (``area_*`` folders in ``pano``, ``pcd`` or ``pcd_line``) or ``"omniscenes"``."""
     from ldlmap.io.zind import ZIND_JSON
 
-    r = _require_root(root, "dataset")
+    r = _require_root(root, "")
     if (r / ZIND_JSON).is_file() or any((p / ZIND_JSON).is_file() for p in _visible_dirs(r)):
         return "zind"
     for sub in ("pano", "pcd", "pcd_line"):
