@@ -228,8 +228,11 @@ def _associate(R, t, X, arc_of, n2, L, G3, P3, group_tol, margin, thr):
 
     The points of group ``g`` under pose ``k`` meet only the pose's lines of group ``g``: the
     K x 3 (pose, group) blocks are padded to common sizes and batched, one float32 matmul for the
-    four dot products of each point with each line (distance to its circle, the two extent planes,
-    the near side)."""
+    three dot products of each point with each line: the distance to its circle and the two
+    extent planes through the circle's axis and each end (``(n x s) . x`` and ``(e x n) . x``,
+    shifted by the margin; an arc is shorter than 180 deg, so the two planes bound one lune). The
+    points carry a homogeneous 1 so the margin, and a large negative value for the padding lines,
+    enter as the planes' offsets."""
     import torch
 
     f = torch.float32
@@ -244,12 +247,15 @@ def _associate(R, t, X, arc_of, n2, L, G3, P3, group_tol, margin, thr):
     pts, pts_ok = _padded_members((gx[:, None, :] == groups[None, :, None]).reshape(K * 3, nx))  # (3K, P)
     lns, lns_ok = _padded_members((G3[:, None, :] == groups[None, :, None]).reshape(K * 3, -1))
     n, s, e = _line_geometry(R, t, L)  # (K, L, 3)
-    V = torch.stack([n, torch.linalg.cross(n, s, dim=-1), torch.linalg.cross(e, n, dim=-1), s + e], 2).to(f)  # (K, L, 4, 3)
+    V = torch.stack([n, torch.linalg.cross(n, s, dim=-1), torch.linalg.cross(e, n, dim=-1)], 2).to(f)  # (K, L, 3, 3)
     pose = torch.arange(K, device=X.device).repeat_interleave(3)[:, None]  # (3K, 1)
-    Vb = V[pose, lns]  # (3K, Lb, 4, 3)
-    dots = torch.matmul(Vb.reshape(K * 3, -1, 3), X.to(f)[pts].transpose(1, 2)).reshape(K * 3, lns.shape[1], 4, -1)
-    ok = (dots[:, :, 1] > -margin) & (dots[:, :, 2] > -margin) & (dots[:, :, 3] > 0) & lns_ok[..., None]
-    best, idx = dots[:, :, 0].abs().masked_fill_(~ok, 2.0).min(1)  # (3K, P)
+    Vb = V[pose, lns]  # (3K, Lb, 3, 3)
+    offset = torch.where(lns_ok, float(margin), -10.0).to(f)  # (3K, Lb): padding lines fail the extent
+    Vb = torch.cat([Vb, torch.stack([torch.zeros_like(offset), offset, offset], -1)[..., None]], -1)  # (3K, Lb, 3, 4)
+    Xh = torch.cat([X.to(f), torch.ones((nx, 1), dtype=f, device=X.device)], 1)[pts]  # (3K, P, 4)
+    dots = torch.matmul(Vb.reshape(K * 3, -1, 4), Xh.transpose(1, 2)).reshape(K * 3, lns.shape[1], 3, -1)
+    inside = torch.minimum(dots[:, :, 1], dots[:, :, 2]) > 0
+    best, idx = torch.where(inside, dots[:, :, 0].abs(), 2.0).min(1)  # (3K, P)
     line = torch.where(best < thr, torch.gather(lns, 1, idx), torch.full_like(idx, -1))
     match = torch.full((K, nx + 1), -1, dtype=torch.long, device=X.device)  # column nx: the padding
     match[pose.expand_as(pts), torch.where(pts_ok, pts, torch.full_like(pts, nx))] = line
@@ -365,7 +371,7 @@ def map_line_support(arcs: np.ndarray, rotations: np.ndarray, centers: np.ndarra
     query arc's great circle and extent. The inlier loss counts the query's lines that the map
     explains; this counts the map's lines that the query confirms, so a symmetric twin that puts a
     door or window frame where the image shows a plain wall loses support. One float32 matmul per
-    pose (the four dot products of the points with each arc's normal, end planes and middle)."""
+    pose (the three dot products of the points with each arc's normal and end planes)."""
     import torch
 
     A = np.asarray(arcs, dtype=np.float64)
@@ -374,7 +380,7 @@ def map_line_support(arcs: np.ndarray, rotations: np.ndarray, centers: np.ndarra
     s, e = A[:, 0], A[:, 1]
     n = np.cross(s, e)
     n /= np.linalg.norm(n, axis=1, keepdims=True).clip(1e-12)
-    V = torch.as_tensor(np.concatenate([n, np.cross(n, s), np.cross(e, n), s + e], 0).T, dtype=torch.float32)  # (3, 4N)
+    V = torch.as_tensor(np.concatenate([n, np.cross(n, s), np.cross(e, n)], 0).T, dtype=torch.float32)  # (3, 3N)
     N = len(A)
     tol = np.sin(np.radians(tol_deg))
     L_all = np.asarray(lines, dtype=np.float64)
@@ -393,6 +399,6 @@ def map_line_support(arcs: np.ndarray, rotations: np.ndarray, centers: np.ndarra
         if len(d) == 0:
             continue
         D = torch.as_tensor(d, dtype=torch.float32) @ V  # (P, 4N)
-        near = (D[:, :N].abs() < tol) & (D[:, N:2 * N] > -tol) & (D[:, 2 * N:3 * N] > -tol) & (D[:, 3 * N:] > 0)
+        near = (D[:, :N].abs() < tol) & (torch.minimum(D[:, N:2 * N], D[:, 2 * N:]) > -tol)  # arcs < 180 deg: one lune
         out[k] = float(near.any(1).float().mean())
     return out
