@@ -51,6 +51,19 @@ def _usage_error() -> type:
     return UsageError
 
 
+def _control_flow_exceptions() -> tuple[type, ...]:
+    """The exceptions click and typer use to end a command (``--help``, ``typer.Exit``, usage
+    errors): never reported as errors of ours. Typer 0.16+ vendors click with its own classes."""
+    kinds: list[type] = [click.exceptions.Exit, click.ClickException, click.Abort, typer.Exit, typer.Abort]
+    try:
+        from typer.exceptions import TyperException
+    except ImportError:  # pragma: no cover - older typer
+        pass
+    else:
+        kinds.append(TyperException)
+    return tuple(kinds)
+
+
 class _ErrorHandlingGroup(TyperGroup):
     def invoke(self, ctx: click.Context):  # noqa: D401 - click API
         from ldlmap.errors import LdlError
@@ -59,7 +72,7 @@ class _ErrorHandlingGroup(TyperGroup):
         debug = os.environ.get("LDL_DEBUG") == "1"
         try:
             return super().invoke(ctx)
-        except (click.exceptions.Exit, click.ClickException, click.Abort):
+        except _control_flow_exceptions():  # --help, exits, usage errors: click's and typer's own
             raise
         except LdlError as exc:
             if debug:

@@ -273,3 +273,12 @@ def test_distance_fields_reject_non_finite_float16_values():
             DistanceFields.from_arrays(e, {"rows": G})
         with pytest.raises(InputError, match="NaN or infinite"):
             DistanceFields.from_arrays(e.astype(np.float32), {"rows": G})
+
+
+@pytest.mark.parametrize("app_name,command", [("ldlmap", c) for c in ("info", "lines", "synth", "build", "prepare")]
+                         + [("ldlloc", c) for c in ("localize", "run", "report")] + [("ldlmap", None), ("ldlloc", None)])
+def test_help_is_not_an_error(app_name, command):
+    """--help ends a command through click's/typer's own exit: exit 0, the help, no error line."""
+    res = runner.invoke(map_app if app_name == "ldlmap" else loc_app, [c for c in (command, "--help") if c])
+    assert res.exit_code == 0 and "Usage" in res.output and "error" not in res.output.lower().split("usage")[0], res.output
+    assert "internal error" not in res.output
