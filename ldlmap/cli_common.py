@@ -72,6 +72,10 @@ class _ErrorHandlingGroup(TyperGroup):
         debug = os.environ.get("LDL_DEBUG") == "1"
         try:
             return super().invoke(ctx)
+        except _usage_error() as exc:  # a malformed option: click's message, or JSON with --json
+            if not as_json:
+                raise
+            fail(exc.format_message(), code=exc.exit_code, as_json=True)
         except _control_flow_exceptions():  # --help, exits, usage errors: click's and typer's own
             raise
         except LdlError as exc:
@@ -85,10 +89,6 @@ class _ErrorHandlingGroup(TyperGroup):
             fail(f"{exc.strerror or exc}{where}", as_json=as_json)
         except KeyboardInterrupt:
             fail("interrupted", code=130, as_json=as_json)
-        except _usage_error() as exc:
-            if not as_json:
-                raise
-            fail(exc.format_message(), code=exc.exit_code, as_json=True)
         except MemoryError:
             if debug:
                 raise
