@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ldlmap.errors import InputError
-from ldlmap.features.base import Features, check_image, mutual_nn_match
+from ldlmap.features.base import DescriptorMatching, Features, check_image, mutual_nn_match
 
 if TYPE_CHECKING:  # pragma: no cover
     import torch
@@ -166,11 +166,12 @@ class SuperPointConfig:
     device: str = "cpu"  # torch device
 
 
-class SuperPointBackend:
+class SuperPointBackend(DescriptorMatching):
     """SuperPoint detector/descriptor; descriptors stored as float16, matched on cosine similarity."""
 
     name = "superpoint"
     descriptor_dtype = np.dtype(np.float16)
+    query_keypoints = 8192  # nearest-neighbour matching is cheap: more query keypoints than map ones
 
     def __init__(self, config: SuperPointConfig | dict | None = None, *, net: "torch.nn.Module | None" = None,
                  **opts) -> None:
