@@ -32,19 +32,24 @@ _CONFIGS = {
     "aliked": dict(input_dim=128, descriptor_dim=256, n_layers=9, num_heads=4),
     "disk": dict(input_dim=128, descriptor_dim=256, n_layers=9, num_heads=4),
     "xfeat": dict(input_dim=64, descriptor_dim=96, n_layers=6, num_heads=1),
+    "superpoint": dict(input_dim=256, descriptor_dim=256, n_layers=9, num_heads=4),
 }
 # Early stopping and point pruning of the per-view (CPU) path: LightGlue's defaults, LighterGlue's.
-_ADAPTIVE = {"aliked": (0.95, 0.99), "disk": (0.95, 0.99), "xfeat": (-1.0, 0.95)}
+_ADAPTIVE = {"aliked": (0.95, 0.99), "disk": (0.95, 0.99), "xfeat": (-1.0, 0.95), "superpoint": (0.95, 0.99)}
 _PAD_LOGIT = -1e4  # similarity of a padded map keypoint: never a row's maximum, finite (no NaN)
 
 
-def _state_dict(name: str, n_layers: int) -> dict:
-    """The packaged LightGlue weights of ``name`` with kornia's parameter names."""
+def _state_dict(name: str, n_layers: int, path: str | None = None) -> dict:
+    """The LightGlue weights of ``name`` (packaged, or the file ``path``) with kornia's parameter names."""
     import torch
 
     from ldlmap.features.weights import packaged_weights
 
-    state = torch.load(packaged_weights(f"{name}_lightglue"), map_location="cpu", weights_only=True)
+    path = path or packaged_weights(f"{name}_lightglue")
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # noqa: BLE001 - unreadable/corrupt checkpoint
+        raise InputError(f"cannot read LightGlue weights {path}: {str(exc).splitlines()[0] if str(exc) else exc}") from None
     if name == "xfeat":  # the file holds the extractor too; the matcher is under "matcher."
         state = {k[len("matcher."):]: v for k, v in state.items() if k.startswith("matcher.")}
     renamed = {}
@@ -60,8 +65,9 @@ def _state_dict(name: str, n_layers: int) -> dict:
 
 
 @lru_cache(maxsize=None)
-def load_lightglue(name: str, device: str = "cpu") -> "LightGlueMatcher":
-    """The LightGlue matcher of detector ``name`` on ``device``, loaded once per process."""
+def load_lightglue(name: str, device: str = "cpu", path: str | None = None) -> "LightGlueMatcher":
+    """The LightGlue matcher of detector ``name`` on ``device`` (weights packaged, or from the file
+    ``path``: SuperPoint's), loaded once per process."""
     import torch
     from kornia.feature import LightGlue
 
@@ -72,7 +78,8 @@ def load_lightglue(name: str, device: str = "cpu") -> "LightGlueMatcher":
     conf = _CONFIGS[name]
     depth, width = _ADAPTIVE[name]
     net = LightGlue(None, **conf, flash=False, depth_confidence=depth, width_confidence=width)
-    _load_strict(net, _state_dict(name, conf["n_layers"]), f"{name} LightGlue", derived=("confidence_thresholds",))
+    _load_strict(net, _state_dict(name, conf["n_layers"], path), f"{name} LightGlue",
+                 derived=("confidence_thresholds",))
     return LightGlueMatcher(net.eval().to(torch.device(device)))
 
 

@@ -41,6 +41,14 @@ WEIGHTS: dict[str, WeightSpec] = {
         env_var="LDL_SUPERPOINT_WEIGHTS",
         version="v1",
     ),
+    # LightGlue for SuperPoint (cvg/LightGlue release v0.1_arxiv): used only when present (path in
+    # the environment variable, or this file in the cache folder), never downloaded by the backend.
+    "superpoint_lightglue": WeightSpec(
+        filename="superpoint_lightglue_v0-1_arxiv.pth",
+        url="https://github.com/cvg/LightGlue/releases/download/v0.1_arxiv/superpoint_lightglue.pth",
+        env_var="LDL_SUPERPOINT_LIGHTGLUE_WEIGHTS",
+        version="v0.1_arxiv",
+    ),
 }
 
 
