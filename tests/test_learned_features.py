@@ -120,3 +120,15 @@ def test_localization_with_packaged_weights_offline(name, demo_dataset, offline)
         t_err = translation_error(r.center, q.center)
         r_err = rotation_error_deg(r.rot_cam_from_world, q.rot_cam_from_world)
         assert r.refine_method == "features" and t_err < 0.1 and r_err < 5.0, (q.name, t_err, r_err, r.message)
+
+
+def test_build_lists_every_backend_for_an_unknown_name(tmp_path):
+    from typer.testing import CliRunner
+
+    from ldlmap.cli import app
+
+    cloud = tmp_path / "c.txt"
+    cloud.write_text("0 0 0 1 2 3\n")
+    res = CliRunner().invoke(app, ["build", str(cloud), "--features", "orb"])
+    assert res.exit_code == 1
+    assert "valid: aliked, disk, sift, superpoint, xfeat, none" in res.output
