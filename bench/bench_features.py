@@ -154,11 +154,12 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             for gap in args.gap.split(","):
                 rows.append(run(dataset, backend, frame, gap, args.per_split,
                                 args.splits.split(",") if args.splits else None))
-                common.console().print(table(rows[-1:], common.machine_info()))
-    machine = common.machine_info()
+                machine = common.machine_info()
+                common.console().print(table(rows[-1:], machine))
+                result = {"rows": rows, "machine": machine, "seed": args.seed, "per_split": args.per_split,
+                          "splits": args.splits}
+                common.write_json(args.output, json.loads(json.dumps(result, default=float)))  # after each row
     common.console().print(table(rows, machine))
-    result = {"rows": rows, "machine": machine, "seed": args.seed, "per_split": args.per_split, "splits": args.splits}
-    common.write_json(args.output, json.loads(json.dumps(result, default=float)))
     print(f"wrote {args.output}")
     return result
 
