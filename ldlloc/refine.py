@@ -1,9 +1,9 @@
 """Refinement of the top-K poses with local features (paper section 3.4, DESIGN.md 5.9-5.10).
 
 For each candidate pose, the map keypoints of the rendered view serving its translation are
-matched with the query's features (mutual nearest neighbour + ratio test, batched in torch; one
-matching per distinct view). A match supports a candidate when the 3D point, seen from the
-candidate pose, lies within ``support_angle`` of the query keypoint's bearing; the candidate with
+matched with the query's features by the backend's matcher (mutual nearest neighbour + ratio
+test, or LightGlue over batches of views; one matching per distinct view). A match supports a
+candidate when the 3D point, seen from the candidate pose, lies within ``support_angle`` of the query keypoint's bearing; the candidate with
 the most supporting matches wins (ties: more raw matches, then the better search rank). The
 matches of the best-supported distinct views (``pnp_views``) go to spherical PnP-RANSAC (pycolmap
 ``EQUIRECTANGULAR``) and the pose with the most inliers is kept. When PnP fails, or its pose is
@@ -63,6 +63,20 @@ def keep_near_lines(keypoints_uv: np.ndarray, arcs: np.ndarray, width: int, heig
     return (d < radius).cpu().numpy()
 
 
+def _match_distinct_views(query_feats, query_size: tuple[int, int], views: np.ndarray, map_features, backend,
+                          ratio: float) -> dict[int, np.ndarray]:
+    """Matches of the query with each of the map ``views`` in one backend call (learned matchers
+    batch them), as ``(query row, map keypoint row)`` pairs indexing the whole map table."""
+    from ldlmap.features import Features
+
+    slices = [map_features.view_slice(int(v)) for v in views]
+    feats = [Features(map_features.keypoints[sl], map_features.scores[sl], map_features.descriptors[sl])
+             for sl in slices]
+    found = backend.match_views(query_feats, query_size, feats, (map_features.width, map_features.height),
+                                ratio=ratio)
+    return {int(v): m + np.array([0, sl.start]) for v, sl, m in zip(views, slices, found)}
+
+
 def refine_candidates(query_feats, query_size: tuple[int, int], rotations: np.ndarray, centers: np.ndarray,
                       translation_index: np.ndarray, map_features, backend,
                       params: RefineParams = RefineParams()) -> Refinement:
@@ -83,16 +97,12 @@ def refine_candidates(query_feats, query_size: tuple[int, int], rotations: np.nd
     bearings = bearing_from_pixel(query_feats.keypoints, W, H)  # (Nq, 3)
     views = map_features.translation_view[np.asarray(translation_index)]
     cos_support = np.cos(np.radians(params.support_angle_deg))
-    matches_by_view: dict[int, np.ndarray] = {}
+    matches_by_view = _match_distinct_views(query_feats, (W, H), np.unique(views), map_features, backend,
+                                            params.ratio)
     support = np.zeros(K, dtype=np.int64)
     raw = np.zeros(K, dtype=np.int64)
     for k in range(K):  # K = 20 candidates, at most K distinct views matched
-        v = int(views[k])
-        if v not in matches_by_view:
-            sl = map_features.view_slice(v)
-            m = backend.match(query_feats.descriptors, map_features.descriptors[sl], ratio=params.ratio)
-            matches_by_view[v] = m + np.array([0, sl.start])
-        m = matches_by_view[v]
+        m = matches_by_view[int(views[k])]
         raw[k] = len(m)
         if len(m):
             p = normalize(cam_from_world(map_features.xyz[m[:, 1]].astype(np.float64), rotations[k], centers[k]))

@@ -43,12 +43,12 @@ class BuildParams:
     num_translations: int = 800  # N_t (800 OmniScenes, 1700 Stanford 2D-3D-S)
     translation_method: str = "octree"  # octree (OmniScenes) | grid (Stanford)
     clearance: float = 0.25  # candidate translations keep this distance (m) from the scan
-    features: str = "sift"  # sift | superpoint | none
+    features: str = "sift"  # sift | aliked | disk | xfeat | superpoint | none (ldlmap.features)
     weights: str | None = None  # SuperPoint checkpoint path (else env var / cache / download)
     num_views: int = 40  # views rendered for features; each translation uses its nearest view
     width: int = 1024  # rendered view size (the queries' size)
     height: int = 512
-    max_keypoints: int = 4096  # per rendered view
+    max_keypoints: int | None = None  # per rendered view (None: the backend's max_keypoints)
     stored_cloud_points: int = 200_000  # subsampled colored cloud kept in the map for pictures
     mesh_samples: int = 1_000_000  # points sampled from a mesh input
     device: str = "cpu"  # torch device for rendering and SuperPoint
@@ -143,13 +143,12 @@ def _farthest_point_indices(P: np.ndarray, k: int, seed: int) -> np.ndarray:
 def compute_features(points: np.ndarray, colors: np.ndarray, translations: np.ndarray, params: BuildParams,
                      progress: Callable[[int, int], None] | None = None):
     """Render ``num_views`` views, extract and lift features; returns a MapFeatures."""
-    from ldlmap.features import get_backend
+    from ldlmap.features import backend_for
     from ldlmap.keypoints3d import view_features
     from ldlmap.mapfile import MapFeatures
     from ldlmap.render import PointRenderer, RenderParams
 
-    opts = {"weights": params.weights, "device": params.device} if params.features == "superpoint" else {}
-    backend = get_backend(params.features, **opts)
+    backend = backend_for(params.features, params.weights, params.device)
     renderer = PointRenderer(points, colors, RenderParams(width=params.width, height=params.height),
                              device=params.device)
     vidx = _farthest_point_indices(translations, max(1, params.num_views), params.seed)
@@ -214,8 +213,10 @@ def build_lines_map(lines: np.ndarray, output: str | Path, params: BuildParams =
 
 
 def _check_params(params: BuildParams) -> None:
-    if params.features not in ("sift", "superpoint", "none"):
-        raise InputError(f"unknown feature backend {params.features!r}; valid: sift, superpoint, none")
+    from ldlmap.features import available_backends
+
+    if params.features not in (*available_backends(), "none"):
+        raise InputError(f"unknown feature backend {params.features!r}; valid: {', '.join(available_backends())}, none")
     if params.min_line_length is not None and not params.min_line_length > 0:
         raise InputError(f"minimum line length must be > 0 m, got {params.min_line_length}")
     from ldlmap.frame import parse_up

@@ -224,7 +224,8 @@ def build(
                                               "(Line3D++ .txt/.obj, 3DLineDetection .txt, ours)."),
     images: Optional[Path] = typer.Option(None, "--images", help="COLMAP model without fused.ply: its photos, to "
                                           "reconstruct 3D lines from (default: the workspace's images folder)."),
-    features: str = typer.Option("sift", "--features", help="Local features for refinement: sift | superpoint | none."),
+    features: str = typer.Option("sift", "--features", help="Local features for refinement: sift (no weights) | aliked | disk | xfeat (packaged weights, "
+                                  "LightGlue matching) | superpoint (your weights) | none."),
     weights: Optional[Path] = typer.Option(None, "--weights", help="SuperPoint checkpoint (else $LDL_SUPERPOINT_WEIGHTS, cache, download)."),
     num_trans: Optional[int] = typer.Option(None, "--num-trans", help="N_t candidate translations (default 800)."),
     method: Optional[str] = typer.Option(None, "--translations", help="octree (OmniScenes) | grid (Stanford)."),
@@ -327,7 +328,7 @@ def prepare(
     maps: Optional[Path] = typer.Option(None, "--maps", help="Folder for the maps (default ROOT/maps)."),
     map_level: str = typer.Option("room", "--map-level", help="ZInD: one map per complete room (room) or per "
                                   "floor (floor, every room in one map)."),
-    features: Optional[str] = typer.Option(None, "--features", help="sift | superpoint | none (default sift; "
+    features: Optional[str] = typer.Option(None, "--features", help="sift | aliked | disk | xfeat | superpoint | none (default sift; "
                                            "ZInD layout maps: none)."),
     weights: Optional[Path] = typer.Option(None, "--weights", help="SuperPoint checkpoint."),
     num_trans: Optional[int] = typer.Option(None, "--num-trans", help="N_t (default: 800 OmniScenes, 1700 Stanford)."),

@@ -26,13 +26,14 @@ datasets are readable with plain h5py::
                             without it were built in their input frame (identity)
     /translations/view_index (N_t,) int32  index of the rendered view that serves each candidate
                             (only when features are present)
-    /features               attrs: backend ('sift' | 'superpoint'), descriptor_dim, width, height
+    /features               attrs: backend ('sift' | 'aliked' | 'disk' | 'xfeat' | 'superpoint'), descriptor_dim,
+                            width, height
     /features/view_centers  (V, 3) float32  where views were rendered (identity rotation)
     /features/offsets       (V + 1,) int64  keypoints of view i are rows offsets[i]:offsets[i+1]
     /features/xyz           (K, 3) float32  keypoint positions in the world
     /features/keypoints     (K, 2) float32  pixel coordinates in the rendered view
     /features/scores        (K,) float16
-    /features/descriptors   (K, D) uint8 (SIFT) or float16 (SuperPoint)
+    /features/descriptors   (K, D) uint8 (SIFT) or float16 (the learned backends)
     /fields/distances       (N_t, 3, G + 1, 2G) float16  optional precomputed 3D distance fields:
                             f3D_g (radians) of each translation on an equirectangular node grid
                             (theta_i = i pi / G from +z, phi_j = -pi + j pi / G), world-aligned

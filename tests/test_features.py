@@ -44,10 +44,10 @@ def _room(n: int, size=(5.0, 4.0, 2.6), seed: int = 0) -> tuple[np.ndarray, np.n
 
 
 def test_registry_names_and_unknown_backend():
-    assert available_backends() == ["sift", "superpoint"]
+    assert available_backends() == ["aliked", "disk", "sift", "superpoint", "xfeat"]
     b = get_backend("SIFT", max_keypoints=100)
     assert b.name == "sift" and b.descriptor_dtype == np.uint8 and b.config.max_keypoints == 100
-    with pytest.raises(InputError, match="valid: sift, superpoint"):
+    with pytest.raises(InputError, match="valid: aliked, disk, sift, superpoint, xfeat"):
         get_backend("orb")
     with pytest.raises(InputError, match="invalid SIFT option"):
         get_backend("sift", bogus=1)

@@ -178,3 +178,26 @@ def test_descriptor_sampling_at_cell_centres():
     torch.testing.assert_close(got, want, atol=1e-6, rtol=1e-5)
     mid = sample_descriptors(d, torch.tensor([[8.0, 4.0]]))  # half-way between cells 0 and 1
     torch.testing.assert_close(mid[0], torch.nn.functional.normalize(d[0, :, 0, 0] + d[0, :, 0, 1], dim=0))
+
+
+def test_lightglue_pairs_with_superpoint_only_when_its_weights_are_present(checkpoint, tmp_path, monkeypatch):
+    from kornia.feature import LightGlue
+
+    from ldlmap.features import Features
+
+    net, path = checkpoint
+    monkeypatch.delenv("LDL_SUPERPOINT_LIGHTGLUE_WEIGHTS", raising=False)
+    sp = SuperPointBackend(weights=str(path))
+    assert sp.matcher_name == "mutual-nn" and sp.query_keypoints == 8192
+    torch.manual_seed(1)
+    lg = tmp_path / "sp_lightglue_random.pth"
+    torch.save(LightGlue(None, input_dim=256).state_dict(), lg)
+    monkeypatch.setenv("LDL_SUPERPOINT_LIGHTGLUE_WEIGHTS", str(lg))
+    sp = SuperPointBackend(weights=str(path), keypoint_threshold=0.0, max_keypoints=200)
+    assert sp.matcher_name == "lightglue" and sp.query_keypoints == 200
+    f = sp.extract(_image(96, 160))
+    m = sp.match_views(f, (160, 96), [f, Features(f.keypoints[:0], f.scores[:0], f.descriptors[:0])], (160, 96))
+    assert len(m) == 2 and m[0].shape[1] == 2 and len(m[1]) == 0
+    monkeypatch.setenv("LDL_SUPERPOINT_LIGHTGLUE_WEIGHTS", str(tmp_path / "missing.pth"))  # set but wrong: an error
+    with pytest.raises(InputError, match="superpoint_lightglue weights not found"):
+        SuperPointBackend(weights=str(path))

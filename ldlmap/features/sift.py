@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ldlmap.errors import InputError
-from ldlmap.features.base import Features, check_image, mutual_nn_match, top_k
+from ldlmap.features.base import DescriptorMatching, Features, check_image, mutual_nn_match, top_k
 
 
 @dataclass(frozen=True)
@@ -27,11 +27,12 @@ class SiftConfig:
     device: str = "cpu"  # torch device of the matcher
 
 
-class SiftBackend:
+class SiftBackend(DescriptorMatching):
     """OpenCV SIFT on the grayscale image; descriptors stored as uint8."""
 
     name = "sift"
     descriptor_dtype = np.dtype(np.uint8)
+    query_keypoints = 8192  # nearest-neighbour matching is cheap: more query keypoints than map ones
 
     def __init__(self, config: SiftConfig | dict | None = None, **opts) -> None:
         base = config if isinstance(config, SiftConfig) else SiftConfig(**(config or {}))

