@@ -139,3 +139,13 @@ def mutual_nn_match(desc_a: np.ndarray, desc_b: np.ndarray, *, metric: Metric = 
         ok &= col_arg[j[:, 0]] == torch.arange(len(a), device=dev)
     i = torch.nonzero(ok).squeeze(1)
     return torch.stack([i, j[i, 0]], dim=1).cpu().numpy().astype(np.int64)
+
+
+def backend_config(kind: type, config, opts: dict, what: str):
+    """A backend's config dataclass ``kind`` from ``config`` (an instance, a dict or None) with the
+    keyword ``opts`` on top; an unknown option is a one-line :class:`InputError` naming ``what``."""
+    base = config if isinstance(config, kind) else kind(**(config or {}))
+    try:
+        return kind(**{**base.__dict__, **opts})
+    except TypeError as exc:
+        raise InputError(f"invalid {what} option: {exc}") from None

@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING, Sequence
 import numpy as np
 
 from ldlmap.errors import InputError
-from ldlmap.features.base import Features, check_image, top_k
+from ldlmap.features.base import Features, backend_config, check_image, top_k
 
 if TYPE_CHECKING:  # pragma: no cover
     import torch
@@ -104,11 +104,7 @@ class LearnedBackend:
     descriptor_dim = 0
 
     def __init__(self, config: LearnedConfig | dict | None = None, **opts) -> None:
-        base = config if isinstance(config, LearnedConfig) else LearnedConfig(**(config or {}))
-        try:
-            self.config = LearnedConfig(**{**base.__dict__, **opts})
-        except TypeError as exc:
-            raise InputError(f"invalid {self.name} option: {exc}") from None
+        self.config = backend_config(LearnedConfig, config, opts, self.name)
         self.net = load_detector(self.name, self.config.device)
         from ldlmap.features.lightglue import load_lightglue
 

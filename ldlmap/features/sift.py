@@ -10,8 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ldlmap.errors import InputError
-from ldlmap.features.base import DescriptorMatching, Features, check_image, mutual_nn_match, top_k
+from ldlmap.features.base import DescriptorMatching, Features, backend_config, check_image, mutual_nn_match, top_k
 
 
 @dataclass(frozen=True)
@@ -35,11 +34,7 @@ class SiftBackend(DescriptorMatching):
     query_keypoints = 8192  # nearest-neighbour matching is cheap: more query keypoints than map ones
 
     def __init__(self, config: SiftConfig | dict | None = None, **opts) -> None:
-        base = config if isinstance(config, SiftConfig) else SiftConfig(**(config or {}))
-        try:
-            self.config = SiftConfig(**{**base.__dict__, **opts})
-        except TypeError as exc:
-            raise InputError(f"invalid SIFT option: {exc}") from None
+        self.config = backend_config(SiftConfig, config, opts, "SIFT")
 
     def extract(self, image_rgb: np.ndarray, mask: np.ndarray | None = None,
                 max_keypoints: int | None = None) -> Features:

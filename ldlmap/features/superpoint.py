@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ldlmap.errors import InputError
-from ldlmap.features.base import DescriptorMatching, Features, check_image, mutual_nn_match
+from ldlmap.features.base import DescriptorMatching, Features, backend_config, check_image, mutual_nn_match
 
 if TYPE_CHECKING:  # pragma: no cover
     import torch
@@ -185,11 +185,7 @@ class SuperPointBackend(DescriptorMatching):
                  **opts) -> None:
         from ldlmap.features.weights import WEIGHTS, resolve_weights
 
-        base = config if isinstance(config, SuperPointConfig) else SuperPointConfig(**(config or {}))
-        try:
-            self.config = c = SuperPointConfig(**{**base.__dict__, **opts})
-        except TypeError as exc:
-            raise InputError(f"invalid SuperPoint option: {exc}") from None
+        self.config = c = backend_config(SuperPointConfig, config, opts, "SuperPoint")
         if net is not None:
             self.weights_path = None
             self.net = net.eval().to(c.device)
