@@ -261,7 +261,7 @@ class Localizer:
                                    vis, p.geometric)
         # a refined pose is scored with what is seen from the candidate translation nearest to it
         # (lines behind walls, mapped directions), not from its start's
-        ti_ref = np.linalg.norm(g.centers[:, None] - m.translations[None], axis=-1).argmin(1)
+        ti_ref = m.nearest_translation(g.centers)
         loss = score_poses(arcs, np.concatenate([g.rotations, rotations]), np.concatenate([g.centers, centers]),
                            m.lines, m.line_groups, m.principal_directions, np.concatenate([ti_ref, ti]), p.search,
                            m.visibility, m.coverage, self.device, p.principal.group_tol)
@@ -288,8 +288,7 @@ class Localizer:
             top = np.flatnonzero(score >= score.max() - p.geometric.support_within)
             vis = None
             if m.visibility is not None:  # the lines seen from each pose's nearest candidate translation
-                near = np.linalg.norm(centers[top, None] - m.translations[None], axis=-1).argmin(1)
-                vis = m.visibility[near]
+                vis = m.visibility[m.nearest_translation(centers[top])]
             # poses refined as one (GeometricParams.merge_m) are the same pose: one support each
             _, first, back = np.unique(np.concatenate([rots[top].reshape(-1, 9), centers[top]], 1), axis=0,
                                        return_index=True, return_inverse=True)

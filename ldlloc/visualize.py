@@ -19,7 +19,7 @@ def localization_picture(image_rgb: np.ndarray, loc, ldl_map) -> np.ndarray:
     top = draw_arcs(bgr, loc.arcs if loc.arcs is not None else np.zeros((0, 2, 3)), loc.arc_groups)
     lines, groups = ldl_map.lines, ldl_map.line_groups
     if getattr(ldl_map, "visibility", None) is not None:  # walls hide the other lines (layout maps)
-        seen = ldl_map.visibility[int(np.argmin(np.linalg.norm(ldl_map.translations - loc.center, axis=1)))]
+        seen = ldl_map.visibility[int(ldl_map.nearest_translation(loc.center))]
         lines, groups = lines[seen], groups[seen]
     bottom = draw_arcs(bgr, project_lines(lines, loc.rot_cam_from_world, loc.center), groups)
     h = bgr.shape[0]

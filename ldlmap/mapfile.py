@@ -113,6 +113,11 @@ class LdlMap:
     def lines_only(self) -> bool:
         return self.features is None
 
+    def nearest_translation(self, points: np.ndarray) -> np.ndarray:
+        """Index of the candidate translation nearest to each point ((..., 3) -> (...,))."""
+        P = np.asarray(points, dtype=np.float64)
+        return np.linalg.norm(P[..., None, :] - self.translations, axis=-1).argmin(-1)
+
 
 def _check_array(name: str, a: np.ndarray | None, shape: tuple, dtype_kind: str = "f", finite: bool = True) -> None:
     if a is None:

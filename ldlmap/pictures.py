@@ -91,7 +91,7 @@ def map_picture(ldl_map, path: str | Path, width: int = 1024) -> Path:
 
     height = width // 2
     centre = (ldl_map.bounds_min + ldl_map.bounds_max) / 2
-    t = ldl_map.translations[np.argmin(np.linalg.norm(ldl_map.translations - centre, axis=1))]
+    t = ldl_map.translations[int(ldl_map.nearest_translation(centre))]
     if ldl_map.cloud_points is not None and ldl_map.cloud_colors is not None:
         from ldlmap.render import render_points_panorama
 
