@@ -207,7 +207,7 @@ def print_summary(results: list[dict]) -> None:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", default=None, help="real data folder (default $LDL_REAL_DATA or ../shared/data)")
-    ap.add_argument("--levels", default="room,floor", help="map levels: room, floor or both")
+    ap.add_argument("--levels", default="room,floor", help="map levels, comma-separated: room, floor (default both)")
     ap.add_argument("--threads", type=int, default=1, help="torch intra-op threads (default 1)")
     ap.add_argument("--spacing", type=float, default=None, help="candidate translation spacing (default: the map's)")
     ap.add_argument("--refine", default="auto", help="auto (geometric for these lines-only maps) | geometric | none")

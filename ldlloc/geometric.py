@@ -50,6 +50,10 @@ class GeometricParams:
     steps: int = 2  # Gauss-Newton steps per round
     assoc_deg: float = 12.0  # association angle of the first round ...
     final_assoc_deg: float = 1.5  # ... shrinking to this one in the last round
+    wide_poses: int = 5  # the best this many poses are refined a second time, starting from ...
+    wide_assoc_deg: float = 20.0  # ... this association angle; both results compete. On the real
+    # home a start 0.22 m off needed 20 deg to reach its pose (a pantry seen through its door), while
+    # 20 deg for all poses lost two floor-level queries to wrong associations (16 deg: not enough)
     huber_deg: float = 0.5  # Huber threshold of the residuals
     group_tol: float = 0.05  # |n . R p_g| below this: the arc belongs to group g
     extent_margin_deg: float = 2.0  # a point may lie this far past a projected line's end
@@ -70,6 +74,9 @@ class GeometricParams:
     merge_m: float = 0.01  # poses that come within this (and merge_deg) of a better-ranked one during
     merge_deg: float = 0.2  # refinement share its result from then on (0: never; on the synthetic
     # scenes most of the top 20 meet within a few rounds)
+    height_margin_m: float = 0.05  # with a known camera-height band (the map's, e.g. a ZInD layout's
+    # annotated height), each step keeps the camera within this of it: in a closet of the real home the
+    # height drifted 0.33 m from a start 3 cm off, its floor lines hidden and its ceiling lines few
     keep_within: float = 0.05  # the caller keeps a refined pose when its exact loss is at most this
     # fraction worse than its coarse pose's (the inlier loss, tau = 0.1 rad, cannot see a few cm:
     # a pose refined to 3 cm may count a few inliers less than the coarse one 11 cm off)
@@ -129,11 +136,16 @@ def _line_geometry(R, t, L):
 
 def refine_poses_geometric(arcs: np.ndarray, rotations: np.ndarray, centers: np.ndarray, lines: np.ndarray,
                            line_groups: np.ndarray, principal: np.ndarray, visible: np.ndarray | None = None,
-                           params: GeometricParams = GeometricParams()) -> GeometricResult:
+                           params: GeometricParams = GeometricParams(),
+                           height_band: tuple[float, float] | None = None,
+                           assoc_deg: np.ndarray | None = None) -> GeometricResult:
     """Refine K poses (world -> camera ``rotations`` (K, 3, 3), camera ``centers`` (K, 3)) against
     the map's lines (L, 2, 3) with their principal groups (L,) and the map's principal directions
     (3, 3), from the query's 2D arcs (N, 2, 3; camera frame). ``visible`` (K, L) bool: the lines
-    seen from each pose's candidate translation (None: all). See the module docstring.
+    seen from each pose's candidate translation (None: all). ``height_band``: (min, max) world z of
+    the camera when known (:attr:`ldlmap.mapfile.LdlMap.camera_height_band`); every step keeps the
+    centres within ``params.height_margin_m`` of it. ``assoc_deg`` (K,): each pose's first-round
+    association angle (None: ``params.assoc_deg`` for all). See the module docstring.
     """
     import torch
 
@@ -164,6 +176,12 @@ def refine_poses_geometric(arcs: np.ndarray, rotations: np.ndarray, centers: np.
     margin = np.sin(np.radians(params.extent_margin_deg))
     huber = np.sin(np.radians(params.huber_deg))
     R, t = R0.clone(), t0.clone()
+    z_lo = z_hi = None
+    if height_band is not None:
+        lo, hi = sorted(float(z) for z in height_band)
+        z_lo, z_hi = lo - origin[2] - params.height_margin_m, hi - origin[2] + params.height_margin_m
+    first = torch.as_tensor(np.full(K, params.assoc_deg) if assoc_deg is None else np.asarray(assoc_deg, float).reshape(K),
+                            dtype=dt)
     rep = torch.arange(K)  # the pose whose refinement each pose shares (itself, or a better-ranked twin)
     active = torch.arange(K)  # the poses still refined, in rank order
     rounds = max(1, int(params.rounds))
@@ -172,12 +190,15 @@ def refine_poses_geometric(arcs: np.ndarray, rotations: np.ndarray, centers: np.
             keep_a, twin = _merge_twins(R, t, params.merge_m, params.merge_deg)
             rep[active] = active[twin]
             active, R, t, L, G3 = active[keep_a], R[keep_a], t[keep_a], L[keep_a], G3[keep_a]
-        thr = np.sin(np.radians(params.assoc_deg + (params.final_assoc_deg - params.assoc_deg) * k / max(rounds - 1, 1)))
+        a = first[active]
+        thr = torch.sin(torch.deg2rad(a + (params.final_assoc_deg - a) * k / max(rounds - 1, 1)))  # (A,)
         match, arc_group = _associate(R, t, X, arc_of, n2, L, G3, P3, params.group_tol, margin, thr)
         vp = (n2, P3, arc_group, params.vp_weight) if params.vp_weight > 0 else None
         for _ in range(max(1, int(params.steps))):
-            R, t = _gauss_newton_step(R, t, X, XX, L, match, max(huber, thr / 3), params.damping,
+            R, t = _gauss_newton_step(R, t, X, XX, L, match, (thr / 3).clamp_min(huber)[:, None], params.damping,
                                       fix_rotation=k < params.fixed_rotation_rounds, vp=vp)
+            if z_lo is not None:
+                t[:, 2].clamp_(z_lo, z_hi)
     r = _point_residuals(_line_operators(R, t, L)[0], X, match).abs().masked_fill_(match < 0, float("nan"))
     for _ in range(K):  # follow merges to the pose that was refined to the end
         rep = rep[rep]
@@ -256,7 +277,7 @@ def _associate(R, t, X, arc_of, n2, L, G3, P3, group_tol, margin, thr):
     dots = torch.matmul(Vb.reshape(K * 3, -1, 4), Xh.transpose(1, 2)).reshape(K * 3, lns.shape[1], 3, -1)
     inside = torch.minimum(dots[:, :, 1], dots[:, :, 2]) > 0
     best, idx = torch.where(inside, dots[:, :, 0].abs(), 2.0).min(1)  # (3K, P)
-    line = torch.where(best < thr, torch.gather(lns, 1, idx), torch.full_like(idx, -1))
+    line = torch.where(best < thr.repeat_interleave(3)[:, None], torch.gather(lns, 1, idx), torch.full_like(idx, -1))
     match = torch.full((K, nx + 1), -1, dtype=torch.long, device=X.device)  # column nx: the padding
     match[pose.expand_as(pts), torch.where(pts_ok, pts, torch.full_like(pts, nx))] = line
     return match[:, :nx], g2

@@ -243,13 +243,14 @@ class Localizer:
             import pycolmap  # noqa: F401
 
     def _refine_and_keep(self, arcs: np.ndarray, rotations: np.ndarray, centers: np.ndarray,
-                         translation_index: np.ndarray, n: int):
+                         translation_index: np.ndarray, n: int, assoc_deg: np.ndarray | None = None):
         """Refine the first ``n`` of these poses from lines alone and score every pose.
 
         A refined pose is kept where refinement was accepted and its exact loss (the search's,
         :func:`ldlloc.search.score_poses`) is within ``GeometricParams.keep_within`` of its start's:
         the inlier loss cannot see a few centimetres, so a pose refined to 3 cm may count a few
-        inliers less than a coarse one 11 cm off. Returns the :class:`GeometricResult` of the first
+        inliers less than a coarse one 11 cm off. ``assoc_deg`` (n,): each refined pose's first
+        association angle (None: the params'). Returns the :class:`GeometricResult` of the first
         ``n``, ``kept`` (M,) and each pose's loss (M,) (the better of the two where kept)."""
         from ldlloc.geometric import refine_poses_geometric
         from ldlloc.search import score_poses
@@ -258,7 +259,7 @@ class Localizer:
         ti = np.asarray(translation_index)
         vis = m.visibility[ti[:n]] if m.visibility is not None else None
         g = refine_poses_geometric(arcs, rotations[:n], centers[:n], m.lines, m.line_groups, m.principal_directions,
-                                   vis, p.geometric)
+                                   vis, p.geometric, m.camera_height_band, assoc_deg)
         # a refined pose is scored with what is seen from the candidate translation nearest to it
         # (lines behind walls, mapped directions), not from its start's
         ti_ref = m.nearest_translation(g.centers)
@@ -274,15 +275,22 @@ class Localizer:
 
     def _refine_geometric(self, out: "Localization", arcs: np.ndarray, res) -> None:
         """Refine the best of the top-K poses from lines alone; the winner has the best loss and
-        map-line support together (:func:`ldlloc.geometric.map_line_support`)."""
+        map-line support together (:func:`ldlloc.geometric.map_line_support`). The best
+        ``GeometricParams.wide_poses`` are refined twice, the second time with wider first
+        associations (``wide_assoc_deg``); both results compete."""
         from ldlloc.geometric import map_line_support
         from ldlloc.principal import assign_arcs_to_principal
 
         m, p = self.map, self.params
-        n = max(1, min(len(res.centers), int(p.geometric.max_poses)))  # the others keep their coarse poses
-        g, kept, loss = self._refine_and_keep(arcs, res.rotations, res.centers, res.translation_index, n)
-        rots, centers = res.rotations.copy(), res.centers.copy()
-        rots[:n][kept[:n]], centers[:n][kept[:n]] = g.rotations[kept[:n]], g.centers[kept[:n]]
+        M = len(res.centers)
+        n = max(1, min(M, int(p.geometric.max_poses)))  # the others keep their coarse poses
+        w = max(0, min(n, int(p.geometric.wide_poses)))
+        cand = np.concatenate([np.arange(n), np.arange(w), np.arange(n, M)]).astype(int)  # pose -> candidate
+        assoc = np.r_[np.full(n, p.geometric.assoc_deg), np.full(w, p.geometric.wide_assoc_deg)]
+        g, kept, loss = self._refine_and_keep(arcs, res.rotations[cand], res.centers[cand],
+                                              res.translation_index[cand], n + w, assoc)
+        rots, centers = res.rotations[cand], res.centers[cand]
+        rots[:n + w][kept[:n + w]], centers[:n + w][kept[:n + w]] = g.rotations[kept[:n + w]], g.centers[kept[:n + w]]
         score = -loss / max(float(np.abs(loss).max()), 1e-12)
         if p.geometric.support_weight > 0:  # the close contenders compete on map-line support too
             top = np.flatnonzero(score >= score.max() - p.geometric.support_within)
@@ -298,17 +306,18 @@ class Localizer:
             full[top] = score[top] + p.geometric.support_weight * support
             score = full
         k = int(np.argmax(score))
-        out.coarse_rot, out.coarse_center = res.rotations[k], res.centers[k]
+        c = int(cand[k])
+        out.coarse_rot, out.coarse_center = res.rotations[c], res.centers[c]
         out.rot_cam_from_world, out.center = rots[k], centers[k]
         out.arc_groups = assign_arcs_to_principal(arcs, (out.rot_cam_from_world @ m.principal_directions.T).T,
                                                   p.principal.group_tol)
         out.refined = bool(kept[k])
         out.refine_method = "geometric" if out.refined else "none"
-        out.num_matches = int(g.matched[k]) if k < n else 0
+        out.num_matches = int(g.matched[k]) if k < n + w else 0
         out.refine_residual_deg = float(g.residual_deg[k]) if out.refined else None
-        out.message = (f"geometric refinement of candidate {k + 1}: {out.num_matches} line points, median "
+        out.message = (f"geometric refinement of candidate {c + 1}: {out.num_matches} line points, median "
                        f"residual {out.refine_residual_deg:.2f} deg" if out.refined else
-                       f"candidate {k + 1}: coarse pose kept (its geometric refinement diverged, matched too few line "
+                       f"candidate {c + 1}: coarse pose kept (its geometric refinement diverged, matched too few line "
                        "points or explained less of the image)")
 
     def _polish_geometric(self, out: "Localization", arcs: np.ndarray, translation_index: int) -> None:

@@ -113,6 +113,17 @@ class LdlMap:
     def lines_only(self) -> bool:
         return self.features is None
 
+    @property
+    def camera_height_band(self) -> tuple[float, float] | None:
+        """(min, max) world z of the camera when the map was built knowing it (``--camera-height``,
+        a layout's annotated camera heights), else None."""
+        band = (self.config.get("translations") or {}).get("camera_height") if isinstance(self.config, dict) else None
+        try:
+            lo, hi = (float(z) for z in band)
+        except (TypeError, ValueError):
+            return None
+        return (lo, hi) if np.isfinite(lo) and np.isfinite(hi) and lo <= hi else None
+
     def nearest_translation(self, points: np.ndarray) -> np.ndarray:
         """Index of the candidate translation nearest to each point ((..., 3) -> (...,))."""
         P = np.asarray(points, dtype=np.float64)

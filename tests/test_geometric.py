@@ -137,3 +137,40 @@ def test_map_line_support_prefers_the_true_pose():
     off = rotation_from_axis_angle(np.array([0.0, 0.0, 1.0]), np.radians(10.0)) @ R
     s = map_line_support(arcs, np.stack([R, off, R]), np.stack([t, t, t + [0.3, 0.0, 0.0]]), lines, groups)
     assert s[0] > 0.9 and s[1] < 0.5 and s[2] < 0.7 * s[0], s
+
+
+def test_height_band_holds_an_unobservable_height():
+    """Vertical lines alone say nothing of the camera's height: without a band the height stays as
+    wrong as its start, with the map's camera-height band it comes back within the margin while the
+    rest of the pose is recovered."""
+    lines, groups = _room_lines()
+    vertical = groups == 2
+    lines, groups = lines[vertical], groups[vertical]
+    rng = np.random.default_rng(11)
+    for _ in range(3):
+        t = np.r_[rng.uniform(LO[:2] + 0.8, HI[:2] - 0.8), 1.5]
+        R = rotation_from_axis_angle(np.array([0.0, 0.0, 1.0]), rng.uniform(0, 2 * np.pi))
+        arcs = normalize(cam_from_world(lines, R, t))
+        t0 = t + np.array([0.2, -0.15, 0.4])
+        free = refine_poses_geometric(arcs, R[None], t0[None], lines, groups, np.eye(3))
+        assert abs(free.centers[0, 2] - t[2]) > 0.3
+        band = refine_poses_geometric(arcs, R[None], t0[None], lines, groups, np.eye(3), height_band=(1.5, 1.5))
+        p = GeometricParams()
+        assert band.accepted[0] and abs(band.centers[0, 2] - t[2]) <= p.height_margin_m + 1e-6
+        assert np.linalg.norm(band.centers[0, :2] - t[:2]) < 0.02
+        assert rotation_error_deg(band.rotations[0], R) < 0.5
+
+
+def test_per_pose_association_angles_batch_like_one_at_a_time():
+    """Poses refined with their own first association angles (the pipeline's wide second
+    refinement of the best poses) end where each would alone with that angle."""
+    lines, groups, views = _views(2, seed=9)
+    arcs, R, t, R0, t0 = views[0]
+    starts_R, starts_t = np.stack([R0, R0, views[1][3]]), np.stack([t0, t0, views[1][4]])
+    angles = np.array([12.0, 20.0, 20.0])
+    batch = refine_poses_geometric(arcs, starts_R, starts_t, lines, groups, np.eye(3), assoc_deg=angles)
+    for k in range(3):
+        one = refine_poses_geometric(arcs, starts_R[k:k + 1], starts_t[k:k + 1], lines, groups, np.eye(3),
+                                     params=GeometricParams(assoc_deg=float(angles[k])))
+        np.testing.assert_allclose(batch.centers[k], one.centers[0], atol=1e-5)
+        np.testing.assert_allclose(batch.rotations[k], one.rotations[0], atol=1e-5)

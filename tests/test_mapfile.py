@@ -137,3 +137,15 @@ def test_optional_input_frame_transform(tmp_path):
         with pytest.raises(InputError):
             write_map(tmp_path / "bad.h5", m)
     assert not (tmp_path / "bad.h5").exists()
+
+
+def test_camera_height_band_round_trips(tmp_path):
+    """The build records the camera-height band of lines-only maps; the geometric refinement reads
+    it back (LdlMap.camera_height_band); maps without one, or with a malformed one, give None."""
+    m = make_map(with_features=False)
+    assert m.camera_height_band is None
+    m.config = {"translations": {"method": "spacing", "camera_height": [1.2, 1.6]}}
+    assert read_map(write_map(tmp_path / "band.h5", m)).camera_height_band == (1.2, 1.6)
+    for bad in (None, [1.6, 1.2], [1.2], ["a", "b"], [float("nan"), 1.0], 3.0):
+        m.config = {"translations": {"camera_height": bad}}
+        assert m.camera_height_band is None
