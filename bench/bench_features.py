@@ -1,14 +1,16 @@
 """Benchmark: feature backends (sift, aliked, disk, xfeat) through the whole pipeline.
 
 Run: ``python bench/bench_features.py [--seed 23] [--per-split 1] [--backends sift,aliked,disk,xfeat]
-[--frames image,map] [--gap none,hard] [--splits robot,extreme] [--threads 1]``.
+[--frames image,map] [--extractions equirect,cube] [--gap none,hard] [--splits robot,extreme] [--threads 1]``.
 
 For each backend, maps of the synthetic demo dataset of ``--seed`` (an unseen seed: the tests use
 7, the other benchmarks 1) are built with the default :class:`~ldlmap.build.BuildParams` but
 ``features`` (40 views; build seconds per room timed once and cached beside the map), then the
 first ``--per-split`` queries per split and scene are localized with the default
 :class:`~ldlloc.pipeline.LocalizeParams` but ``query_frame`` (``image``: features of the panorama
-as taken; ``map``: of the panorama rotated into the map's frame by the best candidate rotation).
+as taken; ``map``: of the panorama rotated into the map's frame by the best candidate rotation)
+and ``--extractions`` (``equirect``: features of the whole panoramas, map views and queries alike;
+``cube``: of their six 90-degree cube faces, :class:`ldlmap.features.sphere.CubeFaces`).
 Per backend, frame and appearance gap it prints accuracy at 0.1 m / 5 deg and 0.05 m / 5 deg,
 the share of queries whose feature refinement failed (the pose then comes from the geometric
 fallback or stays coarse), median feature matches and PnP inliers, refine seconds per query
@@ -25,6 +27,7 @@ extreme split's motion).
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import sys
 import time
@@ -53,24 +56,27 @@ def harder_appearance(img: np.ndarray, key: str) -> np.ndarray:
     return np.clip(np.round(x * 255.0), 0, 255).astype(np.uint8)
 
 
-def built_map(dataset: Path, scene: str, features: str) -> tuple[Path, float]:
-    """The default map of ``scene`` with ``features`` (built once) and its build seconds."""
+def built_map(dataset: Path, scene: str, features: str, extraction: str = "equirect") -> tuple[Path, float]:
+    """The default map of ``scene`` with ``features`` extracted as ``extraction`` (built once) and
+    its build seconds."""
     from ldlmap.build import BuildParams, build_map
     from ldlmap.datasets import open_dataset
 
-    out = common.CACHE / "maps" / dataset.name / f"{scene}_{features}_v40_{common.map_tag()}.h5"
+    tag = "" if extraction == "equirect" else f"_{extraction}"
+    out = common.CACHE / "maps" / dataset.name / f"{scene}_{features}{tag}_v40_{common.map_tag()}.h5"
     meta = out.with_suffix(".json")
     if not (out.exists() and meta.exists()):
         out.parent.mkdir(parents=True, exist_ok=True)
         ds = open_dataset(dataset, "omniscenes")
         t0 = time.perf_counter()
-        build_map(ds.point_cloud(scene), out, params=BuildParams(features=features), name=scene)
+        build_map(ds.point_cloud(scene), out, params=BuildParams(features=features, feature_extraction=extraction),
+                  name=scene)
         meta.write_text(json.dumps({"build_seconds": time.perf_counter() - t0}))
     return out, float(json.loads(meta.read_text())["build_seconds"])
 
 
 def run(dataset: Path, backend: str, frame: str, gap: str, per_split: int, splits: list[str] | None = None,
-        progress: bool = True) -> dict[str, Any]:
+        progress: bool = True, extraction: str = "equirect") -> dict[str, Any]:
     """Localize the selected queries with maps of ``backend``; one row of the tables."""
     from ldlloc.pipeline import LocalizeParams, Localizer, load_image
     from ldlmap.datasets import open_dataset
@@ -84,7 +90,7 @@ def run(dataset: Path, backend: str, frame: str, gap: str, per_split: int, split
         queries = []
         for split in splits or ds.splits():
             queries += ds.queries(split, scene=scene)[:per_split]
-        path, build_s = built_map(dataset, scene, backend)
+        path, build_s = built_map(dataset, scene, backend, extraction)
         builds.append(build_s)
         loc = Localizer(read_map(path, load_cloud=False), LocalizeParams(query_frame=frame))
         for i, q in enumerate(queries):
@@ -103,13 +109,13 @@ def run(dataset: Path, backend: str, frame: str, gap: str, per_split: int, split
                 row["message"] = str(exc)
             rows.append(row)
             if progress:
-                print(f"\r  {backend} {frame} {gap} {scene}: {i + 1}/{len(queries)}", end="", file=sys.stderr)
+                print(f"\r  {backend} {extraction} {frame} {gap} {scene}: {i + 1}/{len(queries)}", end="", file=sys.stderr)
         if progress:
             print(file=sys.stderr)
     t = np.array([r["t_err"] for r in rows])
     a = np.array([r["r_err"] for r in rows])
     ref = [r["refine_s"] for r in rows if r["refine_s"] is not None]
-    return {"backend": backend, "frame": frame, "gap": gap, "count": len(rows),
+    return {"backend": backend, "extraction": extraction, "frame": frame, "gap": gap, "count": len(rows),
             "acc_0.1m_5deg": float(np.mean((t < 0.1) & (a < 5))), "acc_0.05m_5deg": float(np.mean((t < 0.05) & (a < 5))),
             "fallback_share": float(np.mean([not r["features_ok"] for r in rows])),
             "median_matches": float(np.median([r["matches"] for r in rows])),
@@ -122,11 +128,11 @@ def table(rows: list[dict[str, Any]], machine: dict[str, Any]):
     from rich.table import Table
 
     t = Table(title="Feature backends, full pipeline (synthetic demo, unseen seed)")
-    for col in ("backend", "query frame", "gap", "n", "0.1m/5", "0.05m/5", "fell back", "matches", "inliers",
+    for col in ("backend", "extraction", "query frame", "gap", "n", "0.1m/5", "0.05m/5", "fell back", "matches", "inliers",
                 "refine s (med)", "refine s (mean)", "build s/room"):
-        t.add_column(col, justify="left" if col in ("backend", "query frame", "gap") else "right")
+        t.add_column(col, justify="left" if col in ("backend", "extraction", "query frame", "gap") else "right")
     for r in rows:
-        t.add_row(r["backend"], r["frame"], r["gap"], str(r["count"]), common.fmt(r["acc_0.1m_5deg"], ".2f"),
+        t.add_row(r["backend"], r.get("extraction", "equirect"), r["frame"], r["gap"], str(r["count"]), common.fmt(r["acc_0.1m_5deg"], ".2f"),
                   common.fmt(r["acc_0.05m_5deg"], ".2f"), common.fmt(r["fallback_share"], ".2f"),
                   common.fmt(r["median_matches"], ".0f"), common.fmt(r["median_inliers"], ".0f"),
                   common.fmt(r["refine_s_median"], ".2f"), common.fmt(r["refine_s_mean"], ".2f"),
@@ -141,6 +147,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     ap.add_argument("--per-split", type=int, default=1, help="queries per split and scene (the demo has 3)")
     ap.add_argument("--backends", default=",".join(BACKENDS))
     ap.add_argument("--frames", default="map", help="query frames to compare: image, map or both (comma-separated)")
+    ap.add_argument("--extractions", default="equirect", help="panorama feature extraction: equirect, cube or both "
+                    "(comma-separated)")
     ap.add_argument("--gap", default="none,hard", help="appearance gaps: none, hard (comma-separated)")
     ap.add_argument("--splits", default=None, help="comma-separated splits (default: all eight)")
     ap.add_argument("--threads", type=int, default=1, help="torch intra-op threads (0: torch default)")
@@ -149,16 +157,16 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     common.set_threads(args.threads)
     dataset = common.demo_dataset(args.seed)
     rows = []
-    for backend in args.backends.split(","):
-        for frame in args.frames.split(","):
-            for gap in args.gap.split(","):
-                rows.append(run(dataset, backend, frame, gap, args.per_split,
-                                args.splits.split(",") if args.splits else None))
-                machine = common.machine_info()
-                common.console().print(table(rows[-1:], machine))
-                result = {"rows": rows, "machine": machine, "seed": args.seed, "per_split": args.per_split,
-                          "splits": args.splits}
-                common.write_json(args.output, json.loads(json.dumps(result, default=float)))  # after each row
+    combos = itertools.product(args.backends.split(","), args.extractions.split(","), args.frames.split(","),
+                               args.gap.split(","))
+    for backend, extraction, frame, gap in combos:
+        rows.append(run(dataset, backend, frame, gap, args.per_split, args.splits.split(",") if args.splits else None,
+                        extraction=extraction))
+        machine = common.machine_info()
+        common.console().print(table(rows[-1:], machine))
+        result = {"rows": rows, "machine": machine, "seed": args.seed, "per_split": args.per_split,
+                  "splits": args.splits}
+        common.write_json(args.output, json.loads(json.dumps(result, default=float)))  # after each row
     common.console().print(table(rows, machine))
     print(f"wrote {args.output}")
     return result

@@ -25,6 +25,9 @@ REFINE = typer.Option("auto", "--refine", help="auto (features when the map has 
 PRIVACY = typer.Option(False, "--privacy", help="Privacy mode: refine only with features near principal lines.")
 FEATURES = typer.Option(None, "--features", help="Feature backend (must match the map's).")
 WEIGHTS = typer.Option(None, "--weights", help="SuperPoint checkpoint.")
+QUERY_FRAME = typer.Option("map", "--query-frame", help="Where query features are extracted: map (the panorama "
+                           "rotated into the map's frame by the best candidate rotation, upright like the map's views) "
+                           "| image (as taken).")
 THREADS = typer.Option(0, "--threads", help="Torch CPU threads (0: default; 1 is best on a busy machine).")
 MAX_TILT = typer.Option(None, "--max-tilt", metavar="DEG",
                         help="Upright prior: keep candidate rotations whose camera up axis is within DEG degrees "
@@ -52,7 +55,7 @@ def _set_threads(threads: int) -> None:
 
 def _params(top_k: int, loss: str, no_decompose: bool, no_refine: bool, privacy: bool,
             features: Optional[str], weights: Optional[Path], max_tilt: Optional[float] = None,
-            refine: str = "auto"):
+            refine: str = "auto", query_frame: str = "map"):
     from ldlloc.ldf import LOSS_KINDS
     from ldlloc.pipeline import LocalizeParams
     from ldlloc.search import SearchParams
@@ -61,15 +64,18 @@ def _params(top_k: int, loss: str, no_decompose: bool, no_refine: bool, privacy:
     if loss not in LOSS_KINDS:
         raise InputError(f"unknown loss {loss!r}; valid: {', '.join(LOSS_KINDS)}")
     check_range(top_k, "--top-k", 1, MAX_TOP_K, integer=True)
-    from ldlloc.pipeline import REFINE_MODES
+    from ldlloc.pipeline import QUERY_FRAMES, REFINE_MODES
 
     if refine not in REFINE_MODES:
         raise InputError(f"unknown --refine {refine!r}; valid: {', '.join(REFINE_MODES)}")
+    if query_frame not in QUERY_FRAMES:
+        raise InputError(f"unknown --query-frame {query_frame!r}; valid: {', '.join(QUERY_FRAMES)}")
     if max_tilt is not None and not (0.0 < max_tilt <= 180.0):
         raise InputError(f"--max-tilt must be in (0, 180] degrees, got {max_tilt:g}")
     return LocalizeParams(search=SearchParams(top_k=top_k, loss=loss, decompose=not no_decompose),
                           features=features, weights=str(weights) if weights else None,
-                          do_refine=not no_refine, privacy=privacy, max_tilt_deg=max_tilt, refine_mode=refine)
+                          do_refine=not no_refine, privacy=privacy, max_tilt_deg=max_tilt, refine_mode=refine,
+                          query_frame=query_frame)
 
 
 @app.command()
@@ -91,6 +97,7 @@ def localize(
     features: Optional[str] = FEATURES,
     weights: Optional[Path] = WEIGHTS,
     max_tilt: Optional[float] = MAX_TILT,
+    query_frame: str = QUERY_FRAME,
     vis: Optional[Path] = typer.Option(None, "--vis", help="Write a picture of the lines and the estimated pose "
                                        "(.jpg, .jpeg, .png, .bmp, .tif, .tiff, .webp)."),
     threads: int = typer.Option(1, "--threads", help="Torch CPU threads (1, the default, is fastest for one "
@@ -112,7 +119,7 @@ def localize(
 
     from ldlmap.errors import refuse_overwriting_inputs
 
-    params = _params(top_k, loss, no_decompose, no_refine, privacy, features, weights, max_tilt, refine)
+    params = _params(top_k, loss, no_decompose, no_refine, privacy, features, weights, max_tilt, refine, query_frame)
     _check_threads(threads)
     if vis is not None:
         check_picture_path(vis, "--vis")
@@ -226,6 +233,7 @@ def run(
     features: Optional[str] = FEATURES,
     weights: Optional[Path] = WEIGHTS,
     max_tilt: Optional[float] = MAX_TILT,
+    query_frame: str = QUERY_FRAME,
     resume: bool = typer.Option(False, "--resume", help="Skip queries already in the results file, retry its failed "
                                 "ones; refuses options other than the file's (see --resume-any-options)."),
     resume_any_options: bool = typer.Option(False, "--resume-any-options", help="With --resume: allow options other "
@@ -242,7 +250,7 @@ def run(
     from ldlmap.datasets import open_dataset
     from ldlmap.errors import InputError
 
-    params = _params(top_k, loss, no_decompose, no_refine, privacy, features, weights, max_tilt, refine)
+    params = _params(top_k, loss, no_decompose, no_refine, privacy, features, weights, max_tilt, refine, query_frame)
     _check_threads(threads)
     if output is not None:
         check_results_path(output)

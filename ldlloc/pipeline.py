@@ -58,6 +58,10 @@ class LocalizeParams:
     # | image (as taken). Measured (bench_features.py, seed 23, 16 queries over the 8 splits): map gives
     # SIFT 121 vs 86 median matches at equal accuracy, XFeat 1.00 vs 0.94 at 0.1 m / 5 deg (0.75 at 5 cm
     # as taken: the extreme splits' rotated views defeat detectors that are not rotation invariant)
+    max_query_frames: int = 3  # query_frame map: at most this many frames of distinct candidate up axes ...
+    frame_split_deg: float = 45.0  # ... more than this apart (Localizer._refine_features). On the
+    # extreme split a search's top-1 flipped upside down (a Manhattan twin) turned the panorama over,
+    # and XFeat, not rotation invariant, then matched 3-13 points (bench_features.py, seed 23)
     max_keypoints: int | None = None  # query features (None: the backend's query_keypoints: 8192 for
     # nearest-neighbour matchers, the map views' count for LightGlue, whose cost grows with its square)
     vp_keep_ratio: float = 0.2  # vanishing points are voted by the longest max(kept ratio, this)
@@ -193,6 +197,25 @@ def _image_header_size(p: Path) -> tuple[int, int] | None:
     return None
 
 
+def query_frame_groups(rotations: np.ndarray, max_frames: int = 3, split_deg: float = 45.0
+                       ) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Frames to extract a query's features in, for candidate rotations (K, 3, 3) best first: the
+    best's, then each next one whose camera up axis (``R e_z``) is more than ``split_deg`` from every
+    frame's so far, at most ``max_frames``; with the candidates (indices) whose up axis is nearest
+    to each frame's. Rotations about the up axis only roll the panorama: they share a frame."""
+    R = np.asarray(rotations, dtype=np.float64)
+    up = R[:, :, 2]
+    frames = [0]
+    cos = np.cos(np.radians(split_deg))
+    for i in range(1, len(R)):
+        if len(frames) >= max(1, int(max_frames)):
+            break
+        if np.all(up[frames] @ up[i] < cos):
+            frames.append(i)
+    nearest = np.argmax(up @ up[frames].T, axis=1)
+    return [(R[f], np.flatnonzero(nearest == j)) for j, f in enumerate(frames)]
+
+
 class Localizer:
     """Holds one map (and its feature backend) and localizes panoramas against it."""
 
@@ -230,7 +253,7 @@ class Localizer:
         if self.refine_enabled:
             from ldlmap.features import backend_for
 
-            self.backend = backend_for(want, params.weights, device)
+            self.backend = backend_for(want, params.weights, device, ldl_map.features.extraction)
         self._prepare()
 
     def _prepare(self) -> None:
@@ -320,6 +343,41 @@ class Localizer:
                        f"candidate {c + 1}: coarse pose kept (its geometric refinement diverged, matched too few line "
                        "points or explained less of the image)")
 
+    def _refine_features(self, img: np.ndarray, grouped_arcs: np.ndarray, res):
+        """Feature refinement of the top-K poses (:func:`ldlloc.refine.refine_candidates`); returns
+        the refinement and the number of query features it used.
+
+        With ``query_frame`` ``map`` the query's features are extracted in the frame of the best
+        candidate's rotation and, for candidates whose camera up axis is more than
+        ``frame_split_deg`` from every frame's so far (a flipped Manhattan twin of a free-rotation
+        query), in theirs too, at most ``max_query_frames``; each candidate is matched with the
+        features of the frame nearest its up axis, and the refinement with the most PnP inliers
+        wins. ``grouped_arcs``: the arcs of principal lines (the privacy filter's)."""
+        from ldlloc.refine import keep_near_lines, refine_candidates
+
+        p, m = self.params, self.map
+        H, W = img.shape[:2]
+        k = self.backend.query_keypoints if p.max_keypoints is None else p.max_keypoints
+        groups = (query_frame_groups(res.rotations, p.max_query_frames, p.frame_split_deg) if p.query_frame == "map"
+                  else [(None, np.arange(len(res.rotations)))])
+        best, best_key = None, None
+        for R, idx in groups:
+            if R is None:
+                feats = self.backend.extract(img, max_keypoints=k)
+            else:
+                from ldlmap.features.sphere import extract_in_map_frame
+
+                feats = extract_in_map_frame(self.backend, img, R, max_keypoints=k)
+            if p.privacy:
+                feats = feats.subset(keep_near_lines(feats.keypoints, grouped_arcs, W, H, p.refine.privacy_radius))
+            ref = refine_candidates(feats, (W, H), res.rotations[idx], res.centers[idx], res.translation_index[idx],
+                                    m.features, self.backend, p.refine)
+            ref.candidate = int(idx[ref.candidate])
+            key = (ref.refined, ref.num_inliers)
+            if best_key is None or key > best_key:  # ties: the frame of the better-ranked candidates
+                best, best_key = (ref, len(feats)), key
+        return best
+
     def _polish_geometric(self, out: "Localization", arcs: np.ndarray, translation_index: int) -> None:
         """``--refine both`` (and ``auto``'s fallback): refine the feature-refined (or coarse) pose from
         lines alone, kept as :meth:`_refine_and_keep` says."""
@@ -346,7 +404,6 @@ class Localizer:
         """
         from ldlloc.lines2d import detect_lines, filter_by_length, query_keep_ratio
         from ldlloc.principal import candidate_rotations, filter_by_tilt, labels_for_rotations, vanishing_points
-        from ldlloc.refine import keep_near_lines, refine_candidates
         from ldlloc.search import search_poses
         from ldlmap.frame import is_identity
 
@@ -404,20 +461,7 @@ class Localizer:
                            rotation_prior=rotation_prior_name(tilt),
                            input_to_map=None if is_identity(m.input_to_map) else m.input_to_map)
         if self.refine_enabled:
-            k = self.backend.query_keypoints if p.max_keypoints is None else p.max_keypoints
-            if p.query_frame == "map":
-                from ldlmap.features.sphere import extract_in_map_frame
-
-                feats = extract_in_map_frame(self.backend, img, res.rotations[0], max_keypoints=k)
-            else:
-                feats = self.backend.extract(img, max_keypoints=k)
-            if p.privacy:
-                near = keep_near_lines(feats.keypoints, arcs[out.arc_groups >= 0], img.shape[1], img.shape[0],
-                                       p.refine.privacy_radius)
-                feats = feats.subset(near)
-            out.num_query_features = len(feats)
-            ref = refine_candidates(feats, (img.shape[1], img.shape[0]), res.rotations, res.centers,
-                                    res.translation_index, m.features, self.backend, p.refine)
+            ref, out.num_query_features = self._refine_features(img, arcs[out.arc_groups >= 0], res)
             out.rot_cam_from_world, out.center = ref.rot_cam_from_world, ref.center
             out.coarse_rot, out.coarse_center = res.rotations[ref.candidate], res.centers[ref.candidate]
             out.arc_groups = labels[res.rotation_index[ref.candidate]]

@@ -49,6 +49,8 @@ class BuildParams:
     width: int = 1024  # rendered view size (the queries' size)
     height: int = 512
     max_keypoints: int | None = None  # per rendered view (None: the backend's max_keypoints)
+    feature_extraction: str = "equirect"  # equirect (the panorama) | cube (its six 90-degree faces;
+    # ldlmap.features.sphere), for the map's views and, as the map records it, the queries
     stored_cloud_points: int = 200_000  # subsampled colored cloud kept in the map for pictures
     mesh_samples: int = 1_000_000  # points sampled from a mesh input
     device: str = "cpu"  # torch device for rendering and SuperPoint
@@ -148,7 +150,7 @@ def compute_features(points: np.ndarray, colors: np.ndarray, translations: np.nd
     from ldlmap.mapfile import MapFeatures
     from ldlmap.render import PointRenderer, RenderParams
 
-    backend = backend_for(params.features, params.weights, params.device)
+    backend = backend_for(params.features, params.weights, params.device, params.feature_extraction)
     renderer = PointRenderer(points, colors, RenderParams(width=params.width, height=params.height),
                              device=params.device)
     vidx = _farthest_point_indices(translations, max(1, params.num_views), params.seed)
@@ -172,6 +174,7 @@ def compute_features(points: np.ndarray, colors: np.ndarray, translations: np.nd
         translation_view=d.argmin(1).astype(np.int32),
         width=params.width,
         height=params.height,
+        extraction=params.feature_extraction,
     )
 
 
@@ -217,6 +220,9 @@ def _check_params(params: BuildParams) -> None:
 
     if params.features not in (*available_backends(), "none"):
         raise InputError(f"unknown feature backend {params.features!r}; valid: {', '.join(available_backends())}, none")
+    from ldlmap.features.sphere import check_extraction
+
+    check_extraction(params.feature_extraction)
     if params.min_line_length is not None and not params.min_line_length > 0:
         raise InputError(f"minimum line length must be > 0 m, got {params.min_line_length}")
     from ldlmap.frame import parse_up

@@ -25,6 +25,8 @@ CAMERA_HEIGHT = typer.Option(None, "--camera-height", metavar="MIN:MAX", help="M
                              "band in metres (e.g. 1.2:1.7; default: ZInD's camera height, else floor to ceiling).")
 UP = typer.Option(None, "--up", help="The input's up axis: x, y, z, -x, -y, -z, or auto (default: the COLMAP cameras' "
                   "down axes, else the lines' vertical structure); the map is rotated into z-up once.")
+EXTRACTION = typer.Option(None, "--feature-extraction", help="Where features of the panoramas are extracted: equirect "
+                          "(the whole image, default) | cube (its six 90-degree faces); the queries follow the map.")
 SCALE = typer.Option(None, "--scale", help="Multiply the input coordinates by this (metres per input unit: 0.001 "
                      "for millimetres, the scale of an SfM frame); default 1.")
 
@@ -53,7 +55,8 @@ def info(map_path: Path = typer.Argument(..., help="An LDL map (.h5) written by 
         ("candidate translations", _translations_summary(h)),
         ("cloud points stored", str(h["num_cloud_points"])),
         ("features", "none (lines-only map)" if h["feature_backend"] is None else
-         f"{h['feature_backend']}: {h['num_keypoints']} keypoints in {h['num_views']} views"),
+         f"{h['feature_backend']}: {h['num_keypoints']} keypoints in {h['num_views']} views"
+         + (" (cube faces)" if h.get("feature_extraction") == "cube" else "")),
         ("precomputed fields", ", ".join(h["fields"]) or "none"),
         ("line visibility", "per translation (walls hide lines)" if h.get("line_visibility") else "every line seen"),
         ("file size", f"{h['file_size_bytes'] / 1e6:.2f} MB"),
@@ -227,6 +230,7 @@ def build(
     features: str = typer.Option("sift", "--features", help="Local features for refinement: sift (no weights) | aliked | disk | xfeat (packaged weights, "
                                   "LightGlue matching) | superpoint (your weights) | none."),
     weights: Optional[Path] = typer.Option(None, "--weights", help="SuperPoint checkpoint (else $LDL_SUPERPOINT_WEIGHTS, cache, download)."),
+    extraction: Optional[str] = EXTRACTION,
     num_trans: Optional[int] = typer.Option(None, "--num-trans", help="N_t candidate translations (default 800)."),
     method: Optional[str] = typer.Option(None, "--translations", help="octree (OmniScenes) | grid (Stanford)."),
     num_views: Optional[int] = typer.Option(None, "--num-views", help="Views rendered for features (default 40)."),
@@ -253,7 +257,7 @@ def build(
     from ldlmap.prepare import refuse_replacing_non_map
 
     check_build_options(num_trans=num_trans, num_views=num_views, lam=lam, min_length=min_length,
-                        trans_spacing=trans_spacing, scale=scale, device=device)
+                        trans_spacing=trans_spacing, scale=scale, device=device, extraction=extraction)
     if png is not None:
         check_picture_path(png, "--png")
     output = output if output is not None else input_path.with_suffix(".h5")
@@ -261,8 +265,8 @@ def build(
     refuse_replacing_non_map(output, overwrite)
 
     params = params_with(BuildParams(), features=features, weights=str(weights) if weights else None,
-                         num_translations=num_trans, translation_method=method, num_views=num_views, lam=lam,
-                         min_line_length=min_length, device=device, trans_spacing=trans_spacing,
+                         feature_extraction=extraction, num_translations=num_trans, translation_method=method,
+                         num_views=num_views, lam=lam, min_line_length=min_length, device=device, trans_spacing=trans_spacing,
                          camera_height=parse_band(camera_height, "--camera-height"), up=up, scale=scale)
     with _progress_bar() as bar:
         task = bar.add_task(f"building map of {input_path.name}", total=None)
@@ -298,8 +302,9 @@ MAX_VIEWS = 1000  # views rendered for features (40 by default; each costs a ren
 
 def check_build_options(num_trans: Optional[int] = None, num_views: Optional[int] = None, lam: Optional[float] = None,
                         min_length: Optional[float] = None, trans_spacing: Optional[float] = None,
-                        scale: Optional[float] = None, device: str = "cpu") -> None:
-    """Bounds on the numeric options of `build` and `prepare` and the device, before any work."""
+                        scale: Optional[float] = None, device: str = "cpu", extraction: Optional[str] = None) -> None:
+    """Bounds on the numeric options of `build` and `prepare`, the device and the feature
+    extraction, before any work."""
     check_range(num_trans, "--num-trans", 1, MAX_TRANSLATIONS, integer=True,
                 why="the distance fields take about 50 kB per candidate translation")
     check_range(num_views, "--num-views", 1, MAX_VIEWS, integer=True)
@@ -308,6 +313,10 @@ def check_build_options(num_trans: Optional[int] = None, num_views: Optional[int
     check_range(trans_spacing, "--trans-spacing", 1e-3, 1e6, why="input units between candidate translations")
     check_range(scale, "--scale", 1e-6, 1e6, why="metres per input unit")
     check_device(device)
+    if extraction is not None:
+        from ldlmap.features.sphere import check_extraction
+
+        check_extraction(extraction)
 
 
 def _print_notes(report) -> None:
@@ -331,6 +340,7 @@ def prepare(
     features: Optional[str] = typer.Option(None, "--features", help="sift | aliked | disk | xfeat | superpoint | none (default sift; "
                                            "ZInD layout maps: none)."),
     weights: Optional[Path] = typer.Option(None, "--weights", help="SuperPoint checkpoint."),
+    extraction: Optional[str] = EXTRACTION,
     num_trans: Optional[int] = typer.Option(None, "--num-trans", help="N_t (default: 800 OmniScenes, 1700 Stanford)."),
     num_views: Optional[int] = typer.Option(None, "--num-views", help="Views rendered for features (default 40)."),
     trans_spacing: Optional[float] = TRANS_SPACING,
@@ -357,7 +367,7 @@ def prepare(
     if map_level not in MAP_LEVELS:
         raise InputError(f"--map-level must be {' or '.join(MAP_LEVELS)}, got {map_level!r}")
     check_build_options(num_trans=num_trans, num_views=num_views, trans_spacing=trans_spacing, scale=scale,
-                        device=device)
+                        device=device, extraction=extraction)
     ds = open_dataset(root, dataset or (None if root else "omniscenes"), map_level=map_level)
     root, kind = Path(ds.root), ds.kind
     if kind == "zind":
@@ -371,7 +381,8 @@ def prepare(
         ds.scenes()  # reads and validates every home's zind_data.json before anything is printed
         console.print(f"ZInD: lines-only maps from the room layouts, one per {map_level} (features: none)")
     params = params_with(default_params(kind), features=features or ("none" if kind == "zind" else "sift"),
-                         weights=str(weights) if weights else None, num_translations=num_trans, num_views=num_views,
+                         weights=str(weights) if weights else None, feature_extraction=extraction,
+                         num_translations=num_trans, num_views=num_views,
                          device=device, trans_spacing=trans_spacing,
                          camera_height=parse_band(camera_height, "--camera-height"), up=up, scale=scale)
     options = dict(overwrite=overwrite, use_line_files=line_files, scenes=scene or None, map_level=map_level)

@@ -27,7 +27,8 @@ datasets are readable with plain h5py::
     /translations/view_index (N_t,) int32  index of the rendered view that serves each candidate
                             (only when features are present)
     /features               attrs: backend ('sift' | 'aliked' | 'disk' | 'xfeat' | 'superpoint'), descriptor_dim,
-                            width, height
+                            width, height, extraction ('equirect' | 'cube': features of the
+                            panoramas or of their cube faces, ldlmap.features.sphere; absent: equirect)
     /features/view_centers  (V, 3) float32  where views were rendered (identity rotation)
     /features/offsets       (V + 1,) int64  keypoints of view i are rows offsets[i]:offsets[i+1]
     /features/xyz           (K, 3) float32  keypoint positions in the world
@@ -74,6 +75,7 @@ class MapFeatures:
     translation_view: np.ndarray  # (N_t,) view serving each candidate translation
     width: int = 1024
     height: int = 512
+    extraction: str = "equirect"  # equirect | cube (ldlmap.features.sphere.PANORAMA_EXTRACTIONS)
 
     @property
     def num_views(self) -> int:
@@ -255,6 +257,10 @@ def _validate_features(f: MapFeatures, num_translations: int) -> None:
     for side, size in (("width", f.width), ("height", f.height)):
         if not (_is_int(size) and 0 < int(size) <= _MAX_IMAGE_SIDE):
             raise InputError(f"map features: {side} {size!r} is not a pixel count in 1..{_MAX_IMAGE_SIDE}")
+    from ldlmap.features.sphere import PANORAMA_EXTRACTIONS
+
+    if f.extraction not in PANORAMA_EXTRACTIONS:
+        raise InputError(f"map features: extraction {f.extraction!r} is not one of {', '.join(PANORAMA_EXTRACTIONS)}")
     kp = np.asarray(f.keypoints, dtype=np.float64)
     if k and (kp.min() < -1.0 or kp[:, 0].max() > f.width + 1.0 or kp[:, 1].max() > f.height + 1.0):
         raise InputError(f"map features: keypoints lie outside the {f.width} x {f.height} views")
@@ -320,6 +326,7 @@ def write_map(path: str | Path, m: LdlMap) -> Path:
                 fg.attrs["descriptor_dim"] = int(f.descriptors.shape[1])
                 fg.attrs["width"] = int(f.width)
                 fg.attrs["height"] = int(f.height)
+                fg.attrs["extraction"] = str(f.extraction)
                 fg["view_centers"] = np.asarray(f.view_centers, np.float32)
                 fg["offsets"] = np.asarray(f.offsets, np.int64)
                 fg.create_dataset("xyz", data=np.asarray(f.xyz, np.float32), **_COMPRESS)
@@ -566,6 +573,8 @@ def read_map_header(path: str | Path) -> dict[str, Any]:
                 "num_translations": int(h5["translations/centers"].shape[0]),
                 "num_cloud_points": int(h5["cloud/points"].shape[0]) if "cloud/points" in h5 else 0,
                 "feature_backend": _attr_value(h5["features"], "backend", "str", path) if "features" in h5 else None,
+                "feature_extraction": (_attr_value(h5["features"], "extraction", "str", path, "equirect")
+                                       if "features" in h5 else None),
                 "num_views": int(h5["features/view_centers"].shape[0]) if "features" in h5 else 0,
                 "num_keypoints": int(h5["features/xyz"].shape[0]) if "features" in h5 else 0,
                 "fields": sorted(h5["fields"].keys()) if "fields" in h5 else [],
@@ -643,6 +652,7 @@ def _map_from(h5, data: dict[str, np.ndarray], path: Path, load_cloud: bool) -> 
             translation_view=get("translations/view_index", np.int64),
             width=_attr_value(fg, "width", "int", path, 1024),
             height=_attr_value(fg, "height", "int", path, 512),
+            extraction=_attr_value(fg, "extraction", "str", path, "equirect"),
         )
         dim = _attr_value(fg, "descriptor_dim", "int", path, feats.descriptors.shape[1])
         if dim != feats.descriptors.shape[1]:

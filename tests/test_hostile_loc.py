@@ -48,6 +48,7 @@ OPTIONS = [
     ("tilt inf", ["--max-tilt", "inf"], "--max-tilt must be"),
     ("loss", ["--loss", "l3"], "unknown loss"),
     ("refine", ["--refine", "magic"], "unknown --refine"),
+    ("query frame", ["--query-frame", "sideways"], "unknown --query-frame"),
     ("device gpu", ["--device", "gpu"], "--device must be"),
     ("device cuda:x", ["--device", "cuda:x"], "--device must be"),
     ("device cuda", ["--device", _cuda_case()[0]], _cuda_case()[1]),

@@ -56,6 +56,7 @@ OPTION_CASES = [
     (BUILD, "--camera-height", "nan:1", "finite MIN <= MAX"),
     (BUILD, "--camera-height", "0:inf", "finite MIN <= MAX"),
     (BUILD, "--png", "{r}/top.txt", "cannot write .txt pictures"),
+    (BUILD, "--feature-extraction", "sphere", "unknown feature extraction 'sphere'; valid: equirect, cube"),
     (PREPARE, "--num-trans", "0", "--num-trans must be"),
     (PREPARE, "--num-trans", "99999999", "--num-trans must be"),
     (PREPARE, "--num-views", "-1", "--num-views must be"),
@@ -65,6 +66,7 @@ OPTION_CASES = [
     (PREPARE, "--device", "metal", "--device must be"),
     (PREPARE, "--camera-height", "3:1", "finite MIN <= MAX"),
     (PREPARE, "--map-level", "house", "--map-level must be"),
+    (PREPARE, "--feature-extraction", "cubes", "unknown feature extraction 'cubes'"),
     (SYNTH, "--seed", "-1", "--seed must be in [0, 2**32)"),
     (SYNTH, "--seed", str(2**32), "--seed must be in [0, 2**32)"),
     (SYNTH, "--seed", str(2**32 + 1), "--seed must be in [0, 2**32)"),  # was the dataset of seed 1

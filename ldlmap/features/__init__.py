@@ -42,14 +42,18 @@ def get_backend(name: str, **opts) -> FeatureBackend:
     return getattr(import_module(module), cls)(**opts)
 
 
-def backend_for(name: str, weights: str | None = None, device: str = "cpu") -> FeatureBackend:
-    """The backend ``name`` as the map builder and the localizer use it: on ``device``, and with
-    the user's ``weights`` for SuperPoint (the other backends take none)."""
+def backend_for(name: str, weights: str | None = None, device: str = "cpu",
+                extraction: str = "equirect") -> FeatureBackend:
+    """The backend ``name`` as the map builder and the localizer use it: on ``device``, with the
+    user's ``weights`` for SuperPoint (the other backends take none), run on the panoramas'
+    ``extraction`` (equirect | cube, :mod:`ldlmap.features.sphere`)."""
+    from ldlmap.features.sphere import for_panoramas
+
     key = str(name).strip().lower()
     opts: dict = {"device": device}
     if key == "superpoint":
         opts["weights"] = weights
-    return get_backend(key, **opts)
+    return for_panoramas(get_backend(key, **opts), extraction)
 
 
 __all__ = ["backend_for", "FeatureBackend", "Features", "available_backends", "get_backend", "mutual_nn_match"]
