@@ -350,9 +350,10 @@ class Localizer:
         With ``query_frame`` ``map`` the query's features are extracted in the frame of the best
         candidate's rotation and, for candidates whose camera up axis is more than
         ``frame_split_deg`` from every frame's so far (a flipped Manhattan twin of a free-rotation
-        query), in theirs too, at most ``max_query_frames``; each candidate is matched with the
-        features of the frame nearest its up axis, and the refinement with the most PnP inliers
-        wins. ``grouped_arcs``: the arcs of principal lines (the privacy filter's)."""
+        query), in theirs, at most ``max_query_frames``: each candidate is matched with the features
+        of the frame nearest its up axis, frame after frame until one's candidates refine (the
+        first frame's, usually: no extra cost), else the most PnP inliers win. ``grouped_arcs``:
+        the arcs of principal lines (the privacy filter's)."""
         from ldlloc.refine import keep_near_lines, refine_candidates
 
         p, m = self.params, self.map
@@ -376,6 +377,8 @@ class Localizer:
             key = (ref.refined, ref.num_inliers)
             if best_key is None or key > best_key:  # ties: the frame of the better-ranked candidates
                 best, best_key = (ref, len(feats)), key
+            if ref.refined:  # the next frames are tried only where this one's candidates failed
+                break
         return best
 
     def _polish_geometric(self, out: "Localization", arcs: np.ndarray, translation_index: int) -> None:

@@ -41,6 +41,8 @@ def test_cube_faces_respect_the_mask_and_the_budget():
     top = cb.extract(img, max_keypoints=50)
     assert len(top) == 50 and np.all(np.diff(top.scores) <= 0)
     assert top.scores.min() >= np.sort(all_f.scores)[-50] - 1e-6
+    # without a budget, the backend's for one image holds for the whole panorama, not for each face
+    assert len(CubeFaces(get_backend("sift", max_keypoints=100)).extract(img)) == 100
     blank = cb.extract(np.full((256, 512, 3), 128, np.uint8))
     assert len(blank) == 0 and blank.descriptors.shape[1] == 128
 

@@ -66,7 +66,8 @@ class CubeFaces:
     """A feature backend run on the six faces of a cube around the panorama (90-degree perspective
     views, each rendered ``pad`` wider so that detectors see past its edges), keypoints lifted back
     to the panorama's pixels. Each keypoint is kept by the one face whose own 90 degrees hold it,
-    so no bearing is described twice. Matching is the wrapped backend's."""
+    so no bearing is described twice, and the best ``max_keypoints`` over all faces are kept (None:
+    the wrapped backend's budget for one image). Matching is the wrapped backend's."""
 
     def __init__(self, inner, face_size: int | None = None, pad: float = 0.1):
         self.inner = inner
@@ -94,6 +95,8 @@ class CubeFaces:
         import cv2
 
         img, mask = check_image(image_rgb, mask)
+        if max_keypoints is None:  # the backend's budget for one image holds for the whole panorama
+            max_keypoints = getattr(getattr(self.inner, "config", None), "max_keypoints", None)
         H, W = img.shape[:2]
         side = int(self.face_size or max(W // 4, 8))
         n = int(round(side * (1.0 + self.pad)))
