@@ -49,8 +49,9 @@ class BuildParams:
     width: int = 1024  # rendered view size (the queries' size)
     height: int = 512
     max_keypoints: int | None = None  # per rendered view (None: the backend's max_keypoints)
-    feature_extraction: str = "equirect"  # equirect (the panorama) | cube (its six 90-degree faces;
-    # ldlmap.features.sphere), for the map's views and, as the map records it, the queries
+    feature_extraction: str | None = None  # equirect (the panorama) | cube (its six 90-degree faces;
+    # ldlmap.features.sphere), for the map's views and, as the map records it, the queries; None: the
+    # backend's default (cube for aliked, equirect for the others: ldlmap.features.sphere.default_extraction)
     stored_cloud_points: int = 200_000  # subsampled colored cloud kept in the map for pictures
     mesh_samples: int = 1_000_000  # points sampled from a mesh input
     device: str = "cpu"  # torch device for rendering and SuperPoint
@@ -150,7 +151,10 @@ def compute_features(points: np.ndarray, colors: np.ndarray, translations: np.nd
     from ldlmap.mapfile import MapFeatures
     from ldlmap.render import PointRenderer, RenderParams
 
-    backend = backend_for(params.features, params.weights, params.device, params.feature_extraction)
+    from ldlmap.features.sphere import default_extraction
+
+    extraction = params.feature_extraction or default_extraction(params.features)
+    backend = backend_for(params.features, params.weights, params.device, extraction)
     renderer = PointRenderer(points, colors, RenderParams(width=params.width, height=params.height),
                              device=params.device)
     vidx = _farthest_point_indices(translations, max(1, params.num_views), params.seed)
@@ -174,7 +178,7 @@ def compute_features(points: np.ndarray, colors: np.ndarray, translations: np.nd
         translation_view=d.argmin(1).astype(np.int32),
         width=params.width,
         height=params.height,
-        extraction=params.feature_extraction,
+        extraction=extraction,
     )
 
 
@@ -222,7 +226,8 @@ def _check_params(params: BuildParams) -> None:
         raise InputError(f"unknown feature backend {params.features!r}; valid: {', '.join(available_backends())}, none")
     from ldlmap.features.sphere import check_extraction
 
-    check_extraction(params.feature_extraction)
+    if params.feature_extraction is not None:
+        check_extraction(params.feature_extraction)
     if params.min_line_length is not None and not params.min_line_length > 0:
         raise InputError(f"minimum line length must be > 0 m, got {params.min_line_length}")
     from ldlmap.frame import parse_up

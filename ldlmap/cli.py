@@ -26,7 +26,8 @@ CAMERA_HEIGHT = typer.Option(None, "--camera-height", metavar="MIN:MAX", help="M
 UP = typer.Option(None, "--up", help="The input's up axis: x, y, z, -x, -y, -z, or auto (default: the COLMAP cameras' "
                   "down axes, else the lines' vertical structure); the map is rotated into z-up once.")
 EXTRACTION = typer.Option(None, "--feature-extraction", help="Where features of the panoramas are extracted: equirect "
-                          "(the whole image, default) | cube (its six 90-degree faces); the queries follow the map.")
+                          "(the whole image) | cube (its six 90-degree faces); default: cube for aliked, equirect for "
+                          "the others (measured); the queries follow the map.")
 SCALE = typer.Option(None, "--scale", help="Multiply the input coordinates by this (metres per input unit: 0.001 "
                      "for millimetres, the scale of an SfM frame); default 1.")
 

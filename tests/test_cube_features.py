@@ -12,6 +12,7 @@ import pytest
 from ldlmap.errors import InputError
 from ldlmap.features import backend_for, get_backend
 from ldlmap.features.sphere import CubeFaces, for_panoramas
+from tests._localize import assert_refined_by_features
 from tests.test_features import _texture
 
 
@@ -66,10 +67,9 @@ def test_cube_face_map_records_its_extraction_and_localizes(demo_dataset, tmp_pa
     end within 0.1 m / 5 deg, refined by features."""
     from ldlmap.build import BuildParams, compute_features
     from ldlmap.datasets import open_dataset
-    from ldlmap.geometry import rotation_error_deg, translation_error
     from ldlmap.io.pointcloud import read_point_cloud
     from ldlmap.mapfile import read_map, read_map_header, write_map
-    from ldlloc.pipeline import LocalizeParams, Localizer, load_image
+    from ldlloc.pipeline import LocalizeParams, Localizer
 
     ds = open_dataset(demo_dataset, "omniscenes")
     scene = "synthroom_1"
@@ -85,12 +85,7 @@ def test_cube_face_map_records_its_extraction_and_localizes(demo_dataset, tmp_pa
     loc = Localizer(cube_map, LocalizeParams())
     assert isinstance(loc.backend, CubeFaces) and loc.feature_backend == "sift"
     assert not isinstance(backend_for("sift"), CubeFaces)
-    queries = ds.queries("robot", scene=scene)[:1] + ds.queries("extreme", scene=scene)[:2]
-    for q in queries:
-        r = loc.localize(load_image(q.image))
-        t_err = translation_error(r.center, q.center)
-        r_err = rotation_error_deg(r.rot_cam_from_world, q.rot_cam_from_world)
-        assert r.refine_method == "features" and t_err < 0.1 and r_err < 5.0, (q.name, t_err, r_err, r.message)
+    assert_refined_by_features(loc, ds, scene)
     with pytest.raises(InputError, match="extraction 'sphere'"):  # an extraction this version does not know
         write_map(tmp_path / "bad.h5", replace(m, features=replace(feats, extraction="sphere")))
     assert not (tmp_path / "bad.h5").exists()

@@ -12,6 +12,7 @@ import pytest
 from ldlmap.features import get_backend
 from ldlmap.features.sphere import extract_in_map_frame, rotate_panorama
 from ldlmap.geometry import bearing_from_pixel, rotation_from_axis_angle
+from tests._localize import assert_refined_by_features
 
 pytest.importorskip("kornia")
 LEARNED = ("aliked", "disk", "xfeat")
@@ -100,10 +101,9 @@ def test_localization_with_packaged_weights_offline(name, demo_dataset, offline)
     from ldlmap.build import BuildParams, compute_features
     from ldlmap.datasets import open_dataset
     from ldlmap.frame import is_identity
-    from ldlmap.geometry import rotation_error_deg, translation_error
     from ldlmap.io.pointcloud import read_point_cloud
     from ldlmap.mapfile import read_map
-    from ldlloc.pipeline import LocalizeParams, Localizer, load_image
+    from ldlloc.pipeline import LocalizeParams, Localizer
 
     ds = open_dataset(demo_dataset, "omniscenes")
     scene = "synthroom_1"
@@ -111,15 +111,10 @@ def test_localization_with_packaged_weights_offline(name, demo_dataset, offline)
     assert is_identity(m.input_to_map)
     cloud = read_point_cloud(ds.point_cloud(scene))
     feats = compute_features(cloud.points, cloud.colors, m.translations, BuildParams(features=name, num_views=8))
-    assert feats.backend == name
+    assert feats.backend == name and feats.extraction == ("cube" if name == "aliked" else "equirect")  # measured defaults
     loc = Localizer(replace(m, features=feats), LocalizeParams(query_frame="map"))
     assert loc.feature_backend == name
-    queries = ds.queries("robot", scene=scene)[:1] + ds.queries("extreme", scene=scene)[:2]
-    for q in queries:
-        r = loc.localize(load_image(q.image))
-        t_err = translation_error(r.center, q.center)
-        r_err = rotation_error_deg(r.rot_cam_from_world, q.rot_cam_from_world)
-        assert r.refine_method == "features" and t_err < 0.1 and r_err < 5.0, (q.name, t_err, r_err, r.message)
+    assert_refined_by_features(loc, ds, scene)
 
 
 def test_build_lists_every_backend_for_an_unknown_name(tmp_path):
