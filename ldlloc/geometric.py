@@ -76,7 +76,7 @@ class GeometricParams:
     # scenes most of the top 20 meet within a few rounds)
     height_margin_m: float = 0.05  # with a known camera-height band (the map's, e.g. a ZInD layout's
     # annotated height), each step keeps the camera within this of it: in a closet of the real home the
-    # height drifted 0.33 m from a start 3 cm off, its floor lines hidden and its ceiling lines few
+    # height drifted 0.33 m from a start 3 cm off, and its 180-degree twin won
     keep_within: float = 0.05  # the caller keeps a refined pose when its exact loss is at most this
     # fraction worse than its coarse pose's (the inlier loss, tau = 0.1 rad, cannot see a few cm:
     # a pose refined to 3 cm may count a few inliers less than the coarse one 11 cm off)
