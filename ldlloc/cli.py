@@ -325,12 +325,8 @@ def _refuse_replacing_run_inputs(queries: list, maps: Path, output: Path, save_v
 
     inputs = [p for p in (weights, *{maps / f"{q.scene}.h5" for q in queries}, *{q.pose_file for q in queries},
                           *(q.image for q in queries)) if p is not None]
-    refuse_overwriting_inputs(inputs, results_outputs(output))
-    if save_vis is not None:  # one picture per query: compare resolved paths in a set, not pair by pair
-        resolved = {p.resolve(): p for p in inputs}
-        pictures = {picture_path(save_vis, q).resolve(): picture_path(save_vis, q) for q in queries}
-        clash = resolved.keys() & pictures.keys()
-        refuse_overwriting_inputs([resolved[k] for k in clash], [pictures[k] for k in clash])
+    pictures = [picture_path(save_vis, q) for q in queries] if save_vis is not None else []
+    refuse_overwriting_inputs(inputs, [*results_outputs(output), *pictures])
 
 
 def _print_search_summary(results) -> None:

@@ -34,7 +34,6 @@ from __future__ import annotations
 
 import csv
 import fcntl
-import glob
 import io
 import json
 import os
@@ -44,7 +43,7 @@ from typing import Any, Callable, Iterable
 
 import numpy as np
 
-from ldlmap.errors import FormatVersionError, InputError, LdlError, atomic_file, require_file
+from ldlmap.errors import FormatVersionError, InputError, LdlError, atomic_file, remove_stale_temporaries, require_file
 from ldlmap.geometry import rotation_error_deg, translation_error
 
 # (name, metres, degrees): the paper's thresholds; the second is the headline accuracy.
@@ -173,6 +172,11 @@ def _is_number(x: Any) -> bool:
     return isinstance(x, (int, float)) and not isinstance(x, bool) and bool(np.isfinite(x))
 
 
+def _is_count(x: Any, lo: int = 0) -> bool:
+    """Whether ``x`` is an integer (not a bool) of at least ``lo``."""
+    return isinstance(x, int) and not isinstance(x, bool) and x >= lo
+
+
 def _is_matrix(x: Any, rows: int, cols: int | None = None) -> bool:
     """Whether ``x`` is a (rows,) list, or (rows, cols) nested lists, of finite numbers."""
     if not isinstance(x, list) or len(x) != rows:
@@ -194,9 +198,9 @@ _FIELD_CHECKS: dict[str, tuple[Any, str]] = {
     "r_error_deg": (lambda x: x is None or (_is_number(x) and x >= 0), "a finite number >= 0 or null"),
     "seconds": (lambda x: isinstance(x, dict) and all(isinstance(k, str) and _is_number(v) for k, v in x.items()),
                 "an object of finite seconds"),
-    "num_rotations": (lambda x: isinstance(x, int) and not isinstance(x, bool) and x >= 0, "an integer >= 0"),
-    "num_matches": (lambda x: isinstance(x, int) and not isinstance(x, bool) and x >= 0, "an integer >= 0"),
-    "num_inliers": (lambda x: isinstance(x, int) and not isinstance(x, bool) and x >= 0, "an integer >= 0"),
+    "num_rotations": (_is_count, "an integer >= 0"),
+    "num_matches": (_is_count, "an integer >= 0"),
+    "num_inliers": (_is_count, "an integer >= 0"),
     "refined": (lambda x: isinstance(x, bool), "true or false"),
     "status": (lambda x: x in STATUSES, " | ".join(STATUSES)),
     "message": (lambda x: isinstance(x, str), "a string"),
@@ -209,7 +213,7 @@ _FIELD_CHECKS: dict[str, tuple[Any, str]] = {
         "a list of {R: 3x3, t: 3, loss} of finite numbers"),
     "best_candidate_t_error_m": (lambda x: x is None or _is_number(x), "a finite number or null"),
     "best_candidate_r_error_deg": (lambda x: x is None or _is_number(x), "a finite number or null"),
-    "first_good_rank": (lambda x: x is None or (isinstance(x, int) and not isinstance(x, bool) and x >= 1),
+    "first_good_rank": (lambda x: x is None or _is_count(x, 1),
                         "an integer >= 1 or null"),
     "input_frame": (lambda x: x is None or (isinstance(x, dict) and _is_matrix(x.get("R"), 3, 3)
                                             and _is_matrix(x.get("t"), 3)), "{R: 3x3, t: 3} or null"),
@@ -356,11 +360,13 @@ class ResultsWriter:
         self.csv_path = self.path.with_suffix(".csv")
         self.meta = dict(meta or {})
         self.results: list[QueryResult] = []
+        self._records: dict[str, tuple[QueryResult, dict]] = {}  # name -> (result, its JSON-safe record)
         self.warn = warn or (lambda message: None)
         self._warned: set[str] = set()
         self._lock = _acquire_lock(self.path)
         try:
-            _remove_stale_temporaries(self.path)
+            remove_stale_temporaries(self.path, ".json")
+            remove_stale_temporaries(self.csv_path, ".csv")
             if resume and self.path.exists():
                 self.results, old_meta = load_results(self.path)
                 self.meta = _resumed_meta(self.path, old_meta, self.meta, any_options)
@@ -416,15 +422,22 @@ class ResultsWriter:
         self._write_json()
         self._write_csv()
 
+    def _record(self, r: QueryResult) -> dict:
+        """``r``'s JSON-safe record, converted once (a flush follows every query)."""
+        hit = self._records.get(r.name)
+        if hit is None or hit[0] is not r:
+            hit = self._records[r.name] = (r, _json_safe(asdict(r)))
+        return hit[1]
+
     def _write_json(self) -> None:
-        data = {
+        data = _json_safe({
             "format_version": RESULTS_FORMAT_VERSION,
             "meta": self.meta,
             "summary": summarize(self.results, self.meta.get("device")),
-            "queries": [asdict(r) for r in self.results],
-        }
+        })
+        data["queries"] = [self._record(r) for r in self.results]
         with atomic_file(self.path) as tmp:
-            tmp.write_text(json.dumps(_json_safe(data), indent=1, allow_nan=False))
+            tmp.write_text(json.dumps(data, indent=1, allow_nan=False))
 
     def _write_csv(self) -> None:
         """Write the CSV; on failure warn once and record why in the JSON's ``meta["csv_error"]``."""
@@ -498,16 +511,6 @@ def _release_lock(fd: int, lock: Path) -> None:
     except OSError:
         pass
     os.close(fd)
-
-
-def _remove_stale_temporaries(path: Path) -> None:
-    """Remove the temporary files that killed runs left beside ``path`` and its CSV (the lock is held)."""
-    for target in (path, path.with_suffix(".csv")):
-        for tmp in target.parent.glob(f".{glob.escape(target.stem)}.*.tmp{target.suffix}"):
-            try:
-                tmp.unlink()
-            except OSError:
-                pass
 
 
 def results_csv(results: list[QueryResult]) -> str:

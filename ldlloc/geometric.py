@@ -180,8 +180,8 @@ def refine_poses_geometric(arcs: np.ndarray, rotations: np.ndarray, centers: np.
     if height_band is not None:
         lo, hi = sorted(float(z) for z in height_band)
         z_lo, z_hi = lo - origin[2] - params.height_margin_m, hi - origin[2] + params.height_margin_m
-    first = torch.as_tensor(np.full(K, params.assoc_deg) if assoc_deg is None else np.asarray(assoc_deg, float).reshape(K),
-                            dtype=dt)
+    assoc0 = torch.as_tensor(np.full(K, params.assoc_deg) if assoc_deg is None else np.asarray(assoc_deg, float).reshape(K),
+                             dtype=dt)  # each pose's first-round association angle (deg)
     rep = torch.arange(K)  # the pose whose refinement each pose shares (itself, or a better-ranked twin)
     active = torch.arange(K)  # the poses still refined, in rank order
     rounds = max(1, int(params.rounds))
@@ -190,7 +190,7 @@ def refine_poses_geometric(arcs: np.ndarray, rotations: np.ndarray, centers: np.
             keep_a, twin = _merge_twins(R, t, params.merge_m, params.merge_deg)
             rep[active] = active[twin]
             active, R, t, L, G3 = active[keep_a], R[keep_a], t[keep_a], L[keep_a], G3[keep_a]
-        a = first[active]
+        a = assoc0[active]
         thr = torch.sin(torch.deg2rad(a + (params.final_assoc_deg - a) * k / max(rounds - 1, 1)))  # (A,)
         match, arc_group = _associate(R, t, X, arc_of, n2, L, G3, P3, params.group_tol, margin, thr)
         vp = (n2, P3, arc_group, params.vp_weight) if params.vp_weight > 0 else None

@@ -286,10 +286,14 @@ class Localizer:
         # a refined pose is scored with what is seen from the candidate translation nearest to it
         # (lines behind walls, mapped directions), not from its start's
         ti_ref = m.nearest_translation(g.centers)
-        loss = score_poses(arcs, np.concatenate([g.rotations, rotations]), np.concatenate([g.centers, centers]),
-                           m.lines, m.line_groups, m.principal_directions, np.concatenate([ti_ref, ti]), p.search,
-                           m.visibility, m.coverage, self.device, p.principal.group_tol)
-        refined, start = loss[:n], loss[n:]
+        # the starts are scored once each (the wide second refinements repeat the best ones)
+        _, first, back = np.unique(np.concatenate([rotations.reshape(-1, 9), centers], 1), axis=0,
+                                   return_index=True, return_inverse=True)
+        loss = score_poses(arcs, np.concatenate([g.rotations, rotations[first]]),
+                           np.concatenate([g.centers, centers[first]]), m.lines, m.line_groups,
+                           m.principal_directions, np.concatenate([ti_ref, ti[first]]), p.search, m.visibility,
+                           m.coverage, self.device, p.principal.group_tol)
+        refined, start = loss[:n], loss[n:][back.reshape(-1)]
         kept = np.zeros(len(rotations), dtype=bool)
         kept[:n] = g.accepted & (refined <= start[:n] + p.geometric.keep_within * np.abs(start[:n]))
         best = start.copy()
@@ -355,6 +359,7 @@ class Localizer:
         first frame's, usually: no extra cost), else the most PnP inliers win. ``grouped_arcs``:
         the arcs of principal lines (the privacy filter's)."""
         from ldlloc.refine import keep_near_lines, refine_candidates
+        from ldlmap.features.sphere import extract_in_map_frame
 
         p, m = self.params, self.map
         H, W = img.shape[:2]
@@ -363,12 +368,8 @@ class Localizer:
                   else [(None, np.arange(len(res.rotations)))])
         best, best_key = None, None
         for R, idx in groups:
-            if R is None:
-                feats = self.backend.extract(img, max_keypoints=k)
-            else:
-                from ldlmap.features.sphere import extract_in_map_frame
-
-                feats = extract_in_map_frame(self.backend, img, R, max_keypoints=k)
+            feats = (self.backend.extract(img, max_keypoints=k) if R is None
+                     else extract_in_map_frame(self.backend, img, R, max_keypoints=k))
             if p.privacy:
                 feats = feats.subset(keep_near_lines(feats.keypoints, grouped_arcs, W, H, p.refine.privacy_radius))
             ref = refine_candidates(feats, (W, H), res.rotations[idx], res.centers[idx], res.translation_index[idx],

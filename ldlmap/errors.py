@@ -20,7 +20,7 @@ import shutil
 import socket
 import tempfile
 from pathlib import Path
-from typing import Callable, Iterable, Iterator
+from typing import Any, Callable, Iterable, Iterator
 
 
 class LdlError(Exception):
@@ -45,19 +45,13 @@ def require_file(path: str | os.PathLike, what: str = "file") -> Path:
     return p
 
 
-def _same_path(a: Path, b: Path) -> bool:
-    """Whether ``a`` and ``b`` name the same file or folder (symlinks resolved, hard links too)."""
-    if a.resolve() == b.resolve():
-        return True
+def _file_id(p: Path) -> tuple[int, int] | None:
+    """(device, inode) of an existing file or folder (hard links share it), else None."""
     try:
-        return a.exists() and b.exists() and os.path.samefile(a, b)
-    except OSError:
-        return False
-
-
-def _holds(folder: Path, path: Path) -> bool:
-    """Whether ``path`` lies inside ``folder`` (both resolved; ``folder`` itself excluded)."""
-    return folder.resolve() in path.resolve().parents
+        st = p.stat()
+    except (OSError, ValueError):
+        return None
+    return st.st_dev, st.st_ino
 
 
 def refuse_overwriting_inputs(inputs: Iterable[str | os.PathLike], outputs: Iterable[str | os.PathLike]) -> None:
@@ -67,17 +61,28 @@ def refuse_overwriting_inputs(inputs: Iterable[str | os.PathLike], outputs: Iter
     included (``ldlmap lines`` writes a ``.txt`` beside the ``.obj``); an output that is the same
     file as an input (same resolved path, a symlink or a hard link to it), or a folder the command
     replaces that holds an input, is refused in one line naming both. ``None`` entries are skipped.
-    Call it before any work is done.
+    Call it before any work is done. Each path is resolved once and looked up in sets, so a run's
+    thousands of panoramas and pictures cost no pairwise comparison.
     """
-    ins = [Path(p) for p in inputs if p is not None]
+    same: dict[Any, Path] = {}  # resolved path or (device, inode) of an input -> the input
+    held: dict[Path, Path] = {}  # a folder holding an input -> the input
+    for src in (Path(p) for p in inputs if p is not None):
+        r = src.resolve()
+        same.setdefault(r, src)
+        for folder in r.parents:
+            held.setdefault(folder, src)
+        ident = _file_id(src)
+        if ident is not None:
+            same.setdefault(ident, src)
     for out in (Path(p) for p in outputs if p is not None):
-        for src in ins:
-            if _same_path(out, src):
-                raise LdlError(f"output {out} would replace the input {src}; write it elsewhere (another name "
-                               "or folder)")
-            if _holds(out, src):
-                raise LdlError(f"output {out} would replace the folder that holds the input {src}; write it "
-                               "elsewhere")
+        r = out.resolve()
+        src = same.get(r) or same.get(_file_id(out))
+        if src is not None:
+            raise LdlError(f"output {out} would replace the input {src}; write it elsewhere (another name "
+                           "or folder)")
+        if r in held:
+            raise LdlError(f"output {out} would replace the folder that holds the input {held[r]}; write it "
+                           "elsewhere")
 
 
 HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
