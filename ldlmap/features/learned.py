@@ -16,6 +16,7 @@ import numpy as np
 
 from ldlmap.errors import InputError
 from ldlmap.features.base import Features, backend_config, check_image, top_k
+from ldlmap.features.weights import key_diff, packaged_weights, read_checkpoint
 
 if TYPE_CHECKING:  # pragma: no cover
     import torch
@@ -50,8 +51,8 @@ def _torch_device(device: str) -> "torch.device":
 def _load_strict(net: "torch.nn.Module", state: dict, what: str, derived: tuple[str, ...] = ()) -> None:
     """Load ``state`` into ``net``; only the buffers named in ``derived`` (recomputed by the
     network itself) may be missing, nothing may be unexpected."""
-    missing = sorted(set(net.state_dict()) - set(state) - set(derived))
-    unexpected = sorted(set(state) - set(net.state_dict()))
+    missing, unexpected = key_diff(net.state_dict(), state)
+    missing = [k for k in missing if k not in derived]
     if missing or unexpected:
         raise InputError(f"{what} weights do not match the network: missing {missing[:4]}, unexpected {unexpected[:4]}")
     net.load_state_dict(state, strict=False)
@@ -61,13 +62,9 @@ def _load_strict(net: "torch.nn.Module", state: dict, what: str, derived: tuple[
 def load_detector(name: str, device: str = "cpu") -> "torch.nn.Module":
     """The detector network ``name`` (aliked | disk | xfeat) with packaged weights, in eval mode
     on ``device``; loaded once per process and device."""
-    import torch
-
-    from ldlmap.features.weights import packaged_weights
-
     dev = _torch_device(device)
     path = packaged_weights(name)
-    state = torch.load(path, map_location="cpu", weights_only=True)
+    state = read_checkpoint(path, name)
     if name == "aliked":
         from kornia.feature import ALIKED
 

@@ -41,15 +41,10 @@ _PAD_LOGIT = -1e4  # similarity of a padded map keypoint: never a row's maximum,
 
 def _state_dict(name: str, n_layers: int, path: str | None = None) -> dict:
     """The LightGlue weights of ``name`` (packaged, or the file ``path``) with kornia's parameter names."""
-    import torch
-
-    from ldlmap.features.weights import packaged_weights
+    from ldlmap.features.weights import packaged_weights, read_checkpoint
 
     path = path or packaged_weights(f"{name}_lightglue")
-    try:
-        state = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:  # noqa: BLE001 - unreadable/corrupt checkpoint
-        raise InputError(f"cannot read LightGlue weights {path}: {str(exc).splitlines()[0] if str(exc) else exc}") from None
+    state = read_checkpoint(path, "LightGlue")
     if name == "xfeat":  # the file holds the extractor too; the matcher is under "matcher."
         state = {k[len("matcher."):]: v for k, v in state.items() if k.startswith("matcher.")}
     renamed = {}

