@@ -56,62 +56,35 @@ def harder_appearance(img: np.ndarray, key: str) -> np.ndarray:
     return np.clip(np.round(x * 255.0), 0, 255).astype(np.uint8)
 
 
-def built_map(dataset: Path, scene: str, features: str, extraction: str = "equirect") -> tuple[Path, float]:
-    """The default map of ``scene`` with ``features`` extracted as ``extraction`` (built once) and
-    its build seconds."""
-    from ldlmap.build import BuildParams, build_map
-    from ldlmap.datasets import open_dataset
-
-    tag = "" if extraction == "equirect" else f"_{extraction}"
-    out = common.CACHE / "maps" / dataset.name / f"{scene}_{features}{tag}_v40_{common.map_tag()}.h5"
-    meta = out.with_suffix(".json")
-    if not (out.exists() and meta.exists()):
-        out.parent.mkdir(parents=True, exist_ok=True)
-        ds = open_dataset(dataset, "omniscenes")
-        t0 = time.perf_counter()
-        build_map(ds.point_cloud(scene), out, params=BuildParams(features=features, feature_extraction=extraction),
-                  name=scene)
-        meta.write_text(json.dumps({"build_seconds": time.perf_counter() - t0}))
-    return out, float(json.loads(meta.read_text())["build_seconds"])
-
-
 def run(dataset: Path, backend: str, frame: str, gap: str, per_split: int, splits: list[str] | None = None,
         progress: bool = True, extraction: str = "equirect") -> dict[str, Any]:
     """Localize the selected queries with maps of ``backend``; one row of the tables."""
-    from ldlloc.pipeline import LocalizeParams, Localizer, load_image
+    from ldlloc.pipeline import LocalizeParams, Localizer
     from ldlmap.datasets import open_dataset
-    from ldlmap.errors import InputError
-    from ldlmap.geometry import rotation_error_deg, translation_error
     from ldlmap.mapfile import read_map
 
     ds = open_dataset(dataset, "omniscenes")
+    transform = (lambda img, q: harder_appearance(img, q.name)) if gap == "hard" else None
     rows, builds = [], []
     for scene in ds.scenes():
-        queries = []
-        for split in splits or ds.splits():
-            queries += ds.queries(split, scene=scene)[:per_split]
-        path, build_s = built_map(dataset, scene, backend, extraction)
-        builds.append(build_s)
+        queries = [q for split in splits or ds.splits() for q in ds.queries(split, scene=scene)[:per_split]]
+        path = common.cached_map(dataset, scene, 40, backend, feature_extraction=extraction)
+        builds.append(common.build_seconds(path))
         loc = Localizer(read_map(path, load_cloud=False), LocalizeParams(query_frame=frame))
-        for i, q in enumerate(queries):
-            img = load_image(q.image)
-            if gap == "hard":
-                img = harder_appearance(img, q.name)
-            row = {"name": q.name, "split": q.split, "t_err": np.inf, "r_err": np.inf, "features_ok": False,
-                   "matches": 0, "inliers": 0, "refine_s": None}
-            try:
-                r = loc.localize(img)
-                row.update(t_err=translation_error(r.center, q.center),
-                           r_err=rotation_error_deg(r.rot_cam_from_world, q.rot_cam_from_world),
-                           features_ok=r.refine_method.startswith("features"), matches=r.num_matches,
-                           inliers=r.num_inliers, refine_s=r.seconds["refine"])
-            except InputError as exc:
-                row["message"] = str(exc)
-            rows.append(row)
+
+        def done(i: int, n: int) -> None:
             if progress:
-                print(f"\r  {backend} {extraction} {frame} {gap} {scene}: {i + 1}/{len(queries)}", end="", file=sys.stderr)
-        if progress:
-            print(file=sys.stderr)
+                print(f"\r  {backend} {extraction} {frame} {gap} {scene}: {i}/{n}", end="\n" if i == n else "",
+                      file=sys.stderr)
+
+        for o in common.localize_queries(loc, queries, done, transform):
+            r, out = o.result, o.loc
+            rows.append({"name": r.name, "split": r.split, "t_err": np.inf if out is None else r.t_error_m,
+                         "r_err": np.inf if out is None else r.r_error_deg,
+                         "features_ok": out is not None and out.refine_method.startswith("features"),
+                         "matches": r.num_matches, "inliers": r.num_inliers,
+                         "refine_s": None if out is None else out.seconds["refine"],
+                         **({"message": r.message} if out is None else {})})
     t = np.array([r["t_err"] for r in rows])
     a = np.array([r["r_err"] for r in rows])
     ref = [r["refine_s"] for r in rows if r["refine_s"] is not None]
@@ -121,7 +94,7 @@ def run(dataset: Path, backend: str, frame: str, gap: str, per_split: int, split
             "median_matches": float(np.median([r["matches"] for r in rows])),
             "median_inliers": float(np.median([r["inliers"] for r in rows])),
             "refine_s_median": float(np.median(ref)) if ref else None, "refine_s_mean": float(np.mean(ref)) if ref else None,
-            "build_s_per_room": float(np.mean(builds)), "queries": rows}
+            "build_s_per_room": float(np.mean(builds)) if None not in builds else None, "queries": rows}
 
 
 def table(rows: list[dict[str, Any]], machine: dict[str, Any]):

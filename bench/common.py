@@ -158,7 +158,8 @@ def room_scan(points: int = 1_000_000, seed: int = 0) -> tuple[Path, dict[str, A
 
 def cached_map(dataset: Path, scene: str, num_views: int = 40, features: str = "sift",
                **params: Any) -> Path:
-    """The map of ``scene`` of ``dataset`` built with ``num_views`` views (built once, reused)."""
+    """The map of ``scene`` of ``dataset`` built with ``num_views`` views (built once, reused; the
+    build's seconds beside it, :func:`build_seconds`)."""
     from ldlmap.build import BuildParams, build_map
     from ldlmap.datasets import open_dataset
 
@@ -167,9 +168,17 @@ def cached_map(dataset: Path, scene: str, num_views: int = 40, features: str = "
     if not out.exists():
         out.parent.mkdir(parents=True, exist_ok=True)
         ds = open_dataset(dataset, "omniscenes")
+        t0 = time.perf_counter()
         build_map(ds.point_cloud(scene), out, params=BuildParams(num_views=num_views, features=features, **params),
                   name=scene)
+        out.with_suffix(".json").write_text(json.dumps({"build_seconds": time.perf_counter() - t0}))
     return out
+
+
+def build_seconds(map_path: Path) -> float | None:
+    """Seconds :func:`cached_map` took to build ``map_path`` (None: not recorded)."""
+    meta = Path(map_path).with_suffix(".json")
+    return float(json.loads(meta.read_text())["build_seconds"]) if meta.exists() else None
 
 
 def subset_views(ldl_map, num_views: int):
@@ -204,9 +213,10 @@ class QueryOutcome:
     loc: Any  # ldlloc.pipeline.Localization or None when it failed
 
 
-def localize_queries(localizer, queries: Sequence[Any], on_done: Callable[[int, int], None] | None = None
-                     ) -> list[QueryOutcome]:
-    """Localize ``queries`` (``ldlmap.datasets.Query``) with ``localizer``; failures are recorded."""
+def localize_queries(localizer, queries: Sequence[Any], on_done: Callable[[int, int], None] | None = None,
+                     transform: Callable[[np.ndarray, Any], np.ndarray] | None = None) -> list[QueryOutcome]:
+    """Localize ``queries`` (``ldlmap.datasets.Query``) with ``localizer``; failures are recorded.
+    ``transform(image, query)``: what each panorama goes through first (e.g. an appearance change)."""
     from ldlloc.evaluate import QueryResult
     from ldlloc.pipeline import load_image
     from ldlmap.errors import InputError
@@ -217,7 +227,8 @@ def localize_queries(localizer, queries: Sequence[Any], on_done: Callable[[int, 
         rec = QueryResult(image=str(q.image), scene=q.scene, split=q.split, name=q.name)
         loc = None
         try:
-            loc = localizer.localize(load_image(q.image))
+            img = load_image(q.image)
+            loc = localizer.localize(img if transform is None else transform(img, q))
         except InputError as exc:
             rec.status, rec.message = "failed", str(exc)
         if loc is not None:
