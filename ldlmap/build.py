@@ -344,8 +344,9 @@ def build_from_input(src: SceneInput, output: Path, params: BuildParams, name: s
         if src.walkable is not None:
             raise InputError("--scale does not apply to room layouts (already metric)")
         src, _ = _transformed(src, None, similarity(params.scale))
-    check_extent(np.subtract(*robust_bounds(_input_points(src))[::-1]))  # before any grid is sized
-    offset = recentring_offset(_input_points(src)) if src.walkable is None else None
+    where = _input_points(src)
+    check_extent(np.subtract(*robust_bounds(where)[::-1]))  # before any grid is sized
+    offset = recentring_offset(where) if src.walkable is None else None
     if offset is not None:  # far from the origin (UTM): work and store relative to the scan's centre
         src, _ = _transformed(src, None, similarity(1.0, None, -offset))
         report.notes.append(f"frame: the input lies far from the origin; the map is centred on "

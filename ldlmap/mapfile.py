@@ -178,12 +178,9 @@ def validate_map(m: LdlMap) -> None:
     _check_array("lines_raw", m.lines_raw, (None, 2, 3))
     _check_array("lines", m.lines, (None, 2, 3))
     _check_array("line_groups", m.line_groups, (len(m.lines),), "i")
-    if len(m.line_groups) and (np.min(m.line_groups) < -1 or np.max(m.line_groups) > 2):
-        raise InputError("map field line_groups holds labels outside -1..2")
-    _check_range("length_threshold", float(m.length_threshold), 0.0, np.inf)
-    _check_range("kept_ratio", float(m.kept_ratio), 0.0, 1.0)
+    _check_line_header(m.line_groups, float(m.length_threshold), float(m.kept_ratio),
+                       np.asarray(m.principal_directions), m.config.get("orthonormal_directions") is True)
     _check_range("lambda", float(m.line_lambda), 0.0, np.inf)
-    _check_principal(np.asarray(m.principal_directions), m.config.get("orthonormal_directions") is True)
     _check_array("translations", m.translations, (None, 3))
     if len(m.translations) == 0:
         raise InputError("map has no candidate translations")
@@ -585,16 +582,24 @@ def read_map_header(path: str | Path) -> dict[str, Any]:
                 "checksummed": _CHECKSUMS in h5.attrs,
                 "file_size_bytes": path.stat().st_size,
             }
-            _check_principal(principal, config.get("orthonormal_directions") is True)
-            _check_range("kept_ratio", info["kept_ratio"], 0.0, 1.0)
-            _check_range("length_threshold", info["length_threshold"], 0.0, np.inf)
-            if len(groups) and (groups.min() < -1 or groups.max() > 2):
-                raise InputError("map field line_groups holds labels outside -1..2")
+            _check_line_header(groups, info["length_threshold"], info["kept_ratio"], principal,
+                               config.get("orthonormal_directions") is True)
         except _H5_ERRORS as exc:
             raise InputError(f"corrupt LDL map {path}: {_short(exc)}") from None
         except InputError as exc:
             raise _located(exc, path) from None
     return info
+
+
+def _check_line_header(groups: np.ndarray, length_threshold: float, kept_ratio: float, principal: np.ndarray,
+                       orthonormal: bool) -> None:
+    """What both a full read and a header read check of the lines: group labels, length filter and
+    principal directions."""
+    if len(groups) and (np.min(groups) < -1 or np.max(groups) > 2):
+        raise InputError("map field line_groups holds labels outside -1..2")
+    _check_range("length_threshold", length_threshold, 0.0, np.inf)
+    _check_range("kept_ratio", kept_ratio, 0.0, 1.0)
+    _check_principal(principal, orthonormal)
 
 
 def _short(exc: BaseException) -> str:

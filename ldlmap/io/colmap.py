@@ -153,12 +153,14 @@ def _check_binary_counts(model: Path) -> None:
         f = model / name
         if not f.is_file():
             continue
-        data = f.read_bytes()[:8]
+        with open(f, "rb") as fh:  # the count alone: the file may be hundreds of MB
+            data = fh.read(8)
         count = int(np.frombuffer(data, "<u8")[0]) if len(data) == 8 else -1
-        if count < 0 or count * size > f.stat().st_size - 8:
+        nbytes = f.stat().st_size
+        if count < 0 or count * size > nbytes - 8:
             raise InputError(f"cannot read COLMAP model {model}: {name} is truncated or corrupt "
                              f"({'no record count' if count < 0 else f'{count} records declared'}, "
-                             f"{f.stat().st_size} bytes)")
+                             f"{nbytes} bytes)")
 
 
 def read_colmap_views(path: str | os.PathLike) -> ColmapViews:

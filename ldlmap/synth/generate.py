@@ -36,13 +36,12 @@ from ldlmap.errors import InputError, LdlError, atomic_dir
 from ldlmap.synth.poses import sample_poses
 from ldlmap.synth.render import Renderer, apply_illumination
 from ldlmap.synth.spec import MAX_COUNT as MAX_PER_SPLIT
-from ldlmap.synth.spec import MAX_WIDTH, SEED_LIMIT
+from ldlmap.synth.spec import MAX_WIDTH, MIN_WIDTH, SEED_LIMIT
 
 GENERATOR_VERSION = "1.0"
 BASE_SPLITS = ("robot", "handheld", "extreme", "change_robot", "change_handheld")
 ILLUMINATION_SPLITS = ("extreme_intensity", "extreme_gamma", "extreme_white_balance")
 JPEG_QUALITY = 95
-MIN_WIDTH = 16  # px, smallest panorama width
 _STREAM = {"scan": 1, "change": 2, "robot": 10, "handheld": 11, "extreme": 12, "change_robot": 13,
            "change_handheld": 14}
 

@@ -46,6 +46,7 @@ MAX_ROOM_EXTENT = 100.0  # m, footprint width or depth
 MAX_CEILING = 20.0  # m
 MAX_VERTICES = 256  # footprint corners
 MAX_ITEMS = 200  # objects, openings and posters, each
+MIN_WIDTH = 16  # px, smallest panorama width
 MAX_WIDTH = 4096  # px, panorama width: a render holds about 450 bytes per pixel (about 4 GB at this width)
 MAX_COUNT = 1000  # panoramas per split
 MAX_BLUR_PX = 200.0  # px at W = 1024: motion blur averages one shifted copy per pixel of length
@@ -443,7 +444,7 @@ def _in_range(value: float, lo: float, hi: float, path: str, positive: bool = Fa
 
 
 def _validate_capture(c: CaptureSpec) -> None:
-    _in_range(c.width, 16, MAX_WIDTH, "capture.width", why="rendering holds about 450 bytes per pixel")
+    _in_range(c.width, MIN_WIDTH, MAX_WIDTH, "capture.width", why="rendering holds about 450 bytes per pixel")
     _positive(c.height, "capture.height")
     if c.width != 2 * c.height:
         raise InputError(f"spec field 'capture.width' must be twice capture.height, got {c.width}x{c.height}")
