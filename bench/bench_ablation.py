@@ -4,10 +4,10 @@ Run: ``python bench/bench_ablation.py [--quick] [--per-split 10] [--scenes 3] [-
 
 Dataset: demo-preset rooms with only an extreme split (arbitrary rotations, motion blur) of
 ``--per-split`` panoramas per scene (``bench/.cache/ablation_*``); lines-only maps (pose search
-needs no features) built with the default :class:`~ldlmap.build.BuildParams` otherwise.
+needs no features) built with the default :class:`~ldlmap.map.build.BuildParams` otherwise.
 
 Per query, the 2D lines, vanishing points and candidate rotations are computed once (as
-:class:`ldlloc.pipeline.Localizer` does), then :func:`ldlloc.search.search_poses` ranks the
+:class:`ldlloc.pipeline.Localizer` does), then :func:`ldlloc.search.pose_search.search_poses` ranks the
 N_t x N_r poses under each variant: decomposition on/off with the inlier loss, and the L1, L2,
 Huber and median losses with decomposition. No refinement: the ablation is about ranking.
 Reported per variant: median translation / rotation error of the best candidate, its accuracy
@@ -56,12 +56,12 @@ def rank_queries(dataset: Path, top_k: int = 20, device: str = "cpu"
     the line counts behind the search (``arcs_2d`` kept per query, ``lines_3d`` per map)."""
     from ldlloc.lines2d import detect_lines, filter_by_length
     from ldlloc.pipeline import LocalizeParams, load_image
-    from ldlloc.principal import candidate_rotations, labels_for_rotations, vanishing_points
-    from ldlloc.search import SearchParams, search_poses
+    from ldlloc.rotation import candidate_rotations, labels_for_rotations, vanishing_points
+    from ldlloc.search.pose_search import SearchParams, search_poses
     from ldlmap.datasets import open_dataset
-    from ldlmap.errors import InputError
-    from ldlmap.geometry import rotation_error_deg
-    from ldlmap.mapfile import read_map
+    from ldlmap.core.errors import InputError
+    from ldlmap.core.geometry import rotation_error_deg
+    from ldlmap.map.mapfile import read_map
 
     p = LocalizeParams()
     ds = open_dataset(dataset, "omniscenes")

@@ -4,7 +4,7 @@ Run: ``python bench/bench_build.py [--quick] [--points 1000000] [--views 10,20,4
 
 1. Builds the map of the synthetic demo scene ``synthroom_1`` (``bench/.cache/demo_s1``) and of
    a room-sized simulated scan of about ``--points`` points (a "standard"-preset room) with the
-   default :class:`~ldlmap.build.BuildParams` (SIFT, N_t = 800, 40 views). Each build runs in a
+   default :class:`~ldlmap.map.build.BuildParams` (SIFT, N_t = 800, 40 views). Each build runs in a
    fresh subprocess; its peak memory is that process's ``resource.getrusage(RUSAGE_SELF)
    .ru_maxrss`` at the end of the build: the resident peak of the whole process, Python,
    torch, open3d and OpenCV included. Targets printed beside: under 2 minutes for ~1 M points,
@@ -40,7 +40,7 @@ def _worker(input_path: str, output: str, params_json: str) -> None:
     """Build one map in this process and print its report (with ru_maxrss) as one JSON line."""
     import resource
 
-    from ldlmap.build import BuildParams, build_map
+    from ldlmap.map.build import BuildParams, build_map
 
     params = BuildParams(**json.loads(params_json))
     rep = build_map(input_path, output, params=params)
@@ -89,10 +89,10 @@ def build_table(reports: dict[str, dict[str, Any]], info: dict[str, Any]):
 def views_sweep(dataset: Path, scene: str, views: list[int], splits: list[str] | None,
                 check_map: Path | None) -> list[dict[str, Any]]:
     """Localize the scene's queries with maps holding the first k views of one max(views) build."""
-    from ldlloc.evaluate import summarize
+    from ldlloc.batch.accuracy import summarize
     from ldlloc.pipeline import Localizer
     from ldlmap.datasets import open_dataset
-    from ldlmap.mapfile import read_map
+    from ldlmap.map.mapfile import read_map
 
     full = read_map(common.cached_map(dataset, scene, num_views=max(views)), load_cloud=False)
     if check_map is not None and check_map.exists():

@@ -1,4 +1,4 @@
-"""Benchmark: 3D lines of a COLMAP model from its photos (ldlmap.sfm_lines), stages and accuracy.
+"""Benchmark: 3D lines of a COLMAP model from its photos (ldlmap.sfm.photo_lines), stages and accuracy.
 
 Usage: ``python bench/bench_colmap_lines.py [--seeds 10,5,0] [--photos 24] [--width 640]
 [--model DIR --images DIR] [--no-map]``
@@ -42,7 +42,7 @@ def workspace(seed: int, photos: int, width: int):
     from ldlmap.synth.edges import mesh_edges
     from ldlmap.synth.scene import build_scene
     from ldlmap.synth.sfm import SfmCapture, seen_edges, write_colmap_workspace
-    from ldlmap.synth.spec import random_spec
+    from ldlmap.synth.presets import random_spec
 
     mesh = build_scene(random_spec("demo", seed))
     cap = SfmCapture(num_images=photos, width=width, height=width * 3 // 4, seed=seed)
@@ -69,7 +69,7 @@ def on_surface(mesh, lines: np.ndarray, tol: float = 0.03) -> float:
 
 
 def build_seconds(ws: Path, images: Path | None, out: Path) -> tuple[dict, dict]:
-    from ldlmap.build import BuildParams, build_map
+    from ldlmap.map.build import BuildParams, build_map
 
     rep = build_map(ws, out, params=BuildParams(features="none"), images_path=images)
     return rep.seconds, rep.counts
@@ -88,7 +88,7 @@ def main() -> None:
 
     from ldlmap.io.colmap import find_images_dir, read_colmap_views, resolve_model_dir
     from ldlmap.lines3d import line_precision_recall
-    from ldlmap.sfm_lines import reconstruct_lines
+    from ldlmap.sfm.photo_lines import reconstruct_lines
 
     stages = ("read", "segments", "triangulate", "score", "merge")
     head = f"{'input':>10} {'photos':>6} {'segs':>5} {'cands':>6} {'lines':>5} " + " ".join(f"{s + '_s':>13}" for s in stages)
@@ -134,9 +134,9 @@ def localize_table(mesh, edges: np.ndarray, map_path: Path, n: int, seed: int) -
     """Localize ``n`` rendered upright panoramas against the reconstructed-lines map and a map of
     the true edges (same candidate spacing)."""
     from ldlloc.pipeline import LocalizeParams, Localizer
-    from ldlmap.build import BuildParams, build_lines_map
-    from ldlmap.geometry import rotation_error_deg
-    from ldlmap.mapfile import read_map
+    from ldlmap.map.build import BuildParams, build_lines_map
+    from ldlmap.core.geometry import rotation_error_deg
+    from ldlmap.map.mapfile import read_map
     from ldlmap.synth.poses import sample_poses
     from ldlmap.synth.render import Renderer
 

@@ -4,7 +4,7 @@ Run: ``python bench/bench_features.py [--seed 23] [--per-split 1] [--backends si
 [--frames image,map] [--extractions equirect,cube] [--gap none,hard] [--splits robot,extreme] [--threads 1]``.
 
 For each backend, maps of the synthetic demo dataset of ``--seed`` (an unseen seed: the tests use
-7, the other benchmarks 1) are built with the default :class:`~ldlmap.build.BuildParams` but
+7, the other benchmarks 1) are built with the default :class:`~ldlmap.map.build.BuildParams` but
 ``features`` (40 views; build seconds per room timed once and cached beside the map), then the
 first ``--per-split`` queries per split and scene are localized with the default
 :class:`~ldlloc.pipeline.LocalizeParams` but ``query_frame`` (``image``: features of the panorama
@@ -61,7 +61,7 @@ def run(dataset: Path, backend: str, frame: str, gap: str, per_split: int, split
     """Localize the selected queries with maps of ``backend``; one row of the tables."""
     from ldlloc.pipeline import LocalizeParams, Localizer
     from ldlmap.datasets import open_dataset
-    from ldlmap.mapfile import read_map
+    from ldlmap.map.mapfile import read_map
 
     ds = open_dataset(dataset, "omniscenes")
     transform = (lambda img, q: harder_appearance(img, q.name)) if gap == "hard" else None

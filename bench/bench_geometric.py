@@ -66,7 +66,7 @@ def camera_band(ds, scene: str) -> tuple[float, float]:
 
 def lines_only_maps(dataset: Path, ds, scene: str, band: tuple[float, float]) -> dict[str, dict[str, Any]]:
     """The scene's two lines-only maps (built once, then reused): kind -> {path, build info}."""
-    from ldlmap.build import BuildParams, build_map
+    from ldlmap.map.build import BuildParams, build_map
     from ldlmap.io.linefiles import write_lines
     from ldlmap.io.pointcloud import read_point_cloud
     from ldlmap.lines3d import Lines3DParams, extract_lines
@@ -102,7 +102,7 @@ def lines_only_maps(dataset: Path, ds, scene: str, band: tuple[float, float]) ->
 
 
 def map_summary(path: str) -> dict[str, Any]:
-    from ldlmap.mapfile import read_map
+    from ldlmap.map.mapfile import read_map
 
     m = read_map(path, load_cloud=False)
     return {"lines_raw": int(len(m.lines_raw)), "lines": int(len(m.lines)), "kept_ratio": float(m.kept_ratio),
@@ -115,9 +115,9 @@ def map_summary(path: str) -> dict[str, Any]:
 def run_queries(map_path: Path | str, kind: str, mode: str, queries: list, progress: bool) -> list[dict[str, Any]]:
     """Localize ``queries`` against one map with one refinement mode; one record per query."""
     from ldlloc.pipeline import LocalizeParams, Localizer, load_image
-    from ldlmap.errors import InputError
-    from ldlmap.geometry import rotation_error_deg, translation_error
-    from ldlmap.mapfile import read_map
+    from ldlmap.core.errors import InputError
+    from ldlmap.core.geometry import rotation_error_deg, translation_error
+    from ldlmap.map.mapfile import read_map
 
     loc = Localizer(read_map(map_path, load_cloud=False), LocalizeParams(refine_mode=mode))
     try:  # warm-up, untimed (lazy imports, caches)

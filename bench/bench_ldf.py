@@ -27,7 +27,7 @@ def _textured_room(width: int = 1024, height: int = 512, seed: int = 0):
     """Box-room panorama with rectangles (posters, frames) on the faces; returns image, R, t, lines."""
     import cv2
 
-    from ldlmap.geometry import bearing_from_pixel, pixel_centers, rotation_from_axis_angle
+    from ldlmap.core.geometry import bearing_from_pixel, pixel_centers, rotation_from_axis_angle
 
     rng = np.random.default_rng(seed)
     lo, hi = np.array([-3.0, -2.0, 0.0]), np.array([3.0, 2.0, 3.0])
@@ -63,8 +63,9 @@ def _textured_room(width: int = 1024, height: int = 512, seed: int = 0):
 def main() -> None:
     import torch
 
-    from ldlmap.geometry import rotation_error_deg
-    from ldlloc import ldf, lines2d, principal
+    from ldlmap.core.geometry import rotation_error_deg
+    from ldlloc.search import ldf
+    from ldlloc import lines2d, rotation
 
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--device", default="cpu")
@@ -81,12 +82,12 @@ def main() -> None:
     rows.append(("2D line extraction (1024x512, 26 crops)", t_lines, f"{len(arcs)} arcs"))
 
     P3 = np.eye(3)
-    t_vp, vps = _median_time(lambda: principal.vanishing_points(arcs, 20), args.repeat)
-    t_rot, cands = _median_time(lambda: principal.candidate_rotations(vps, P3), args.repeat)
+    t_vp, vps = _median_time(lambda: rotation.vanishing_points(arcs, 20), args.repeat)
+    t_rot, cands = _median_time(lambda: rotation.candidate_rotations(vps, P3), args.repeat)
     err = min(rotation_error_deg(r, R_true) for r in cands.rotations) if len(cands) else float("nan")
     rows.append(("vanishing points (k=20)", t_vp, f"{len(vps)} VPs"))
     rows.append(("candidate rotations", t_rot, f"N_r={len(cands)}, best err {err:.2f} deg"))
-    t_lab, labels = _median_time(lambda: principal.labels_for_rotations(arcs, vps, cands.triplets), args.repeat)
+    t_lab, labels = _median_time(lambda: rotation.labels_for_rotations(arcs, vps, cands.triplets), args.repeat)
     rows.append(("2D groups per rotation", t_lab, f"{labels.shape}"))
 
     dev = torch.device(args.device)

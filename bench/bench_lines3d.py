@@ -36,7 +36,7 @@ def synth_room(preset: str, seed: int) -> dict:
     from ldlmap.synth.edges import mesh_edges
     from ldlmap.synth.scan import sample_scan
     from ldlmap.synth.scene import build_scene
-    from ldlmap.synth.spec import random_spec
+    from ldlmap.synth.presets import random_spec
 
     spec = random_spec(preset, seed)
     mesh = build_scene(spec)
@@ -57,7 +57,7 @@ def observable(edges: np.ndarray, points: np.ndarray, radius: float = 0.03, cove
     """Edges with at least ``cover`` of their length within ``radius`` of a scan point."""
     from scipy.spatial import cKDTree
 
-    from ldlmap.lines3d import _sample_segments
+    from ldlmap.lines3d.metrics import _sample_segments
 
     x, seg = _sample_segments(edges, 0.01)
     d, _ = cKDTree(points).query(x, distance_upper_bound=radius, workers=-1)
@@ -66,7 +66,7 @@ def observable(edges: np.ndarray, points: np.ndarray, radius: float = 0.03, cove
 
 def found_mask(gt: np.ndarray, pred: np.ndarray) -> np.ndarray:
     """Per true edge: found by ``pred`` under the metric of :func:`line_precision_recall`."""
-    from ldlmap.lines3d import _covered, _sample_segments
+    from ldlmap.lines3d.metrics import _covered, _sample_segments
 
     x, seg = _sample_segments(gt, 0.01)
     d = gt[:, 1] - gt[:, 0]
@@ -128,8 +128,8 @@ def synth_table(preset: str, seeds: list[int]) -> None:
 def box_room_table(points: int) -> None:
     """Stage timings on a box room of ``points`` points (tests/_room_cloud.py)."""
     from ldlmap.lines3d import extract_lines_with_stats, filter_by_length, line_precision_recall
-    from ldlmap.principal3d import principal_directions_3d
-    from ldlmap.translations import candidate_translations
+    from ldlmap.lines3d.principal import principal_directions_3d
+    from ldlmap.map.translations import candidate_translations
     from tests._room_cloud import box_room
 
     density = points / (2 * (8 * 6 + 8 * 3 + 6 * 3) + 4)

@@ -3,7 +3,7 @@
 Run: ``python bench/bench_localize.py [--quick] [--device cpu|cuda] [--seed 1]``.
 
 Localizes every query of the synthetic demo dataset (``bench/.cache/demo_s1``: 2 scenes, all
-splits, 1024 x 512) against maps built with the default :class:`~ldlmap.build.BuildParams`
+splits, 1024 x 512) against maps built with the default :class:`~ldlmap.map.build.BuildParams`
 (SIFT, N_t = 800, 40 views) through :class:`ldlloc.pipeline.Localizer` with the default
 :class:`~ldlloc.pipeline.LocalizeParams`. One untimed warm-up query first (caches, lazy imports).
 Prints one Rich table of median seconds per stage (lines2d, rotation, search, refine, total)
@@ -38,10 +38,10 @@ TARGETS = {"lines2d": 0.15, "rotation": 0.02, "search": None, "refine": None, "t
 
 def run_device(dataset: Path, device: str, splits: list[str] | None, progress: bool = True) -> dict[str, Any]:
     """Localize every query of every scene on ``device``; per-stage medians and per-split accuracy."""
-    from ldlloc.evaluate import group_by, summarize
+    from ldlloc.batch.accuracy import group_by, summarize
     from ldlloc.pipeline import Localizer, load_image
     from ldlmap.datasets import open_dataset
-    from ldlmap.mapfile import read_map
+    from ldlmap.map.mapfile import read_map
 
     ds = open_dataset(dataset, "omniscenes")
     outcomes = []

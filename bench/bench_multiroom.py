@@ -2,7 +2,7 @@
 
 A multi-room synthetic dataset (``ldlmap.synth.multiroom``: ``--rooms`` demo rooms in ONE scan,
 ``--per-split`` panoramas per split and room, 1024 x 512) is generated once under
-``bench/.cache/``. Maps are built with :func:`ldlmap.build.build_map` (SIFT features, distance
+``bench/.cache/``. Maps are built with :func:`ldlmap.map.build.build_map` (SIFT features, distance
 fields on, defaults otherwise), all with the same density of candidates and views per room:
 
 - the multi-room map of the whole scan, ``N_t = --nt-per-room x rooms`` candidate translations
@@ -59,7 +59,7 @@ def build(cloud: Path, out: Path, n_t: int, views: int, lam: float = 0.1) -> dic
     """Build (once) the map of ``cloud``; returns its description (N_t, lines, build seconds, sizes)."""
     import json
 
-    from ldlmap.build import BuildParams, build_map
+    from ldlmap.map.build import BuildParams, build_map
 
     meta = out.with_suffix(".json")
     if out.exists() and meta.exists():
@@ -99,7 +99,7 @@ def room_cloud(root: Path, room: Any, out: Path) -> Path:
 def localize(map_path: Path, queries: list[Any], rooms: list[Any], label: str) -> dict[str, Any]:
     """Localize ``queries`` against one map; medians, accuracy per split, recall, right room."""
     from ldlloc.pipeline import Localizer, load_image
-    from ldlmap.mapfile import read_map
+    from ldlmap.map.mapfile import read_map
 
     m = read_map(map_path, load_cloud=False)
     loc = Localizer(m, device="cpu")

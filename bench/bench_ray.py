@@ -5,11 +5,11 @@ panoramas per split and room, all splits (illumination variants included), gener
 under ``bench/.cache/``. Measured, each from scratch:
 
 - ``prepare`` of every scene (``overwrite``, default ``BuildParams``: N_t = 800, 40 SIFT
-  views): the plain path (:func:`ldlmap.prepare.prepare_dataset`), then
-  :func:`ldlmap.distributed.prepare_dataset_ray` on a local cluster of 1 and of 2 CPUs (one task
+  views): the plain path (:func:`ldlmap.batch.prepare.prepare_dataset`), then
+  :func:`ldlmap.batch.ray_prepare.prepare_dataset_ray` on a local cluster of 1 and of 2 CPUs (one task
   per scene); the maps of the three are compared byte for byte;
-- ``run`` of all splits against those maps: :func:`ldlloc.run.run_queries`, then
-  :func:`ldlloc.distributed.run_queries_ray` with 1 and 2 workers (one actor per map).
+- ``run`` of all splits against those maps: :func:`ldlloc.batch.run.run_queries`, then
+  :func:`ldlloc.batch.ray_run.run_queries_ray` with 1 and 2 workers (one actor per map).
 
 Wall times include starting the local cluster (measured apart: ``ray.init`` to the first task
 result) and, for ``run``, starting the actors and loading their maps. Every process uses one
@@ -49,7 +49,8 @@ import numpy as np  # noqa: E402
 def dataset(seed: int, rooms: int, per_split: int, illumination: bool = True) -> Path:
     """``rooms`` demo-preset rooms, ``per_split`` panoramas per split and room (generated once)."""
     from ldlmap.synth.generate import generate_dataset
-    from ldlmap.synth.spec import dump_spec_toml, random_spec
+    from ldlmap.synth.spec import dump_spec_toml
+    from ldlmap.synth.presets import random_spec
 
     tag = f"ray_s{seed}_k{rooms}_n{per_split}{'' if illumination else '_noill'}_{common.synth_tag()}"
     out = common.CACHE / tag
@@ -70,7 +71,7 @@ def dataset(seed: int, rooms: int, per_split: int, illumination: bool = True) ->
 
 def cluster_start(workers: int) -> float:
     """Seconds from ``ray.init`` (local cluster of ``workers`` CPUs) to a first task's result."""
-    from ldlmap.cluster import ray_session
+    from ldlmap.batch.ray_cluster import ray_session
 
     t0 = time.perf_counter()
     with ray_session(f"local:{workers}") as ray:
@@ -80,8 +81,8 @@ def cluster_start(workers: int) -> float:
 
 def prepare(root: Path, maps: Path, params: Any, workers: int | None) -> dict[str, Any]:
     """Build every scene's map (plain when ``workers`` is None); wall time and per-map seconds."""
-    from ldlmap.distributed import prepare_dataset_ray
-    from ldlmap.prepare import prepare_dataset
+    from ldlmap.batch.ray_prepare import prepare_dataset_ray
+    from ldlmap.batch.prepare import prepare_dataset
 
     t0 = time.perf_counter()
     if workers is None:
@@ -97,8 +98,8 @@ def prepare(root: Path, maps: Path, params: Any, workers: int | None) -> dict[st
 
 def run(root: Path, maps: Path, out: Path, workers: int | None) -> dict[str, Any]:
     """Localize every query of every split (plain when ``workers`` is None)."""
-    from ldlloc.distributed import run_queries_ray
-    from ldlloc.run import run_queries
+    from ldlloc.batch.ray_run import run_queries_ray
+    from ldlloc.batch.run import run_queries
     from ldlmap.datasets import open_dataset
 
     queries = open_dataset(root, "omniscenes").queries()
@@ -125,7 +126,7 @@ def lpt_makespan(loads: list[float], workers: int) -> float:
 
 def results_flush_seconds(sample: Path, n: int, tmp: Path) -> float:
     """Seconds of one rewrite (JSON + CSV) of a results file of ``n`` records like ``sample``'s."""
-    from ldlloc.evaluate import ResultsWriter, load_results
+    from ldlloc.batch.results import ResultsWriter, load_results
 
     rs, _ = load_results(sample)
     w = ResultsWriter(tmp)
@@ -165,7 +166,7 @@ def main() -> None:
 
     from rich.table import Table
 
-    from ldlmap.build import BuildParams
+    from ldlmap.map.build import BuildParams
 
     con = common.console()
     per_split = 1 if args.quick else args.per_split

@@ -50,8 +50,8 @@ def real_data_root(arg: str | None) -> Path:
 
 def build_maps(zind_root: Path, level: str, spacing: float | None) -> Path:
     """Maps of every scene at ``level``, cached by the code that builds them."""
-    from ldlmap.build import BuildParams, params_with
-    from ldlmap.prepare import default_params, prepare_dataset
+    from ldlmap.map.build import BuildParams, params_with
+    from ldlmap.batch.prepare import default_params, prepare_dataset
 
     tag = source_hash("ldlmap", exclude=("synth/",))
     maps = CACHE / "real" / f"{level}_{spacing or 'default'}_{tag}"
@@ -67,8 +67,8 @@ def build_maps(zind_root: Path, level: str, spacing: float | None) -> Path:
 
 def map_translations(maps: Path, scene: str) -> np.ndarray:
     """Candidate translations (N_t, 3) of a scene's map (empty when it cannot be read)."""
-    from ldlmap.errors import LdlError
-    from ldlmap.mapfile import read_map
+    from ldlmap.core.errors import LdlError
+    from ldlmap.map.mapfile import read_map
 
     try:
         return read_map(maps / f"{scene}.h5", load_cloud=False).translations
@@ -79,7 +79,7 @@ def map_translations(maps: Path, scene: str) -> np.ndarray:
 def run_level(zind_root: Path, level: str, args) -> dict:
     from ldlmap.datasets import open_dataset
     from ldlloc.pipeline import LocalizeParams
-    from ldlloc.run import run_queries
+    from ldlloc.batch.run import run_queries
 
     maps = build_maps(zind_root, level, args.spacing)
     ds = open_dataset(zind_root, "zind", map_level=level)

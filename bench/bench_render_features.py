@@ -60,8 +60,8 @@ def main() -> None:
     import torch
 
     from ldlmap.features import get_backend
-    from ldlmap.keypoints3d import backproject_keypoints
-    from ldlmap.render import PointRenderer, RenderParams
+    from ldlmap.map.keypoints3d import backproject_keypoints
+    from ldlmap.map.render import PointRenderer, RenderParams
 
     if args.threads:
         torch.set_num_threads(args.threads)

@@ -36,7 +36,7 @@ PAPER = {"lines2d": (0.141, 0.141), "rotation": (1.124, 0.009), "search": (0.052
 
 def _prepare(root: Path | None, cache: Path, seed: int) -> tuple[Path, dict[str, Path], dict[str, float]]:
     """Dataset root and one map per scene (built when missing); build seconds of the fields stage."""
-    from ldlmap.build import BuildParams, build_map
+    from ldlmap.map.build import BuildParams, build_map
     from ldlmap.datasets import open_dataset
 
     if root is None:
@@ -63,8 +63,8 @@ def _scaling_seconds(n_t: int, rows: int, n_r: int = 30, repeat: int = 7) -> flo
     """Median seconds of the fast search's look-up, loss and top-K for a random table of N_t."""
     import torch
 
-    from ldlloc import ldf
-    from ldlloc.fields import DistanceFields, inlier_loss_from_fields
+    from ldlloc.search import ldf
+    from ldlloc.search.fields import DistanceFields, inlier_loss_from_fields
     from scipy.spatial.transform import Rotation
 
     rng = np.random.default_rng(0)
@@ -93,15 +93,15 @@ def main() -> None:
     import torch
 
     from ldlmap.datasets import open_dataset
-    from ldlmap.fields3d import field_bytes
-    from ldlmap.geometry import rotation_error_deg, translation_error
-    from ldlmap.mapfile import read_map
-    from ldlloc import ldf
-    from ldlloc.fields import DistanceFields
+    from ldlmap.map.fields3d import field_bytes
+    from ldlmap.core.geometry import rotation_error_deg, translation_error
+    from ldlmap.map.mapfile import read_map
+    from ldlloc.search import ldf
+    from ldlloc.search.fields import DistanceFields
     from ldlloc.lines2d import detect_lines, filter_by_length
     from ldlloc.pipeline import load_image
-    from ldlloc.principal import PrincipalParams, candidate_rotations, labels_for_rotations, vanishing_points
-    from ldlloc.search import SearchParams, search_poses
+    from ldlloc.rotation import PrincipalParams, candidate_rotations, labels_for_rotations, vanishing_points
+    from ldlloc.search.pose_search import SearchParams, search_poses
 
     if args.threads > 0:
         torch.set_num_threads(args.threads)

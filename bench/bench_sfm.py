@@ -46,7 +46,7 @@ def before(segs: np.ndarray, scale: float, true_up: np.ndarray) -> dict:
     """The pipeline before issue 12: scaled input as is, min / max box, paper filter, voted directions."""
     from ldlloc.lines2d import query_keep_ratio
     from ldlmap.lines3d import filter_by_length
-    from ldlmap.principal3d import principal_directions_3d
+    from ldlmap.lines3d.principal import principal_directions_3d
 
     L = segs * scale
     P3 = L.reshape(-1, 3)
@@ -59,9 +59,9 @@ def before(segs: np.ndarray, scale: float, true_up: np.ndarray) -> dict:
 
 def after(path: Path, out: Path, scale: float, true_up: np.ndarray) -> dict:
     from ldlloc.lines2d import query_keep_ratio
-    from ldlmap.build import BuildParams, build_map
-    from ldlmap.frame import decompose
-    from ldlmap.mapfile import read_map
+    from ldlmap.map.build import BuildParams, build_map
+    from ldlmap.core.frame import decompose
+    from ldlmap.map.mapfile import read_map
 
     params = BuildParams(features="none", distance_fields=False, scale=scale, trans_spacing=1.0)
     report = build_map(path, out, params=params)
@@ -76,12 +76,12 @@ def after(path: Path, out: Path, scale: float, true_up: np.ndarray) -> dict:
 def localize(root: Path, out: Path, queries: int) -> None:
     """SfM-like maps of a synthetic dataset's true edges; robot queries localized in the input frame."""
     from ldlloc.pipeline import LocalizeParams, Localizer, load_image
-    from ldlmap.build import BuildParams, build_map
+    from ldlmap.map.build import BuildParams, build_map
     from ldlmap.datasets import read_pose_txt
-    from ldlmap.frame import pose_to_input, similarity
-    from ldlmap.geometry import rotation_error_deg
+    from ldlmap.core.frame import pose_to_input, similarity
+    from ldlmap.core.geometry import rotation_error_deg
     from ldlmap.io.linefiles import read_lines
-    from ldlmap.mapfile import read_map
+    from ldlmap.map.mapfile import read_map
     from tests._sfm_lines import rotation_with_up, sfm_like_lines, write_line3dpp_txt
 
     k, offset = 0.37, np.array([5.0, -2.0, 1.0])
@@ -117,7 +117,7 @@ def main(argv: list[str] | None = None) -> int:
 
     from ldlmap.synth.edges import mesh_edges
     from ldlmap.synth.scene import build_scene
-    from ldlmap.synth.spec import random_spec
+    from ldlmap.synth.presets import random_spec
     from tests._sfm_lines import sfm_like_lines, write_line3dpp_txt
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])

@@ -11,7 +11,7 @@ CPU (user + sys) seconds:
 - the imports ``localize`` needs (torch, cv2, h5py, pycolmap, ``ldlloc.pipeline``), alone;
 - ``ldlloc localize MAP PANO --json`` of one robot panorama of the synthetic demo room
   ``synthroom_1`` (1024 x 512) on its map (``bench/.cache``: demo dataset seed 1, default
-  :class:`~ldlmap.build.BuildParams`: SIFT, N_t = 800, 40 views, distance fields), split into
+  :class:`~ldlmap.map.build.BuildParams`: SIFT, N_t = 800, 40 views, distance fields), split into
   the stages it reports (``load_seconds``: the map read, which runs in a thread beside the
   imports, the wait for it after them, the setup; ``seconds``: the query's lines2d, rotation,
   search, refine) and the rest (interpreter, imports, argument parsing, exit) = wall - wait for

@@ -105,7 +105,8 @@ def extreme_dataset(seed: int = 7, per_split: int = 10, scenes: int = 3) -> Path
     passed to the generator (so the dataset records the exact specs it used).
     """
     from ldlmap.synth.generate import generate_dataset
-    from ldlmap.synth.spec import dump_spec_toml, random_spec
+    from ldlmap.synth.spec import dump_spec_toml
+    from ldlmap.synth.presets import random_spec
 
     out = CACHE / f"ablation_s{seed}_n{per_split}_k{scenes}_{synth_tag()}"
     if (out / "dataset.json").exists():
@@ -137,7 +138,7 @@ def room_scan(points: int = 1_000_000, seed: int = 0) -> tuple[Path, dict[str, A
     """
     from ldlmap.synth.scan import mesh_area, sample_scan, scan_params, write_ply
     from ldlmap.synth.scene import build_scene
-    from ldlmap.synth.spec import random_spec
+    from ldlmap.synth.presets import random_spec
 
     out = CACHE / f"scan_{points}_s{seed}_{synth_tag()}.ply"
     meta_path = out.with_suffix(".json")
@@ -160,7 +161,7 @@ def cached_map(dataset: Path, scene: str, num_views: int = 40, features: str = "
                **params: Any) -> Path:
     """The map of ``scene`` of ``dataset`` built with ``num_views`` views (built once, reused; the
     build's seconds beside it, :func:`build_seconds`)."""
-    from ldlmap.build import BuildParams, build_map
+    from ldlmap.map.build import BuildParams, build_map
     from ldlmap.datasets import open_dataset
 
     tag = f"{features}_v{num_views}" + "".join(f"_{k}{v}" for k, v in sorted(params.items())) + f"_{map_tag()}"
@@ -188,7 +189,7 @@ def subset_views(ldl_map, num_views: int):
     a map built with ``V >= k`` views are exactly the views a ``k``-view build renders; each
     candidate translation is re-served by its nearest kept view, as ``build_map`` does.
     """
-    from ldlmap.mapfile import MapFeatures
+    from ldlmap.map.contents import MapFeatures
 
     f = ldl_map.features
     k = min(int(num_views), f.num_views)
@@ -209,7 +210,7 @@ def subset_views(ldl_map, num_views: int):
 class QueryOutcome:
     """One localized query: the evaluate record plus the pose-search candidates (for recall)."""
 
-    result: Any  # ldlloc.evaluate.QueryResult
+    result: Any  # ldlloc.batch.accuracy.QueryResult
     loc: Any  # ldlloc.pipeline.Localization or None when it failed
 
 
@@ -217,10 +218,10 @@ def localize_queries(localizer, queries: Sequence[Any], on_done: Callable[[int, 
                      transform: Callable[[np.ndarray, Any], np.ndarray] | None = None) -> list[QueryOutcome]:
     """Localize ``queries`` (``ldlmap.datasets.Query``) with ``localizer``; failures are recorded.
     ``transform(image, query)``: what each panorama goes through first (e.g. an appearance change)."""
-    from ldlloc.evaluate import QueryResult
+    from ldlloc.batch.accuracy import QueryResult
     from ldlloc.pipeline import load_image
-    from ldlmap.errors import InputError
-    from ldlmap.geometry import rotation_error_deg, translation_error
+    from ldlmap.core.errors import InputError
+    from ldlmap.core.geometry import rotation_error_deg, translation_error
 
     out = []
     for i, q in enumerate(queries):
@@ -246,7 +247,7 @@ def localize_queries(localizer, queries: Sequence[Any], on_done: Callable[[int, 
 
 def candidate_errors(loc, query) -> tuple[np.ndarray, np.ndarray]:
     """Translation (m) and rotation (deg) errors of every top-K candidate of a localization."""
-    from ldlmap.geometry import rotation_error_deg
+    from ldlmap.core.geometry import rotation_error_deg
 
     terr = np.linalg.norm(loc.candidates_center - query.center[None], axis=1)
     rerr = np.array([rotation_error_deg(R, query.rot_cam_from_world) for R in loc.candidates_rot])
@@ -295,8 +296,8 @@ def load_line(info: dict[str, Any]) -> str:
 
 
 def write_json(path: Path, data: dict[str, Any]) -> None:
-    """Write ``data`` to ``path`` atomically (through ``ldlmap.errors.atomic_file``)."""
-    from ldlmap.errors import atomic_file
+    """Write ``data`` to ``path`` atomically (through ``ldlmap.core.errors.atomic_file``)."""
+    from ldlmap.core.errors import atomic_file
 
     with atomic_file(path) as tmp:
         Path(tmp).write_text(json.dumps(data, indent=1) + "\n")

@@ -1,0 +1,35 @@
+"""LDL localization: the online side of the toolkit (``ldlloc``).
+
+Public API (imported on first use, so ``import ldlloc`` stays instant)::
+
+    from ldlmap import read_map
+    from ldlloc import LocalizeParams, Localizer, load_image
+    loc = Localizer(read_map("room.h5"), LocalizeParams(), device="cpu")
+    res = loc.localize(load_image("pano.jpg"))   # res.R (world -> camera), res.t (camera centre)
+
+Also ``run_queries`` (a batch of dataset queries with a results file) and ``load_results``.
+Stages of :class:`Localizer`, one module or folder each: ``lines2d`` (2D line segments),
+``rotation`` (principal directions and candidate rotations), ``search`` (line distance functions
+and the pose search), ``refine`` (by features or by lines alone); ``batch`` runs many queries,
+writes results and spreads them over Ray.
+"""
+
+from importlib import import_module
+from typing import Any
+
+_API = {
+    "Localizer": "ldlloc.pipeline", "LocalizeParams": "ldlloc.pipeline", "Localization": "ldlloc.pipeline",
+    "load_image": "ldlloc.pipeline", "run_queries": "ldlloc.batch.run", "load_results": "ldlloc.batch.results",
+    "QueryResult": "ldlloc.batch.accuracy", "summarize": "ldlloc.batch.accuracy",
+}
+__all__ = sorted(_API)
+
+
+def __getattr__(name: str) -> Any:
+    if name not in _API:
+        raise AttributeError(f"module 'ldlloc' has no attribute {name!r}")
+    return getattr(import_module(_API[name]), name)
+
+
+def __dir__() -> list[str]:
+    return __all__

@@ -7,7 +7,7 @@ from typing import Optional
 
 import typer
 
-from ldlmap.cli_common import check_device, check_range, console, import_heavy, make_app, ray_option
+from ldlmap.core.cli_common import check_device, check_range, console, import_heavy, make_app, ray_option
 
 app = make_app("ldlloc", "Localize panoramas against LDL maps with line distance functions.")
 
@@ -56,10 +56,10 @@ def _set_threads(threads: int) -> None:
 def _params(top_k: int, loss: str, no_decompose: bool, no_refine: bool, privacy: bool,
             features: Optional[str], weights: Optional[Path], max_tilt: Optional[float] = None,
             refine: str = "auto", query_frame: str = "map"):
-    from ldlloc.ldf import LOSS_KINDS
+    from ldlloc.search.ldf import LOSS_KINDS
     from ldlloc.pipeline import LocalizeParams
-    from ldlloc.search import SearchParams
-    from ldlmap.errors import InputError
+    from ldlloc.search.pose_search import SearchParams
+    from ldlmap.core.errors import InputError
 
     if loss not in LOSS_KINDS:
         raise InputError(f"unknown loss {loss!r}; valid: {', '.join(LOSS_KINDS)}")
@@ -112,12 +112,12 @@ def localize(
 
     import numpy as np
 
-    from ldlloc.evaluate import pose_errors
+    from ldlloc.batch.accuracy import pose_errors
     from ldlloc.pipeline import Localizer, load_image
     from ldlmap.datasets import read_pose_file
-    from ldlmap.pictures import check_picture_path
+    from ldlmap.core.pictures import check_picture_path
 
-    from ldlmap.errors import refuse_overwriting_inputs
+    from ldlmap.core.errors import refuse_overwriting_inputs
 
     params = _params(top_k, loss, no_decompose, no_refine, privacy, features, weights, max_tilt, refine, query_frame)
     _check_threads(threads)
@@ -146,7 +146,7 @@ def localize(
     if in_pose is not None:
         out["input_frame"] = {"R": np.round(in_pose[0], 8).tolist(), "t": np.round(in_pose[1], 6).tolist()}
     if vis is not None:  # a picture that cannot be written is a warning: the result stands
-        from ldlloc.run import write_query_picture
+        from ldlloc.batch.run import write_query_picture
 
         out["picture_error"] = write_query_picture(img, loc, m, vis)
     if as_json:
@@ -169,8 +169,8 @@ def _read_map_while_importing(map_path: Path, threads: int):
 
     import h5py  # noqa: F401 - imported here, not in the thread, to keep the two imports apart
 
-    from ldlmap.errors import require_file
-    from ldlmap.mapfile import read_map
+    from ldlmap.core.errors import require_file
+    from ldlmap.map.mapfile import read_map
 
     require_file(map_path, "map")  # a missing map is said at once, not after the imports
 
@@ -189,7 +189,7 @@ def _read_map_while_importing(map_path: Path, threads: int):
 
 def _print_localization(pano: Path, loc, loading: dict, errors: Optional[dict], gt: Optional[Path]) -> None:
     """The readable result of `localize`: status, pose, counts and seconds, errors against ``--gt``."""
-    from ldlloc.evaluate import THRESHOLDS
+    from ldlloc.batch.accuracy import THRESHOLDS
 
     R, t = loc.rot_cam_from_world, loc.center
     console.print(f"[bold]{pano.name}[/]: {loc.status}" + (f" ({loc.message})" if loc.message else ""), soft_wrap=True)
@@ -245,10 +245,11 @@ def run(
     """Localize every query of a dataset split (or all splits) and print accuracy tables.
 
     With --ray, one Ray actor per scene map serves its queries (one GPU each with --device cuda)."""
-    from ldlloc.evaluate import check_results_path, summary_table, timing_table
-    from ldlloc.run import run_queries
+    from ldlloc.batch.results import check_results_path
+    from ldlloc.batch.accuracy import summary_table, timing_table
+    from ldlloc.batch.run import run_queries
     from ldlmap.datasets import open_dataset
-    from ldlmap.errors import InputError
+    from ldlmap.core.errors import InputError
 
     params = _params(top_k, loss, no_decompose, no_refine, privacy, features, weights, max_tilt, refine, query_frame)
     _check_threads(threads)
@@ -278,9 +279,9 @@ def run(
     meta = {"dataset": kind, "root": str(root), "splits": split or "all", **level}
     say = lambda message: console.print(message, soft_wrap=True, highlight=False)  # noqa: E731
     opts = {"meta": meta, "any_options": resume_any_options, "say": say}
-    if ray is not None:  # one Ray actor per scene map (ldlloc/distributed.py)
-        from ldlloc.distributed import run_queries_ray
-        from ldlmap.cluster import ThroughputBar
+    if ray is not None:  # one Ray actor per scene map (ldlloc/batch/ray_run.py)
+        from ldlloc.batch.ray_run import run_queries_ray
+        from ldlmap.batch.ray_cluster import ThroughputBar
 
         with ThroughputBar(console, "localizing") as bar:
             results = run_queries_ray(*args, **opts, progress=bar, address=ray, threads=threads)
@@ -319,9 +320,9 @@ def _refuse_replacing_run_inputs(queries: list, maps: Path, output: Path, save_v
                                  weights: Optional[Path]) -> None:
     """One line, before any work, when the results or a picture would replace a panorama, a pose file or
     a map of the run."""
-    from ldlloc.evaluate import results_outputs
-    from ldlloc.run import picture_path
-    from ldlmap.errors import refuse_overwriting_inputs
+    from ldlloc.batch.results import results_outputs
+    from ldlloc.batch.run import picture_path
+    from ldlmap.core.errors import refuse_overwriting_inputs
 
     inputs = [p for p in (weights, *{maps / f"{q.scene}.h5" for q in queries}, *{q.pose_file for q in queries},
                           *(q.image for q in queries)) if p is not None]
@@ -331,7 +332,7 @@ def _refuse_replacing_run_inputs(queries: list, maps: Path, output: Path, save_v
 
 def _print_search_summary(results) -> None:
     """The pose search alone: its best pose, and the best of its top K, within 0.5 m / 10 deg."""
-    from ldlloc.evaluate import summarize
+    from ldlloc.batch.accuracy import summarize
 
     search, n = summarize(results).get("search"), len(results)
     if search:
@@ -343,7 +344,8 @@ def _print_search_summary(results) -> None:
 @app.command()
 def report(results: Path = typer.Argument(..., help="Results JSON written by `ldlloc run`.")) -> None:
     """Print the accuracy and timing tables of a results file again."""
-    from ldlloc.evaluate import load_results, summary_table, timing_table
+    from ldlloc.batch.results import load_results
+    from ldlloc.batch.accuracy import summary_table, timing_table
 
     rs, meta = load_results(results)
     console.print(summary_table(rs, "scene", f"{results} by scene"))

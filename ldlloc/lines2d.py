@@ -5,7 +5,7 @@ field of view looking at the faces, edges and corners of a cube (neighbouring vi
 degrees apart, so every direction lies well inside at least one view). The crops are sampled
 from the panorama by one ``cv2.remap`` with fixed-point maps that are computed once per image
 size and cached. Segment endpoints become crop rays, then unit bearings in the camera frame of
-:mod:`ldlmap.geometry`, i.e. arcs ``(s, e)`` on the sphere.
+:mod:`ldlmap.core.geometry`, i.e. arcs ``(s, e)`` on the sphere.
 
 Overlapping views detect the same line more than once, and a line cut by a crop border is
 detected in pieces; both are resolved by merging: arcs whose great circles agree (normals within
@@ -34,7 +34,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from ldlmap.errors import InputError
+from ldlmap.core.errors import InputError
 
 
 @dataclass(frozen=True)
@@ -172,7 +172,7 @@ def _crop_set(width: int, height: int, params: Lines2DParams) -> _CropSet:
     my = np.empty((V, S, S), dtype=np.float32)
     for v in range(V):  # one view at a time: small temporaries, reused by the allocator
         x, y, z = (b[v, 0, k] + col[0] * b[v, 1, k] + row[0] * b[v, 2, k] for k in range(3))  # (S, S)
-        # pixel_from_bearing (ldlmap.geometry) in float32; the panorama is padded by one wrapped
+        # pixel_from_bearing (ldlmap.core.geometry) in float32; the panorama is padded by one wrapped
         # column on each side, and pixel centres sit at (u - 0.5, v - 0.5):
         # mx = u - 0.5 + 1 with u = W (1 - (atan2(y, x) + pi) / (2 pi)), my = v - 0.5.
         np.arctan2(y, x, out=mx[v])
@@ -209,7 +209,7 @@ def _gray(image_rgb: np.ndarray, params: Lines2DParams) -> np.ndarray:
     img = _check_image(image_rgb)
     gray = img if img.ndim == 2 else cv2.cvtColor(img[..., :3], cv2.COLOR_RGB2GRAY)
     if params.normalize_contrast:
-        from ldlmap.imageproc import stretch_contrast
+        from ldlmap.core.imageproc import stretch_contrast
 
         gray = stretch_contrast(gray)
     return np.ascontiguousarray(gray)

@@ -15,12 +15,12 @@ from pathlib import Path
 
 import numpy as np
 
-from ldlmap.errors import InputError
-from ldlloc.geometric import GeometricParams
+from ldlmap.core.errors import InputError
+from ldlloc.refine.geometric import GeometricParams
 from ldlloc.lines2d import Lines2DParams
-from ldlloc.principal import PrincipalParams
-from ldlloc.refine import RefineParams
-from ldlloc.search import SearchParams
+from ldlloc.rotation import PrincipalParams
+from ldlloc.refine.features import RefineParams
+from ldlloc.search.pose_search import SearchParams
 
 # Upright prior used by default for queries that their dataset marks upright (``Query.upright``,
 # e.g. every ZInD panorama) when the user gives no ``--max-tilt``: candidate rotations whose
@@ -49,7 +49,7 @@ class LocalizeParams:
     weights: str | None = None  # SuperPoint checkpoint (path)
     do_refine: bool = True  # False: stop after pose search
     refine_mode: str = "auto"  # auto: features when the map has them (geometric where they fail), else
-    # geometric | features | geometric (lines alone, ldlloc.geometric) | both (features, then a
+    # geometric | features | geometric (lines alone, ldlloc.refine.geometric) | both (features, then a
     # geometric polish) | none
     geometric: GeometricParams = field(default_factory=GeometricParams)
     privacy: bool = False  # refine only with query features near principal-direction lines
@@ -107,7 +107,7 @@ class Localization:
         """The final pose ``(R, t)`` in the map's input frame (SfM maps), None when it is the map's."""
         if self.input_to_map is None:
             return None
-        from ldlmap.frame import pose_to_input
+        from ldlmap.core.frame import pose_to_input
 
         return pose_to_input(self.rot_cam_from_world, self.center, self.input_to_map)
 
@@ -145,7 +145,7 @@ def load_image(path: str | Path) -> np.ndarray:
 
     import cv2
 
-    from ldlmap.errors import require_file
+    from ldlmap.core.errors import require_file
 
     p = require_file(path, "image")
     if not os.access(p, os.R_OK):
@@ -231,7 +231,7 @@ class Localizer:
                              f"not {params.features}: rebuild it or drop --features")
         self.fields = None  # the map's distance fields, prepared once for the fast pose search
         if params.search.use_fields is not False:
-            from ldlloc.fields import DistanceFields
+            from ldlloc.search.fields import DistanceFields
 
             self.fields = DistanceFields.from_map(ldl_map, device)
         if params.query_frame not in QUERY_FRAMES:
@@ -259,7 +259,7 @@ class Localizer:
     def _prepare(self) -> None:
         """One-time work done here, not in the first query's timed stages: the vanishing points'
         voting sphere and, for feature refinement, pycolmap's import (spherical PnP)."""
-        from ldlmap.geometry import half_icosphere_points
+        from ldlmap.core.geometry import half_icosphere_points
 
         half_icosphere_points(self.params.principal.icosphere_level)
         if self.refine_enabled:
@@ -270,13 +270,13 @@ class Localizer:
         """Refine the first ``n`` of these poses from lines alone and score every pose.
 
         A refined pose is kept where refinement was accepted and its exact loss (the search's,
-        :func:`ldlloc.search.score_poses`) is within ``GeometricParams.keep_within`` of its start's:
+        :func:`ldlloc.search.pose_search.score_poses`) is within ``GeometricParams.keep_within`` of its start's:
         the inlier loss cannot see a few centimetres, so a pose refined to 3 cm may count a few
         inliers less than a coarse one 11 cm off. ``assoc_deg`` (n,): each refined pose's first
         association angle (None: the params'). Returns the :class:`GeometricResult` of the first
         ``n``, ``kept`` (M,) and each pose's loss (M,) (the better of the two where kept)."""
-        from ldlloc.geometric import refine_poses_geometric
-        from ldlloc.search import score_poses
+        from ldlloc.refine.geometric import refine_poses_geometric
+        from ldlloc.search.pose_search import score_poses
 
         m, p = self.map, self.params
         ti = np.asarray(translation_index)
@@ -302,11 +302,11 @@ class Localizer:
 
     def _refine_geometric(self, out: "Localization", arcs: np.ndarray, res) -> None:
         """Refine the best of the top-K poses from lines alone; the winner has the best loss and
-        map-line support together (:func:`ldlloc.geometric.map_line_support`). The best
+        map-line support together (:func:`ldlloc.refine.geometric.map_line_support`). The best
         ``GeometricParams.wide_poses`` are refined twice, the second time with wider first
         associations (``wide_assoc_deg``); both results compete."""
-        from ldlloc.geometric import map_line_support
-        from ldlloc.principal import assign_arcs_to_principal
+        from ldlloc.refine.geometric import map_line_support
+        from ldlloc.rotation import assign_arcs_to_principal
 
         m, p = self.map, self.params
         M = len(res.centers)
@@ -348,7 +348,7 @@ class Localizer:
                        "points or explained less of the image)")
 
     def _refine_features(self, img: np.ndarray, grouped_arcs: np.ndarray, res):
-        """Feature refinement of the top-K poses (:func:`ldlloc.refine.refine_candidates`); returns
+        """Feature refinement of the top-K poses (:func:`ldlloc.refine.features.refine_candidates`); returns
         the refinement and the number of query features it used.
 
         With ``query_frame`` ``map`` the query's features are extracted in the frame of the best
@@ -358,7 +358,7 @@ class Localizer:
         of the frame nearest its up axis, frame after frame until one's candidates refine (the
         first frame's, usually: no extra cost), else the most PnP inliers win. ``grouped_arcs``:
         the arcs of principal lines (the privacy filter's)."""
-        from ldlloc.refine import keep_near_lines, refine_candidates
+        from ldlloc.refine.features import keep_near_lines, refine_candidates
         from ldlmap.features.sphere import extract_in_map_frame
 
         p, m = self.params, self.map
@@ -407,9 +407,9 @@ class Localizer:
         ``params.max_tilt_deg`` (None: the params'; 180: free rotation).
         """
         from ldlloc.lines2d import detect_lines, filter_by_length, query_keep_ratio
-        from ldlloc.principal import candidate_rotations, filter_by_tilt, labels_for_rotations, vanishing_points
-        from ldlloc.search import search_poses
-        from ldlmap.frame import is_identity
+        from ldlloc.rotation import candidate_rotations, filter_by_tilt, labels_for_rotations, vanishing_points
+        from ldlloc.search.pose_search import search_poses
+        from ldlmap.core.frame import is_identity
 
         p, m = self.params, self.map
         img = np.asarray(image_rgb)

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ldlmap.pictures import draw_arcs, project_lines, write_picture
+from ldlmap.core.pictures import draw_arcs, project_lines, write_picture
 
 
 def localization_picture(image_rgb: np.ndarray, loc, ldl_map) -> np.ndarray:

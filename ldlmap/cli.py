@@ -11,7 +11,7 @@ from typing import Optional
 
 import typer
 
-from ldlmap.cli_common import check_device, check_range, console, make_app, ray_option
+from ldlmap.core.cli_common import check_device, check_range, console, make_app, ray_option
 
 app = make_app("ldlmap", "Build LDL maps (3D lines, principal directions, features) and synthetic datasets.")
 
@@ -40,7 +40,7 @@ def info(map_path: Path = typer.Argument(..., help="An LDL map (.h5) written by 
     with one line."""
     from rich.table import Table
 
-    from ldlmap.mapfile import read_map, read_map_header
+    from ldlmap.map.mapfile import read_map, read_map_header
 
     read_map(map_path)
     h = read_map_header(map_path)
@@ -101,7 +101,7 @@ def parse_band(text: Optional[str], option: str) -> Optional[tuple[float, float]
     """``"MIN:MAX"`` as a (min, max) pair of finite floats with min <= max (None stays None)."""
     import math
 
-    from ldlmap.errors import InputError
+    from ldlmap.core.errors import InputError
 
     if text is None:
         return None
@@ -126,12 +126,12 @@ def lines(
                                    "files (line files written before are replaced without it)."),
 ) -> None:
     """Extract 3D line segments from a point cloud and write them as .obj and .txt."""
-    from ldlmap.errors import LdlError, refuse_overwriting_inputs, refuse_replacing_other_files
+    from ldlmap.core.errors import LdlError, refuse_overwriting_inputs, refuse_replacing_other_files
     from ldlmap.io.linefiles import sniff_line_file
     from ldlmap.io.pointcloud import read_point_cloud
     from ldlmap.lines3d import draw_top_view, extract_lines_with_stats, filter_by_length, write_line_files
-    from ldlmap.pictures import check_picture_path
-    from ldlmap.principal3d import principal_directions_3d
+    from ldlmap.core.pictures import check_picture_path
+    from ldlmap.lines3d.principal import principal_directions_3d
 
     check_range(lam, "--lambda", 0.0, 1.0)
     if png is not None:
@@ -161,7 +161,7 @@ def lines(
 
 def _refuse_line_file(path: Path) -> None:
     """One line saying what to do when `ldlmap lines` is given a 3D line file instead of a scan."""
-    from ldlmap.errors import InputError
+    from ldlmap.core.errors import InputError
     from ldlmap.io.linefiles import LINE_FORMAT_NAMES, sniff_line_file
 
     kind = sniff_line_file(path) if path.is_file() else None
@@ -187,9 +187,10 @@ def synth(
     """Generate a synthetic panoramic dataset: scans, meshes, 3D edges, panoramas with poses."""
     from rich.table import Table
 
-    from ldlmap.errors import InputError, refuse_overwriting_inputs
-    from ldlmap.synth.generate import MAX_PER_SPLIT, MAX_WIDTH, MIN_WIDTH, check_dataset_seed, generate_dataset, \
-        refuse_replacing_other_dataset
+    from ldlmap.core.errors import InputError, refuse_overwriting_inputs
+    from ldlmap.synth.capture import (MAX_PER_SPLIT, MAX_WIDTH, MIN_WIDTH, check_dataset_seed,
+                                      refuse_replacing_other_dataset)
+    from ldlmap.synth.generate import generate_dataset
 
     if spec and preset:
         raise InputError("use either --preset or --spec, not both")
@@ -252,10 +253,10 @@ def build(
     """Build an LDL map (3D lines, principal directions, translations, features) from a scan."""
     from rich.table import Table
 
-    from ldlmap.build import BuildParams, build_map, params_with
-    from ldlmap.errors import refuse_overwriting_inputs
-    from ldlmap.pictures import check_picture_path
-    from ldlmap.prepare import refuse_replacing_non_map
+    from ldlmap.map.build import BuildParams, build_map, params_with
+    from ldlmap.core.errors import refuse_overwriting_inputs
+    from ldlmap.core.pictures import check_picture_path
+    from ldlmap.batch.prepare import refuse_replacing_non_map
 
     check_build_options(num_trans=num_trans, num_views=num_views, lam=lam, min_length=min_length,
                         trans_spacing=trans_spacing, scale=scale, device=device, extraction=extraction)
@@ -290,8 +291,8 @@ def build(
                   f"({params.features if c['views'] else 'no features'}), {c['size_mb']:.1f} MB", soft_wrap=True)
     _print_notes(report)
     if png is not None:
-        from ldlmap.mapfile import read_map
-        from ldlmap.pictures import map_picture
+        from ldlmap.map.mapfile import read_map
+        from ldlmap.map.pictures import map_picture
 
         map_picture(read_map(report.path), png)
         console.print(f"wrote {png}", soft_wrap=True)
@@ -322,7 +323,7 @@ def check_build_options(num_trans: Optional[int] = None, num_views: Optional[int
 
 def _print_notes(report) -> None:
     """The build's notes on stdout and its warnings as ``warning:`` lines on stderr."""
-    from ldlmap.cli_common import err_console
+    from ldlmap.core.cli_common import err_console
 
     for line in report.notes:
         console.print(line, soft_wrap=True, highlight=False)
@@ -360,10 +361,10 @@ def prepare(
     With --ray, one Ray task per scene (one GPU each with --device cuda)."""
     from rich.table import Table
 
-    from ldlmap.build import params_with
+    from ldlmap.map.build import params_with
     from ldlmap.datasets import MAP_LEVELS, open_dataset
-    from ldlmap.errors import InputError
-    from ldlmap.prepare import LINES_ONLY_NOTE, default_params, prepare_dataset
+    from ldlmap.core.errors import InputError
+    from ldlmap.batch.prepare import LINES_ONLY_NOTE, default_params, prepare_dataset
 
     if map_level not in MAP_LEVELS:
         raise InputError(f"--map-level must be {' or '.join(MAP_LEVELS)}, got {map_level!r}")
@@ -387,9 +388,9 @@ def prepare(
                          device=device, trans_spacing=trans_spacing,
                          camera_height=parse_band(camera_height, "--camera-height"), up=up, scale=scale)
     options = dict(overwrite=overwrite, use_line_files=line_files, scenes=scene or None, map_level=map_level)
-    if ray is not None:  # one Ray task per scene (ldlmap/distributed.py)
-        from ldlmap.cluster import ThroughputBar
-        from ldlmap.distributed import prepare_dataset_ray
+    if ray is not None:  # one Ray task per scene (ldlmap/batch/ray_prepare.py)
+        from ldlmap.batch.ray_cluster import ThroughputBar
+        from ldlmap.batch.ray_prepare import prepare_dataset_ray
 
         with ThroughputBar(console, "scenes") as bar:
             outcomes = prepare_dataset_ray(root, kind, maps, params, progress=bar, address=ray, **options)

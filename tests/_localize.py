@@ -5,7 +5,7 @@ from __future__ import annotations
 
 def assert_refined_by_features(loc, ds, scene: str) -> None:
     """A robot and two extreme queries of ``scene`` each end within 0.1 m / 5 deg, refined by features."""
-    from ldlmap.geometry import rotation_error_deg, translation_error
+    from ldlmap.core.geometry import rotation_error_deg, translation_error
     from ldlloc.pipeline import load_image
 
     queries = ds.queries("robot", scene=scene)[:1] + ds.queries("extreme", scene=scene)[:2]

@@ -20,8 +20,8 @@ from typer.testing import CliRunner
 from ldlloc.cli import app as loc_app
 from ldlmap.cli import app as map_app
 from ldlmap.datasets import read_pose_txt
-from ldlmap.geometry import rotation_error_deg
-from ldlmap.mapfile import FORMAT_VERSION, read_map
+from ldlmap.core.geometry import rotation_error_deg
+from ldlmap.map.mapfile import FORMAT_VERSION, read_map
 
 runner = CliRunner()
 
@@ -59,7 +59,7 @@ def test_demo_map_contents(demo_dataset):
     angles = np.degrees(np.arccos(np.clip(np.abs(P @ axes.T).max(axis=1), -1, 1)))
     assert angles.max() < 2.0, angles
     # Translations inside the footprint and between floor and ceiling.
-    from ldlmap.synth.polygon import points_in_polygon
+    from ldlmap.core.polygon import points_in_polygon
 
     assert points_in_polygon(m.translations[:, :2], fp).all()
     assert (m.translations[:, 2] > 0).all() and (m.translations[:, 2] < spec.ceiling_height).all()

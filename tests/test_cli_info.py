@@ -5,7 +5,7 @@ from __future__ import annotations
 from typer.testing import CliRunner
 
 from ldlmap.cli import app
-from ldlmap.mapfile import write_map
+from ldlmap.map.mapfile import write_map
 from tests.test_mapfile import make_map
 
 runner = CliRunner()

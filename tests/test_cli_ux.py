@@ -67,8 +67,8 @@ def test_line_files_are_told_from_clouds_and_meshes(tmp_path):
 
 def test_build_reads_a_line_file_by_content(tmp_path):
     """Our .txt rows would pass for a 6-column cloud: `build` must take them as lines."""
-    from ldlmap.build import load_input
-    from ldlmap.errors import InputError
+    from ldlmap.map.inputs import load_input
+    from ldlmap.core.errors import InputError
 
     src = tmp_path / "ours.txt"
     src.write_text(LINE_FILES["ours.txt"])
@@ -90,8 +90,8 @@ def has_format(path: Path, ext: str) -> bool:
 
 
 def test_pictures_are_written_in_the_format_of_their_extension(tmp_path):
-    from ldlmap.errors import InputError
-    from ldlmap.pictures import PICTURE_SUFFIXES, check_picture_path, write_picture
+    from ldlmap.core.errors import InputError
+    from ldlmap.core.pictures import PICTURE_SUFFIXES, check_picture_path, write_picture
 
     img = np.zeros((40, 60, 3), np.uint8)
     img[10:30, 20:40] = (0, 128, 255)
@@ -215,7 +215,7 @@ def test_a_failed_localization_is_a_json_error(demo_dataset, tmp_path):
 
 
 def test_info_shows_principal_directions_and_group_counts(tmp_path):
-    from ldlmap.mapfile import read_map_header, write_map
+    from ldlmap.map.mapfile import read_map_header, write_map
     from tests.test_mapfile import make_map
 
     m = make_map()
@@ -258,8 +258,8 @@ def test_help_runs_as_a_module(module):
 
 def test_distance_fields_reject_non_finite_float16_values():
     """Setup checks the float16 fields from their bits (a float16 pass took up to 0.5 s per map)."""
-    from ldlloc.fields import DistanceFields
-    from ldlmap.errors import InputError
+    from ldlloc.search.fields import DistanceFields
+    from ldlmap.core.errors import InputError
 
     G = 4
     d = np.random.default_rng(0).uniform(0, 1.5, size=(3, 3, G + 1, 2 * G)).astype(np.float16)

@@ -9,7 +9,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from ldlmap.errors import InputError
+from ldlmap.core.errors import InputError
 from ldlmap.features import backend_for, get_backend
 from ldlmap.features.sphere import CubeFaces, for_panoramas
 from tests._localize import assert_refined_by_features
@@ -65,10 +65,10 @@ def test_cube_face_map_records_its_extraction_and_localizes(demo_dataset, tmp_pa
     """Map features of one demo room from cube faces (8 views): the map records the extraction,
     the localizer extracts the queries' features the same way, and a robot and two extreme queries
     end within 0.1 m / 5 deg, refined by features."""
-    from ldlmap.build import BuildParams, compute_features
+    from ldlmap.map.build import BuildParams, compute_features
     from ldlmap.datasets import open_dataset
     from ldlmap.io.pointcloud import read_point_cloud
-    from ldlmap.mapfile import read_map, read_map_header, write_map
+    from ldlmap.map.mapfile import read_map, read_map_header, write_map
     from ldlloc.pipeline import LocalizeParams, Localizer
 
     ds = open_dataset(demo_dataset, "omniscenes")
@@ -95,7 +95,7 @@ def test_query_frames_split_candidates_by_their_up_axis():
     """Candidates that differ by a yaw share the best one's frame (a yaw only rolls the panorama);
     a flipped or tipped Manhattan twin gets its own, up to the bound, and each candidate joins the
     frame nearest its up axis."""
-    from ldlmap.geometry import rotation_from_axis_angle
+    from ldlmap.core.geometry import rotation_from_axis_angle
     from ldlloc.pipeline import query_frame_groups
 
     z, x = np.array([0.0, 0.0, 1.0]), np.array([1.0, 0.0, 0.0])

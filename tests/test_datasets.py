@@ -23,8 +23,8 @@ from ldlmap.datasets import (
     stanford_rotation,
     write_pose_txt,
 )
-from ldlmap.errors import InputError
-from ldlmap.geometry import pixel_from_bearing, project_to_pixels
+from ldlmap.core.errors import InputError
+from ldlmap.core.geometry import pixel_from_bearing, project_to_pixels
 
 
 def _random_pose(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
@@ -349,7 +349,7 @@ def test_prepare_with_line_files(tmp_path: Path) -> None:
     from typer.testing import CliRunner
 
     from ldlmap.cli import app
-    from ldlmap.mapfile import read_map
+    from ldlmap.map.mapfile import read_map
 
     runner = CliRunner()
     root = tmp_path / "omni"

@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 
 from ldlmap.datasets import open_dataset
-from ldlmap.errors import LdlError
-from ldlmap.geometry import rotation_error_deg, translation_error
-from ldlmap.mapfile import read_map
+from ldlmap.core.errors import LdlError
+from ldlmap.core.geometry import rotation_error_deg, translation_error
+from ldlmap.map.mapfile import read_map
 from ldlloc.pipeline import Localizer, load_image
 
 MAIN_SPLITS = ("robot", "handheld", "extreme")

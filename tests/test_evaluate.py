@@ -6,7 +6,8 @@ import json
 
 import pytest
 
-from ldlloc.evaluate import QueryResult, ResultsWriter, load_results, summarize, summary_table
+from ldlloc.batch.accuracy import QueryResult, summarize, summary_table
+from ldlloc.batch.results import ResultsWriter, load_results
 
 
 def res(name, te, re, split="extreme", scene="room_1", status="ok"):

@@ -5,11 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ldlmap import geometry as geo
-from ldlmap.errors import InputError
+from ldlmap.core import geometry as geo
+from ldlmap.core.errors import InputError
 from ldlmap.features import available_backends, get_backend, mutual_nn_match
-from ldlmap.keypoints3d import backproject_keypoints, view_features
-from ldlmap.render import PointRenderer, RenderParams
+from ldlmap.map.keypoints3d import backproject_keypoints, view_features
+from ldlmap.map.render import PointRenderer, RenderParams
 
 
 def _texture(h: int = 256, w: int = 512, seed: int = 0) -> np.ndarray:

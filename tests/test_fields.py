@@ -1,4 +1,4 @@
-"""Precomputed 3D distance fields (ldlmap.fields3d) and the fast pose search (ldlloc.fields).
+"""Precomputed 3D distance fields (ldlmap.map.fields3d) and the fast pose search (ldlloc.search.fields).
 
 The scene is an analytic box room (walls, posters, a table-sized box): lines, their principal
 groups and candidate translations are known in closed form, so the tests need neither the
@@ -11,14 +11,15 @@ import numpy as np
 import pytest
 import torch
 
-from ldlmap.errors import InputError
-from ldlmap.fields3d import FieldParams, compute_fields, field_bytes, grid_directions
-from ldlmap.geometry import cam_from_world, normalize, rotation_from_axis_angle
-from ldlmap.mapfile import LdlMap, read_map, write_map
-from ldlloc import ldf
-from ldlloc.fields import DistanceFields, inlier_loss_from_fields
-from ldlloc.principal import assign_arcs_to_principal
-from ldlloc.search import SearchParams, search_poses
+from ldlmap.core.errors import InputError
+from ldlmap.map.fields3d import FieldParams, compute_fields, field_bytes, grid_directions
+from ldlmap.core.geometry import cam_from_world, normalize, rotation_from_axis_angle
+from ldlmap.map.contents import LdlMap
+from ldlmap.map.mapfile import read_map, write_map
+from ldlloc.search import ldf
+from ldlloc.search.fields import DistanceFields, inlier_loss_from_fields
+from ldlloc.rotation import assign_arcs_to_principal
+from ldlloc.search.pose_search import SearchParams, search_poses
 
 LO, HI = np.array([-3.0, -2.0, 0.0]), np.array([3.0, 2.0, 3.0])
 

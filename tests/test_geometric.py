@@ -1,11 +1,11 @@
-"""Geometric refinement from lines alone (ldlloc.geometric) on the analytic box room of test_fields."""
+"""Geometric refinement from lines alone (ldlloc.refine.geometric) on the analytic box room of test_fields."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from ldlmap.geometry import cam_from_world, normalize, rotation_error_deg, rotation_from_axis_angle
-from ldlloc.geometric import GeometricParams, refine_poses_geometric
+from ldlmap.core.geometry import cam_from_world, normalize, rotation_error_deg, rotation_from_axis_angle
+from ldlloc.refine.geometric import GeometricParams, refine_poses_geometric
 from tests.test_fields import HI, LO, _room_lines
 
 
@@ -83,7 +83,7 @@ def test_line_jacobian_matches_finite_differences():
     by the pose update; the normal equations summed per line equal the sum over points."""
     import torch
 
-    from ldlloc.geometric import _apply, _line_operators
+    from ldlloc.refine.geometric import _apply, _line_operators
 
     rng = np.random.default_rng(1)
     R = torch.as_tensor(rotation_from_axis_angle(rng.normal(size=3), 0.4)[None])
@@ -109,7 +109,7 @@ def test_line_jacobian_matches_finite_differences():
 def test_vanishing_point_jacobian_matches_finite_differences():
     import torch
 
-    from ldlloc.geometric import _apply, _vp_residuals
+    from ldlloc.refine.geometric import _apply, _vp_residuals
 
     rng = np.random.default_rng(0)
     R = torch.as_tensor(rotation_from_axis_angle(rng.normal(size=3), 0.7)[None])
@@ -130,7 +130,7 @@ def test_vanishing_point_jacobian_matches_finite_differences():
 def test_map_line_support_prefers_the_true_pose():
     """The map's lines seen from the true pose lie on the query's arcs; from a pose 0.3 m and
     10 deg off they mostly do not."""
-    from ldlloc.geometric import map_line_support
+    from ldlloc.refine.geometric import map_line_support
 
     lines, groups, views = _views(2, seed=11)
     arcs, R, t, _, _ = views[0]

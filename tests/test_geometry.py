@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ldlmap import geometry as g
+from ldlmap.core import geometry as g
 
 W, H = 1024, 512
 

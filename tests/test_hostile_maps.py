@@ -14,7 +14,7 @@ import pytest
 from typer.testing import CliRunner
 
 from ldlmap.cli import app
-from ldlmap.mapfile import read_map, read_map_header, write_map
+from ldlmap.map.mapfile import read_map, read_map_header, write_map
 from tests._hostile import assert_clean_failure, snapshot
 from tests.test_mapfile import make_map
 
@@ -329,11 +329,12 @@ def test_utm_scan_localizes_like_the_same_scan_at_the_origin(tmp_path, room_clou
     """The map of a scan in UTM coordinates is recentred (float32 storage would snap it to
     0.25-0.5 m); its poses, given in the input frame, match the un-offset map's within 1 cm."""
     from ldlloc.pipeline import Localizer, LocalizeParams
-    from ldlmap.build import BuildParams, build_map
-    from ldlmap.frame import apply, invert
-    from ldlmap.geometry import rotation_from_axis_angle
-    from ldlmap.io.pointcloud import PointCloud, write_point_cloud
-    from ldlmap.render import PointRenderer, RenderParams
+    from ldlmap.map.build import BuildParams, build_map
+    from ldlmap.core.frame import apply, invert
+    from ldlmap.core.geometry import rotation_from_axis_angle
+    from ldlmap.io.cloud import PointCloud
+    from ldlmap.io.pointcloud import write_point_cloud
+    from ldlmap.map.render import PointRenderer, RenderParams
 
     P, colors = room_cloud
     params = BuildParams(features="none", num_translations=100, distance_fields=False)
@@ -365,7 +366,8 @@ def test_utm_scan_localizes_like_the_same_scan_at_the_origin(tmp_path, room_clou
 def test_scan_in_another_unit_is_refused_in_one_line(tmp_path, room_cloud, factor, words):
     """Millimetres (or a x2e6 scene that used to exhaust 24 GB): one line naming --scale, before
     any grid is allocated, and no map left behind."""
-    from ldlmap.io.pointcloud import PointCloud, write_point_cloud
+    from ldlmap.io.cloud import PointCloud
+    from ldlmap.io.pointcloud import write_point_cloud
 
     P, colors = room_cloud
     write_point_cloud(tmp_path / "mm.ply", PointCloud(P[::10] * factor, colors[::10]))

@@ -238,9 +238,9 @@ def test_unreadable_spec_files_are_refused(tmp_path, content):
 
 def test_preset_seeds_differ_past_32_bits():
     """Seed 1 and seed 2**32 + 1 gave identical rooms; the second is refused, nearby seeds differ."""
-    from ldlmap.errors import InputError
-    from ldlmap.synth.generate import check_dataset_seed
-    from ldlmap.synth.spec import random_spec
+    from ldlmap.core.errors import InputError
+    from ldlmap.synth.capture import check_dataset_seed
+    from ldlmap.synth.presets import random_spec
 
     with pytest.raises(InputError):
         check_dataset_seed(2**32 + 1)

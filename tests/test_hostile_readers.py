@@ -13,7 +13,7 @@ import pytest
 from typer.testing import CliRunner
 
 from ldlmap.cli import app
-from ldlmap.errors import InputError
+from ldlmap.core.errors import InputError
 from tests._hostile import assert_clean_failure, snapshot
 
 runner = CliRunner()
@@ -97,7 +97,8 @@ LINE_FILES = [
 @pytest.fixture(scope="module")
 def scan(tmp_path_factory):
     """A tiny valid scan, for the `--lines` cases."""
-    from ldlmap.io.pointcloud import PointCloud, write_point_cloud
+    from ldlmap.io.cloud import PointCloud
+    from ldlmap.io.pointcloud import write_point_cloud
 
     p = tmp_path_factory.mktemp("scan") / "scan.ply"
     return write_point_cloud(p, PointCloud(np.random.default_rng(0).uniform(0, 4, (500, 3))))
@@ -125,7 +126,7 @@ def test_bad_line_file_is_one_line(tmp_path, scan, case, name, data, words):
 
 def test_our_line_format_is_accepted_by_build(tmp_path):
     """`ldlmap lines` writes `# ldl lines v1` .txt files: `build --lines` and `build FILE` read them."""
-    from ldlmap.build import load_input
+    from ldlmap.map.inputs import load_input
     from ldlmap.io.linefiles import write_lines_txt
 
     segs = np.random.default_rng(0).uniform(0, 4, (12, 2, 3))

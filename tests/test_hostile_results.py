@@ -19,9 +19,9 @@ import pytest
 from typer.testing import CliRunner
 
 from ldlloc.cli import app as loc_app
-from ldlloc.evaluate import (QueryResult, ResultsBusy, ResultsWriter, load_results, lock_path, results_csv,
-                             validate_results)
-from ldlmap.errors import FormatVersionError, InputError
+from ldlloc.batch.accuracy import QueryResult, results_csv
+from ldlloc.batch.results import ResultsBusy, ResultsWriter, load_results, lock_path, validate_results
+from ldlmap.core.errors import FormatVersionError, InputError
 from tests._hostile import assert_clean_failure, snapshot
 
 runner = CliRunner()
@@ -139,7 +139,8 @@ def test_a_second_writer_is_refused_while_the_first_holds_the_lock(demo_dataset,
 
 WRITER_SCRIPT = """
 import sys, time
-from ldlloc.evaluate import QueryResult, ResultsWriter
+from ldlloc.batch.accuracy import QueryResult
+from ldlloc.batch.results import ResultsWriter
 w = ResultsWriter(sys.argv[1], meta={"device": "cpu"}, resume=True)
 for i in range(10_000):
     w.add(QueryResult(image=f"{i}.jpg", scene="s", split="x", name=f"x/{i:05d}", t=[i, 0.0, 0.0],
@@ -176,7 +177,7 @@ def test_kill_at_a_random_moment_leaves_agreeing_files(tmp_path, seed):
 
 def test_csv_that_cannot_be_written_is_a_warning(tmp_path, monkeypatch):
     """A fault between the JSON and the CSV write: the result is kept, one warning, recorded."""
-    import ldlloc.evaluate as ev
+    import ldlloc.batch.results as ev
 
     path, said = tmp_path / "r.json", []
     w = ResultsWriter(path, meta={"device": "cpu"}, warn=said.append)

@@ -17,7 +17,7 @@ import pytest
 from typer.testing import CliRunner
 
 from ldlmap.cli import app
-from ldlmap.errors import LdlError, atomic_dir, atomic_file, refuse_overwriting_inputs, remove_stale_temporaries
+from ldlmap.core.errors import LdlError, atomic_dir, atomic_file, refuse_overwriting_inputs, remove_stale_temporaries
 from tests._hostile import assert_clean_failure, snapshot
 
 runner = CliRunner()
@@ -113,7 +113,7 @@ def test_refuse_overwriting_inputs(tmp_path, monkeypatch, inputs, outputs, refus
 
 _WRITER = textwrap.dedent("""
     import sys, time
-    from ldlmap.errors import atomic_dir, atomic_file
+    from ldlmap.core.errors import atomic_dir, atomic_file
     target, kind = sys.argv[1], sys.argv[2]
     with (atomic_file(target) if kind == "file" else atomic_dir(target)) as tmp:
         if kind == "file":
@@ -152,7 +152,7 @@ def test_temporaries_of_a_killed_run_are_removed_by_the_next(tmp_path, kind):
 
 
 def test_only_temporaries_of_this_host_and_target_are_removed(tmp_path):
-    from ldlmap.errors import _host
+    from ldlmap.core.errors import _host
 
     dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True,
                           text=True).stdout.strip()
@@ -174,7 +174,7 @@ def test_lines_replaces_its_own_outputs_and_the_stale_temporaries(tmp_path):
     removes what a killed run left."""
     import numpy as np
 
-    from ldlmap.errors import _host
+    from ldlmap.core.errors import _host
     from tests._room_cloud import box_room
 
     pts, _ = box_room(seed=1, size=(3.0, 2.5, 2.4), n_boxes=1, density=600.0)

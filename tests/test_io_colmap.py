@@ -8,10 +8,11 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from ldlmap.errors import InputError
-from ldlmap.geometry import colmap_cam_from_world, pose_from_colmap
+from ldlmap.core.errors import InputError
+from ldlmap.core.geometry import colmap_cam_from_world, pose_from_colmap
 from ldlmap.io.colmap import read_colmap_model
-from ldlmap.io.pointcloud import PointCloud, write_point_cloud
+from ldlmap.io.cloud import PointCloud
+from ldlmap.io.pointcloud import write_point_cloud
 
 
 def _build_reconstruction(rng: np.random.Generator):

@@ -7,9 +7,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ldlmap.errors import InputError
+from ldlmap.core.errors import InputError
 from ldlmap.io.mesh import MeshSampling, sample_mesh
-from ldlmap.io.pointcloud import PointCloud, read_point_cloud, write_point_cloud
+from ldlmap.io.cloud import PointCloud
+from ldlmap.io.pointcloud import read_point_cloud, write_point_cloud
 
 
 def _cloud(n: int = 500, seed: int = 0, colors: bool = True) -> PointCloud:

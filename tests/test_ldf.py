@@ -1,4 +1,4 @@
-"""Line distance functions (ldlloc.ldf) against brute force and closed forms."""
+"""Line distance functions (ldlloc.search.ldf) against brute force and closed forms."""
 
 from __future__ import annotations
 
@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 import torch
 
-from ldlmap.errors import InputError
-from ldlmap.geometry import cam_from_world, icosphere_points, normalize, rotation_from_axis_angle
-from ldlloc import ldf
+from ldlmap.core.errors import InputError
+from ldlmap.core.geometry import cam_from_world, icosphere_points, normalize, rotation_from_axis_angle
+from ldlloc.search import ldf
 
 
 def _random_unit(rng, n):
@@ -244,7 +244,7 @@ def test_pose_loss_ranks_true_pose_first(kind):
 
 
 def test_point_arc_distance_shared_with_the_map_side():
-    from ldlmap import sphere_distance
+    from ldlmap.core import sphere_distance
 
     assert ldf.point_arc_distance is sphere_distance.point_arc_distance
     assert ldf.EMPTY_DISTANCE == sphere_distance.EMPTY_DISTANCE == np.pi
@@ -252,7 +252,7 @@ def test_point_arc_distance_shared_with_the_map_side():
 
 def test_grouped_min_distance_equals_per_group_brute_force():
     """The kernel behind ldf_3d and the map's distance fields, on many points and chunks."""
-    from ldlmap.sphere_distance import grouped_min_distance, project_lines, sort_by_group
+    from ldlmap.core.sphere_distance import grouped_min_distance, project_lines, sort_by_group
 
     rng = np.random.default_rng(11)
     lines = rng.uniform(-3, 3, size=(30, 2, 3))

@@ -11,7 +11,7 @@ import pytest
 
 from ldlmap.features import get_backend
 from ldlmap.features.sphere import extract_in_map_frame, rotate_panorama
-from ldlmap.geometry import bearing_from_pixel, rotation_from_axis_angle
+from ldlmap.core.geometry import bearing_from_pixel, rotation_from_axis_angle
 from tests._localize import assert_refined_by_features
 
 pytest.importorskip("kornia")
@@ -98,11 +98,11 @@ def test_rotated_panorama_keypoints_map_back_to_the_panorama():
 def test_localization_with_packaged_weights_offline(name, demo_dataset, offline):
     """Map features of one demo room from each learned backend (8 views), then the whole
     pipeline on a robot and two extreme queries: each within 0.1 m / 5 deg, refined by features."""
-    from ldlmap.build import BuildParams, compute_features
+    from ldlmap.map.build import BuildParams, compute_features
     from ldlmap.datasets import open_dataset
-    from ldlmap.frame import is_identity
+    from ldlmap.core.frame import is_identity
     from ldlmap.io.pointcloud import read_point_cloud
-    from ldlmap.mapfile import read_map
+    from ldlmap.map.mapfile import read_map
     from ldlloc.pipeline import LocalizeParams, Localizer
 
     ds = open_dataset(demo_dataset, "omniscenes")

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ldlmap.errors import InputError
+from ldlmap.core.errors import InputError
 from ldlmap.io.linefiles import (detect_txt_format, read_3dlinedetection_txt, read_line3dpp_obj,
                                  read_line3dpp_txt, read_lines, write_lines, write_lines_obj,
                                  write_lines_txt)

@@ -6,10 +6,11 @@ import numpy as np
 import pytest
 import torch
 
-from ldlmap.errors import InputError
-from ldlmap.geometry import (bearing_from_pixel, cam_from_world, normalize, pixel_centers,
-                             rotation_from_axis_angle)
-from ldlloc import ldf, lines2d
+from ldlmap.core.errors import InputError
+from ldlmap.core.geometry import (bearing_from_pixel, cam_from_world, normalize, pixel_centers,
+                                  rotation_from_axis_angle)
+from ldlloc.search import ldf
+from ldlloc import lines2d
 
 LO, HI = np.array([-3.0, -2.0, 0.0]), np.array([3.0, 2.0, 3.0])
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ldlmap.geometry import rotation_from_axis_angle
+from ldlmap.core.geometry import rotation_from_axis_angle
 from ldlloc import lines2d
 from tests.test_lines2d import render_box_room
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from tests._room_cloud import box_room
-from ldlmap.errors import InputError
+from ldlmap.core.errors import InputError
 from ldlmap.lines3d import (Lines3DParams, extract_lines, extract_lines_with_stats, filter_by_length,
                             length_threshold, line_precision_recall, merge_collinear, robust_bounds)
 
@@ -199,7 +199,8 @@ def test_cli_lines_writes_obj_txt_png(tmp_path, room):
     from typer.testing import CliRunner
 
     from ldlmap.cli import app
-    from ldlmap.io.pointcloud import PointCloud, write_point_cloud
+    from ldlmap.io.cloud import PointCloud
+    from ldlmap.io.pointcloud import write_point_cloud
 
     P, _ = room
     src = tmp_path / "room.ply"
@@ -233,7 +234,7 @@ def test_extract_lines_synthetic_demo_rooms(seed):
     from ldlmap.synth.edges import edges_longer_than, mesh_edges
     from ldlmap.synth.scan import sample_scan
     from ldlmap.synth.scene import build_scene
-    from ldlmap.synth.spec import random_spec
+    from ldlmap.synth.presets import random_spec
 
     spec = random_spec("demo", seed)
     assert spec.scan.noise_std == pytest.approx(0.005)

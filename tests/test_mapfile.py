@@ -6,8 +6,9 @@ import h5py
 import numpy as np
 import pytest
 
-from ldlmap.errors import FormatVersionError, InputError
-from ldlmap.mapfile import FORMAT_VERSION, LdlMap, MapFeatures, read_map, read_map_header, write_map
+from ldlmap.core.errors import FormatVersionError, InputError
+from ldlmap.map.mapfile import FORMAT_VERSION, read_map, read_map_header, write_map
+from ldlmap.map.contents import LdlMap, MapFeatures
 
 
 def make_map(with_features: bool = True, seed: int = 0) -> LdlMap:
@@ -119,8 +120,8 @@ def test_corrupt_and_missing_files(tmp_path):
 
 def test_optional_input_frame_transform(tmp_path):
     """``/frame/input_to_map`` (SfM maps) is optional: maps without it read as the identity (None)."""
-    from ldlmap.frame import similarity
-    from ldlmap.geometry import rotation_from_axis_angle
+    from ldlmap.core.frame import similarity
+    from ldlmap.core.geometry import rotation_from_axis_angle
 
     m = make_map(with_features=False)
     assert read_map(write_map(tmp_path / "plain.h5", m)).input_to_map is None

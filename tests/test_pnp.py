@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ldlmap import geometry as g
-from ldlloc.pnp import PnPParams, estimate_pose_spherical
+from ldlmap.core import geometry as g
+from ldlloc.refine.pnp import PnPParams, estimate_pose_spherical
 from tests.test_geometry import random_rotation
 
 W, H = 1024, 512

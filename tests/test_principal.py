@@ -1,13 +1,13 @@
-"""Vanishing points, candidate rotations and principal groups (ldlloc.principal)."""
+"""Vanishing points, candidate rotations and rotation groups (ldlloc.rotation)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from ldlmap.errors import InputError
-from ldlmap.geometry import cam_from_world, normalize, rotation_error_deg, rotation_from_axis_angle
-from ldlloc import principal
+from ldlmap.core.errors import InputError
+from ldlmap.core.geometry import cam_from_world, normalize, rotation_error_deg, rotation_from_axis_angle
+from ldlloc import rotation
 
 
 def _manhattan_lines(rng, n=60):
@@ -43,7 +43,7 @@ def _line_angle_deg(a, b):
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_vanishing_points_recover_manhattan_directions(seed):
     arcs, _, R = _scene(seed)
-    vps, votes = principal.vanishing_points(arcs, k=20, return_counts=True)
+    vps, votes = rotation.vanishing_points(arcs, k=20, return_counts=True)
     assert 3 <= len(vps) <= 20
     assert np.allclose(np.linalg.norm(vps, axis=1), 1.0)
     assert np.all(np.diff(votes) <= 1e-6 + 1e-6 * votes[:-1])  # greedy order
@@ -55,10 +55,10 @@ def test_vanishing_points_recover_manhattan_directions(seed):
 @pytest.mark.parametrize("seed", [3, 4, 5, 6, 7])
 def test_candidate_rotations_contain_truth(seed):
     arcs, _, R = _scene(seed)
-    vps = principal.vanishing_points(arcs, k=20)
-    # 3D principal directions: the room axes, in some order and signs.
+    vps = rotation.vanishing_points(arcs, k=20)
+    # 3D rotation directions: the room axes, in some order and signs.
     P = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])
-    cands = principal.candidate_rotations(vps, P)
+    cands = rotation.candidate_rotations(vps, P)
     assert len(cands) >= 24  # all relabelings of the Manhattan frame
     assert len(cands) <= 150
     errs = [rotation_error_deg(Rc, R) for Rc in cands.rotations]
@@ -81,31 +81,31 @@ def test_candidate_rotations_exact_kabsch_and_empty():
     R = rotation_from_axis_angle(rng.normal(size=3), 0.7)
     P = normalize(np.array([[1.0, 0.1, 0.0], [0.0, 1.0, 0.0], [0.2, 0.0, 1.0]]))  # non-orthogonal
     vps = np.concatenate([(R @ P.T).T * np.array([[1.0], [-1.0], [1.0]]), normalize(rng.normal(size=(2, 3)))])
-    c = principal.candidate_rotations(vps, P)
+    c = rotation.candidate_rotations(vps, P)
     best = int(np.argmin([rotation_error_deg(Rc, R) for Rc in c.rotations]))
     np.testing.assert_allclose(c.rotations[best], R, atol=1e-9)
     assert c.residuals[best] < 1e-12
     assert list(c.triplets[best]) == [0, 1, 2] and list(c.signs[best]) == [1, -1, 1]
-    assert len(principal.candidate_rotations(vps[:2], P)) == 0
+    assert len(rotation.candidate_rotations(vps[:2], P)) == 0
     with pytest.raises(InputError):
-        principal.candidate_rotations(vps, P[:2])
+        rotation.candidate_rotations(vps, P[:2])
 
 
 def test_assign_groups_and_labels_for_rotations():
     arcs, axis, R = _scene(10, noise_arcs=0)
-    g = principal.assign_arcs_to_principal(arcs, R.T)  # rows: camera-frame principal dirs
+    g = rotation.assign_arcs_to_principal(arcs, R.T)  # rows: camera-frame rotation dirs
     assert np.mean(g == axis) > 0.9
     # A tiny arc's circle is ill-defined only by noise; an arc not through any direction -> -1.
     off = normalize(np.array([[[1.0, 1.0, 1.0], [1.0, -1.0, 0.3]]]))
     off_n = normalize(np.cross(off[0, 0], off[0, 1]))
     if np.min(np.abs(R.T @ off_n)) > 0.05:
-        assert principal.assign_arcs_to_principal(off, R.T)[0] == -1
-    vps = principal.vanishing_points(arcs, k=20)
+        assert rotation.assign_arcs_to_principal(off, R.T)[0] == -1
+    vps = rotation.vanishing_points(arcs, k=20)
     P = np.eye(3)
-    cands = principal.candidate_rotations(vps, P)
+    cands = rotation.candidate_rotations(vps, P)
     best = int(np.argmin([rotation_error_deg(Rc, R) for Rc in cands.rotations]))
-    labels = principal.labels_for_rotations(arcs, vps, cands.triplets)
+    labels = rotation.labels_for_rotations(arcs, vps, cands.triplets)
     assert labels.shape == (len(cands), len(arcs))
     assert np.mean(labels[best] == axis) > 0.9  # group j pairs with 3D direction j
     with pytest.raises(InputError):
-        principal.vanishing_points(np.zeros((3, 3)))
+        rotation.vanishing_points(np.zeros((3, 3)))

@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ldlmap.errors import InputError
-from ldlmap.geometry import rotation_from_axis_angle
+from ldlmap.core.errors import InputError
+from ldlmap.core.geometry import rotation_from_axis_angle
 from ldlmap.lines3d import extract_lines, filter_by_length
-from ldlmap.principal3d import assign_line_groups, manhattan_frame, principal_directions_3d
+from ldlmap.lines3d.principal import assign_line_groups, manhattan_frame, principal_directions_3d
 from tests._room_cloud import box_room
 
 

@@ -35,7 +35,7 @@ BUILD = ["--num-views", "2", "--num-trans", "60"]  # small maps: the comparison,
 
 @pytest.fixture(scope="module")
 def cluster():
-    from ldlmap.cluster import ray_session
+    from ldlmap.batch.ray_cluster import ray_session
 
     with ray_session("local:2") as ray:
         yield ray
@@ -143,7 +143,7 @@ def test_prepare_on_ray_gives_the_same_maps_with_a_worker_killed(cluster, scans,
 
 
 def test_run_on_ray_gives_the_same_results_with_an_actor_killed(cluster, demo_dataset, plain_run, tmp_path):
-    from ldlloc.distributed import run_queries_ray
+    from ldlloc.batch.ray_run import run_queries_ray
     from ldlloc.pipeline import LocalizeParams
     from ldlmap.datasets import open_dataset
 
@@ -172,7 +172,7 @@ def test_run_on_ray_gives_the_same_results_with_an_actor_killed(cluster, demo_da
 
 def test_interrupted_ray_run_resumes(cluster, demo_dataset, plain_run, tmp_path):
     """Ctrl-C leaves a results file that --resume completes; a missing map fails its queries once."""
-    from ldlloc.distributed import run_queries_ray
+    from ldlloc.batch.ray_run import run_queries_ray
     from ldlloc.pipeline import LocalizeParams
     from ldlmap.datasets import open_dataset
 
@@ -242,7 +242,7 @@ assert res.exit_code == 1 and "broken_1" in res.output, res.output
 res = r.invoke(loc_app, ["run", "--root", {str(demo_dataset)!r}, "--split", "robot", "--output", {str(plain_run)!r},
                          "--resume"])
 assert res.exit_code == 0, res.output
-assert "ray" not in sys.modules and "ldlmap.cluster" not in sys.modules, sorted(m for m in sys.modules if "ray" in m)
+assert "ray" not in sys.modules and "ldlmap.batch.ray_cluster" not in sys.modules, sorted(m for m in sys.modules if "ray" in m)
 sys.modules["ray"] = None  # as if Ray were not installed
 res = r.invoke(map_app, ["prepare", {str(scans)!r}, "--ray", "local"])
 print(res.output)

@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ldlmap import geometry as geo
-from ldlmap.errors import InputError
-from ldlmap.render import (PointRenderer, RenderParams, estimate_point_spacing, local_point_spacing,
-                           render_points_panorama, render_views)
+from ldlmap.core import geometry as geo
+from ldlmap.core.errors import InputError
+from ldlmap.map.render import (PointRenderer, RenderParams, estimate_point_spacing, local_point_spacing,
+                               render_points_panorama, render_views)
 
 W, H = 256, 128
 

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ldlmap.geometry import rotation_from_axis_angle
-from ldlloc.search import SearchParams, diverse_subset, search_poses
+from ldlmap.core.geometry import rotation_from_axis_angle
+from ldlloc.search.pose_search import SearchParams, diverse_subset, search_poses
 from tests.test_fields import _query_searches, room  # noqa: F401  (module fixture)
 
 
@@ -40,8 +40,8 @@ def test_search_with_diversity_keeps_the_best_pose_and_spreads_the_rest(room):  
 def test_denser_rescoring_finds_the_true_pose(room):  # noqa: F811
     """The default search (re-scoring on 162 query points, diversity) puts a pose at the nearest
     candidate translation and within 2 degrees of the truth first, as the exact path does."""
-    from ldlmap.geometry import rotation_error_deg
-    from ldlloc.principal import assign_arcs_to_principal
+    from ldlmap.core.geometry import rotation_error_deg
+    from ldlloc.rotation import assign_arcs_to_principal
     from tests.test_fields import _manhattan_candidates, _synthetic_query
 
     lines, groups, T, fields, *_ = room

@@ -16,11 +16,11 @@ from scipy.spatial.transform import Rotation
 from typer.testing import CliRunner
 
 from ldlmap.cli import app as map_app
-from ldlmap.errors import InputError
-from ldlmap.frame import (apply, decompose, invert, parse_up, pose_to_input, pose_to_map, rotation_to_z,
-                          scale_warning, similarity)
-from ldlmap.gravity import estimate_up, map_rotation
-from ldlmap.mapfile import read_map
+from ldlmap.core.errors import InputError
+from ldlmap.core.frame import (apply, decompose, invert, parse_up, pose_to_input, pose_to_map, rotation_to_z,
+                               scale_warning, similarity)
+from ldlmap.sfm.gravity import estimate_up, map_rotation
+from ldlmap.map.mapfile import read_map
 from tests._sfm_lines import rotation_with_up, sfm_like_lines, write_line3dpp_txt
 
 from tests._hostile import error_line
@@ -41,7 +41,7 @@ def room_edges() -> np.ndarray:
     """True edges of a synthetic room (doors, windows, furniture), metric and z-up."""
     from ldlmap.synth.edges import mesh_edges
     from ldlmap.synth.scene import build_scene
-    from ldlmap.synth.spec import random_spec
+    from ldlmap.synth.presets import random_spec
 
     return mesh_edges(build_scene(random_spec("demo", 2, 1)))
 
@@ -204,7 +204,7 @@ def test_non_orthogonal_directions_warn(tmp_path):
 def test_run_errors_in_map_frame_and_pose_in_input_frame():
     """`ldlloc run`: dataset ground truth (input frame) is compared in the map frame (metres)."""
     from ldlloc.pipeline import Localization
-    from ldlloc.run import result_from_localization
+    from ldlloc.batch.run import result_from_localization
 
     A = similarity(2.5, rotation_with_up(AXES["-y"], 20.0).T, [1.0, 2.0, -3.0])
     R_in, t_in = Rotation.random(random_state=7).as_matrix(), np.array([0.3, -0.2, 0.9])
@@ -227,7 +227,7 @@ def test_localized_pose_given_back_in_the_input_frame(demo_dataset, tmp_path):
     from ldlloc.cli import app as loc_app
     from ldlloc.pipeline import LocalizeParams, Localizer, load_image
     from ldlmap.datasets import read_pose_txt
-    from ldlmap.geometry import rotation_error_deg
+    from ldlmap.core.geometry import rotation_error_deg
     from ldlmap.io.linefiles import read_lines
 
     k, offset = 0.37, np.array([5.0, -2.0, 1.0])
@@ -264,8 +264,9 @@ def test_colmap_cameras_set_the_up_axis(demo_dataset, tmp_path):
     the cameras' down axes make the map z-up, the camera centres stay candidate translations."""
     import pycolmap
 
-    from ldlmap.geometry import colmap_cam_from_world
-    from ldlmap.io.pointcloud import PointCloud, read_point_cloud, write_point_cloud
+    from ldlmap.core.geometry import colmap_cam_from_world
+    from ldlmap.io.cloud import PointCloud
+    from ldlmap.io.pointcloud import read_point_cloud, write_point_cloud
 
     rng = np.random.default_rng(0)
     R0 = rotation_with_up(AXES["-y"], 30.0)  # generator frame -> input frame
@@ -301,8 +302,8 @@ def test_colmap_cameras_set_the_up_axis(demo_dataset, tmp_path):
 
 def test_layout_maps_stay_in_their_frame(tmp_path):
     """Room layouts are built metric and z-up: --up / --scale are refused, auto keeps the identity."""
-    from ldlmap.build import BuildParams, build_lines_map
-    from ldlmap.translations import Walkable
+    from ldlmap.map.build import BuildParams, build_lines_map
+    from ldlmap.map.translations import Walkable
 
     poly = np.array([[0, 0], [4, 0], [4, 3], [0, 3]], dtype=float)
     floor = np.column_stack([poly, np.zeros(4)])

@@ -1,4 +1,4 @@
-"""3D lines from a COLMAP model's photos (ldlmap.sfm_lines) and maps built from such a model.
+"""3D lines from a COLMAP model's photos (ldlmap.sfm.photo_lines) and maps built from such a model.
 
 The geometric primitives are checked against closed forms; the whole reconstruction against the
 true edges of a synthetic room photographed by ``ldlmap.synth.sfm`` (12 pinhole photos, a sparse
@@ -14,18 +14,10 @@ import pytest
 from typer.testing import CliRunner
 
 from ldlmap.cli import app as map_app
-from ldlmap.errors import InputError
+from ldlmap.core.errors import InputError
 from ldlmap.lines3d import line_precision_recall
-from ldlmap.sfm_lines import (
-    _Segments,
-    detect_segments,
-    join_segments,
-    reconstruct_lines,
-    refine_with_planes,
-    robust_extent,
-    segment_support,
-    triangulate_pair,
-)
+from ldlmap.sfm.photo_lines import (_Segments, detect_segments, join_segments, reconstruct_lines, refine_with_planes,
+                                    robust_extent, segment_support, triangulate_pair)
 
 runner = CliRunner()
 SEED = 10  # a demo-preset room with plaster walls and a carpet: its lines are structure, not texture
@@ -87,7 +79,7 @@ def test_triangulate_pair_recovers_the_lines() -> None:
 def _params(**kw):
     from dataclasses import replace
 
-    from ldlmap.sfm_lines import SfmLinesParams
+    from ldlmap.sfm.photo_lines import SfmLinesParams
 
     return replace(SfmLinesParams(), **kw)
 
@@ -128,7 +120,7 @@ def workspace(tmp_path_factory):
     from ldlmap.synth.edges import mesh_edges
     from ldlmap.synth.scene import build_scene
     from ldlmap.synth.sfm import SfmCapture, seen_edges, write_colmap_workspace
-    from ldlmap.synth.spec import random_spec
+    from ldlmap.synth.presets import random_spec
 
     mesh = build_scene(random_spec("demo", SEED))
     cap = SfmCapture(seed=SEED)
@@ -161,7 +153,7 @@ def test_lines_match_the_true_edges(workspace) -> None:
 
 
 def test_build_maps_a_model_from_its_photos(workspace, tmp_path) -> None:
-    from ldlmap.mapfile import read_map
+    from ldlmap.map.mapfile import read_map
 
     sfm = workspace[0]
     res = runner.invoke(map_app, ["build", str(sfm.workspace), "-o", str(tmp_path / "sfm.h5"), "--features", "none",

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from ldlmap.errors import InputError
+from ldlmap.core.errors import InputError
 from ldlmap.features import get_backend
 from ldlmap.features import weights as wmod
 from ldlmap.features.superpoint import SuperPointBackend, build_superpoint, nms_keep, sample_descriptors

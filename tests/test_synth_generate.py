@@ -146,7 +146,7 @@ def test_same_seed_same_bytes_and_illumination_flag_changes_nothing_else(tmp_pat
 
 def test_failure_midway_leaves_nothing(tmp_path, monkeypatch):
     import ldlmap.synth.scan as scan_mod
-    from ldlmap.errors import InputError
+    from ldlmap.core.errors import InputError
 
     def broken(*args, **kwargs):
         raise InputError("scanner broke")

@@ -10,12 +10,13 @@ import cv2
 import numpy as np
 import pytest
 
-from ldlmap.synth.polygon import points_in_polygon
+from ldlmap.core.polygon import points_in_polygon
 from ldlmap.synth.multiroom import (MultiRoomParams, generate_multiroom, layout_offsets, merge_meshes,
                                     read_layout, room_meshes, translate_spec)
 from ldlmap.synth.render import Renderer
 from ldlmap.synth.scene import build_scene
-from ldlmap.synth.spec import load_spec, random_spec
+from ldlmap.synth.spec import load_spec
+from ldlmap.synth.presets import random_spec
 from tests.test_synth_render import vertex_pixel_offsets
 
 WIDTH = 512
@@ -169,7 +170,7 @@ def test_cli_preset_routes_here_and_failure_leaves_nothing(tmp_path, monkeypatch
     from typer.testing import CliRunner
 
     from ldlmap.cli import app
-    from ldlmap.errors import InputError
+    from ldlmap.core.errors import InputError
 
     calls = []
 

@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ldlmap.errors import InputError
-from ldlmap.geometry import bearing_from_pixel, pixel_centers, project_to_pixels
+from ldlmap.core.errors import InputError
+from ldlmap.core.geometry import bearing_from_pixel, pixel_centers, project_to_pixels
 from ldlmap.synth.poses import random_rotation, sample_poses
-from ldlmap.synth.polygon import points_in_polygon
+from ldlmap.core.polygon import points_in_polygon
 from ldlmap.synth.render import Renderer, apply_illumination, bilinear_lookup, motion_blur
 from ldlmap.synth.scan import sample_scan, write_ply, write_txt
 from ldlmap.synth.types import SceneMesh
@@ -144,7 +144,7 @@ def test_visible_vertices_reproject_onto_the_pixel_that_sees_them(renderer, room
 
 
 def small_rotation(angle: float) -> np.ndarray:
-    from ldlmap.geometry import rotation_from_axis_angle
+    from ldlmap.core.geometry import rotation_from_axis_angle
 
     return rotation_from_axis_angle(np.array([0.3, -0.5, 0.8]), angle)
 

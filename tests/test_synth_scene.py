@@ -7,11 +7,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ldlmap.synth import polygon as pg
+from ldlmap.core import polygon as pg
 from ldlmap.synth.edges import edges_longer_than, mesh_edges
 from ldlmap.synth.meshio import write_textured_obj
 from ldlmap.synth.scene import build_scene
-from ldlmap.synth.spec import load_spec, random_spec, spec_from_dict
+from ldlmap.synth.spec import load_spec, spec_from_dict
+from ldlmap.synth.presets import random_spec
 
 ROOT = Path(__file__).resolve().parents[1]
 

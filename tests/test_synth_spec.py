@@ -9,7 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ldlmap.errors import InputError
+from ldlmap.core.errors import InputError
+from ldlmap.synth import presets as P
 from ldlmap.synth import spec as S
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -106,7 +107,7 @@ def test_clockwise_footprint_is_reversed_with_walls_remapped():
 
 
 def test_round_trip_dict_toml(tmp_path):
-    for spec in (S.spec_from_dict(base()), S.random_spec("demo", 3), S.random_spec("standard", 4, 2)):
+    for spec in (S.spec_from_dict(base()), P.random_spec("demo", 3), P.random_spec("standard", 4, 2)):
         d = S.spec_to_dict(spec)
         assert S.spec_from_dict(d) == spec
         text = S.dump_spec_toml(spec)
@@ -151,13 +152,13 @@ def test_every_dataset_spec_loads():
 
 
 def test_random_spec_determinism_and_variety():
-    a, b = S.random_spec("demo", 1), S.random_spec("demo", 1)
+    a, b = P.random_spec("demo", 1), P.random_spec("demo", 1)
     assert a == b
-    footprints = {S.random_spec("demo", s).footprint for s in range(8)}
+    footprints = {P.random_spec("demo", s).footprint for s in range(8)}
     assert len(footprints) == 8
-    assert S.random_spec("demo", 1).objects != S.random_spec("demo", 2).objects
-    assert S.random_spec("demo", 1, 0) != S.random_spec("demo", 1, 1)
-    specs = [S.random_spec("standard", s) for s in range(30)]
+    assert P.random_spec("demo", 1).objects != P.random_spec("demo", 2).objects
+    assert P.random_spec("demo", 1, 0) != P.random_spec("demo", 1, 1)
+    specs = [P.random_spec("standard", s) for s in range(30)]
     nonortho = 0
     for sp in specs:
         fp = np.asarray(sp.footprint)
@@ -174,27 +175,28 @@ def test_random_spec_determinism_and_variety():
 
 
 def test_presets():
-    demo = S.random_spec("demo", 0)
+    demo = P.random_spec("demo", 0)
     assert demo.capture.width == 1024 and demo.capture.robot.count == 3
-    assert S.PRESETS["demo"]["scenes"] == 2
+    assert P.PRESETS["demo"]["scenes"] == 2
     with pytest.raises(InputError, match="demo"):
-        S.random_spec("huge", 0)
+        P.random_spec("huge", 0)
 
 
 def test_changed_spec():
-    spec = S.random_spec("demo", 5)
-    changed = S.changed_spec(spec, np.random.default_rng(0))
+    spec = P.random_spec("demo", 5)
+    changed = P.changed_spec(spec, np.random.default_rng(0))
     assert changed != spec
     S.validate_spec(changed)
     assert changed.footprint == spec.footprint
-    assert S.changed_spec(spec, np.random.default_rng(0)) == changed
+    assert P.changed_spec(spec, np.random.default_rng(0)) == changed
     kept = set(spec.objects) & set(changed.objects)
     ch = spec.capture.change
     assert len(kept) <= len(spec.objects) - ch.removed
 
 
 def test_partial_sub_table_keeps_the_split_defaults():
-    from ldlmap.synth.spec import CaptureSpec, random_spec
+    from ldlmap.synth.spec import CaptureSpec
+    from ldlmap.synth.presets import random_spec
 
     spec = random_spec("demo", 3)
     assert spec.capture.extreme.count == 3

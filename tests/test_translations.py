@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from ldlmap.errors import InputError
-from ldlmap.translations import candidate_translations
+from ldlmap.core.errors import InputError
+from ldlmap.map.translations import candidate_translations
 from tests._room_cloud import box_room
 
 SIZE = (6.0, 4.5, 2.8)
@@ -81,8 +81,8 @@ L_ROOM = np.array([[0, 0], [5, 0], [5, 2], [2, 2], [2, 4], [0, 4]], dtype=np.flo
 
 
 def test_spaced_candidates_cover_the_layout_at_the_camera_height():
-    from ldlmap.synth.polygon import distance_to_boundary, points_in_polygon
-    from ldlmap.translations import Walkable, spaced_translations
+    from ldlmap.core.polygon import distance_to_boundary, points_in_polygon
+    from ldlmap.map.translations import Walkable, spaced_translations
 
     spacing = 0.3
     C = spaced_translations(_layout_lines(L_ROOM, 2.5), spacing, Walkable((L_ROOM,), None, (1.4, 1.4)))
@@ -102,7 +102,7 @@ def test_spaced_candidates_cover_the_layout_at_the_camera_height():
 
 
 def test_spaced_candidates_reach_through_doors_and_never_skip_a_small_room():
-    from ldlmap.translations import Walkable, spaced_translations
+    from ldlmap.map.translations import Walkable, spaced_translations
 
     closet = np.array([[0, 0], [0.5, 0], [0.5, 0.5], [0, 0.5]], dtype=np.float64)
     door = np.array([[[0.5, 0.05], [0.5, 0.45]]])  # in the closet's right wall
@@ -116,7 +116,7 @@ def test_spaced_candidates_reach_through_doors_and_never_skip_a_small_room():
 
 
 def test_spaced_candidates_from_lines_alone_and_bad_input():
-    from ldlmap.translations import spaced_translations
+    from ldlmap.map.translations import spaced_translations
 
     lines = _layout_lines(L_ROOM, 2.5)
     C = spaced_translations(lines, 0.3, z_range=(1.5, 1.5))
@@ -133,11 +133,11 @@ def test_spaced_candidates_from_lines_alone_and_bad_input():
 def test_lines_only_map_records_spacing_and_info_prints_it(tmp_path):
     from typer.testing import CliRunner
 
-    from ldlmap.build import BuildParams, build_lines_map
+    from ldlmap.map.build import BuildParams, build_lines_map
     from ldlmap.cli import app
     from ldlmap.io.linefiles import write_lines
-    from ldlmap.mapfile import read_map
-    from ldlmap.translations import Walkable
+    from ldlmap.map.mapfile import read_map
+    from ldlmap.map.translations import Walkable
 
     lines = _layout_lines(L_ROOM, 2.5)
     rep = build_lines_map(lines, tmp_path / "room.h5", BuildParams(features="none", trans_spacing=0.4),
@@ -163,7 +163,7 @@ def test_lines_only_map_records_spacing_and_info_prints_it(tmp_path):
 
 def test_far_outliers_neither_stretch_nor_fill_the_free_space(room):
     """SfM maps have a few far outlier points / segments: the free-space grid is fitted to the bulk."""
-    from ldlmap.translations import spaced_translations
+    from ldlmap.map.translations import spaced_translations
 
     pts, to_room, _ = room
     far = np.array([[80.0, -60.0, 40.0], [-70.0, 90.0, -30.0], [200.0, 5.0, 1.0]])

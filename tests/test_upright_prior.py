@@ -17,13 +17,14 @@ from scipy.spatial.transform import Rotation
 from typer.testing import CliRunner
 
 from ldlloc.cli import app as loc_app
-from ldlloc.evaluate import QueryResult, ResultsWriter, best_candidate, first_good_rank, load_results
+from ldlloc.batch.accuracy import QueryResult, best_candidate, first_good_rank
+from ldlloc.batch.results import ResultsWriter, load_results
 from ldlloc.pipeline import UPRIGHT_MAX_TILT_DEG, LocalizeParams, Localizer, load_image, rotation_prior_name
-from ldlloc.principal import RotationCandidates, camera_tilt_deg, filter_by_tilt
+from ldlloc.rotation import RotationCandidates, camera_tilt_deg, filter_by_tilt
 from ldlmap.datasets import open_dataset
-from ldlmap.errors import InputError
-from ldlmap.geometry import rotation_error_deg, translation_error
-from ldlmap.mapfile import read_map
+from ldlmap.core.errors import InputError
+from ldlmap.core.geometry import rotation_error_deg, translation_error
+from ldlmap.map.mapfile import read_map
 from tests.test_cli_build_run import one_error_line
 
 runner = CliRunner()
@@ -140,7 +141,7 @@ def test_per_query_tilt_overrides_the_params(demo_dataset):
 
 
 def test_run_uses_the_upright_default_and_records_the_prior(demo_dataset, tmp_path):
-    from ldlloc.run import max_tilt_for, run_queries
+    from ldlloc.batch.run import max_tilt_for, run_queries
 
     ds = open_dataset(demo_dataset, "omniscenes")
     qs = [q for q in ds.queries(["robot"], "synthroom_1")][:2]

@@ -1,4 +1,4 @@
-"""Line visibility behind walls (ldlmap.visibility) and its use in the 3D distance functions."""
+"""Line visibility behind walls (ldlmap.map.visibility) and its use in the 3D distance functions."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from ldlmap.visibility import line_visibility
+from ldlmap.map.visibility import line_visibility
 
 H = 2.5
 
@@ -43,9 +43,9 @@ def test_walls_hide_lines_and_doors_let_them_through():
 
 
 def test_hidden_lines_leave_the_distance_functions():
-    from ldlloc import ldf
-    from ldlmap.fields3d import compute_fields
-    from ldlmap.geometry import rotation_from_axis_angle
+    from ldlloc.search import ldf
+    from ldlmap.map.fields3d import compute_fields
+    from ldlmap.core.geometry import rotation_from_axis_angle
 
     walls, lines = _two_rooms()
     groups = np.argmax(np.abs(lines[:, 1] - lines[:, 0]), axis=1)
@@ -70,10 +70,10 @@ def test_hidden_lines_leave_the_distance_functions():
 
 
 def test_map_stores_visibility_and_rejects_a_wrong_shape(tmp_path):
-    from ldlmap.build import BuildParams, build_lines_map
-    from ldlmap.errors import InputError
-    from ldlmap.mapfile import read_map, write_map
-    from ldlmap.translations import Walkable
+    from ldlmap.map.build import BuildParams, build_lines_map
+    from ldlmap.core.errors import InputError
+    from ldlmap.map.mapfile import read_map, write_map
+    from ldlmap.map.translations import Walkable
 
     walls, lines = _two_rooms()
     edges = [[[x0, y0, z], [x1, y1, z]] for (x0, y0), (x1, y1) in
@@ -92,7 +92,7 @@ def test_map_stores_visibility_and_rejects_a_wrong_shape(tmp_path):
 
 
 def test_coverage_of_a_closed_room_and_of_a_doorway():
-    from ldlmap.visibility import coverage_at, coverage_fields, room_surfaces
+    from ldlmap.map.visibility import coverage_at, coverage_fields, room_surfaces
 
     walls, _ = _two_rooms()
     polys = (np.array([[0, 0], [4, 0], [4, 3], [0, 3]], float), np.array([[4, 0], [8, 0], [8, 3], [4, 3]], float))
@@ -109,8 +109,8 @@ def test_coverage_of_a_closed_room_and_of_a_doorway():
 
 
 def test_covered_inlier_loss_equals_the_inlier_loss_on_a_covered_map():
-    from ldlloc import ldf
-    from ldlloc.search import covered_inlier_loss
+    from ldlloc.search import ldf
+    from ldlloc.search.pose_search import covered_inlier_loss
 
     Q = ldf.query_points(1)
     f2d = torch.rand(5, 3, len(Q))
@@ -123,7 +123,7 @@ def test_covered_inlier_loss_equals_the_inlier_loss_on_a_covered_map():
     half = full.copy()
     half[:, :, :8] = False  # directions with phi < 0 (y < 0) leave the map
     got = covered_inlier_loss(f2d, f3d, Q, R, np.zeros(5, int), half, 0.1, 2.0)
-    from ldlmap.visibility import coverage_at
+    from ldlmap.map.visibility import coverage_at
 
     cov = torch.as_tensor(coverage_at(half, np.zeros(1, int), Q.numpy()[None].astype(float))[0])
     assert 0.4 < cov.float().mean() < 0.65 and bool(cov[Q[:, 1] < -0.2].logical_not().all())

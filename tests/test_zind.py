@@ -22,9 +22,10 @@ from typer.testing import CliRunner
 
 from ldlmap.cli import app as map_app
 from ldlmap.datasets import ZInD, detect_kind, open_dataset
-from ldlmap.errors import InputError
-from ldlmap.geometry import cam_from_world, is_rotation, project_to_pixels
-from ldlmap.io.zind import read_zind_home, room_lines, scene_layout, zind_pixel
+from ldlmap.core.errors import InputError
+from ldlmap.core.geometry import cam_from_world, is_rotation, project_to_pixels
+from ldlmap.datasets.zind import scene_layout
+from ldlmap.io.zind import read_zind_home, room_lines, zind_pixel
 
 runner = CliRunner()
 REPO = Path(__file__).resolve().parent.parent
@@ -255,7 +256,7 @@ def test_bad_inputs_one_line_errors(tmp_path: Path, corrupt: str, message: str) 
 
 
 def test_prepare_both_levels(tiny: Path, tmp_path: Path) -> None:
-    from ldlmap.mapfile import read_map
+    from ldlmap.map.mapfile import read_map
 
     for level, scenes in (("room", ["000/floor_01/complete_room_01", "000/floor_01/complete_room_02"]),
                           ("floor", ["000/floor_01"])):
@@ -309,8 +310,8 @@ def test_real_corners_sit_on_vertical_edges() -> None:
     through the door, internal walls and furniture are ignored) is projected as a floor-to-ceiling
     segment at the ground-truth pose: the horizontal Sobel gradient along it must be far above the
     same measure at random azimuths, and a pose yawed by 3 degrees must lose it."""
-    from ldlmap.geometry import rotation_from_axis_angle
-    from ldlmap.synth.polygon import segments_cross_properly
+    from ldlmap.core.geometry import rotation_from_axis_angle
+    from ldlmap.core.polygon import segments_cross_properly
 
     home = read_zind_home(_real_home())
     assert len(home.panos) == 19 and len(home.rooms) == 15
@@ -349,8 +350,8 @@ def test_real_reader_and_layout_lines() -> None:
     """The shared home through the reader: 19 upright queries with proper rotations at the
     camera height, every room gives lines, cameras outside their room stand in a doorway."""
     from ldlmap.io.zind import room_portals
-    from ldlmap.synth.polygon import distance_to_boundary, points_in_polygon
-    from ldlmap.translations import portal_rectangles
+    from ldlmap.core.polygon import distance_to_boundary, points_in_polygon
+    from ldlmap.map.translations import portal_rectangles
 
     root = _real_home().parent
     ds = open_dataset(root, "zind")

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from importlib import import_module
 
-from ldlmap.errors import InputError
+from ldlmap.core.errors import InputError
 from ldlmap.features.base import FeatureBackend, Features, mutual_nn_match
 
 # name -> (module, class): imported on demand.

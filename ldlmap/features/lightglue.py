@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 
-from ldlmap.errors import InputError
+from ldlmap.core.errors import InputError
 
 if TYPE_CHECKING:  # pragma: no cover
     import torch
@@ -66,15 +66,15 @@ def load_lightglue(name: str, device: str = "cpu", path: str | None = None) -> "
     import torch
     from kornia.feature import LightGlue
 
-    from ldlmap.features.learned import _load_strict
+    from ldlmap.features.weights import load_strict
 
     if name not in _CONFIGS:
         raise InputError(f"no LightGlue weights for {name!r}; known: {', '.join(sorted(_CONFIGS))}")
     conf = _CONFIGS[name]
     depth, width = _ADAPTIVE[name]
     net = LightGlue(None, **conf, flash=False, depth_confidence=depth, width_confidence=width)
-    _load_strict(net, _state_dict(name, conf["n_layers"], path), f"{name} LightGlue",
-                 derived=("confidence_thresholds",))
+    load_strict(net, _state_dict(name, conf["n_layers"], path), f"{name} LightGlue",
+                derived=("confidence_thresholds",))
     return LightGlueMatcher(net.eval().to(torch.device(device)))
 
 

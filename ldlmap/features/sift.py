@@ -46,7 +46,7 @@ class SiftBackend(DescriptorMatching):
         k = c.max_keypoints if max_keypoints is None else max_keypoints
         gray = cv2.cvtColor(np.ascontiguousarray(img), cv2.COLOR_RGB2GRAY)
         if c.normalize_contrast:
-            from ldlmap.imageproc import stretch_contrast
+            from ldlmap.core.imageproc import stretch_contrast
 
             gray = stretch_contrast(gray)
         sift = cv2.SIFT_create(nfeatures=0, nOctaveLayers=c.n_octave_layers,

@@ -20,7 +20,7 @@ from functools import lru_cache
 import numpy as np
 
 from ldlmap.features.base import Features, check_image, top_k
-from ldlmap.geometry import bearing_from_pixel, pixel_centers, pixel_from_bearing
+from ldlmap.core.geometry import bearing_from_pixel, pixel_centers, pixel_from_bearing
 
 
 def _remap_maps(uv: np.ndarray, height: int) -> tuple[np.ndarray, np.ndarray]:
@@ -152,7 +152,7 @@ class CubeFaces:
 def check_extraction(extraction: str) -> str:
     """``extraction`` when it names a panorama feature extraction, else a one-line InputError."""
     if extraction not in PANORAMA_EXTRACTIONS:
-        from ldlmap.errors import InputError
+        from ldlmap.core.errors import InputError
 
         raise InputError(f"unknown feature extraction {extraction!r}; valid: {', '.join(PANORAMA_EXTRACTIONS)}")
     return extraction

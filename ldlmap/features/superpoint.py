@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ldlmap.errors import InputError
+from ldlmap.core.errors import InputError
 from ldlmap.features.base import DescriptorMatching, Features, backend_config, check_image, mutual_nn_match
 from ldlmap.features.weights import key_diff, read_checkpoint
 

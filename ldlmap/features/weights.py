@@ -8,7 +8,7 @@ Resolution order for a network ``name`` (see :data:`WEIGHTS`):
 4. a download into the cache from the table's URL (written atomically, hash checked when the
    table has one).
 
-When everything fails, :class:`~ldlmap.errors.InputError` says which routes exist and why the
+When everything fails, :class:`~ldlmap.core.errors.InputError` says which routes exist and why the
 download failed. Nothing here falls back to another backend.
 """
 
@@ -18,8 +18,12 @@ import hashlib
 import os
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from ldlmap.errors import InputError, atomic_file
+from ldlmap.core.errors import InputError, atomic_file
+
+if TYPE_CHECKING:
+    import torch
 
 
 @dataclass(frozen=True)
@@ -159,3 +163,13 @@ def packaged_weights(name: str) -> Path:
     if not path.is_file():
         raise InputError(f"{name} weights missing from the installed {package} package: {path}")
     return path
+
+
+def load_strict(net: "torch.nn.Module", state: dict, what: str, derived: tuple[str, ...] = ()) -> None:
+    """Load ``state`` into ``net``; only the buffers named in ``derived`` (recomputed by the
+    network itself) may be missing, nothing may be unexpected."""
+    missing, unexpected = key_diff(net.state_dict(), state)
+    missing = [k for k in missing if k not in derived]
+    if missing or unexpected:
+        raise InputError(f"{what} weights do not match the network: missing {missing[:4]}, unexpected {unexpected[:4]}")
+    net.load_state_dict(state, strict=False)

@@ -7,7 +7,7 @@ the newer ``rigs``/``frames`` files) is read with ``pycolmap.Reconstruction``. A
 it is what the map should be built from, the sparse points being too few for rendering.
 
 Without a dense cloud, :func:`read_colmap_views` gives what 3D lines can be reconstructed from
-(:mod:`ldlmap.sfm_lines`): each registered image's camera, pose and observations of the sparse
+(:mod:`ldlmap.sfm.photo_lines`): each registered image's camera, pose and observations of the sparse
 points, and :func:`find_images_dir` the photos, by default ``<workspace>/images`` beside
 ``sparse/0`` as COLMAP lays a workspace out (``dense/0/images`` for ``dense/0/sparse``).
 """
@@ -21,8 +21,9 @@ from typing import Any
 
 import numpy as np
 
-from ldlmap.errors import InputError
-from ldlmap.io.pointcloud import PointCloud, read_point_cloud
+from ldlmap.core.errors import InputError
+from ldlmap.io.cloud import PointCloud
+from ldlmap.io.pointcloud import read_point_cloud
 
 MODEL_FILES: tuple[str, ...] = ("cameras", "images", "points3D")
 

@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ldlmap.errors import InputError, atomic_file, require_file
+from ldlmap.core.errors import InputError, atomic_file, require_file
 
 HEADER = "# ldl lines v1"
 

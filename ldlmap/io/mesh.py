@@ -14,8 +14,8 @@ from typing import Literal
 
 import numpy as np
 
-from ldlmap.errors import InputError, require_file
-from ldlmap.io.pointcloud import PointCloud
+from ldlmap.core.errors import InputError, require_file
+from ldlmap.io.cloud import PointCloud
 
 MESH_FORMATS: tuple[str, ...] = (".obj", ".ply", ".off", ".stl")
 
@@ -46,7 +46,7 @@ def sample_mesh(path: str | os.PathLike, num_points: int, sampling: MeshSampling
     if num_points <= 0:
         raise InputError(f"number of mesh samples must be positive, got {num_points}")
     if p.suffix.lower() == ".ply":
-        from ldlmap.io.pointcloud import _ply_header
+        from ldlmap.io.ply import _ply_header
 
         _ply_header(p)  # counts the file cannot hold are refused before pymeshlab allocates them
     if cfg.method not in ("montecarlo", "poisson"):

@@ -11,75 +11,13 @@ faces) are sampled into a colored cloud by :func:`ldlmap.io.mesh.sample_mesh`.
 from __future__ import annotations
 
 import os
-import re
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from ldlmap.errors import InputError, atomic_file, require_file
-
-POINT_CLOUD_SUFFIXES: tuple[str, ...] = (".ply", ".pcd", ".txt", ".xyz", ".pts")
-MESH_SUFFIXES: tuple[str, ...] = (".obj", ".off", ".stl")
-SUPPORTED_SUFFIXES: tuple[str, ...] = POINT_CLOUD_SUFFIXES + MESH_SUFFIXES
-WRITE_SUFFIXES: tuple[str, ...] = (".ply", ".txt")
-DEFAULT_MESH_SAMPLES = 1_000_000  # points sampled from a mesh given where a cloud is expected
-
-
-@dataclass(frozen=True, eq=False)
-class PointCloud:
-    """A point cloud in world coordinates (metres) with optional 8-bit RGB colors."""
-
-    points: np.ndarray  # (N, 3) float64
-    colors: np.ndarray | None = None  # (N, 3) uint8 RGB, or None
-
-    def __post_init__(self) -> None:
-        pts = np.ascontiguousarray(self.points, dtype=np.float64)
-        if pts.ndim != 2 or pts.shape[1] != 3:
-            raise InputError(f"point cloud points must have shape (N, 3), got {pts.shape}")
-        object.__setattr__(self, "points", pts)
-        if self.colors is not None:
-            col = np.asarray(self.colors)
-            if col.shape != pts.shape:
-                raise InputError(f"point cloud colors must have shape {pts.shape}, got {col.shape}")
-            if col.dtype != np.uint8:
-                if np.issubdtype(col.dtype, np.floating) and not np.all(np.isfinite(col)):
-                    raise InputError("point cloud colors contain NaN or inf")
-                if col.size and (col.min() < 0 or col.max() > 255):
-                    raise InputError("point cloud colors must lie in 0-255")
-                col = np.rint(col).astype(np.uint8)
-            object.__setattr__(self, "colors", np.ascontiguousarray(col))
-
-    def __len__(self) -> int:
-        return int(self.points.shape[0])
-
-    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
-        """Axis-aligned bounding box ``(min (3,), max (3,))``."""
-        if len(self) == 0:
-            raise InputError("empty point cloud has no bounds")
-        return self.points.min(axis=0), self.points.max(axis=0)
-
-    def subsample(self, max_points: int, seed: int = 0) -> "PointCloud":
-        """At most ``max_points`` points drawn uniformly without replacement (original order kept)."""
-        if max_points <= 0:
-            raise ValueError(f"max_points must be positive, got {max_points}")
-        if len(self) <= max_points:
-            return self
-        idx = np.sort(np.random.default_rng(seed).choice(len(self), size=max_points, replace=False))
-        return PointCloud(self.points[idx], None if self.colors is None else self.colors[idx])
-
-    def validate(self, source: str | os.PathLike | None = None) -> "PointCloud":
-        """Raise :class:`InputError` for an empty cloud or non-finite coordinates; return self."""
-        where = f": {source}" if source is not None else ""
-        if len(self) == 0:
-            raise InputError(f"point cloud is empty{where}")
-        bad = ~np.isfinite(self.points).all(axis=1)
-        if bad.any():
-            raise InputError(f"point cloud has {int(bad.sum())} points with NaN/inf coordinates{where}")
-        return self
-
-
-# ------------------------------------------------------------------------------------- reading
+from ldlmap.core.errors import InputError, atomic_file, require_file
+from ldlmap.io.cloud import DEFAULT_MESH_SAMPLES, MESH_SUFFIXES, PointCloud, SUPPORTED_SUFFIXES, WRITE_SUFFIXES
+from ldlmap.io.ply import _ply_face_count, _ply_header
 
 
 def read_point_cloud(path: str | os.PathLike, mesh_samples: int = DEFAULT_MESH_SAMPLES) -> PointCloud:
@@ -104,72 +42,6 @@ def read_point_cloud(path: str | os.PathLike, mesh_samples: int = DEFAULT_MESH_S
     else:
         pc = _read_open3d(p)
     return pc.validate(p)
-
-
-_PLY_TYPES = {"char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2", "int16": "i2",
-              "ushort": "u2", "uint16": "u2", "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4",
-              "float": "f4", "float32": "f4", "double": "f8", "float64": "f8"}
-
-
-@dataclass(frozen=True)
-class _PlyHeader:
-    fmt: str  # ascii | binary_little_endian | binary_big_endian
-    elements: list  # [(name, count, [(prop, type or 'list')])]
-    data_offset: int  # bytes before the data
-
-
-def _ply_header(path: Path) -> _PlyHeader:
-    with open(path, "rb") as f:
-        head = f.read(1 << 16)
-    if not head.startswith(b"ply"):
-        raise InputError(f"not a PLY file (missing 'ply' magic): {path}")
-    m = re.search(rb"end_header\r?\n", head)
-    if m is None:
-        raise InputError(f"corrupt PLY header (no end_header): {path}")
-    fmt, elements = "", []
-    for raw in head[: m.start()].decode("ascii", "replace").splitlines()[1:]:
-        w = raw.split()
-        if not w or w[0] in ("comment", "obj_info"):
-            continue
-        try:
-            if w[0] == "format":
-                fmt = w[1]
-            elif w[0] == "element":
-                elements.append((w[1], int(w[2]), []))
-                if elements[-1][1] < 0:
-                    raise InputError(f"corrupt PLY header: element {w[1]} has a negative count {w[2]}: {path}")
-            elif w[0] == "property" and elements:
-                elements[-1][2].append((w[-1], "list" if w[1] == "list" else _PLY_TYPES[w[1]]))
-        except (IndexError, KeyError, ValueError):
-            raise InputError(f"corrupt PLY header line {raw.strip()!r}: {path}") from None
-    if fmt not in ("ascii", "binary_little_endian", "binary_big_endian"):
-        raise InputError(f"unsupported PLY format {fmt or '(none)'}: {path}")
-    header = _PlyHeader(fmt, elements, m.end())
-    _check_ply_counts(header, path)
-    return header
-
-
-def _check_ply_counts(h: _PlyHeader, path: Path) -> None:
-    """Refuse element counts that the file's size cannot hold (before anything is allocated):
-    a binary row needs its fixed-size properties (a list at least its 1-byte length), an ASCII
-    row at least 2 bytes (a digit and a separator) per property."""
-    available = path.stat().st_size - h.data_offset
-    need = 0
-    for _, count, props in h.elements:
-        if h.fmt == "ascii":
-            row = 2 * max(len(props), 1)
-        else:
-            row = sum(1 if t == "list" else np.dtype(t).itemsize for _, t in props)
-        need += count * row
-    if need > available:
-        what = ", ".join(f"{count} {name}" for name, count, _ in h.elements)
-        raise InputError(f"corrupt or truncated PLY: its header declares {what}, which need at least {need} bytes, "
-                         f"the file holds {available}: {path}")
-
-
-def _ply_face_count(path: Path) -> int:
-    """Number of faces declared in a PLY header (0 for point clouds)."""
-    return sum(count for name, count, _ in _ply_header(path).elements if name == "face")
 
 
 def _read_ply(path: Path) -> PointCloud:
@@ -275,9 +147,6 @@ def _read_text(path: Path) -> PointCloud:
             raise InputError(f"point cloud colors must lie in 0-255 (found {rgb.min():g}..{rgb.max():g}): {path}")
         colors = np.rint(rgb).astype(np.uint8)
     return PointCloud(data[:, :3], colors)
-
-
-# ------------------------------------------------------------------------------------- writing
 
 
 def write_point_cloud(path: str | os.PathLike, pc: PointCloud) -> Path:

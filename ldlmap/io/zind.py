@@ -22,7 +22,7 @@ A home as distributed (``<root>/<home>/zind_data.json`` and ``<root>/<home>/pano
 with ``Rz`` the counter-clockwise rotation; metres = ``g * m`` with ``m`` the floor's
 ``scale_meters_per_coordinate``.
 
-**Our world frame (the mirror).** Equating ZInD's pixel with ours (``ldlmap.geometry``: image
+**Our world frame (the mirror).** Equating ZInD's pixel with ours (``ldlmap.core.geometry``: image
 centre along camera +x, ``u / W = 1 - (atan2(y, x) + pi) / (2 pi)``) gives the camera-frame
 direction of a local point as ``(y, x, z)``: a swap of x and y, a reflection. The local frame
 (and the floor plan built from it by rotations) is therefore left-handed with respect to a
@@ -64,11 +64,11 @@ import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterable, Sequence
+from typing import Any, Iterable
 
 import numpy as np
 
-from ldlmap.errors import InputError
+from ldlmap.core.errors import InputError
 
 ZIND_JSON = "zind_data.json"
 ELEMENT_KINDS: tuple[str, ...] = ("doors", "windows", "openings")
@@ -483,32 +483,6 @@ def room_portals(room: ZindRoom) -> np.ndarray:
         return np.zeros((0, 2, 2))
     R = np.concatenate(rects)
     return R[:, :2, :2].copy()
-
-
-def scene_layout(home: ZindHome, floor: str, rooms: Sequence[str] | None = None):
-    """Everything a map build needs for a scene: ``(lines, Walkable)``.
-
-    ``rooms``: complete-room keys of ``floor`` (None: every room of the floor, one floor-level
-    map). The Walkable holds the rooms' polygons, their doors and openings as portals, and the
-    camera-height band ``(min, max)`` over the scene's panoramas (all of the floor when no
-    panorama belongs to the rooms).
-    """
-    from ldlmap.translations import Walkable
-
-    keys = sorted((r for f, r in home.rooms if f == floor), key=_natural_key) if rooms is None else list(rooms)
-    missing = [r for r in keys if (floor, r) not in home.rooms]
-    if missing or not keys:
-        raise InputError(f"ZInD home {home.name} has no room(s) {', '.join(missing) or '(none given)'} on {floor}")
-    sel = [home.rooms[(floor, r)] for r in keys]
-    lines = np.concatenate([room_lines(r) for r in sel])
-    portals = np.concatenate([room_portals(r) for r in sel])
-    heights = [p.camera_height_m for p in home.panos if p.floor == floor and p.complete_room in keys]
-    heights = heights or [p.camera_height_m for p in home.panos if p.floor == floor]
-    walk = Walkable(polygons=tuple(r.polygon.copy() for r in sel), portals=portals,
-                    z_range=(float(min(heights)), float(max(heights))),
-                    walls=np.concatenate([room_walls(r) for r in sel]),
-                    ceiling_heights=tuple(float(r.ceiling_height) for r in sel))
-    return lines, walk
 
 
 def zind_pixel(p_local: np.ndarray, width: int, height: int) -> np.ndarray:

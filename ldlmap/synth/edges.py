@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ldlmap.errors import InputError
+from ldlmap.core.errors import InputError
 from ldlmap.synth.types import SceneMesh
 
 

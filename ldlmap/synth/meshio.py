@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ldlmap.errors import LdlError, atomic_file
+from ldlmap.core.errors import LdlError, atomic_file
 from ldlmap.synth.types import SceneMesh
 
 

@@ -23,7 +23,7 @@ builds its room directly in the world frame and ``build_scene(load_spec(...))`` 
 
 Each room is scanned from its own stations and its panoramas rendered in the room alone (rooms
 are closed solids, so the other rooms could not be seen anyway), with the single-room
-generator's code and random streams (:func:`ldlmap.synth.generate.write_split_panoramas`).
+generator's code and random streams (:func:`ldlmap.synth.capture.write_split_panoramas`).
 ``dataset.json`` records per room its spec files, offset, bounds, the slice of the scan that is
 its own and the image stems of each split (:func:`read_layout` reads them back).
 """
@@ -39,11 +39,11 @@ from typing import Any
 
 import numpy as np
 
-from ldlmap.errors import InputError, atomic_dir
+from ldlmap.core.errors import InputError, atomic_dir
 
 SCENE = "multiroom_1"
 
-# Multi-room presets (data, like ``spec.PRESETS``): rooms, the single-room preset they come
+# Multi-room presets (data, like ``presets.PRESETS``): rooms, the single-room preset they come
 # from, and the gap between neighbouring rooms' bounding boxes.
 MULTIROOM_PRESETS: dict[str, dict[str, Any]] = {
     "multiroom": {"rooms": 4, "room_preset": "demo", "gap": 1.0},
@@ -134,7 +134,8 @@ def layout_offsets(footprints: list[np.ndarray], gap: float, columns: int = 0) -
 
 def multiroom_specs(seed: int, params: MultiRoomParams = MultiRoomParams()) -> tuple[list[Any], np.ndarray]:
     """The rooms' specs in world coordinates (named ``room<i>``) and their (N, 2) offsets."""
-    from ldlmap.synth.spec import random_spec, validate_spec
+    from ldlmap.synth.presets import random_spec
+    from ldlmap.synth.spec import validate_spec
 
     if params.rooms < 1:
         raise InputError(f"a multi-room scene needs at least 1 room, got {params.rooms}")
@@ -206,13 +207,14 @@ def generate_multiroom(out: Path, preset: str = "multiroom", seed: int = 0, room
     """
     from ldlmap.io.linefiles import write_lines
     from ldlmap.synth.edges import mesh_edges
-    from ldlmap.synth.generate import (BASE_SPLITS, GENERATOR_VERSION, ILLUMINATION_SPLITS, DatasetSummary,
-                                       _progress, _rng, capture_settings, write_split_panoramas)
+    from ldlmap.synth.capture import (BASE_SPLITS, GENERATOR_VERSION, ILLUMINATION_SPLITS, DatasetSummary,
+                                      ProgressTicks, capture_settings, stream_rng, write_split_panoramas)
     from ldlmap.synth.meshio import write_textured_obj
     from ldlmap.synth.render import Renderer
     from ldlmap.synth.scan import sample_scan, write_ply, write_txt
     from ldlmap.synth.scene import build_scene
-    from ldlmap.synth.spec import changed_spec, dump_spec_toml
+    from ldlmap.synth.presets import changed_spec
+    from ldlmap.synth.spec import dump_spec_toml
 
     start = time.perf_counter()
     out = Path(out)
@@ -232,7 +234,7 @@ def generate_multiroom(out: Path, preset: str = "multiroom", seed: int = 0, room
     first = {s: 0 for s in BASE_SPLITS}  # next image number of each split in the shared scene folder
     n_points = 0
 
-    with atomic_dir(out, overwrite=overwrite) as tmp, _progress(progress, total) as tick:
+    with atomic_dir(out, overwrite=overwrite) as tmp, ProgressTicks(progress, total) as tick:
         (tmp / "specs").mkdir(parents=True)
         for idx, (spec, cap, off) in enumerate(zip(specs, settings, offsets), start=1):
             room = f"{name}_room_{idx}"
@@ -242,11 +244,11 @@ def generate_multiroom(out: Path, preset: str = "multiroom", seed: int = 0, room
             meshes.append(mesh)
             edges.append(mesh_edges(mesh))
             tick(f"room {idx}: scan")
-            pts, cols = sample_scan(mesh, spec.scan, _rng(seed, spec, idx, "scan"), renderer=renderer)
+            pts, cols = sample_scan(mesh, spec.scan, stream_rng(seed, spec, idx, "scan"), renderer=renderer)
             clouds.append(pts)
             colors.append(cols)
             tick(f"room {idx}: changed room")
-            changed = changed_spec(spec, _rng(seed, spec, idx, "change"))
+            changed = changed_spec(spec, stream_rng(seed, spec, idx, "change"))
             (tmp / "specs" / f"{room}_scene_2.toml").write_text(dump_spec_toml(changed))
             changed_renderer = Renderer(build_scene(changed))
             tick(f"room {idx}: panoramas")

@@ -1,6 +1,6 @@
 """Camera poses for the synthetic query splits (OmniScenes-like capture styles).
 
-A pose is ``(R, t)`` in the convention of :mod:`ldlmap.geometry`: ``R`` rotates world into
+A pose is ``(R, t)`` in the convention of :mod:`ldlmap.core.geometry`: ``R`` rotates world into
 camera (``p_cam = R (X - t)``), ``t`` is the camera centre. "Upright" means the camera's +z axis
 (the top row of the panorama) is the world +z, i.e. ``R = I`` up to a yaw about z.
 
@@ -21,9 +21,9 @@ from typing import Any
 
 import numpy as np
 
-from ldlmap.errors import InputError
-from ldlmap.geometry import rotation_from_axis_angle
-from ldlmap.synth.polygon import points_in_polygon
+from ldlmap.core.errors import InputError
+from ldlmap.core.geometry import rotation_from_axis_angle
+from ldlmap.core.polygon import points_in_polygon
 from ldlmap.synth.render import Renderer
 from ldlmap.synth.types import SceneMesh
 

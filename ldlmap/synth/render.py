@@ -25,8 +25,8 @@ from typing import Literal
 
 import numpy as np
 
-from ldlmap.geometry import bearing_from_pixel, normalize, pixel_centers
-from ldlmap.synth.polygon import points_in_polygon
+from ldlmap.core.geometry import bearing_from_pixel, normalize, pixel_centers
+from ldlmap.core.polygon import points_in_polygon
 from ldlmap.synth.types import SceneMesh
 
 IlluminationKind = Literal["intensity", "gamma", "white_balance"]

@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from ldlmap.errors import InputError, atomic_file
+from ldlmap.core.errors import InputError, atomic_file
 from ldlmap.synth.render import Renderer
 from ldlmap.synth.types import SceneMesh
 

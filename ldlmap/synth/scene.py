@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ldlmap.synth import polygon as pg
+from ldlmap.core import polygon as pg
 from ldlmap.synth import textures as tx
 from ldlmap.synth.spec import (FRAME_DEPTH, FRAME_WIDTH, PANEL_OFFSET, POSTER_OFFSET, ObjectSpec,
                                SceneSpec, validate_spec)

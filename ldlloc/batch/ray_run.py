@@ -1,0 +1,119 @@
+"""``ldlloc run --ray``: one Ray actor per scene map serves its queries (:func:`run_queries_ray`).
+
+Each :class:`SceneLocalizer` actor reads its scene's map once, where it runs (a shared
+filesystem on a multi-node cluster), keeps a :class:`~ldlloc.pipeline.Localizer` (on its own GPU
+with ``--device cuda``) and localizes the queries sent to it with the plain path's
+:func:`ldlloc.batch.run.localize_query`; the driver sends only the query (paths and ground truth).
+Actors start as the cluster has room (one CPU each, or ``threads``) and are killed when their
+scene is done, which frees their slot for the next scene.
+
+The driver alone writes the results, through the plain path's
+:class:`~ldlloc.batch.results.ResultsWriter`, as results arrive: the file never holds a query twice
+or loses a finished one, ``resume`` skips the queries it holds, and at the end the records are
+put in the plain path's order, so a complete run's file equals the plain run's but for the
+timings. Faults: an actor whose process dies is restarted and its unfinished queries re-run
+(:data:`ldlmap.batch.ray_cluster.RETRIES` times); a missing or bad map makes each of its queries a
+``failed`` record with the reason, as in the plain path; a query whose actor died past its
+retries, or that raised anything but a toolkit error, is recorded ``failed`` with the reason.
+Ctrl-C cancels the outstanding queries, kills the actors and re-raises, leaving a results file
+that ``resume`` completes.
+"""
+
+from __future__ import annotations
+
+import os
+from collections import Counter
+from pathlib import Path
+from typing import Callable
+
+from ldlloc.batch.accuracy import QueryResult
+from ldlloc.batch.results import ResultsWriter
+from ldlloc.pipeline import LocalizeParams
+from ldlloc.batch.run import MapCache, failed_result, localize_query, open_results, query_key
+from ldlmap.batch.ray_cluster import RETRIES, TaskDone, WorkerInfo, as_completed, check_resources, current_worker, \
+    enter_folder, failure_reason, ray_session, stop
+
+
+class SceneLocalizer:
+    """Ray actor: one scene's map, loaded once, and the queries of that scene."""
+
+    def __init__(self, cwd: str, maps_dir: str, scene: str, params: LocalizeParams, device: str,
+                 save_vis: str | None = None, threads: int = 0):
+        from ldlmap.core.errors import LdlError
+
+        enter_folder(cwd)  # relative paths (maps, images, pictures) as on the driver
+        if threads:
+            import torch
+
+            torch.set_num_threads(threads)
+        self.params, self.save_vis = params, save_vis
+        self.cache = MapCache(Path(maps_dir), params, device)
+        try:
+            self.cache.get(scene)  # load now; a map that fails is remembered and fails each query
+        except LdlError:
+            pass
+
+    def localize(self, q) -> tuple[QueryResult, WorkerInfo]:
+        return localize_query(self.cache, q, self.params, self.save_vis), current_worker()
+
+
+def _label(r: QueryResult) -> str:
+    err = "failed" if r.status == "failed" else f"{r.t_error_m:.3f} m {r.r_error_deg:.2f} deg"
+    return f"{r.split} {r.scene}: {err}"
+
+
+def run_queries_ray(queries: list, maps_dir: str | Path, output: str | Path, params: LocalizeParams = LocalizeParams(),
+                    device: str = "cpu", resume: bool = False, save_vis: str | Path | None = None,
+                    meta: dict | None = None, progress: Callable[[TaskDone], None] | None = None,
+                    address: str = "local", threads: int = 0, any_options: bool = False,
+                    say: Callable[[str], None] | None = None) -> list[QueryResult]:
+    """:func:`ldlloc.batch.run.run_queries` on a Ray cluster (``address``: see
+    :data:`ldlmap.batch.ray_cluster.ADDRESS_HELP`); ``threads``: torch threads (and CPUs) per actor."""
+    with open_results(output, params, device, meta, resume, any_options, queries, say) as writer:
+        return _run_on_ray(writer, queries, maps_dir, params, device, save_vis, progress, address, threads)
+
+
+def _run_on_ray(writer: ResultsWriter, queries: list, maps_dir: str | Path, params: LocalizeParams, device: str,
+                save_vis: str | Path | None, progress: Callable[[TaskDone], None] | None, address: str,
+                threads: int) -> list[QueryResult]:
+    """The body of :func:`run_queries_ray`, writing through the open (locked) ``writer``."""
+    done = writer.done()
+    todo = [q for q in sorted(queries, key=query_key) if q.name not in done]
+    if not todo:  # everything is in the results file already: nothing to start
+        return writer.results
+    remaining = Counter(q.scene for q in todo)
+    with ray_session(address) as ray:
+        actor_cls = ray.remote(SceneLocalizer).options(**check_resources(ray, device, max(1, threads)),
+                                                       max_restarts=RETRIES, max_task_retries=RETRIES)
+        vis = None if save_vis is None else str(save_vis)
+        actors: dict = {}
+        refs: dict = {}
+        finished: set = set()
+        arrived: list[QueryResult] = []  # results not yet in the file
+        try:
+            for s in remaining:
+                actors[s] = actor_cls.remote(os.getcwd(), str(maps_dir), s, params, device, vis, threads)
+            for q in todo:
+                refs[actors[q.scene].localize.remote(q)] = q
+            for batch in as_completed(list(refs)):
+                for ref, value, exc in batch:
+                    q = refs[ref]
+                    r, worker = value if exc is None else (failed_result(q, params, failure_reason(exc)), None)
+                    finished.add(ref)
+                    arrived.append(r)
+                    remaining[q.scene] -= 1
+                    if remaining[q.scene] == 0:  # scene done: free its slot for the next scene's actor
+                        ray.kill(actors.pop(q.scene))
+                    if progress:
+                        progress(TaskDone(_label(r), worker, len(finished), len(todo)))
+                writer.extend(arrived)
+                arrived = []
+        except BaseException:  # Ctrl-C (KeyboardInterrupt) included: keep what arrived, stop the rest
+            if arrived:
+                writer.extend(arrived)
+            stop([r for r in refs if r not in finished], list(actors.values()))
+            raise
+    rank = {q.name: i for i, q in enumerate(todo)}  # resumed records first, as they were; then the plain order
+    writer.results.sort(key=lambda r: rank.get(r.name, -1))
+    writer.flush()
+    return writer.results

@@ -1,0 +1,391 @@
+"""The results file of a run: JSON (and a CSV beside it), validated on read, written after every query
+(records and summaries: :mod:`.accuracy`).
+
+Results file (DESIGN.md section 4)::
+
+    {"queries": [ {image, scene, split, name, R (3x3), t (3,), t_error_m, r_error_deg,
+                   seconds: {stage: s}, num_rotations, num_matches, num_inliers, refined,
+                   status, message, refine_method, refine_residual_deg, rotation_prior,
+                   candidates: [{R, t, loss}, ...] (the search's top K, best first),
+                   best_candidate_t_error_m, best_candidate_r_error_deg, first_good_rank}, ... ],
+     "summary": {count, failed, median_t_error_m, median_r_error_deg,
+                 accuracy: {"0.05m_5deg": a, "0.1m_5deg": a, "0.2m_10deg": a},
+                 median_seconds: {stage: s}, device,
+                 search: {"top1_0.5m_10deg": a, "topk_0.5m_10deg": a} (when candidates were kept),
+                 ...}}
+
+The candidates are in the JSON only (not in the CSV). Files written before these fields existed
+still load (the fields get their defaults: no candidates, rotation prior "free").
+
+``ResultsWriter`` rewrites the JSON and then the CSV beside it, each atomically, after every
+query, so an interrupted run loses nothing and ``--resume`` skips the queries already there (and
+retries the failed ones). It holds a lock (``r.json.lock``) while it writes: a second run on the
+same file is refused. Files carry ``"format_version": 1`` (absent in older files, read as 1);
+:func:`validate_results` checks every record when a file is read (``report``, ``--resume``).
+"""
+
+from __future__ import annotations
+
+import fcntl
+import json
+import os
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from ldlloc.batch.accuracy import QueryResult, results_csv, summarize
+from ldlmap.core.errors import (FormatVersionError, InputError, LdlError, atomic_file, remove_stale_temporaries,
+                                require_file)
+
+
+RESULTS_FORMAT_VERSION = 1  # top-level "format_version" of a results file (absent: written before it, read as 1)
+STATUSES = ("ok", "coarse", "failed")
+OPTION_KEYS = ("dataset", "root", "splits", "map_level", "device", "params", "max_tilt_deg")  # meta compared by --resume
+MAX_RESULTS_BYTES = 2 << 30  # a results file larger than this is not one of ours (2 GiB: ~1 million queries)
+
+
+def _is_number(x: Any) -> bool:
+    return isinstance(x, (int, float)) and not isinstance(x, bool) and bool(np.isfinite(x))
+
+
+def _is_count(x: Any, lo: int = 0) -> bool:
+    """Whether ``x`` is an integer (not a bool) of at least ``lo``."""
+    return isinstance(x, int) and not isinstance(x, bool) and x >= lo
+
+
+def _is_matrix(x: Any, rows: int, cols: int | None = None) -> bool:
+    """Whether ``x`` is a (rows,) list, or (rows, cols) nested lists, of finite numbers."""
+    if not isinstance(x, list) or len(x) != rows:
+        return False
+    if cols is None:
+        return all(_is_number(v) for v in x)
+    return all(_is_matrix(row, cols) for row in x)
+
+
+# Field of a query record -> (check, what it must be). Absent fields get their defaults (older files).
+_FIELD_CHECKS: dict[str, tuple[Any, str]] = {
+    "image": (lambda x: isinstance(x, str), "a string"),
+    "scene": (lambda x: isinstance(x, str) and x != "", "a non-empty string"),
+    "split": (lambda x: isinstance(x, str), "a string"),
+    "name": (lambda x: isinstance(x, str) and x != "", "a non-empty string"),
+    "R": (lambda x: x is None or _is_matrix(x, 3, 3), "a 3x3 matrix of finite numbers or null"),
+    "t": (lambda x: x is None or _is_matrix(x, 3), "3 finite numbers or null"),
+    "t_error_m": (lambda x: x is None or (_is_number(x) and x >= 0), "a finite number >= 0 or null"),
+    "r_error_deg": (lambda x: x is None or (_is_number(x) and x >= 0), "a finite number >= 0 or null"),
+    "seconds": (lambda x: isinstance(x, dict) and all(isinstance(k, str) and _is_number(v) for k, v in x.items()),
+                "an object of finite seconds"),
+    "num_rotations": (_is_count, "an integer >= 0"),
+    "num_matches": (_is_count, "an integer >= 0"),
+    "num_inliers": (_is_count, "an integer >= 0"),
+    "refined": (lambda x: isinstance(x, bool), "true or false"),
+    "status": (lambda x: x in STATUSES, " | ".join(STATUSES)),
+    "message": (lambda x: isinstance(x, str), "a string"),
+    "refine_method": (lambda x: isinstance(x, str), "a string"),
+    "refine_residual_deg": (lambda x: x is None or _is_number(x), "a finite number or null"),
+    "rotation_prior": (lambda x: isinstance(x, str), "a string"),
+    "candidates": (lambda x: isinstance(x, list) and all(
+        isinstance(c, dict) and _is_matrix(c.get("R"), 3, 3) and _is_matrix(c.get("t"), 3)
+        and (c.get("loss") is None or isinstance(c.get("loss"), (int, float))) for c in x),
+        "a list of {R: 3x3, t: 3, loss} of finite numbers"),
+    "best_candidate_t_error_m": (lambda x: x is None or _is_number(x), "a finite number or null"),
+    "best_candidate_r_error_deg": (lambda x: x is None or _is_number(x), "a finite number or null"),
+    "first_good_rank": (lambda x: x is None or _is_count(x, 1),
+                        "an integer >= 1 or null"),
+    "input_frame": (lambda x: x is None or (isinstance(x, dict) and _is_matrix(x.get("R"), 3, 3)
+                                            and _is_matrix(x.get("t"), 3)), "{R: 3x3, t: 3} or null"),
+    "picture_error": (lambda x: x is None or isinstance(x, str), "a string or null"),
+}
+_REQUIRED_FIELDS = ("image", "scene", "split", "name")
+
+
+def validate_results(data: Any, source: str | Path = "results") -> tuple[list[QueryResult], dict[str, Any]]:
+    """The records and ``meta`` of a parsed results file, checked field by field.
+
+    Raises :class:`InputError` (one line naming the first bad field) for a wrong top-level type,
+    missing or mistyped fields, NaN or infinite numbers, an unknown status or a query twice, and
+    :class:`FormatVersionError` for a ``format_version`` this code does not read. The ``summary``
+    is not read (it is recomputed from the records)."""
+    bad = f"not a results file of `ldlloc run`: {source}"
+    if not isinstance(data, dict):
+        raise InputError(f"{bad} (the top level is a JSON {type(data).__name__}, not an object)")
+    version = data.get("format_version", RESULTS_FORMAT_VERSION)
+    if isinstance(version, bool) or not isinstance(version, int):
+        raise InputError(f"{bad} (format_version must be an integer, got {version!r:.40})")
+    if version != RESULTS_FORMAT_VERSION:
+        raise FormatVersionError(f"results file {source} has format_version {version}; this ldlloc reads "
+                                 f"{RESULTS_FORMAT_VERSION} (use the ldlloc that wrote it, or run again)")
+    queries, meta = data.get("queries"), data.get("meta", {})
+    if not isinstance(queries, list):
+        raise InputError(f"{bad} (\"queries\" must be a list, got {type(queries).__name__})")
+    if not isinstance(meta, dict):
+        raise InputError(f"{bad} (\"meta\" must be an object, got {type(meta).__name__})")
+    seen: set[str] = set()
+    for i, q in enumerate(queries):
+        if not isinstance(q, dict):
+            raise InputError(f"{bad} (queries[{i}] is a {type(q).__name__}, not an object)")
+        missing = [k for k in _REQUIRED_FIELDS if k not in q]
+        if missing:
+            raise InputError(f"{bad} (queries[{i}] lacks {', '.join(missing)})")
+        for key, (ok, what) in _FIELD_CHECKS.items():
+            if key in q and not ok(q[key]):
+                raise InputError(f"{bad} (queries[{i}].{key} must be {what}, got {json.dumps(q[key])[:40]})")
+        if q["name"] in seen:
+            raise InputError(f"{bad} (query {q['name']} appears twice)")
+        seen.add(q["name"])
+    return [QueryResult.from_dict(q) for q in queries], meta
+
+
+def load_results(path: str | Path) -> tuple[list[QueryResult], dict[str, Any]]:
+    """Read and validate (:func:`validate_results`) a results JSON written by :class:`ResultsWriter`."""
+    path = require_file(path, "results file")
+    if path.stat().st_size > MAX_RESULTS_BYTES:
+        raise InputError(f"not a results file of `ldlloc run`: {path} ({path.stat().st_size} bytes)")
+    try:
+        data = json.loads(path.read_bytes())
+    except (json.JSONDecodeError, UnicodeDecodeError, RecursionError) as exc:
+        reason = "nested too deeply" if isinstance(exc, RecursionError) else f"not JSON: {exc}"
+        raise InputError(f"not a results file of `ldlloc run`: {path} ({reason})") from None
+    return validate_results(data, path)
+
+
+def check_results_path(path: str | Path) -> Path:
+    """``path`` as a results JSON path: a ``.json`` name that is not a folder (its CSV goes beside it,
+    same name, ``.csv``)."""
+    p = Path(path)
+    if p.suffix.lower() != ".json":
+        raise InputError(f"--output must name a .json file (the CSV is written beside it with the same name), "
+                         f"got {p}")
+    if p.is_dir():
+        raise InputError(f"--output is a folder: {p} (name a .json file)")
+    return p
+
+
+def results_outputs(path: str | Path) -> list[Path]:
+    """Every file a run on results file ``path`` writes: the JSON, its CSV and the lock file."""
+    p = Path(path)
+    return [p, p.with_suffix(".csv"), lock_path(p)]
+
+
+def lock_path(path: str | Path) -> Path:
+    """The lock file of results file ``path`` (``r.json`` -> ``r.json.lock``), held while a run writes it."""
+    p = Path(path)
+    return p.with_name(p.name + ".lock")
+
+
+def option_differences(old: dict[str, Any], new: dict[str, Any]) -> list[str]:
+    """The :data:`OPTION_KEYS` whose values differ between two results ``meta`` (a key absent from
+    either, as in files written before it existed, is no difference)."""
+    norm = lambda v: json.loads(json.dumps(v, default=str))  # noqa: E731 - tuples vs lists, as in the file
+    diffs: list[str] = []
+    for key in OPTION_KEYS:
+        if key in old and key in new and norm(old[key]) != norm(new[key]):
+            if isinstance(old[key], dict) and isinstance(new[key], dict):
+                diffs += [f"{key}.{k}" for k in _dict_differences(norm(old[key]), norm(new[key]))]
+            else:
+                diffs.append(key)
+    return diffs
+
+
+def _dict_differences(a: dict, b: dict, prefix: str = "") -> list[str]:
+    """Dotted keys whose values differ between two nested dicts."""
+    out: list[str] = []
+    for k in sorted(set(a) | set(b)):
+        x, y = a.get(k), b.get(k)
+        if isinstance(x, dict) and isinstance(y, dict):
+            out += _dict_differences(x, y, f"{prefix}{k}.")
+        elif x != y:
+            out.append(f"{prefix}{k}")
+    return out
+
+
+def _json_safe(obj: Any) -> Any:
+    """``obj`` with every non-finite float replaced by None (strict JSON, no NaN / Infinity)."""
+    if isinstance(obj, float):
+        return obj if np.isfinite(obj) else None
+    if isinstance(obj, dict):
+        return {k: _json_safe(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_json_safe(v) for v in obj]
+    return obj
+
+
+class ResultsBusy(LdlError):
+    """Another run holds the lock of the results file."""
+
+
+class ResultsWriter:
+    """Keeps the results of a run and rewrites ``path`` (JSON) and its ``.csv`` after each query.
+
+    While open it holds an exclusive lock on ``path``'s lock file (:func:`lock_path`): a second
+    writer of the same file is refused at once (:class:`ResultsBusy`). Opening removes temporary
+    files that killed runs left beside the results and rewrites a CSV that is behind its JSON.
+    Each flush writes the JSON first, then the CSV (both atomically): a kill between the two leaves
+    a CSV at most one flush behind, never ahead, and the next open brings it level. A CSV that
+    cannot be written is a warning (``warn``, once; ``meta["csv_error"]``), never a lost result.
+
+    ``resume``: keep the file's records; :meth:`done` (the queries not to run again) excludes
+    failed ones, which a resumed run retries. Options (:data:`OPTION_KEYS`) that differ from the
+    file's ``meta`` are refused unless ``any_options`` (then ``meta["mixed_options"]`` records the
+    earlier options). Use it as a context manager, or call :meth:`close`, to release the lock.
+    """
+
+    def __init__(self, path: str | Path, meta: dict[str, Any] | None = None, resume: bool = False,
+                 any_options: bool = False, warn: Callable[[str], None] | None = None):
+        self._lock = None
+        self.path = check_results_path(path)
+        self.csv_path = self.path.with_suffix(".csv")
+        self.meta = dict(meta or {})
+        self.results: list[QueryResult] = []
+        self._records: dict[str, tuple[QueryResult, dict]] = {}  # name -> (result, its JSON-safe record)
+        self.warn = warn or (lambda message: None)
+        self._warned: set[str] = set()
+        self._lock = _acquire_lock(self.path)
+        try:
+            remove_stale_temporaries(self.path, ".json")
+            remove_stale_temporaries(self.csv_path, ".csv")
+            if resume and self.path.exists():
+                self.results, old_meta = load_results(self.path)
+                self.meta = _resumed_meta(self.path, old_meta, self.meta, any_options)
+                self._sync_csv()
+        except BaseException:
+            self.close()
+            raise
+
+    def __enter__(self) -> "ResultsWriter":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def close(self) -> None:
+        """Release the lock (and remove its file)."""
+        if self._lock is not None:
+            _release_lock(self._lock, lock_path(self.path))
+            self._lock = None
+
+    def __del__(self) -> None:
+        self.close()
+
+    def done(self) -> set[str]:
+        """Names of the queries already in the file that a resumed run skips (failed ones excepted)."""
+        return {r.name for r in self.results if r.status != "failed"}
+
+    def failed(self) -> set[str]:
+        """Names of the failed queries in the file (a resumed run retries them)."""
+        return {r.name for r in self.results if r.status == "failed"}
+
+    def add(self, result: QueryResult) -> None:
+        self.extend([result])
+
+    def extend(self, results: list[QueryResult]) -> None:
+        """Add (or replace, by name) several results and rewrite the files once."""
+        latest = {r.name: r for r in results}  # one record per query, the last one given
+        self.results = [r for r in self.results if r.name not in latest] + list(latest.values())
+        for r in latest.values():
+            if r.picture_error:
+                self.warn_once("picture", f"picture of {r.name} not written ({r.picture_error}); its result is "
+                               "kept (later picture failures: picture_error in the results file)")
+        self.flush()
+
+    def warn_once(self, kind: str, message: str) -> None:
+        """Say ``message`` through ``warn`` the first time a warning of ``kind`` comes."""
+        if kind not in self._warned:
+            self._warned.add(kind)
+            self.warn(f"warning: {message}")
+
+    def flush(self) -> None:
+        """Write the JSON, then the CSV (each atomically)."""
+        self._write_json()
+        self._write_csv()
+
+    def _record(self, r: QueryResult) -> dict:
+        """``r``'s JSON-safe record, converted once (a flush follows every query)."""
+        hit = self._records.get(r.name)
+        if hit is None or hit[0] is not r:
+            hit = self._records[r.name] = (r, _json_safe(asdict(r)))
+        return hit[1]
+
+    def _write_json(self) -> None:
+        data = _json_safe({
+            "format_version": RESULTS_FORMAT_VERSION,
+            "meta": self.meta,
+            "summary": summarize(self.results, self.meta.get("device")),
+        })
+        data["queries"] = [self._record(r) for r in self.results]
+        with atomic_file(self.path) as tmp:
+            tmp.write_text(json.dumps(data, indent=1, allow_nan=False))
+
+    def _write_csv(self) -> None:
+        """Write the CSV; on failure warn once and record why in the JSON's ``meta["csv_error"]``."""
+        try:
+            with atomic_file(self.csv_path) as tmp:
+                tmp.write_text(results_csv(self.results))
+        except (OSError, LdlError) as exc:
+            reason = getattr(exc, "strerror", None) or str(exc)
+            self.warn_once("csv", f"cannot write {self.csv_path} ({reason}); the results are in {self.path}")
+            if self.meta.get("csv_error") != reason:
+                self.meta["csv_error"] = reason
+                self._write_json()
+        else:
+            self.meta.pop("csv_error", None)  # written again: the next JSON says so
+
+    def _sync_csv(self) -> None:
+        """Rewrite the CSV when it does not match the JSON (a run killed between the two writes)."""
+        try:
+            current = self.csv_path.read_bytes().decode()  # as written: csv rows end in \r\n
+        except (OSError, UnicodeDecodeError):
+            current = None
+        if current != results_csv(self.results):
+            self._write_csv()
+
+
+def _resumed_meta(path: Path, old: dict[str, Any], new: dict[str, Any], any_options: bool) -> dict[str, Any]:
+    """The meta of a resumed file: refuses other options unless ``any_options`` (then recorded)."""
+    diffs = option_differences(old, new)
+    if diffs and not any_options:
+        shown = ", ".join(diffs[:4]) + (f" and {len(diffs) - 4} more" if len(diffs) > 4 else "")
+        raise InputError(f"--resume: {path} was written with other options ({shown}); use the same options, "
+                         "another --output, or --resume-any-options to mix them")
+    meta = {**old, **new}
+    if diffs:
+        earlier = old.get("mixed_options", [])
+        meta["mixed_options"] = [*earlier, {k: old[k] for k in OPTION_KEYS if k in old}]
+    return meta
+
+
+def _acquire_lock(path: Path):
+    """An open, exclusively locked (``flock``) lock file of results file ``path``; refuses at once
+    (:class:`ResultsBusy`) when another run holds it."""
+    lock = lock_path(path)
+    try:
+        lock.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise LdlError(f"cannot create output folder {lock.parent}: {exc.strerror or exc}") from None
+    while True:
+        try:
+            fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o666)
+        except OSError as exc:
+            raise LdlError(f"cannot write beside {path}: {exc.strerror or exc}") from None
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            os.close(fd)
+            raise ResultsBusy(f"another `ldlloc run` is writing {path} (it holds {lock.name}); wait for it to "
+                              "finish or use another --output") from None
+        try:
+            same = os.fstat(fd).st_ino == os.stat(lock).st_ino  # not removed by a run that just finished
+        except FileNotFoundError:
+            same = False
+        if same:
+            return fd
+        os.close(fd)
+
+
+def _release_lock(fd: int, lock: Path) -> None:
+    try:
+        lock.unlink()  # while still holding it: a run that opened the old file retries on a new one
+    except OSError:
+        pass
+    os.close(fd)

@@ -1,0 +1,192 @@
+"""Batch localization over dataset splits: ``run_split(...) -> list[QueryResult]``.
+
+Each query is localized against the map of its scene (``<maps>/<scene>.h5``, as written by
+``ldlmap prepare``). A query that cannot be localized (missing map or image, corrupt image, no
+lines, wrong feature backend, or any other error) becomes a ``failed`` record with its message,
+and the run goes on; a ``--save-vis`` picture that cannot be written is a warning recorded beside
+the result (``picture_error``), never a failed query. Results are written after every query
+(:class:`ldlloc.batch.results.ResultsWriter`, under its lock), so an interrupted run loses nothing and
+``resume`` skips the queries already done and retries the failed ones (a map built since, a
+panorama fixed).
+
+Upright prior per query (:func:`max_tilt_for`): ``params.max_tilt_deg`` (``--max-tilt``) when
+given, always (180: free rotation); otherwise :data:`ldlloc.pipeline.UPRIGHT_MAX_TILT_DEG` for
+queries that their dataset marks upright (``Query.upright``, e.g. ZInD) and free rotation for
+the others. Each result records the prior that ran (``rotation_prior``), and the run's meta the
+option (``max_tilt_deg``, None when not given) and the upright default.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import asdict
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from ldlmap.core.errors import InputError, LdlError
+from ldlmap.core.geometry import rotation_error_deg, translation_error
+from ldlloc.batch.accuracy import QueryResult, best_candidate, first_good_rank
+from ldlloc.batch.results import ResultsWriter
+from ldlloc.pipeline import (UPRIGHT_MAX_TILT_DEG, Localization, LocalizeParams, Localizer, load_image,
+                             rotation_prior_name)
+
+
+def max_tilt_for(q, params: LocalizeParams) -> float | None:
+    """The upright prior for query ``q``: ``params.max_tilt_deg`` when set (the user's
+    ``--max-tilt`` wins), else :data:`UPRIGHT_MAX_TILT_DEG` for an upright query, else None (free)."""
+    if params.max_tilt_deg is not None:
+        return float(params.max_tilt_deg)
+    return UPRIGHT_MAX_TILT_DEG if getattr(q, "upright", False) else None
+
+
+def result_from_localization(q, loc: Localization) -> QueryResult:
+    """A results record for dataset query ``q`` (with ground truth) and its localization.
+
+    The ground truth is in the dataset's frame, the map's input frame: on a map built with another
+    frame (``--up``, ``--scale``) it is moved into the map frame, where errors are in metres.
+    """
+    gt_rot, gt_center = q.rot_cam_from_world, q.center
+    input_frame = None
+    if loc.input_to_map is not None:
+        from ldlmap.core.frame import pose_to_map
+
+        gt_rot, gt_center = pose_to_map(gt_rot, gt_center, loc.input_to_map)
+        R_in, t_in = loc.input_frame_pose()
+        input_frame = {"R": R_in.tolist(), "t": t_in.tolist()}
+    cand_t = [translation_error(c, gt_center) for c in np.asarray(loc.candidates_center)]
+    cand_r = [rotation_error_deg(R, gt_rot) for R in np.asarray(loc.candidates_rot)]
+    best = best_candidate(cand_t, cand_r)
+    return QueryResult(
+        image=str(q.image), scene=q.scene, split=q.split, name=q.name,
+        R=np.asarray(loc.rot_cam_from_world).tolist(), t=np.asarray(loc.center).tolist(),
+        t_error_m=translation_error(loc.center, gt_center),
+        r_error_deg=rotation_error_deg(loc.rot_cam_from_world, gt_rot),
+        seconds={k: float(v) for k, v in loc.seconds.items()},
+        num_rotations=int(loc.num_rotations), num_matches=int(loc.num_matches), num_inliers=int(loc.num_inliers),
+        refined=bool(loc.refined), status=loc.status, message=loc.message,
+        rotation_prior=loc.rotation_prior, candidates=loc.candidate_dicts(),
+        refine_method=loc.refine_method, refine_residual_deg=loc.refine_residual_deg,
+        best_candidate_t_error_m=None if best is None else float(cand_t[best]),
+        best_candidate_r_error_deg=None if best is None else float(cand_r[best]),
+        first_good_rank=first_good_rank(cand_t, cand_r), input_frame=input_frame,
+    )
+
+
+class MapCache:
+    """Loads each scene's map (and its Localizer) once; remembers maps that failed to load."""
+
+    def __init__(self, maps_dir: Path, params: LocalizeParams, device: str):
+        self.maps_dir, self.params, self.device = Path(maps_dir), params, device
+        self._loaded: dict[str, Localizer | LdlError] = {}
+
+    def get(self, scene: str) -> Localizer:
+        from ldlmap.map.mapfile import read_map
+
+        if scene not in self._loaded:
+            path = self.maps_dir / f"{scene}.h5"
+            try:
+                if not path.exists():
+                    raise InputError(f"map not found: {path} (build it with `ldlmap prepare`)")
+                # Keep one scene in memory at a time: queries are sorted by scene.
+                self._loaded = {k: v for k, v in self._loaded.items() if isinstance(v, LdlError)}
+                self._loaded[scene] = Localizer(read_map(path, load_cloud=False), self.params, self.device)
+            except LdlError as exc:
+                self._loaded[scene] = exc
+        got = self._loaded[scene]
+        if isinstance(got, LdlError):
+            raise got
+        return got
+
+
+def query_key(q) -> tuple[str, str, str]:
+    """The order in which a run localizes (and records) its queries: by scene, split, name."""
+    return q.scene, q.split, q.name
+
+
+def run_meta(params: LocalizeParams, device: str, meta: dict | None = None) -> dict:
+    """The results file's ``meta``: the caller's fields plus device, parameters and tilt prior."""
+    return {**(meta or {}), "device": device, "params": asdict(params),
+            "max_tilt_deg": params.max_tilt_deg, "upright_max_tilt_deg": UPRIGHT_MAX_TILT_DEG}
+
+
+def failed_result(q, params: LocalizeParams, message: str, seconds: float | None = None) -> QueryResult:
+    """The ``failed`` record of query ``q``, with its reason."""
+    return QueryResult(image=str(q.image), scene=q.scene, split=q.split, name=q.name, status="failed",
+                       message=message, seconds={} if seconds is None else {"total": seconds},
+                       rotation_prior=rotation_prior_name(max_tilt_for(q, params)))
+
+
+def localize_query(cache: MapCache, q, params: LocalizeParams, save_vis: str | Path | None = None) -> QueryResult:
+    """Localize one dataset query against its scene's map. Any error (a toolkit error, or anything
+    else a bad panorama or map provokes) becomes this query's ``failed`` record, never the run's
+    end; a picture that cannot be written is recorded (``picture_error``) beside the result."""
+    t0 = time.perf_counter()
+    tilt = max_tilt_for(q, params)
+    try:
+        loc = cache.get(q.scene)
+        img = load_image(q.image)
+        res = loc.localize(img, max_tilt_deg=180.0 if tilt is None else tilt)
+        r = result_from_localization(q, res)
+    except LdlError as exc:
+        return failed_result(q, params, str(exc), time.perf_counter() - t0)
+    except Exception as exc:  # noqa: BLE001 - e.g. cv2.error, MemoryError: one query's failure, not the run's
+        return failed_result(q, params, f"internal error ({type(exc).__name__}: {exc})", time.perf_counter() - t0)
+    if save_vis is not None:
+        r.picture_error = write_query_picture(img, res, loc.map, picture_path(save_vis, q))
+    return r
+
+
+def picture_path(save_vis: str | Path, q) -> Path:
+    """Where ``--save-vis`` writes the picture of query ``q``."""
+    return Path(save_vis) / q.split / f"{q.scene}_{Path(q.image).stem}.jpg"
+
+
+def write_query_picture(img: np.ndarray, res: Localization, ldl_map, path: Path) -> str | None:
+    """Write a query's picture; returns why it could not be written (None when written)."""
+    from ldlloc.visualize import save_localization_picture
+
+    try:
+        save_localization_picture(img, res, ldl_map, path)
+    except (LdlError, OSError) as exc:
+        return getattr(exc, "strerror", None) or str(exc)
+    return None
+
+
+def run_queries(queries: list, maps_dir: str | Path, output: str | Path, params: LocalizeParams = LocalizeParams(),
+                device: str = "cpu", resume: bool = False, save_vis: str | Path | None = None,
+                meta: dict | None = None, progress: Callable[[QueryResult], None] | None = None,
+                any_options: bool = False, say: Callable[[str], None] | None = None) -> list[QueryResult]:
+    """Localize ``queries`` (from :mod:`ldlmap.datasets`) and write results as they finish.
+
+    ``resume``: skip the queries the results file holds, except failed ones (retried); refuses
+    other options than the file's unless ``any_options``. ``say``: where warnings and the resume
+    summary go (one line each). :func:`ldlloc.batch.ray_run.run_queries_ray` does the same on a Ray
+    cluster."""
+    with open_results(output, params, device, meta, resume, any_options, queries, say) as writer:
+        done = writer.done()
+        cache = MapCache(Path(maps_dir), params, device)
+        for q in sorted(queries, key=query_key):
+            if q.name in done:
+                continue
+            r = localize_query(cache, q, params, save_vis)
+            writer.add(r)
+            if progress:
+                progress(r)
+        return writer.results
+
+
+def open_results(output: str | Path, params: LocalizeParams, device: str, meta: dict | None, resume: bool,
+                 any_options: bool, queries: list, say: Callable[[str], None] | None) -> ResultsWriter:
+    """The locked :class:`ResultsWriter` of a run; on ``resume`` says how many of ``queries`` are
+    done and how many failed ones are retried."""
+    writer = ResultsWriter(output, meta=run_meta(params, device, meta), resume=resume, any_options=any_options,
+                           warn=say)
+    if resume and say is not None:
+        names = {q.name for q in queries}
+        done, retry = len(writer.done() & names), len(writer.failed() & names)
+        say(f"resuming {writer.path}: {done} of {len(names)} queries done, {len(names) - done - retry} to run, "
+            f"{retry} failed ones retried" + (" (options mixed: --resume-any-options)" if any_options
+                                                and "mixed_options" in writer.meta else ""))
+    return writer

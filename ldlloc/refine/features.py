@@ -1,0 +1,143 @@
+"""Refinement of the top-K poses with local features (paper section 3.4, DESIGN.md 5.9-5.10).
+
+For each candidate pose, the map keypoints of the rendered view serving its translation are
+matched with the query's features by the backend's matcher (mutual nearest neighbour + ratio
+test, or LightGlue over batches of views; one matching per distinct view). A match supports a
+candidate when the 3D point, seen from the candidate pose, lies within ``support_angle`` of the query keypoint's bearing; the candidate with
+the most supporting matches wins (ties: more raw matches, then the better search rank). The
+matches of the best-supported distinct views (``pnp_views``) go to spherical PnP-RANSAC (pycolmap
+``EQUIRECTANGULAR``) and the pose with the most inliers is kept. When PnP fails, or its pose is
+far (``max_shift_m`` / ``max_turn_deg``) from every one of the K candidates without strong
+support (``strong_inliers``, ``strong_ratio``), the coarse pose is kept and flagged.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ldlmap.core.geometry import bearing_from_pixel, cam_from_world, normalize, rotation_error_deg
+from ldlloc.refine.pnp import PnPParams, estimate_pose_spherical
+
+
+@dataclass(frozen=True)
+class RefineParams:
+    """Feature-based refinement parameters."""
+
+    ratio: float = 0.8  # Lowe's ratio test
+    support_angle_deg: float = 6.0  # a match supports a candidate when it reprojects this close
+    max_shift_m: float = 1.0  # refined pose further than this from the coarse one: implausible
+    max_turn_deg: float = 30.0  # ... or turned more than this
+    strong_inliers: int = 60  # ... unless PnP has at least this many inliers
+    strong_ratio: float = 0.5  # ... making up at least this fraction of the matches
+    pnp_views: int = 5  # PnP is tried on the matches of this many best-supported distinct views
+    privacy_radius: float = 0.05  # privacy mode: keep features within this (rad) of principal lines
+    pnp: PnPParams = field(default_factory=PnPParams)
+
+
+@dataclass
+class Refinement:
+    """The refined pose (or the coarse one, flagged) and match statistics."""
+
+    rot_cam_from_world: np.ndarray
+    center: np.ndarray
+    refined: bool
+    candidate: int  # index of the chosen top-K candidate
+    num_matches: int
+    num_inliers: int
+    message: str = ""
+
+
+def keep_near_lines(keypoints_uv: np.ndarray, arcs: np.ndarray, width: int, height: int,
+                    radius: float = 0.05) -> np.ndarray:
+    """Boolean mask of keypoints within ``radius`` radians of any of ``arcs`` (privacy mode)."""
+    import torch
+
+    from ldlloc.search.ldf import distance_function
+
+    if len(keypoints_uv) == 0 or len(arcs) == 0:
+        return np.zeros(len(keypoints_uv), dtype=bool)
+    x = torch.as_tensor(bearing_from_pixel(keypoints_uv, width, height), dtype=torch.float32)
+    d = distance_function(x, torch.as_tensor(np.asarray(arcs), dtype=torch.float32))
+    return (d < radius).cpu().numpy()
+
+
+def _match_distinct_views(query_feats, query_size: tuple[int, int], views: np.ndarray, map_features, backend,
+                          ratio: float) -> dict[int, np.ndarray]:
+    """Matches of the query with each of the map ``views`` in one backend call (learned matchers
+    batch them), as ``(query row, map keypoint row)`` pairs indexing the whole map table."""
+    from ldlmap.features import Features
+
+    slices = [map_features.view_slice(int(v)) for v in views]
+    feats = [Features(map_features.keypoints[sl], map_features.scores[sl], map_features.descriptors[sl])
+             for sl in slices]
+    found = backend.match_views(query_feats, query_size, feats, (map_features.width, map_features.height),
+                                ratio=ratio)
+    return {int(v): m + np.array([0, sl.start]) for v, sl, m in zip(views, slices, found)}
+
+
+def refine_candidates(query_feats, query_size: tuple[int, int], rotations: np.ndarray, centers: np.ndarray,
+                      translation_index: np.ndarray, map_features, backend,
+                      params: RefineParams = RefineParams()) -> Refinement:
+    """Pick the best of the K candidate poses by feature matches and refine it with PnP.
+
+    ``query_feats``: :class:`ldlmap.features.Features` of the query (possibly privacy-filtered);
+    ``rotations`` (K, 3, 3), ``centers`` (K, 3), ``translation_index`` (K,) of the search result;
+    ``map_features``: :class:`ldlmap.map.contents.MapFeatures`; ``backend`` matches descriptors.
+    """
+    W, H = query_size
+    K = len(rotations)
+    coarse = Refinement(rotations[0], centers[0], False, 0, 0, 0)
+    if K == 0:
+        return coarse
+    if len(query_feats) == 0:
+        coarse.message = "no query features"
+        return coarse
+    bearings = bearing_from_pixel(query_feats.keypoints, W, H)  # (Nq, 3)
+    views = map_features.translation_view[np.asarray(translation_index)]
+    cos_support = np.cos(np.radians(params.support_angle_deg))
+    matches_by_view = _match_distinct_views(query_feats, (W, H), np.unique(views), map_features, backend,
+                                            params.ratio)
+    support = np.zeros(K, dtype=np.int64)
+    raw = np.zeros(K, dtype=np.int64)
+    for k in range(K):  # K = 20 candidates, at most K distinct views matched
+        m = matches_by_view[int(views[k])]
+        raw[k] = len(m)
+        if len(m):
+            p = normalize(cam_from_world(map_features.xyz[m[:, 1]].astype(np.float64), rotations[k], centers[k]))
+            support[k] = int(np.sum(np.einsum("ij,ij->i", p, bearings[m[:, 0]]) > cos_support))
+    order = np.lexsort((np.arange(K), -raw, -support))
+    best = int(order[0])
+    out = Refinement(rotations[best], centers[best], False, best, int(raw[best]), 0)
+    # PnP on the matches of the best-supported distinct views; keep the pose with most inliers.
+    tried, results = set(), []
+    for k in order:
+        v = int(views[k])
+        if v in tried or len(tried) >= params.pnp_views:
+            continue
+        tried.add(v)
+        m = matches_by_view[v]
+        if len(m) < params.pnp.min_inliers:
+            continue
+        res = estimate_pose_spherical(query_feats.keypoints[m[:, 0]], map_features.xyz[m[:, 1]], W, H, params.pnp)
+        if res is not None:
+            results.append((int(res.inliers.sum()), int(k), len(m), res))
+    if not results:
+        out.message = f"too few matches ({raw[best]})" if raw[best] < params.pnp.min_inliers else "PnP-RANSAC failed"
+        return out
+    inliers, k, n_matches, res = max(results, key=lambda r: (r[0], -r[1]))
+    out.num_inliers, out.num_matches = inliers, n_matches
+    # Plausible: close to one of the search's K poses, or so strongly supported that the search
+    # itself must have missed (a well-supported PnP pose beats a wrong coarse one).
+    shift = np.linalg.norm(centers - res.center, axis=1)
+    turn = np.array([rotation_error_deg(res.rot_cam_from_world, R) for R in rotations])
+    near = (shift <= params.max_shift_m) & (turn <= params.max_turn_deg)
+    strong = inliers >= params.strong_inliers and inliers >= params.strong_ratio * n_matches
+    if not near.any() and not strong:
+        out.message = (f"refinement moved the pose implausibly far ({shift.min():.2f} m from the nearest candidate) "
+                       f"with only {inliers} inliers")
+        return out
+    out.candidate = int(np.argmax(near)) if near.any() else k
+    out.rot_cam_from_world, out.center, out.refined = res.rot_cam_from_world, res.center, True
+    return out

@@ -1,0 +1,80 @@
+"""Pictures people would rather see than read: panoramas with lines drawn on them.
+
+Colors by principal group (BGR for OpenCV): group 0 red, 1 green, 2 blue, none grey.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from ldlmap.core.errors import InputError, atomic_file
+from ldlmap.core.geometry import cam_from_world, normalize, pixel_from_bearing
+
+GROUP_COLORS_BGR = {0: (40, 40, 230), 1: (40, 180, 40), 2: (230, 90, 40), -1: (150, 150, 150)}
+
+
+def arc_polylines(arcs_cam: np.ndarray, width: int, height: int, samples: int = 48) -> list[np.ndarray]:
+    """Pixel polylines of great-circle arcs (N, 2, 3), split where they cross the u seam."""
+    arcs = np.asarray(arcs_cam, dtype=np.float64).reshape(-1, 2, 3)
+    if len(arcs) == 0:
+        return []
+    t = np.linspace(0.0, 1.0, samples)[None, :, None]
+    s, e = normalize(arcs[:, 0])[:, None], normalize(arcs[:, 1])[:, None]
+    pts = normalize(s * (1 - t) + e * t)  # (N, S, 3): chord points projected to the sphere
+    uv = pixel_from_bearing(pts, width, height)
+    out = []
+    for line in uv:  # one polyline per arc (drawing, not a hot path)
+        jumps = np.nonzero(np.abs(np.diff(line[:, 0])) > width / 2)[0] + 1
+        out.extend(p for p in np.split(line, jumps) if len(p) > 1)
+    return out
+
+
+def draw_arcs(image_bgr: np.ndarray, arcs_cam: np.ndarray, groups: np.ndarray | None = None,
+              thickness: int = 2, color: tuple[int, int, int] | None = None) -> np.ndarray:
+    """Draw arcs (camera frame) on a copy of an equirectangular BGR image."""
+    import cv2
+
+    img = np.ascontiguousarray(image_bgr).copy()
+    h, w = img.shape[:2]
+    groups = np.full(len(arcs_cam), -1) if groups is None else np.asarray(groups)
+    arcs = np.asarray(arcs_cam).reshape(-1, 2, 3)
+    for i in range(len(arcs)):  # per arc, for drawing
+        c = color or GROUP_COLORS_BGR.get(int(groups[i]), GROUP_COLORS_BGR[-1])
+        for pl in arc_polylines(arcs[i:i + 1], w, h):
+            cv2.polylines(img, [np.round(pl).astype(np.int32)], False, c, thickness, cv2.LINE_AA)
+    return img
+
+
+def project_lines(lines_world: np.ndarray, rot_cam_from_world: np.ndarray, center: np.ndarray) -> np.ndarray:
+    """3D segments (L, 2, 3) as camera-frame arcs seen from pose ``(R, t)``."""
+    return normalize(cam_from_world(np.asarray(lines_world).reshape(-1, 2, 3), rot_cam_from_world, center))
+
+
+# Picture formats OpenCV's imwrite writes from the extension alone (lower case).
+PICTURE_SUFFIXES: tuple[str, ...] = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp")
+
+
+def check_picture_path(path: str | Path, option: str = "picture") -> Path:
+    """``path`` as a Path when its extension names a format in :data:`PICTURE_SUFFIXES`, else a
+    one-line :class:`InputError` naming ``option`` (call it before any work is done)."""
+    p = Path(path)
+    if p.suffix.lower() not in PICTURE_SUFFIXES:
+        raise InputError(f"{option} {p}: cannot write {p.suffix or 'a file without extension'} pictures; "
+                         f"use {', '.join(PICTURE_SUFFIXES)}")
+    return p
+
+
+def write_picture(path: str | Path, image_bgr: np.ndarray, quality: int = 90) -> Path:
+    """Write a BGR picture atomically in the format its extension names (JPEG / WebP at ``quality``)."""
+    import cv2
+
+    p = check_picture_path(path)
+    ext = p.suffix.lower()
+    flags = {".jpg": [cv2.IMWRITE_JPEG_QUALITY, quality], ".jpeg": [cv2.IMWRITE_JPEG_QUALITY, quality],
+             ".webp": [cv2.IMWRITE_WEBP_QUALITY, quality]}.get(ext, [])
+    with atomic_file(p) as tmp:  # the temporary name keeps the extension: imwrite picks the format
+        if not cv2.imwrite(str(tmp), np.ascontiguousarray(image_bgr), flags):
+            raise InputError(f"could not write picture {p}")
+    return p

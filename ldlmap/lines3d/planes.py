@@ -1,0 +1,248 @@
+"""Planar regions of a cloud: dominant normal orientations, then per orientation the strongest
+offset peaks claim their points; each plane split into kNN-connected pieces.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cached_property
+
+import numpy as np
+
+from ldlmap.core.errors import InputError
+from ldlmap.lines3d.params import Lines3DParams, _check_points
+
+
+def _neighbours(P: np.ndarray, k: int) -> np.ndarray:
+    from scipy.spatial import cKDTree
+
+    k = min(k + 1, len(P))
+    _, idx = cKDTree(P).query(P, k=k, workers=-1)
+    return idx[:, 1:] if k > 1 else idx[:, :0]
+
+
+def _normals_and_curvature(P: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Per point: normal, surface variation, main axis and linearity ``1 - lambda_1 / lambda_2``."""
+    import open3d as o3d
+
+    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(P))
+    pcd.estimate_covariances(o3d.geometry.KDTreeSearchParamKNN(knn=int(k)))
+    C = np.asarray(pcd.covariances)
+    w, V = np.linalg.eigh(C)  # ascending eigenvalues
+    curv = w[:, 0] / np.maximum(w.sum(axis=1), 1e-18)
+    return V[:, :, 0], curv, V[:, :, 2], 1.0 - w[:, 1] / np.maximum(w[:, 2], 1e-18)
+
+
+def _plane_fits(P: np.ndarray, labels: np.ndarray, n_labels: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Per label least-squares plane: (centroid (L,3), normal (L,3), rms (L,), count (L,))."""
+    cnt = np.bincount(labels, minlength=n_labels).astype(np.float64)
+    c = np.stack([np.bincount(labels, P[:, i], n_labels) for i in range(3)], 1) / np.maximum(cnt, 1)[:, None]
+    Q = P - c[labels]
+    cov = np.empty((n_labels, 3, 3))
+    for i in range(3):
+        for j in range(i, 3):
+            cov[:, i, j] = cov[:, j, i] = np.bincount(labels, Q[:, i] * Q[:, j], n_labels)
+    cov /= np.maximum(cnt, 1)[:, None, None]
+    w, V = np.linalg.eigh(cov)
+    return c, V[:, :, 0], np.sqrt(np.maximum(w[:, 0], 0.0)), cnt
+
+
+@dataclass
+class PlaneRegions:
+    """Planar regions of a (downsampled) cloud."""
+
+    points: np.ndarray  # (N, 3) the processed points
+    labels: np.ndarray  # (N,) region index or -1
+    centroids: np.ndarray  # (L, 3)
+    normals: np.ndarray  # (L, 3)
+    neighbours: np.ndarray  # (N, k) kNN indices used for growing
+    spacing: float = 0.0  # voxel size actually used (0: no downsampling)
+    axes: np.ndarray | None = None  # (N, 3) main axis of each point's neighbourhood
+    linearity: np.ndarray | None = None  # (N,) 1 - lambda_1 / lambda_2 (1: points along a line)
+
+    @cached_property
+    def members(self) -> list[np.ndarray]:
+        """Point indices of each region (L arrays)."""
+        order = np.argsort(self.labels, kind="stable")
+        starts = np.searchsorted(self.labels[order], np.arange(len(self.normals) + 1))
+        return [order[starts[i]:starts[i + 1]] for i in range(len(self.normals))]
+
+    @cached_property
+    def tree(self):
+        """k-d tree of the points (scipy ``cKDTree``), built once for every look-up."""
+        from scipy.spatial import cKDTree
+
+        return cKDTree(self.points)
+
+
+def _downsample(P: np.ndarray, params: Lines3DParams) -> tuple[np.ndarray, float]:
+    """Voxel-grid downsampling to at most ``params.max_points`` points; returns (points, voxel)."""
+    if params.voxel_size <= 0:
+        return P, 0.0
+    import open3d as o3d
+
+    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(P))
+    v = params.voxel_size
+    Q = np.asarray(pcd.voxel_down_sample(v).points)
+    for _ in range(4):
+        if len(Q) <= params.max_points:
+            break
+        v *= 1.03 * np.sqrt(len(Q) / params.max_points)
+        Q = np.asarray(pcd.voxel_down_sample(v).points)
+    return Q, v
+
+
+def _dominant_orientations(normals: np.ndarray, params: Lines3DParams) -> np.ndarray:
+    """Plane orientations (D, 3): greedy peaks of the (sign-free) normal histogram on a sphere.
+
+    Normals vote (with both signs) for their nearest vertex of a level-4 icosphere (~4 degree
+    cells); votes are summed over ``orient_radius_deg``; the top vertex is refined to the principal
+    axis of the normals within ``orient_radius_deg`` of it, those normals are removed, repeat while
+    a peak holds ``min_orientation_points`` normals.
+    """
+    from scipy.sparse import csr_matrix
+    from scipy.spatial import cKDTree
+
+    from ldlmap.core.geometry import icosphere_points
+
+    V = np.asarray(icosphere_points(4))
+    tree = cKDTree(V)
+    r = 2.0 * np.sin(np.radians(params.orient_radius_deg) / 2.0)
+    pairs = tree.query_pairs(r, output_type="ndarray")
+    nv = len(V)
+    rows = np.concatenate([pairs[:, 0], pairs[:, 1], np.arange(nv)])
+    cols = np.concatenate([pairs[:, 1], pairs[:, 0], np.arange(nv)])
+    S = csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(nv, nv))
+    _, vi = tree.query(normals)
+    _, vj = tree.query(-normals)
+    alive = np.ones(len(normals), bool)
+    cos_r = np.cos(np.radians(params.orient_radius_deg))
+    cos_c = np.cos(np.radians(params.orient_cone_deg))
+    out: list[np.ndarray] = []
+    for _ in range(params.max_orientations):
+        votes = S @ (np.bincount(vi[alive], minlength=nv) + np.bincount(vj[alive], minlength=nv)).astype(np.float64)
+        top = int(np.argmax(votes))
+        if votes[top] / 2.0 < params.min_orientation_points:
+            break
+        d = V[top]
+        for _ in range(2):  # refine: principal axis of the normals near the peak
+            sel = alive & (np.abs(normals @ d) >= cos_r)
+            if not sel.any():
+                break
+            w, U = np.linalg.eigh(normals[sel].T @ normals[sel])
+            d = U[:, 2]
+        if (alive & (np.abs(normals @ d) >= cos_r)).sum() < params.min_orientation_points:
+            alive &= ~(np.abs(normals @ V[top]) >= cos_r)
+            continue
+        out.append(d)
+        alive &= ~(np.abs(normals @ d) >= cos_c)
+    return np.asarray(out, dtype=np.float64).reshape(-1, 3)
+
+
+def _claim_planes(off: np.ndarray, voter: np.ndarray, free: np.ndarray, params: Lines3DParams) -> list[tuple[float, np.ndarray]]:
+    """Parallel planes of one orientation, strongest first.
+
+    ``off`` are the offsets ``x . n`` of the candidate points (normal within
+    ``assign_angle_deg``), ``voter`` marks the flat ones whose normal lies within
+    ``orient_cone_deg`` and ``free`` those not yet in a plane. Repeatedly: the top of the smoothed
+    histogram of the free voters' offsets, if at least ``min_plane_voters`` voters lie within
+    ``plane_tol``, becomes a plane (offset: mean of those voters) that claims every free candidate
+    within ``plane_tol``; its voters leave the histogram. Returns ``[(offset, claimed index)]``.
+    """
+    from scipy.ndimage import gaussian_filter1d
+
+    if voter.sum() < params.min_plane_voters:
+        return []
+    b = params.offset_bin
+    lo = off.min() - 5 * b
+    bins = np.floor((off - lo) / b).astype(np.int64)
+    nb = int(bins.max()) + 6
+    order = np.argsort(off, kind="stable")
+    srt = off[order]
+    live = voter & free
+    h = np.bincount(bins[live], minlength=nb).astype(np.float64)
+    k = int(round(params.plane_tol / b))
+    out = []
+    for _ in range(params.max_planes_per_orientation):
+        hs = gaussian_filter1d(h, params.offset_sigma / b)
+        top = int(np.argmax(hs))
+        cum = h[max(top - k, 0):top + k + 1].sum()
+        if cum < params.min_plane_voters:
+            break
+        c = lo + (top + 0.5) * b
+        i0, i1 = np.searchsorted(srt, [c - params.plane_tol / 2, c + params.plane_tol / 2])
+        idx = order[i0:i1]
+        idx = idx[live[idx]]
+        if len(idx):
+            c = float(off[idx].mean())
+        i0, i1 = np.searchsorted(srt, [c - params.plane_tol, c + params.plane_tol])
+        idx = order[i0:i1]
+        idx = idx[free[idx]]
+        gone = idx[live[idx]]
+        h -= np.bincount(bins[gone], minlength=nb)
+        h[max(top - 1, 0):top + 2] = np.minimum(h[max(top - 1, 0):top + 2], 0.0)  # never the same bin twice
+        free[idx] = False
+        live[idx] = False
+        out.append((c, idx))
+    return out
+
+
+def segment_planes(points: np.ndarray, params: Lines3DParams = Lines3DParams()) -> PlaneRegions:
+    """Planar regions (steps 1-3 of the module docstring).
+
+    Plane hypotheses come from the whole cloud, so that small faces (table legs, frames, shelf
+    boards) are found as reliably as walls: dominant normal orientations, then per orientation
+    the peaks of the histogram of offsets ``x . n``, strongest first (:func:`_claim_planes`); a
+    plane claims the free points within ``plane_tol`` whose normal agrees within
+    ``assign_angle_deg``; each plane is split
+    into connected pieces (kNN links within ``link_dist``), pieces with fewer than
+    ``min_region_points`` points are dropped, and each piece gets its own least-squares plane.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    P = _check_points(points)
+    P, v = _downsample(P, params)
+    if len(P) < max(params.normal_k, 10):
+        raise InputError(f"point cloud too small for line extraction ({len(P)} points)")
+    normals, curv, axes, linearity = _normals_and_curvature(P, params.normal_k)
+    nbr = _neighbours(P, params.graph_k)
+    flat = curv <= params.max_curvature
+    D = _dominant_orientations(normals[flat], params)
+    n = len(P)
+    lab = np.full(n, -1)
+    cos_peak = np.cos(np.radians(params.orient_cone_deg))
+    cos_assign = np.cos(np.radians(params.assign_angle_deg))
+    free = np.ones(n, bool)
+    n_planes = 0
+    for d in D:
+        cosn = np.abs(normals @ d)
+        cand = np.flatnonzero(cosn >= cos_assign)
+        if len(cand) == 0:
+            continue
+        sub_free = free[cand]
+        claimed = _claim_planes(P[cand] @ d, flat[cand] & (cosn[cand] >= cos_peak), sub_free, params)
+        for _, idx in claimed:
+            lab[cand[idx]] = n_planes
+            n_planes += 1
+        free[cand] = sub_free
+    # Connected pieces of each plane.
+    i = np.repeat(np.arange(n), nbr.shape[1])
+    j = nbr.ravel()
+    ok = (lab[i] >= 0) & (lab[i] == lab[j]) & (np.linalg.norm(P[i] - P[j], axis=1) <= params.link_dist)
+    g = coo_matrix((np.ones(ok.sum(), np.int8), (i[ok], j[ok])), shape=(n, n))
+    n_comp, comp = connected_components(g, directed=False)
+    comp = np.where(lab >= 0, comp, -1)
+    sizes = np.bincount(comp[comp >= 0], minlength=n_comp)
+    big = sizes >= params.min_region_points
+    remap = np.where(big, np.cumsum(big) - 1, -1)
+    labels = np.where(comp >= 0, remap[np.maximum(comp, 0)], -1)
+    L = int(big.sum())
+    if L == 0:
+        return PlaneRegions(P, labels, np.zeros((0, 3)), np.zeros((0, 3)), nbr, v, axes, linearity)
+    sel = labels >= 0
+    c, nrm, rms, _ = _plane_fits(P[sel], labels[sel], L)
+    good = rms <= params.max_plane_rms
+    remap = np.where(good, np.cumsum(good) - 1, -1)
+    labels = np.where(labels >= 0, remap[np.maximum(labels, 0)], -1)
+    return PlaneRegions(P, labels, c[good], nrm[good], nbr, v, axes, linearity)

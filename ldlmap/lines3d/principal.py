@@ -1,0 +1,172 @@
+"""Principal 3D directions of a line map by voting (DESIGN.md 5.2, paper supp. "Principal
+Direction Computation").
+
+Every line votes for the bins of a half icosphere (level 5: 5121 directions, ~2.2 degrees apart)
+within ``vote_angle_deg`` of its direction, with weight = its length (long lines are the reliable
+structure of a room; counting lines instead lets clutter of many short pieces win). The best bin
+is refined by the length-weighted mean of the sign-aligned directions within
+``refine_angle_deg`` of it (``refine_steps`` times, re-centred); lines with ``|cos| > cos_thresh``
+to the refined direction are removed and the vote repeats, ``k`` times (k3D = 3). With ``k = 3``
+the triplet is made right-handed by flipping the third direction when ``det < 0``.
+:func:`manhattan_frame` then gives the nearest orthonormal frame (the paper's assumption).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ldlmap.core.errors import InputError
+from ldlmap.core.geometry import half_icosphere_points, normalize
+
+
+@dataclass(frozen=True)
+class Principal3DParams:
+    """Parameters of :func:`principal_directions_3d`."""
+
+    sphere_level: int = 5  # icosphere level of the voting grid (halved)
+    vote_angle_deg: float = 3.0  # a line votes for every bin this close to its direction
+    refine_angle_deg: float = 5.0  # inliers averaged to refine the winning bin ...
+    refine_steps: int = 3  # ... this many times, each cone centred on the last mean
+    cos_thresh: float = 0.95  # lines with |cos| above this to a found direction are removed
+
+
+def line_directions(lines: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Unit directions (N, 3) and lengths (N,) of segments (N, 2, 3)."""
+    L = np.asarray(lines, dtype=np.float64)
+    if L.ndim != 3 or L.shape[1:] != (2, 3):
+        raise InputError(f"lines must have shape (N, 2, 3), got {L.shape}")
+    if not np.all(np.isfinite(L)):
+        raise InputError("lines contain NaN or infinite coordinates")
+    v = L[:, 1] - L[:, 0]
+    length = np.linalg.norm(v, axis=1)
+    return normalize(v), length
+
+
+def _any_perpendicular(d: np.ndarray) -> np.ndarray:
+    a = np.eye(3)[int(np.argmin(np.abs(d)))]
+    return normalize(np.cross(d, a))
+
+
+def principal_directions_3d(lines: np.ndarray, k: int = 3,
+                            params: Principal3DParams = Principal3DParams()) -> np.ndarray:
+    """Top ``k`` (k_3D, paper default 3) line directions (k, 3), rows unit vectors, right-handed when ``k == 3``.
+
+    When the lines run out before ``k`` directions are found (e.g. all lines in two directions)
+    the missing ones are completed orthogonally (cross product / any perpendicular).
+    """
+    d, w = line_directions(lines)
+    keep = w > 1e-9
+    d, w = d[keep], w[keep]
+    if len(d) == 0:
+        raise InputError("no (non-degenerate) lines to estimate principal directions from")
+    if k < 1:
+        raise InputError(f"k must be >= 1, got {k}")
+    bins = half_icosphere_points(params.sphere_level)
+    cos_vote = np.cos(np.radians(params.vote_angle_deg))
+    cos_ref = np.cos(np.radians(params.refine_angle_deg))
+    found: list[np.ndarray] = []
+    alive = np.ones(len(d), bool)
+    for _ in range(k):
+        if not alive.any():
+            break
+        da, wa = d[alive], w[alive]
+        score = np.zeros(len(bins))
+        block = max(1, int(2e6 // len(bins)))
+        for s in range(0, len(da), block):
+            c = np.abs(da[s:s + block] @ bins.T)
+            score += (wa[s:s + block, None] * (c >= cos_vote)).sum(axis=0)
+        p = bins[int(np.argmax(score))]
+        for _ in range(params.refine_steps):  # re-centred: a cone off the true direction biases the mean
+            c = da @ p
+            inl = np.abs(c) >= cos_ref
+            if not inl.any():
+                break
+            p = normalize((np.sign(c[inl]) * wa[inl])[:, None].T @ da[inl])[0]
+        found.append(p)
+        alive &= np.abs(d @ p) <= params.cos_thresh
+    while len(found) < k:
+        if len(found) == 1:
+            found.append(_any_perpendicular(found[0]))
+        elif len(found) == 2:
+            found.append(normalize(np.cross(found[0], found[1])))
+        else:  # k > 3 and no lines left: repeat the last direction's perpendicular
+            found.append(_any_perpendicular(found[-1]))
+    P = np.stack(found[:k])
+    if k == 3 and np.linalg.det(P) < 0:
+        P[2] = -P[2]
+    return P
+
+
+def assign_line_groups(directions_of_lines: np.ndarray, principal: np.ndarray,
+                       cos_thresh: float = 0.95) -> np.ndarray:
+    """Group index (N,) of each line: the principal direction with the largest ``|cos|`` when it
+    exceeds ``cos_thresh`` (a line joins group j when ``|d . p_j| > 0.95``), else -1."""
+    D = normalize(np.asarray(directions_of_lines, dtype=np.float64))
+    Pd = normalize(np.asarray(principal, dtype=np.float64))
+    if D.ndim != 2 or D.shape[1] != 3 or Pd.ndim != 2 or Pd.shape[1] != 3:
+        raise InputError("directions must have shapes (N, 3) and (k, 3)")
+    if len(D) == 0:
+        return np.zeros(0, np.int64)
+    c = np.abs(D @ Pd.T)
+    best = np.argmax(c, axis=1)
+    return np.where(c[np.arange(len(D)), best] > cos_thresh, best, -1).astype(np.int64)
+
+
+def manhattan_frame(lines: np.ndarray, estimated: np.ndarray, up: np.ndarray = (0.0, 0.0, 1.0),
+                    horizontal_deg: float = 15.0, vote_deg: float = 2.0,
+                    refine_deg: float = 5.0) -> tuple[np.ndarray, np.ndarray]:
+    """The orthonormal (Manhattan) frame nearest the lines, and each estimated direction's angle to it.
+
+    The paper assumes three orthogonal principal directions; voting them one by one does not
+    enforce it (a dense SfM map gave two directions 33 degrees apart). The frame keeps the
+    vertical (the ``estimated`` row closest to ``up``, which is gravity, when within 20 degrees,
+    else ``up``) and fits the horizontals to the data rather than to the estimated directions: the
+    azimuths of the lines within ``horizontal_deg`` of horizontal, folded modulo 90 degrees, vote
+    (length-weighted, +-``vote_deg``) for the pair of perpendicular horizontals, refined by the
+    circular mean of the votes within ``refine_deg``. So every horizontal line supports the pair,
+    a spurious third direction does not pull it, and when the estimate was orthogonal the frame
+    equals it to the voting precision. Rows are ordered like ``estimated`` (each to its nearest
+    frame axis) and right-handed. Returns ``(frame (3, 3), deviation_deg (3,))``.
+    """
+    E = np.asarray(estimated, dtype=np.float64)
+    if E.shape != (3, 3):
+        raise InputError(f"estimated principal directions must have shape (3, 3), got {E.shape}")
+    u = normalize(np.asarray(up, dtype=np.float64)[None])[0]
+    d, w = line_directions(lines)
+    kv = int(np.argmax(np.abs(E @ u)))
+    v = E[kv] * np.sign(E[kv] @ u)
+    if v @ u < np.cos(np.radians(20.0)):
+        v = u
+    e1 = _any_perpendicular(v)
+    e2 = np.cross(v, e1)
+    hz = (np.abs(d @ v) < np.sin(np.radians(horizontal_deg))) & (w > 1e-12)
+    if hz.any():
+        phi = np.degrees(np.arctan2(d[hz] @ e2, d[hz] @ e1)) % 90.0  # azimuth folded mod 90
+        bins = 0.25
+        hist = np.bincount((phi / bins).astype(np.int64) % int(90 / bins), w[hz], int(90 / bins))
+        k = int(round(vote_deg / bins))
+        smooth = sum(np.roll(hist, s) for s in range(-k, k + 1))
+        peak = (np.argmax(smooth) + 0.5) * bins
+        near = np.abs((phi - peak + 45.0) % 90.0 - 45.0) <= refine_deg
+        ang4 = np.radians(4.0 * phi[near])
+        wn = w[hz][near]
+        phi0 = np.degrees(np.arctan2(wn @ np.sin(ang4), wn @ np.cos(ang4))) / 4.0
+    else:  # no horizontal line: the estimated horizontal closest to the plane
+        rest = [E[i] for i in range(3) if i != kv]
+        h = rest[int(np.argmin([abs(r @ v) for r in rest]))]
+        phi0 = np.degrees(np.arctan2(h @ e2, h @ e1))
+    h1 = np.cos(np.radians(phi0)) * e1 + np.sin(np.radians(phi0)) * e2
+    axes = np.stack([v, h1, np.cross(v, h1)])
+    F = np.zeros((3, 3))
+    free = [0, 1, 2]
+    for i in [kv] + [i for i in range(3) if i != kv]:  # the vertical first, then greedily
+        j = max(free, key=lambda a: abs(axes[a] @ E[i]))
+        free.remove(j)
+        F[i] = axes[j] * (1.0 if axes[j] @ E[i] >= 0 else -1.0)
+    if np.linalg.det(F) < 0:
+        last = [i for i in range(3) if i != kv][-1]
+        F[last] = -F[last]
+    dev = np.degrees(np.arccos(np.clip(np.abs(np.sum(F * normalize(E), axis=1)), -1.0, 1.0)))
+    return F, dev

@@ -1,0 +1,79 @@
+"""An LDL map in memory (:class:`LdlMap`, :class:`MapFeatures`): what :mod:`.mapfile` reads and writes."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+
+@dataclass
+class MapFeatures:
+    """Local features of the rendered views, stored as one ragged (CSR) table."""
+
+    backend: str
+    view_centers: np.ndarray  # (V, 3)
+    offsets: np.ndarray  # (V + 1,)
+    xyz: np.ndarray  # (K, 3)
+    keypoints: np.ndarray  # (K, 2)
+    scores: np.ndarray  # (K,)
+    descriptors: np.ndarray  # (K, D)
+    translation_view: np.ndarray  # (N_t,) view serving each candidate translation
+    width: int = 1024
+    height: int = 512
+    extraction: str = "equirect"  # equirect | cube (ldlmap.features.sphere.PANORAMA_EXTRACTIONS)
+
+    @property
+    def num_views(self) -> int:
+        return int(len(self.view_centers))
+
+    def view_slice(self, view: int) -> slice:
+        """Rows of view ``view`` in ``xyz``, ``keypoints``, ``scores``, ``descriptors``."""
+        return slice(int(self.offsets[view]), int(self.offsets[view + 1]))
+
+
+@dataclass
+class LdlMap:
+    """Everything localization needs for one scene (see the module docstring for units)."""
+
+    name: str
+    bounds_min: np.ndarray
+    bounds_max: np.ndarray
+    lines_raw: np.ndarray
+    lines: np.ndarray
+    line_groups: np.ndarray
+    length_threshold: float
+    kept_ratio: float
+    principal_directions: np.ndarray
+    translations: np.ndarray
+    cloud_points: np.ndarray | None = None
+    cloud_colors: np.ndarray | None = None
+    features: MapFeatures | None = None
+    fields: dict[str, np.ndarray] = field(default_factory=dict)
+    fields_attrs: dict[str, Any] = field(default_factory=dict)
+    config: dict[str, Any] = field(default_factory=dict)
+    line_lambda: float = 0.1
+    visibility: np.ndarray | None = None  # (N_t, L) bool: kept lines seen from each translation (None: all)
+    coverage: np.ndarray | None = None  # (N_t, G + 1, 2G) bool: directions meeting a mapped surface
+    input_to_map: np.ndarray | None = None  # (4, 4) similarity from the build's input frame (None: identity)
+
+    @property
+    def lines_only(self) -> bool:
+        return self.features is None
+
+    @property
+    def camera_height_band(self) -> tuple[float, float] | None:
+        """(min, max) world z of the camera when the map was built knowing it (``--camera-height``,
+        a layout's annotated camera heights), else None."""
+        band = (self.config.get("translations") or {}).get("camera_height") if isinstance(self.config, dict) else None
+        try:
+            lo, hi = (float(z) for z in band)
+        except (TypeError, ValueError):
+            return None
+        return (lo, hi) if np.isfinite(lo) and np.isfinite(hi) and lo <= hi else None
+
+    def nearest_translation(self, points: np.ndarray) -> np.ndarray:
+        """Index of the candidate translation nearest to each point ((..., 3) -> (...,))."""
+        P = np.asarray(points, dtype=np.float64)
+        return np.linalg.norm(P[..., None, :] - self.translations, axis=-1).argmin(-1)

@@ -1,0 +1,33 @@
+"""A picture of a map (``ldlmap info --png``, ``ldlmap build --png``): its top view beside a panorama
+of the stored cloud with the map's lines projected."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from ldlmap.core.pictures import draw_arcs, project_lines, write_picture
+from ldlmap.lines3d import top_view_image
+from ldlmap.map.render import render_points_panorama
+
+
+def map_picture(ldl_map, path: str | Path, width: int = 1024) -> Path:
+    """A picture of a map: its top view beside a panorama of the stored cloud with projected lines.
+
+    The panorama is rendered at the candidate translation closest to the cloud's centre.
+    """
+    import cv2
+
+    height = width // 2
+    centre = (ldl_map.bounds_min + ldl_map.bounds_max) / 2
+    t = ldl_map.translations[int(ldl_map.nearest_translation(centre))]
+    if ldl_map.cloud_points is not None and ldl_map.cloud_colors is not None:
+        rgb, _, _ = render_points_panorama(ldl_map.cloud_points, ldl_map.cloud_colors, np.eye(3), t, width, height)
+        pano = cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR)
+    else:
+        pano = np.full((height, width, 3), 255, np.uint8)
+    pano = draw_arcs(pano, project_lines(ldl_map.lines, np.eye(3), t), ldl_map.line_groups)
+    top = top_view_image(ldl_map.lines, size=height, principal=ldl_map.principal_directions,
+                         dropped=ldl_map.lines_raw)
+    return write_picture(path, np.concatenate([top, pano], axis=1))
