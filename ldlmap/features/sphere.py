@@ -62,9 +62,8 @@ def extract_in_map_frame(backend, image: np.ndarray, rot_cam_from_world: np.ndar
 
 
 PANORAMA_EXTRACTIONS = ("equirect", "cube")
-# Each backend's default, measured (bench_features.py, seed 23, 32 queries, full pipeline; README): with
-# the hard appearance gap, ALIKED on cube faces reached 0.78 at 0.05 m / 5 deg against 0.69 on the whole
-# panorama, refining 16 % faster; XFeat (0.81 against 0.97) and SIFT (0.88 against 0.94) lost there.
+# Each backend's default extraction, the more accurate one for it (cube faces only for ALIKED):
+# measured in docs/measurements.md#feature-extraction.
 _DEFAULT_EXTRACTION = {"aliked": "cube"}
 
 

@@ -39,9 +39,9 @@ proper rotation, and ``p_cam = R (X - t)`` is proportional to ``P p`` for every 
 complete room's layout in its own frame. A room's polygon, ceiling height, doors, windows,
 openings and internal walls come from the first panorama of the room in the JSON (the first
 primary one when some are not primary) that has ``layout_complete``; the others agree with it
-(on the shared home within a few millimetres, :attr:`ZindRoom.spread` says by how much). The
-ceiling counts as flat only when every panorama of the room says so (one vaulted partial room
-would put false ceiling edges around the whole room).
+(:attr:`ZindRoom.spread` says by how much; docs/measurements.md#zind-layouts). The ceiling counts
+as flat only when every panorama of the room says so (one vaulted partial room would put false
+ceiling edges around the whole room).
 
 **Lines of a layout** (:func:`room_lines`, metres): one vertical per wall corner (floor to
 ceiling), floor edges along every wall except where an opening spans it (no wall meets the
@@ -52,8 +52,7 @@ edge). ``internal`` walls (polylines of free-standing wall pieces, e.g. a partit
 give floor edges and a vertical at every polyline vertex; their height is not annotated, so
 they get no top edges (a wall stub may stop below the ceiling) and their verticals run floor to
 ceiling only when the ceiling is flat (then they are true wall corners of a full-height
-partition, which is what ZInD annotates as internal walls; checked on the shared home's
-kitchen, where the internal outline is the wall holding the stove and the upper cabinets).
+partition, which is what ZInD annotates as internal walls: docs/measurements.md#zind-layouts).
 Vertices of one internal outline closer than 0.15 m share one vertical: the outline runs
 around a wall about 0.1 m thick, whose two faces would otherwise give doubled corners.
 """

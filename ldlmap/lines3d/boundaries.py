@@ -190,13 +190,13 @@ def _extend_sides(segs: np.ndarray, owner: np.ndarray, reg: PlaneRegions, step: 
     """Boundary sides (M, 2, 3) lengthened at each end while their plane's boundary goes on.
 
     Closing and polygon approximation round the corners of a plane's occupancy image, which
-    shortens every side by several centimetres at each end (a box's 62 cm vertical edge comes out
-    40 cm long, below the length threshold). Past each end, every ``step`` up to ``reach``, the
-    boundary goes on where the owner plane has points within ``radius`` on one side of the line
-    (``2 radius`` off it) but not on the other; the side grows to the last such sample before two
-    misses in a row. Only sides at least ``min_length`` long and within 3 degrees of a direction
-    where the owner plane meets another plane's orientation grow: short or oblique sides are the
-    chords of rounded or staircase outlines, which would grow into false lines.
+    shortens every side by several centimetres at each end, enough to push a short edge below the
+    length threshold (docs/measurements.md#extend-sides). Past each end, every ``step`` up to
+    ``reach``, the boundary goes on where the owner plane has points within ``radius`` on one side
+    of the line (``2 radius`` off it) but not on the other; the side grows to the last such sample
+    before two misses in a row. Only sides at least ``min_length`` long and within 3 degrees of a
+    direction where the owner plane meets another plane's orientation grow: short or oblique sides
+    are the chords of rounded or staircase outlines, which would grow into false lines.
     """
     d = segs[:, 1] - segs[:, 0]
     length = np.linalg.norm(d, axis=1)

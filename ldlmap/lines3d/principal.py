@@ -120,15 +120,16 @@ def manhattan_frame(lines: np.ndarray, estimated: np.ndarray, up: np.ndarray = (
     """The orthonormal (Manhattan) frame nearest the lines, and each estimated direction's angle to it.
 
     The paper assumes three orthogonal principal directions; voting them one by one does not
-    enforce it (a dense SfM map gave two directions 33 degrees apart). The frame keeps the
-    vertical (the ``estimated`` row closest to ``up``, which is gravity, when within 20 degrees,
-    else ``up``) and fits the horizontals to the data rather than to the estimated directions: the
-    azimuths of the lines within ``horizontal_deg`` of horizontal, folded modulo 90 degrees, vote
-    (length-weighted, +-``vote_deg``) for the pair of perpendicular horizontals, refined by the
-    circular mean of the votes within ``refine_deg``. So every horizontal line supports the pair,
-    a spurious third direction does not pull it, and when the estimate was orthogonal the frame
-    equals it to the voting precision. Rows are ordered like ``estimated`` (each to its nearest
-    frame axis) and right-handed. Returns ``(frame (3, 3), deviation_deg (3,))``.
+    enforce it (an SfM map's may be far from perpendicular: docs/measurements.md#manhattan-frame).
+    The frame keeps the vertical (the ``estimated`` row closest to ``up``, which is gravity, when
+    within 20 degrees, else ``up``) and fits the horizontals to the data rather than to the
+    estimated directions: the azimuths of the lines within ``horizontal_deg`` of horizontal, folded
+    modulo 90 degrees, vote (length-weighted, +-``vote_deg``) for the pair of perpendicular
+    horizontals, refined by the circular mean of the votes within ``refine_deg``. So every
+    horizontal line supports the pair, a spurious third direction does not pull it, and when the
+    estimate was orthogonal the frame equals it to the voting precision. Rows are ordered like
+    ``estimated`` (each to its nearest frame axis) and right-handed. Returns
+    ``(frame (3, 3), deviation_deg (3,))``.
     """
     E = np.asarray(estimated, dtype=np.float64)
     if E.shape != (3, 3):

@@ -66,7 +66,7 @@ class BuildParams:
     scale: float = 1.0  # input coordinates are multiplied by this first (SfM frames: metres per unit)
     min_kept_lines: int = 100  # length filter floor: keep at least min(this, half the lines), the longest ...
     min_kept_length_share: float = 0.6  # ... and the longest holding this share of the total line length
-    # (scans keep 0.69-0.77 of it under the paper's threshold; an SfM map of short pieces 0.02)
+    # (below what the paper's threshold keeps of a scan, far above an SfM map's: docs/measurements.md#length-share)
     max_kept_lines: int = 3000  # length filter cap: keep at most this many, the longest
     orthonormal_directions: bool = True  # principal directions: the nearest Manhattan frame (paper's assumption)
 

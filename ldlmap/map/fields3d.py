@@ -27,9 +27,8 @@ Map layout (``/fields`` group of :mod:`ldlmap.map.mapfile`):
 * attrs ``kind`` ("equirect_nodes"), ``rows`` (G), ``num_groups`` (3), ``version`` (1).
 
 Size: ``N_t * 3 * (G + 1) * 2G * 2`` bytes before compression; with the default G = 64,
-49.9 kB per translation: 40 MB for N_t = 800 and 85 MB for N_t = 1700; gzip+shuffle in the map
-file stores ~20 MB for N_t = 800 (a demo room map grows from ~5 MB to ~28 MB). Computing them
-costs about 1-2 s per 800 translations and ~80 lines on one CPU core (``bench/bench_search.py``).
+49.9 kB per translation: 40 MB for N_t = 800 and 85 MB for N_t = 1700, less after the map
+file's gzip+shuffle. Stored size and computing time: docs/measurements.md#fields-cost.
 """
 
 from __future__ import annotations
@@ -117,8 +116,8 @@ def compute_fields(lines: np.ndarray, groups: np.ndarray, translations: np.ndarr
     else:
         Tt = torch.as_tensor(T, dtype=dt, device=device)
         step = max(1, int(params.chunk_translations))
-        # Nodes per batch: keep the (step, 5L, nodes) dot products near ``work_elements`` so the
-        # element-wise passes of grouped_min_distance run in cache (4-5x faster on a CPU).
+        # Nodes per batch: keep the (step, 5L, nodes) dot products near ``work_elements`` so the element-wise
+        # passes of grouped_min_distance run in cache (docs/measurements.md#fields-work-elements).
         pc = max(64, int(params.work_elements) // (step * 5 * L.shape[0]))
         flat = out.reshape(len(T), ng, -1)
         with torch.no_grad():

@@ -138,7 +138,8 @@ def write_map(path: str | Path, m: LdlMap) -> Path:
     return path
 
 
-_CHECKSUMS = "checksums"  # root attribute (maps written since issue 11): JSON {"datasets": {path: crc32}, "attrs": crc32}
+_CHECKSUMS = "checksums"  # root attribute (absent in older maps: docs/measurements.md#map-checksums): JSON
+# {"datasets": {path: crc32}, "attrs": crc32}
 _H5_ERRORS = (KeyError, OSError, ValueError, TypeError, RuntimeError)  # what h5py raises on a damaged file
 
 # Stored datasets: path -> (kind, shape). Kinds as in ``KINDS``; a named size (L: kept lines,

@@ -11,16 +11,15 @@ Sources, first that applies:
    * its share of the line length along the three directions (within 5 degrees) minus its share
      of their robust extents: a plain box has edge length along each axis in proportion to its
      extent, and a room or building adds vertical edges beyond that (wall corners, door and
-     window jambs, furniture legs and sides: the true edges of 9 synthetic rooms are 39-50 %
-     vertical for 19-24 % of the extent; box rooms with boxes 24-26 % for 21 %);
+     window jambs, furniture legs and sides; docs/measurements.md#gravity-vertical-share);
    * the share of all the length it explains as vertical or horizontal: a vertical explains
      horizontal edges of every azimuth (walls at any angle, turned furniture), a horizontal axis
      only its own lines and those exactly perpendicular to it, so off-Manhattan horizontals, or
-     a second horizontal direction that is not at 90 degrees (issue 12), count for the vertical;
+     a second horizontal direction that is not at 90 degrees (SfM maps), count for the vertical;
    * how lopsided the line length is along it: gravity puts furniture, doors and windows on the
-     floor (60-74 % of the length below the middle in those rooms). The same share gives the
-     sign, the floor side down: a guess that the build reports. A bare box, or a facade without
-     depth, leaves the axis ambiguous: ``--up``.
+     floor (most of the length lies below the middle). The same share gives the sign, the floor
+     side down: a guess that the build reports. A bare box, or a facade without depth, leaves the
+     axis ambiguous: ``--up``.
 
 An estimate from the user or the cameras is then snapped to the lines' principal direction
 within ``snap_deg`` (photos tilted up at a facade bias the camera mean; a frame's axis is only

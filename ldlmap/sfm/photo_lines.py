@@ -66,7 +66,7 @@ class SfmLinesParams:
     ambiguity: int = 1  # ... by this much more evidence than any candidate on another line
     distinct_depth: float = 0.05  # candidates whose end depths differ by more than this fraction are other lines
     min_photos: int = 3  # a merged line needs lines from this many photos' own segments (2: floating
-    # lines from periodic textures stay; measured on-surface 0.90 / 0.87 / 0.55 -> 0.96 / 0.92 / 0.68)
+    # lines from periodic textures stay; docs/measurements.md#sfm-min-photos)
     merge_angle_deg: float = 3.0
     merge_dist: float = 0.008  # merge distance, fraction of the robust extent
     merge_gap: float = 0.01  # merge gap along the line, fraction of the robust extent

@@ -156,7 +156,7 @@ class ScanSpec:
     holes: int = 6  # number of circular holes (missing data)
     hole_radius: float = 0.15  # m
     stations: int = 6  # scanner stations (surfaces seen from none of them are not sampled; real room scans
-    # take a sweep every ~2 m: with 2 stations a third of an L-shaped room's edges is never seen)
+    # take a sweep every ~2 m; too few leave edges unseen: docs/measurements.md#scan-stations)
 
 
 @dataclass(frozen=True)
