@@ -5,7 +5,7 @@ Public API (imported on first use, so ``import ldlloc`` stays instant)::
     from ldlmap import read_map
     from ldlloc import LocalizeParams, Localizer, load_image
     loc = Localizer(read_map("room.h5"), LocalizeParams(), device="cpu")
-    res = loc.localize(load_image("pano.jpg"))   # res.R (world -> camera), res.t (camera centre)
+    res = loc.localize(load_image("pano.jpg"))   # res.rot_cam_from_world, res.center
 
 Also ``run_queries`` (a batch of dataset queries with a results file) and ``load_results``.
 Stages of :class:`Localizer`, one module or folder each: ``lines2d`` (2D line segments),

@@ -1,4 +1,4 @@
-"""A picture of a map (``ldlmap info --png``, ``ldlmap build --png``): its top view beside a panorama
+"""A picture of a map (``ldlmap build --png``): its top view beside a panorama
 of the stored cloud with the map's lines projected."""
 
 from __future__ import annotations

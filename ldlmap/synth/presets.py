@@ -1,4 +1,4 @@
-"""Random scene specs: the presets (``demo``, ``small``, ...) and the random rooms, furniture, wall
+"""Random scene specs: the presets (``demo``, ``standard``) and the random rooms, furniture, wall
 items and scene changes drawn from them; every spec is validated before it is returned.
 """
 
