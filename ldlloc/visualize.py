@@ -20,7 +20,8 @@ def localization_caption(name: str, loc, errors: tuple[float, float] | None = No
     if errors is not None:
         _, t_max, r_max = THRESHOLDS[1]
         verdict = "localized" if errors[0] < t_max and errors[1] < r_max else "not localized"
-        return f"{name}: error {errors[0]:.3f} m, {errors[1]:.2f} deg: {verdict} (within {t_max:g} m / {r_max:g} deg), {how}"
+        return (f"{name}: error {errors[0]:.3f} m, {errors[1]:.2f} deg: {verdict} (within {t_max:g} m / "
+                f"{r_max:g} deg), {how}")
     return f"{name}: {loc.status}, {how}, no ground truth" + (f" ({loc.message})" if loc.message else "")
 
 

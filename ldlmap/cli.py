@@ -37,7 +37,8 @@ SCALE = typer.Option(None, "--scale", help="Multiply the input coordinates by th
 @app.command()
 def info(map_path: Path = typer.Argument(..., metavar="MAP", help="An LDL map (.h5) written by `ldlmap build`."),
          png: Optional[Path] = typer.Option(None, "--png", help="Also write a picture of the map (top view + "
-                                            "panorama with lines, legend; .png, .jpg, .jpeg, .bmp, .tif, .tiff, .webp).")
+                                            "panorama with lines, legend; .png, .jpg, .jpeg, .bmp, .tif, .tiff, "
+                                            ".webp).")
          ) -> None:
     """Print a summary of an LDL map: lines, principal directions, translations, features.
 

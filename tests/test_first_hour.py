@@ -174,7 +174,8 @@ def test_run_before_prepare_on_a_read_only_dataset_suggests_maps_elsewhere(demo_
 
     root = tiny_root(tmp_path, demo_dataset)
     real = os.access
-    monkeypatch.setattr(os, "access", lambda p, mode, **kw: (mode != os.W_OK or Path(p) != root) and real(p, mode, **kw))
+    monkeypatch.setattr(os, "access",  # the dataset folder alone is read-only
+                        lambda p, mode, **kw: (mode != os.W_OK or Path(p) != root) and real(p, mode, **kw))
     line = error_line(runner.invoke(loc_app, ["run", "--root", str(root), "-o", str(tmp_path / "r.json")]))
     assert f"`ldlmap prepare {root} --maps maps/data`" in line and "--maps maps/data`" in line
     # prepare itself refuses to write into the read-only folder, before any work, and says where instead.

@@ -275,14 +275,14 @@ def ray_option():
 
 
 MAX_THREADS = 1024  # --threads above this is a typo (100000 made torch segfault)
-DEFAULT_THREADS = 1  # measured fastest or on par, idle or busy (docs/ and the ux report of issue 22)
+DEFAULT_THREADS = 1  # the work is many small tensor steps: more threads spin and wait (builds 3-4x slower, issue 22)
 
 
 def threads_option():
     """``--threads N`` of ``build``, ``prepare``, ``localize`` and ``run``: CPU threads of torch and OpenCV."""
     return typer.Option(DEFAULT_THREADS, "--threads", metavar="N",
-                        help="CPU threads for torch and OpenCV (default 1: the work is many small steps, and one "
-                             "thread was as fast on an idle machine and 2-4x faster on a busy one; 0: one per core).")
+                        help="CPU threads for torch and OpenCV (default 1: the work is many small steps, which "
+                             "more threads slow down on a shared machine; 0: one per core).")
 
 
 def check_threads(threads: int) -> int:
@@ -353,7 +353,8 @@ class StageProgress:
         self.bar.update(self.job, completed=completed, total=total, count=self._count(completed, total, self.unit))
 
 
-DATASET_HELP = "omniscenes | synthetic (written by `ldlmap synth`) | stanford | zind (default: detected from the layout)."
+DATASET_HELP = ("omniscenes | synthetic (written by `ldlmap synth`) | stanford | zind (default: detected from the "
+                "layout).")
 
 
 def open_dataset_root(root, dataset: str | None, give_root: str, **kwargs):
