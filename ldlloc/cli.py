@@ -7,7 +7,9 @@ from typing import Optional
 
 import typer
 
-from ldlmap.core.cli_common import check_device, check_range, console, import_heavy, make_app, ray_option
+from ldlmap.core.cli_common import (DATASET_HELP, check_device, check_range, check_threads, console, dataset_label,
+                                    import_heavy, make_app, open_dataset_root, ray_option, set_threads,
+                                    threads_option)
 
 app = make_app("ldlloc", "Localize panoramas against LDL maps with line distance functions.")
 
@@ -28,29 +30,17 @@ WEIGHTS = typer.Option(None, "--weights", help="SuperPoint checkpoint.")
 QUERY_FRAME = typer.Option("map", "--query-frame", help="Where query features are extracted: map (the panorama "
                            "rotated into the map's frame by the best candidate rotation, upright like the map's views) "
                            "| image (as taken).")
-THREADS = typer.Option(0, "--threads", help="Torch CPU threads (0: default; 1 is best on a busy machine).")
 MAX_TILT = typer.Option(None, "--max-tilt", metavar="DEG",
                         help="Upright prior: keep candidate rotations whose camera up axis is within DEG degrees "
                              "of the world's up (0 < DEG <= 180; 180: free rotation, the paper's). `run` uses "
                              "10 by default for datasets whose panoramas are upright (zind).")
 
 
-MAX_THREADS = 1024  # --threads above this is a typo (100000 made torch segfault)
+SPLIT_HELP = ("Split(s) to run (repeatable; default all those the dataset holds): OmniScenes robot | handheld | "
+              "extreme | change_robot | change_handheld; synthetic (`ldlmap synth`) the same and extreme_gamma | "
+              "extreme_intensity | extreme_white_balance; Stanford 2D-3D-S area_1 | area_2 | area_3 | area_4 | area_5a | "
+              "area_5b | area_6; ZInD its home folders (000, 001, ...).")
 MAX_TOP_K = 1000  # --top-k: each kept pose is refined; more than this is a typo, not a method
-
-
-def _check_threads(threads: int) -> int:
-    """``--threads`` within 0..:data:`MAX_THREADS`, checked before torch sees it."""
-    check_range(threads, "--threads", 0, MAX_THREADS, integer=True, why="0: torch's default")
-    return threads
-
-
-def _set_threads(threads: int) -> None:
-    """Torch intra-op threads (0: torch's default). On a CPU shared with other work, 1 is faster."""
-    if _check_threads(threads):
-        import torch
-
-        torch.set_num_threads(threads)
 
 
 def _params(top_k: int, loss: str, no_decompose: bool, no_refine: bool, privacy: bool,
@@ -100,8 +90,7 @@ def localize(
     query_frame: str = QUERY_FRAME,
     vis: Optional[Path] = typer.Option(None, "--vis", help="Write a picture of the lines and the estimated pose "
                                        "(.jpg, .jpeg, .png, .bmp, .tif, .tiff, .webp)."),
-    threads: int = typer.Option(1, "--threads", help="Torch CPU threads (1, the default, is fastest for one "
-                                "panorama: its tensors are small; 0: torch's default)."),
+    threads: int = threads_option(),
 ) -> None:
     """Localize one panorama: prints R (world to camera) and t (camera centre, metres).
 
@@ -120,7 +109,7 @@ def localize(
     from ldlmap.core.errors import refuse_overwriting_inputs
 
     params = _params(top_k, loss, no_decompose, no_refine, privacy, features, weights, max_tilt, refine, query_frame)
-    _check_threads(threads)
+    check_threads(threads)
     if vis is not None:
         check_picture_path(vis, "--vis")
         refuse_overwriting_inputs([map_path, pano, gt, weights], [vis])
@@ -147,8 +136,10 @@ def localize(
         out["input_frame"] = {"R": np.round(in_pose[0], 8).tolist(), "t": np.round(in_pose[1], 6).tolist()}
     if vis is not None:  # a picture that cannot be written is a warning: the result stands
         from ldlloc.batch.run import write_query_picture
+        from ldlloc.visualize import localization_caption
 
-        out["picture_error"] = write_query_picture(img, loc, m, vis)
+        errors = (out["t_error_m"], out["r_error_deg"]) if truth is not None else None
+        out["picture_error"] = write_query_picture(img, loc, m, vis, localization_caption(pano.name, loc, errors))
     if as_json:
         typer.echo(json.dumps(out, indent=1))
         return
@@ -181,7 +172,7 @@ def _read_map_while_importing(map_path: Path, threads: int):
     with ThreadPoolExecutor(1) as pool:
         reading = pool.submit(read)
         import_heavy("torch", "cv2")
-        _set_threads(threads)
+        set_threads(threads)
         tick = time.perf_counter()
         m, seconds = reading.result()
     return m, {"read_map": seconds, "wait_map": time.perf_counter() - tick}
@@ -215,14 +206,16 @@ def _print_localization(pano: Path, loc, loading: dict, errors: Optional[dict], 
 @app.command()
 def run(
     root: Optional[Path] = typer.Option(None, "--root", help="Dataset root (default ./data/<dataset>)."),
-    dataset: Optional[str] = typer.Option(None, "--dataset", help="omniscenes | stanford | zind (default: detected)."),
+    dataset: Optional[str] = typer.Option(None, "--dataset", help=DATASET_HELP),
     map_level: Optional[str] = typer.Option(None, "--map-level",
                                             help="room | floor: which maps of `ldlmap prepare` to use (zind)."),
-    split: Optional[list[str]] = typer.Option(None, "--split", help="Split(s) to run (repeatable; default all)."),
+    split: Optional[list[str]] = typer.Option(None, "--split", help=SPLIT_HELP),
     scene: Optional[str] = typer.Option(None, "--scene", help="Only queries of this scene."),
     maps: Optional[Path] = typer.Option(None, "--maps", help="Folder of the maps (default ROOT/maps)."),
     output: Optional[Path] = typer.Option(None, "--output", "-o", help="Results JSON, a .json name (a CSV of the "
-                                          "same name is written beside it; a run holds NAME.json.lock while it writes)."),
+                                          "same name is written beside it; a run holds NAME.json.lock while it writes); "
+                                          "default results/DATASET[_ROOT][_LEVEL]_SPLITS[_SCENE].json, a name per "
+                                          "dataset, root folder, ZInD map level, splits and scene."),
     device: str = DEVICE,
     top_k: int = TOP_K,
     loss: str = LOSS,
@@ -239,20 +232,18 @@ def run(
     resume_any_options: bool = typer.Option(False, "--resume-any-options", help="With --resume: allow options other "
                                             "than the file's (the file's meta records the earlier ones)."),
     save_vis: Optional[Path] = typer.Option(None, "--save-vis", help="Write a picture per query into this folder."),
-    threads: int = THREADS,
+    threads: int = threads_option(),
     ray: Optional[str] = ray_option(),
 ) -> None:
     """Localize every query of a dataset split (or all splits) and print accuracy tables.
 
     With --ray, one Ray actor per scene map serves its queries (one GPU each with --device cuda)."""
     from ldlloc.batch.results import check_results_path
-    from ldlloc.batch.accuracy import summary_table, timing_table
-    from ldlloc.batch.run import run_queries
-    from ldlmap.datasets import open_dataset
+    from ldlloc.batch.run import default_results_path, missing_maps_message, run_queries, scenes_without_maps
     from ldlmap.core.errors import InputError
 
     params = _params(top_k, loss, no_decompose, no_refine, privacy, features, weights, max_tilt, refine, query_frame)
-    _check_threads(threads)
+    check_threads(threads)
     if output is not None:
         check_results_path(output)
     if resume_any_options and not resume:
@@ -262,23 +253,30 @@ def run(
     if map_level is not None and map_level not in MAP_LEVELS:
         raise InputError(f"--map-level must be {' or '.join(MAP_LEVELS)}, got {map_level!r}")
     level = {"map_level": map_level} if map_level is not None else {}  # only when given
-    ds = open_dataset(root, dataset or (None if root else "omniscenes"), **level)
-    root, kind = Path(ds.root), ds.kind
+    ds = open_dataset_root(root, dataset, "ldlloc run --root ROOT", **level)
+    root, kind, label = Path(ds.root), ds.kind, dataset_label(ds)
     queries = ds.queries(split or None, scene)
     if not queries:
         raise InputError(f"no queries in {root} for split(s) {', '.join(split or ['all'])}")
-    tag = "-".join(split) if split else "all"
-    output = output or Path("results") / f"{kind}_{tag}.json"
-    maps = maps or Path(root) / "maps"
+    output = output or default_results_path(label, kind, root, split, scene, getattr(ds, "map_level", None))
+    maps_given, maps = maps is not None, maps or Path(root) / "maps"
     _refuse_replacing_run_inputs(queries, maps, output, save_vis, weights)
+    missing = scenes_without_maps(queries, maps)
+    if len(missing) == len({q.scene for q in queries}):  # nothing could run: say how to build the maps
+        extra = (f" --dataset {dataset}" if dataset else "") + (f" --map-level {map_level}" if map_level else "")
+        raise InputError(missing_maps_message(missing, maps, root, maps_given, extra))
     check_device(device, local=ray is None)
-    _set_threads(threads)
+    set_threads(threads)
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
     args = (queries, maps, output, params, device, resume, save_vis)
-    meta = {"dataset": kind, "root": str(root), "splits": split or "all", **level}
+    meta = {"dataset": label, "root": str(root), "splits": split or "all", **level}
     say = lambda message: console.print(message, soft_wrap=True, highlight=False)  # noqa: E731
     opts = {"meta": meta, "any_options": resume_any_options, "say": say}
+    if missing:
+        console.print(f"[yellow]warning:[/] no map for {len(missing)} scene(s) in {maps} ({', '.join(missing[:5])}"
+                      f"{', ...' if len(missing) > 5 else ''}): their queries fail; `ldlmap prepare` builds them",
+                      soft_wrap=True)
     if ray is not None:  # one Ray actor per scene map (ldlloc/batch/ray_run.py)
         from ldlloc.batch.ray_run import run_queries_ray
         from ldlmap.batch.ray_cluster import ThroughputBar
@@ -295,14 +293,21 @@ def run(
                 bar.update(task, advance=1, description=f"{r.split} {r.scene}: {err}")
 
             results = run_queries(*args, **opts, progress=progress)
-    console.print(summary_table(results, "scene", f"{kind} by scene"))
-    console.print(summary_table(results, "split", f"{kind} by split"))
-    console.print(timing_table(results))
-    priors = sorted({r.rotation_prior for r in results})
-    console.print(f"rotation prior: {', '.join(priors)}" + ("" if max_tilt is None else f" (--max-tilt {max_tilt:g})"),
-                  soft_wrap=True)
-    _print_search_summary(results)
+    _print_run(results, label, output, max_tilt)
+
+
+def _print_run(results: list, label: str, output: Path, max_tilt: Optional[float]) -> None:
+    """The tables of a run, its failures and pictures not written, and where the results went; a
+    run in which no query could be localized is an error (exit 1) after its failures."""
+    from ldlloc.batch.accuracy import summary_table, timing_table
+    from ldlmap.core.errors import InputError
+
     failed = [r for r in results if r.status == "failed"]
+    if len(failed) < len(results):
+        console.print(summary_table(results, "scene", f"{label} by scene"))
+        console.print(summary_table(results, "split", f"{label} by split"))
+        console.print(timing_table(results))
+        _print_priors_and_search(results, max_tilt)
     for r in failed[:10]:
         console.print(f"[yellow]failed[/] {r.name}: {r.message}", soft_wrap=True)
     if len(failed) > 10:
@@ -314,6 +319,16 @@ def run(
     csv_path = output.with_suffix(".csv")
     console.print(f"wrote {output}" + (f" and {csv_path}" if csv_path.exists() else f" ({csv_path} not written)"),
                   soft_wrap=True)
+    if results and len(failed) == len(results):
+        raise InputError(f"none of the {len(results)} queries could be localized (reasons above, and in {output})")
+
+
+def _print_priors_and_search(results: list, max_tilt: Optional[float]) -> None:
+    """The rotation priors that ran and the pose search's own accuracy."""
+    priors = sorted({r.rotation_prior for r in results})
+    console.print(f"rotation prior: {', '.join(priors)}" + ("" if max_tilt is None else f" (--max-tilt {max_tilt:g})"),
+                  soft_wrap=True)
+    _print_search_summary(results)
 
 
 def _refuse_replacing_run_inputs(queries: list, maps: Path, output: Path, save_vis: Optional[Path],

@@ -1,5 +1,6 @@
 """Pictures of a localization: the query's 2D lines by principal group, and the map's 3D lines
-projected at the estimated pose (``--save-vis``)."""
+projected at the estimated pose (``--save-vis``, ``--vis``), with a caption band under them: the
+panorama's name and its pose error (or status), and the legend of the colours."""
 
 from __future__ import annotations
 
@@ -7,12 +8,27 @@ from pathlib import Path
 
 import numpy as np
 
-from ldlmap.core.pictures import draw_arcs, project_lines, write_picture
+from ldlmap.core.pictures import draw_arcs, group_legend, project_lines, with_caption, write_picture
 
 
-def localization_picture(image_rgb: np.ndarray, loc, ldl_map) -> np.ndarray:
+def localization_caption(name: str, loc, errors: tuple[float, float] | None = None) -> str:
+    """``name`` and its pose error against ground truth (``errors``: metres, degrees) with the
+    verdict at the headline threshold, or without ground truth its status; and how it was refined."""
+    from ldlloc.batch.accuracy import THRESHOLDS
+
+    how = f"refined by {loc.refine_method}" if getattr(loc, "refined", False) else "not refined"
+    if errors is not None:
+        _, t_max, r_max = THRESHOLDS[1]
+        verdict = "localized" if errors[0] < t_max and errors[1] < r_max else "not localized"
+        return (f"{name}: error {errors[0]:.3f} m, {errors[1]:.2f} deg: {verdict} (within {t_max:g} m / "
+                f"{r_max:g} deg), {how}")
+    return f"{name}: {loc.status}, {how}, no ground truth" + (f" ({loc.message})" if loc.message else "")
+
+
+def localization_picture(image_rgb: np.ndarray, loc, ldl_map, caption: str = "") -> np.ndarray:
     """BGR picture: top, the query with its (filtered) 2D lines colored by principal group;
-    bottom, the query with the map's 3D lines projected at the estimated pose."""
+    bottom, the query with the map's 3D lines projected at the estimated pose; under them a band
+    with ``caption`` and the colours' legend."""
     import cv2
 
     bgr = cv2.cvtColor(np.asarray(image_rgb), cv2.COLOR_RGB2BGR)
@@ -25,10 +41,12 @@ def localization_picture(image_rgb: np.ndarray, loc, ldl_map) -> np.ndarray:
     h = bgr.shape[0]
     scale = max(1.0, h / 512)
     how = loc.refine_method if getattr(loc, "refined", False) else "coarse"
-    for img, text in ((top, f"2D lines ({0 if loc.arcs is None else len(loc.arcs)}) by principal group"),
-                      (bottom, f"map lines at the estimated pose ({how})")):
+    for img, text in ((top, f"detected: 2D lines of the panorama ({0 if loc.arcs is None else len(loc.arcs)})"),
+                      (bottom, f"map: its 3D lines at the estimated pose ({how})")):
         _title(img, text, scale)
-    return np.concatenate([top, bottom], axis=0)
+    return with_caption(np.concatenate([top, bottom], axis=0), caption,
+                        group_legend(getattr(ldl_map, "principal_directions", None)),
+                        "colour: the map's principal direction of each line")
 
 
 def _title(img: np.ndarray, text: str, scale: float) -> None:
@@ -42,9 +60,9 @@ def _title(img: np.ndarray, text: str, scale: float) -> None:
     cv2.putText(img, text, (pad, pad + h), font, size, (255, 255, 255), thick, cv2.LINE_AA)
 
 
-def save_localization_picture(image_rgb: np.ndarray, loc, ldl_map, path: str | Path) -> Path:
+def save_localization_picture(image_rgb: np.ndarray, loc, ldl_map, path: str | Path, caption: str = "") -> Path:
     """Write :func:`localization_picture` atomically, in the format of ``path``'s extension."""
-    return write_picture(path, localization_picture(image_rgb, loc, ldl_map))
+    return write_picture(path, localization_picture(image_rgb, loc, ldl_map, caption))
 
 
-__all__ = ["localization_picture", "save_localization_picture"]
+__all__ = ["localization_caption", "localization_picture", "save_localization_picture"]

@@ -11,7 +11,9 @@ from typing import Optional
 
 import typer
 
-from ldlmap.core.cli_common import check_device, check_range, console, make_app, ray_option
+from ldlmap.core.cli_common import (DATASET_HELP, StageProgress, check_device, check_range, check_threads, console,
+                                    dataset_label, make_app, open_dataset_root, ray_option, set_threads,
+                                    threads_option)
 
 app = make_app("ldlmap", "Build LDL maps (3D lines, principal directions, features) and synthetic datasets.")
 
@@ -33,16 +35,25 @@ SCALE = typer.Option(None, "--scale", help="Multiply the input coordinates by th
 
 
 @app.command()
-def info(map_path: Path = typer.Argument(..., help="An LDL map (.h5) written by `ldlmap build`.")) -> None:
+def info(map_path: Path = typer.Argument(..., metavar="MAP", help="An LDL map (.h5) written by `ldlmap build`."),
+         png: Optional[Path] = typer.Option(None, "--png", help="Also write a picture of the map (top view + "
+                                            "panorama with lines, legend; .png, .jpg, .jpeg, .bmp, .tif, .tiff, "
+                                            ".webp).")
+         ) -> None:
     """Print a summary of an LDL map: lines, principal directions, translations, features.
 
     The whole map is read and validated first (layout, values, checksums): a damaged map fails
     with one line."""
     from rich.table import Table
 
+    from ldlmap.core.errors import refuse_overwriting_inputs
+    from ldlmap.core.pictures import check_picture_path
     from ldlmap.map.mapfile import read_map, read_map_header
 
-    read_map(map_path)
+    if png is not None:
+        check_picture_path(png, "--png")
+        refuse_overwriting_inputs([map_path], [png])
+    m = read_map(map_path)
     h = read_map_header(map_path)
     table = Table(title=f"LDL map {map_path}", show_header=False)
     table.add_column("field", style="bold")
@@ -67,6 +78,11 @@ def info(map_path: Path = typer.Argument(..., help="An LDL map (.h5) written by 
     for k, v in rows:
         table.add_row(k, v)
     console.print(table)
+    if png is not None:
+        from ldlmap.map.pictures import map_picture
+
+        map_picture(m, png, name=map_path.name)
+        console.print(f"wrote {png}", soft_wrap=True)
 
 
 def _principal_rows(header: dict) -> list[tuple[str, str]]:
@@ -213,13 +229,6 @@ def synth(
     console.print(f"done in {s.seconds:.1f} s", soft_wrap=True)
 
 
-def _progress_bar():
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
-
-    return Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-                    console=console, transient=True)
-
-
 @app.command()
 def build(
     input_path: Path = typer.Argument(..., metavar="INPUT", help="Colored point cloud (.ply/.pcd/.txt), mesh (.obj/.ply), "
@@ -246,9 +255,10 @@ def build(
     scale: Optional[float] = SCALE,
     device: str = typer.Option("cpu", "--device", help="Torch device for rendering and SuperPoint: cpu | cuda."),
     png: Optional[Path] = typer.Option(None, "--png", help="Also write a picture of the map (top view + panorama "
-                                       "with lines; .png, .jpg, .jpeg, .bmp, .tif, .tiff, .webp)."),
+                                       "with lines, legend; .png, .jpg, .jpeg, .bmp, .tif, .tiff, .webp)."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing output that is not an HDF5 "
                                    "file (a map built before is replaced without it)."),
+    threads: int = threads_option(),
 ) -> None:
     """Build an LDL map (3D lines, principal directions, translations, features) from a scan."""
     from rich.table import Table
@@ -259,7 +269,8 @@ def build(
     from ldlmap.batch.prepare import refuse_replacing_non_map
 
     check_build_options(num_trans=num_trans, num_views=num_views, lam=lam, min_length=min_length,
-                        trans_spacing=trans_spacing, scale=scale, device=device, extraction=extraction)
+                        trans_spacing=trans_spacing, scale=scale, device=device, extraction=extraction,
+                        threads=threads)
     if png is not None:
         check_picture_path(png, "--png")
     output = output if output is not None else input_path.with_suffix(".h5")
@@ -270,13 +281,10 @@ def build(
                          feature_extraction=extraction, num_translations=num_trans, translation_method=method,
                          num_views=num_views, lam=lam, min_line_length=min_length, device=device, trans_spacing=trans_spacing,
                          camera_height=parse_band(camera_height, "--camera-height"), up=up, scale=scale)
-    with _progress_bar() as bar:
-        task = bar.add_task(f"building map of {input_path.name}", total=None)
-
-        def progress(stage: str, done: int, total: int) -> None:
-            bar.update(task, description=f"{input_path.name}: {stage}", completed=done, total=total)
-
-        report = build_map(input_path, output, lines_file, params, progress=progress, images_path=images)
+    set_threads(threads)
+    with StageProgress(console, f"map of {input_path.name}") as bar:
+        report = build_map(input_path, output, lines_file, params, images_path=images,
+                           progress=lambda stage, done, total: bar.stage(input_path.name, stage, done, total))
     if report.counts.get("note"):
         console.print(report.counts["note"], soft_wrap=True)
     table = Table(title=f"map {report.path}")
@@ -294,7 +302,7 @@ def build(
         from ldlmap.map.mapfile import read_map
         from ldlmap.map.pictures import map_picture
 
-        map_picture(read_map(report.path), png)
+        map_picture(read_map(report.path), png, name=Path(report.path).name)
         console.print(f"wrote {png}", soft_wrap=True)
 
 
@@ -304,9 +312,11 @@ MAX_VIEWS = 1000  # views rendered for features (40 by default; each costs a ren
 
 def check_build_options(num_trans: Optional[int] = None, num_views: Optional[int] = None, lam: Optional[float] = None,
                         min_length: Optional[float] = None, trans_spacing: Optional[float] = None,
-                        scale: Optional[float] = None, device: str = "cpu", extraction: Optional[str] = None) -> None:
-    """Bounds on the numeric options of `build` and `prepare`, the device and the feature
-    extraction, before any work."""
+                        scale: Optional[float] = None, device: str = "cpu", extraction: Optional[str] = None,
+                        threads: int = 0) -> None:
+    """Bounds on the numeric options of `build` and `prepare` (threads included), the device and
+    the feature extraction, before any work."""
+    check_threads(threads)
     check_range(num_trans, "--num-trans", 1, MAX_TRANSLATIONS, integer=True,
                 why="the distance fields take about 50 kB per candidate translation")
     check_range(num_views, "--num-views", 1, MAX_VIEWS, integer=True)
@@ -334,8 +344,7 @@ def _print_notes(report) -> None:
 @app.command()
 def prepare(
     root: Optional[Path] = typer.Argument(None, help="Dataset root (default ./data/<dataset>)."),
-    dataset: Optional[str] = typer.Option(None, "--dataset", help="omniscenes | stanford | zind (default: detected "
-                                          "from the layout)."),
+    dataset: Optional[str] = typer.Option(None, "--dataset", help=DATASET_HELP),
     maps: Optional[Path] = typer.Option(None, "--maps", help="Folder for the maps (default ROOT/maps)."),
     map_level: str = typer.Option("room", "--map-level", help="ZInD: one map per complete room (room) or per "
                                   "floor (floor, every room in one map)."),
@@ -354,6 +363,7 @@ def prepare(
                                     "extracting lines; a scene without a scan gets a lines-only map (features none)."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Rebuild maps that are up to date."),
     device: str = typer.Option("cpu", "--device", help="cpu | cuda."),
+    threads: int = threads_option(),
     ray: Optional[str] = ray_option(),
 ) -> None:
     """Build one map per scene of a dataset root, skipping maps that are up to date.
@@ -362,16 +372,17 @@ def prepare(
     from rich.table import Table
 
     from ldlmap.map.build import params_with
-    from ldlmap.datasets import MAP_LEVELS, open_dataset
+    from ldlmap.datasets import MAP_LEVELS
     from ldlmap.core.errors import InputError
-    from ldlmap.batch.prepare import LINES_ONLY_NOTE, default_params, prepare_dataset
+    from ldlmap.batch.prepare import LINES_ONLY_NOTE, default_params
 
     if map_level not in MAP_LEVELS:
         raise InputError(f"--map-level must be {' or '.join(MAP_LEVELS)}, got {map_level!r}")
     check_build_options(num_trans=num_trans, num_views=num_views, trans_spacing=trans_spacing, scale=scale,
-                        device=device, extraction=extraction)
-    ds = open_dataset(root, dataset or (None if root else "omniscenes"), map_level=map_level)
-    root, kind = Path(ds.root), ds.kind
+                        device=device, extraction=extraction, threads=threads)
+    ds = open_dataset_root(root, dataset, "ldlmap prepare ROOT", map_level=map_level)
+    root, kind, label = Path(ds.root), ds.kind, dataset_label(ds)
+    _check_maps_folder(maps if maps is not None else root / "maps", maps is not None)
     if kind == "zind":
         if features not in (None, "none"):
             raise InputError(f"ZInD maps are built from room layouts and carry no features: --features {features} "
@@ -393,20 +404,12 @@ def prepare(
         from ldlmap.batch.ray_prepare import prepare_dataset_ray
 
         with ThroughputBar(console, "scenes") as bar:
-            outcomes = prepare_dataset_ray(root, kind, maps, params, progress=bar, address=ray, **options)
+            outcomes = prepare_dataset_ray(root, kind, maps, params, progress=bar, address=ray, threads=threads,
+                                           **options)
     else:
-        with _progress_bar() as bar:
-            task = bar.add_task("scenes", total=None)
-            done_scenes: set[str] = set()
-
-            def progress(scene_name: str, stage: str, done: int, total: int) -> None:
-                if stage in ("write", "up-to-date", "failed"):
-                    done_scenes.add(scene_name)
-                bar.update(task, description=f"{scene_name}: {stage}", completed=len(done_scenes))
-
-            outcomes = prepare_dataset(root, kind, maps, params, progress=progress, **options)
-            bar.update(task, total=len(outcomes), completed=len(outcomes), description="scenes")
-    table = Table(title=f"maps of {root} ({kind}" + (f", {map_level} level)" if kind == "zind" else ")"))
+        set_threads(threads)
+        outcomes = _prepare_with_progress(ds, root, kind, maps, params, scene, options)
+    table = Table(title=f"maps of {root} ({label}" + (f", {map_level} level)" if kind == "zind" else ")"))
     for col in ("scene", "status", "map", "seconds", "note"):
         table.add_column(col)
     for o in outcomes:
@@ -420,6 +423,37 @@ def prepare(
     failed = [o for o in outcomes if o.status == "failed"]
     if failed:
         raise InputError(f"{len(failed)} of {len(outcomes)} scene(s) failed: " + "; ".join(f"{o.scene}: {o.message}" for o in failed))
+
+
+def _check_maps_folder(maps: Path, given: bool) -> None:
+    """One line before any work when the maps cannot be written where they would go (a dataset
+    folder is often read-only): where to put them instead."""
+    import os
+
+    from ldlmap.core.errors import InputError
+
+    existing = next((p for p in (maps, *maps.parents) if p.exists()), Path("."))
+    if not (existing.is_dir() and os.access(existing, os.W_OK)):
+        raise InputError(f"cannot write the maps into {maps} ({existing} is not a writable folder): "
+                         + ("give another folder with --maps DIR" if given else
+                            "the dataset folder is read-only; give a folder for them with --maps DIR "
+                            "(and the same --maps to `ldlloc run`)"))
+
+
+def _prepare_with_progress(ds, root: Path, kind: str, maps: Optional[Path], params, scene: Optional[list[str]],
+                           options: dict) -> list:
+    """``prepare_dataset`` on this machine, showing the scenes done and each build's running stage."""
+    from ldlmap.batch.prepare import prepare_dataset
+
+    done_scenes: set[str] = set()
+    with StageProgress(console, "maps", total=len(scene or ds.scenes()), unit="scenes") as bar:
+        def progress(scene_name: str, stage: str, done: int, total: int) -> None:
+            bar.stage(scene_name, stage, done, total)
+            if stage in ("up-to-date", "failed") or (stage == "write" and done == total):
+                done_scenes.add(scene_name)
+                bar.job_done(len(done_scenes))
+
+        return prepare_dataset(root, kind, maps, params, progress=progress, **options)
 
 
 if __name__ == "__main__":  # python3 -m ldlmap.cli

@@ -19,7 +19,7 @@ from typer.testing import CliRunner
 
 from ldlloc.cli import app as loc_app
 from ldlloc.pipeline import WORK_WIDTH, load_image
-from tests._hostile import assert_clean_failure, snapshot
+from tests._hostile import assert_clean_failure, error_line, snapshot
 
 runner = CliRunner()
 SCENE = "robot_synthroom_1_scene_1"
@@ -62,8 +62,8 @@ RUN_ONLY = [
     ("output folder", ["--output", "{tmp}/dir.json"], "is a folder"),
     ("any-options alone", ["--resume-any-options"], "goes with --resume"),
     ("map level", ["--map-level", "house"], "--map-level"),
-    ("unknown split", ["--split", "nowhere"], "unknown OmniScenes split"),
-    ("unknown scene", ["--scene", "nowhere"], "unknown OmniScenes scene"),
+    ("unknown split", ["--split", "nowhere"], "unknown synthetic split"),  # the demo is a dataset of `ldlmap synth`
+    ("unknown scene", ["--scene", "nowhere"], "unknown synthetic scene"),
 ]
 
 
@@ -257,8 +257,9 @@ def test_run_outputs_never_replace_inputs(demo_dataset, tmp_path):
 
 def test_run_keeps_results_through_bad_inputs_and_resumes(demo_dataset, tmp_path):
     """One run: a good, an 8192-wide and a corrupt panorama, a picture folder that cannot be made and
-    a missing map. The corrupt one fails alone, the pictures are warnings, the results stay; once
-    the map is there, --resume retries the failed queries (and says so)."""
+    a missing map. Without any map nothing runs (one line says how to build them); once the map is
+    there the corrupt one fails alone, the pictures are warnings, the results stay, and --resume
+    retries the failed query (and says so)."""
     good = (demo_dataset / "robot_pano" / SCENE / "0000.jpg").read_bytes()
     big = cv2.imencode(".jpg", cv2.resize(cv2.imdecode(np.frombuffer(good, np.uint8), cv2.IMREAD_COLOR),
                                           (8192, 4096)))[1].tobytes()
@@ -266,15 +267,15 @@ def test_run_keeps_results_through_bad_inputs_and_resumes(demo_dataset, tmp_path
     (tmp_path / "vis").write_text("a file where the picture folder should be")
     out = tmp_path / "r.json"
     run = ["run", "--root", str(root), "--output", str(out), "--save-vis", str(tmp_path / "vis")]
+    assert "no maps for the queries' 1 scene(s)" in error_line(runner.invoke(loc_app, run))
+    assert not out.exists()
+    shutil.copy(demo_dataset / "maps" / "synthroom_1.h5", root / "maps" / "synthroom_1.h5")
     res = runner.invoke(loc_app, run)
     assert res.exit_code == 0, res.output
-    qs = {q["name"].rsplit("/", 1)[1]: q for q in json.loads(out.read_text())["queries"]}
-    assert all("map not found" in q["message"] for q in qs.values())  # no map yet: every query failed
-    shutil.copy(demo_dataset / "maps" / "synthroom_1.h5", root / "maps" / "synthroom_1.h5")
+    assert res.output.count("warning: picture of") == 1 and "2 pictures not written" in res.output
     res = runner.invoke(loc_app, [*run, "--resume"])
     assert res.exit_code == 0, res.output
-    assert "0 of 3 queries done, 0 to run, 3 failed ones retried" in res.output
-    assert res.output.count("warning: picture of") == 1 and "2 pictures not written" in res.output
+    assert "2 of 3 queries done, 0 to run, 1 failed ones retried" in res.output
     qs = {q["name"].rsplit("/", 1)[1]: q for q in json.loads(out.read_text())["queries"]}
     assert qs["0002"]["status"] == "failed" and "truncated JPEG" in qs["0002"]["message"]
     for name in ("0000", "0001"):

@@ -38,14 +38,12 @@ class SceneLocalizer:
     """Ray actor: one scene's map, loaded once, and the queries of that scene."""
 
     def __init__(self, cwd: str, maps_dir: str, scene: str, params: LocalizeParams, device: str,
-                 save_vis: str | None = None, threads: int = 0):
+                 save_vis: str | None = None, threads: int = 1):
+        from ldlmap.core.cli_common import set_threads
         from ldlmap.core.errors import LdlError
 
         enter_folder(cwd)  # relative paths (maps, images, pictures) as on the driver
-        if threads:
-            import torch
-
-            torch.set_num_threads(threads)
+        set_threads(threads)
         self.params, self.save_vis = params, save_vis
         self.cache = MapCache(Path(maps_dir), params, device)
         try:
@@ -65,10 +63,11 @@ def _label(r: QueryResult) -> str:
 def run_queries_ray(queries: list, maps_dir: str | Path, output: str | Path, params: LocalizeParams = LocalizeParams(),
                     device: str = "cpu", resume: bool = False, save_vis: str | Path | None = None,
                     meta: dict | None = None, progress: Callable[[TaskDone], None] | None = None,
-                    address: str = "local", threads: int = 0, any_options: bool = False,
+                    address: str = "local", threads: int = 1, any_options: bool = False,
                     say: Callable[[str], None] | None = None) -> list[QueryResult]:
     """:func:`ldlloc.batch.run.run_queries` on a Ray cluster (``address``: see
-    :data:`ldlmap.batch.ray_cluster.ADDRESS_HELP`); ``threads``: torch threads (and CPUs) per actor."""
+    :data:`ldlmap.batch.ray_cluster.ADDRESS_HELP`); ``threads``: CPU threads (and Ray CPUs) per actor, as
+    ``--threads`` (0: one per core, one Ray CPU)."""
     with open_results(output, params, device, meta, resume, any_options, queries, say) as writer:
         return _run_on_ray(writer, queries, maps_dir, params, device, save_vis, progress, address, threads)
 

@@ -88,7 +88,8 @@ class MapCache:
             path = self.maps_dir / f"{scene}.h5"
             try:
                 if not path.exists():
-                    raise InputError(f"map not found: {path} (build it with `ldlmap prepare`)")
+                    raise InputError(f"map not found: {path} (build it with `ldlmap prepare ROOT --maps "
+                                     f"{self.maps_dir}`)")
                 # Keep one scene in memory at a time: queries are sorted by scene.
                 self._loaded = {k: v for k, v in self._loaded.items() if isinstance(v, LdlError)}
                 self._loaded[scene] = Localizer(read_map(path, load_cloud=False), self.params, self.device)
@@ -98,6 +99,41 @@ class MapCache:
         if isinstance(got, LdlError):
             raise got
         return got
+
+
+def default_results_path(label: str, kind: str, root: Path, splits: list[str] | None, scene: str | None = None,
+                         map_level: str | None = None) -> Path:
+    """``results/<label>[_<root>][_<level>]_<splits>[_<scene>].json``: a name per thing a run
+    measures, so that runs of other data never replace each other's results. ``label``: the kind
+    users see (``synthetic`` for a dataset of ``ldlmap synth``); the root folder's name when it is
+    not the kind's usual one; ZInD's map level (room or floor); the splits (``all``) and scene."""
+    from ldlmap.datasets import DEFAULT_ROOTS
+
+    usual = {label, kind, DEFAULT_ROOTS[kind].name if kind in DEFAULT_ROOTS else kind}
+    parts = [label, *([root.name] if root.name and root.name not in usual else []),
+             *([map_level] if kind == "zind" and map_level else []), "-".join(splits) if splits else "all",
+             *([scene.replace("/", "-")] if scene else [])]
+    return Path("results") / f"{'_'.join(parts)}.json"
+
+
+def scenes_without_maps(queries: list, maps_dir: Path) -> list[str]:
+    """The scenes of ``queries`` whose map ``<maps_dir>/<scene>.h5`` is not there, in query order."""
+    scenes = dict.fromkeys(q.scene for q in sorted(queries, key=query_key))
+    return [s for s in scenes if not (Path(maps_dir) / f"{s}.h5").is_file()]
+
+
+def missing_maps_message(missing: list[str], maps_dir: Path, root: Path, maps_given: bool,
+                         extra: str = "") -> str:
+    """One line: no map for any scene of the run, and the two commands that build them and run.
+    The maps go where ``--maps`` said, else beside the data when that folder is writable, else
+    into ``./maps/<root name>`` (datasets are often read-only); ``extra``: options both commands
+    need (``--dataset``, ``--map-level``)."""
+    import os
+
+    target = maps_dir if maps_given or os.access(root, os.W_OK) else Path("maps") / root.name
+    where = f"{len(missing)} scene(s), e.g. {Path(maps_dir) / (missing[0] + '.h5')}"
+    return (f"no maps for the queries' {where}: build them first with `ldlmap prepare {root}{extra} --maps "
+            f"{target}`, then `ldlloc run --root {root}{extra} --maps {target}`")
 
 
 def query_key(q) -> tuple[str, str, str]:
@@ -134,7 +170,10 @@ def localize_query(cache: MapCache, q, params: LocalizeParams, save_vis: str | P
     except Exception as exc:  # noqa: BLE001 - e.g. cv2.error, MemoryError: one query's failure, not the run's
         return failed_result(q, params, f"internal error ({type(exc).__name__}: {exc})", time.perf_counter() - t0)
     if save_vis is not None:
-        r.picture_error = write_query_picture(img, res, loc.map, picture_path(save_vis, q))
+        from ldlloc.visualize import localization_caption
+
+        caption = localization_caption(f"{q.name}{Path(q.image).suffix}", res, (r.t_error_m, r.r_error_deg))
+        r.picture_error = write_query_picture(img, res, loc.map, picture_path(save_vis, q), caption)
     return r
 
 
@@ -143,12 +182,12 @@ def picture_path(save_vis: str | Path, q) -> Path:
     return Path(save_vis) / q.split / f"{q.scene}_{Path(q.image).stem}.jpg"
 
 
-def write_query_picture(img: np.ndarray, res: Localization, ldl_map, path: Path) -> str | None:
-    """Write a query's picture; returns why it could not be written (None when written)."""
+def write_query_picture(img: np.ndarray, res: Localization, ldl_map, path: Path, caption: str = "") -> str | None:
+    """Write a query's picture (``caption``: under it); returns why it could not be written (None when written)."""
     from ldlloc.visualize import save_localization_picture
 
     try:
-        save_localization_picture(img, res, ldl_map, path)
+        save_localization_picture(img, res, ldl_map, path, caption)
     except (LdlError, OSError) as exc:
         return getattr(exc, "strerror", None) or str(exc)
     return None

@@ -26,10 +26,13 @@ from ldlmap.batch.prepare import SceneOutcome, prepare_dataset
 
 
 def build_scene(cwd: str, root: str, kind: str, maps_dir: str | None, params: BuildParams | None, scene: str,
-                options: dict[str, Any]) -> tuple[SceneOutcome, WorkerInfo]:
+                options: dict[str, Any], threads: int = 1) -> tuple[SceneOutcome, WorkerInfo]:
     """The Ray task: build (or skip) one scene's map with the plain path, in the driver's folder
-    ``cwd``; where it ran."""
+    ``cwd``, with ``threads`` CPU threads (0: one per core); where it ran."""
+    from ldlmap.core.cli_common import set_threads
+
     enter_folder(cwd)
+    set_threads(threads)
     (outcome,) = prepare_dataset(root, kind, maps_dir, params, scenes=[scene], **options)
     return outcome, current_worker()
 
@@ -37,11 +40,12 @@ def build_scene(cwd: str, root: str, kind: str, maps_dir: str | None, params: Bu
 def prepare_dataset_ray(root: str | Path, kind: str | None, maps_dir: str | Path | None = None,
                         params: BuildParams | None = None, scenes: list[str] | None = None,
                         progress: Callable[[TaskDone], None] | None = None, address: str = "local",
-                        **options: Any) -> list[SceneOutcome]:
+                        threads: int = 1, **options: Any) -> list[SceneOutcome]:
     """:func:`ldlmap.batch.prepare.prepare_dataset` on a Ray cluster (``address``: see
     :data:`ldlmap.batch.ray_cluster.ADDRESS_HELP`), one task per scene. ``options`` are passed on to
     ``prepare_dataset`` (``overwrite``, ``use_line_files``, ``map_level``, ...). Outcomes come back
-    in the plain path's scene order; ``progress`` gets a :class:`TaskDone` per finished scene."""
+    in the plain path's scene order; ``progress`` gets a :class:`TaskDone` per finished scene.
+    ``threads``: CPU threads (and Ray CPUs) per task, as ``--threads`` (0: one per core, one Ray CPU)."""
     from ldlmap.datasets import open_dataset
 
     ds = open_dataset(root, kind, **({"map_level": options["map_level"]} if "map_level" in options else {}))
@@ -52,13 +56,13 @@ def prepare_dataset_ray(root: str | Path, kind: str | None, maps_dir: str | Path
     maps_root = Path(maps_dir) if maps_dir is not None else Path(ds.root) / "maps"
     device = params.device if params is not None else "cpu"
     with ray_session(address) as ray:
-        task = ray.remote(build_scene).options(**check_resources(ray, device), max_retries=RETRIES)
+        task = ray.remote(build_scene).options(**check_resources(ray, device, max(1, threads)), max_retries=RETRIES)
         maps_arg = None if maps_dir is None else str(maps_dir)
         refs: dict = {}
         outcomes: dict[str, SceneOutcome] = {}
         try:
             for scene in todo:
-                refs[task.remote(os.getcwd(), str(ds.root), ds.kind, maps_arg, params, scene, options)] = scene
+                refs[task.remote(os.getcwd(), str(ds.root), ds.kind, maps_arg, params, scene, options, threads)] = scene
             for batch in as_completed(list(refs)):
                 for ref, value, exc in batch:
                     scene = refs[ref]

@@ -15,7 +15,7 @@ import sys
 import click
 import typer
 from rich.console import Console
-from typer.core import TyperGroup
+from typer.core import TyperCommand, TyperGroup
 
 # When output goes to a file or a CI log, Rich would assume 80 columns and squeeze the tables.
 console = Console(width=None if sys.stdout.isatty() or os.environ.get("COLUMNS") else 132)
@@ -64,7 +64,73 @@ def _control_flow_exceptions() -> tuple[type, ...]:
     return tuple(kinds)
 
 
+# Metavars of option values by their Python type: upper case, as click writes them.
+_TYPE_METAVARS = {"str": "TEXT", "int": "INTEGER", "float": "FLOAT", "Path": "PATH", "PosixPath": "PATH",
+                  "text": "TEXT", "integer": "INTEGER", "path": "PATH"}
+
+
+def _value_type_name(param) -> str:
+    """The Python (typer 0.16+) or click type name of a parameter's value (a list's element)."""
+    import typing
+
+    desc = getattr(param, "type_descriptor", None)
+    if desc is None:  # pragma: no cover - older typer: click parameter types
+        return getattr(getattr(param, "type", None), "name", "text")
+    ann = desc.annotation
+    if typing.get_origin(ann) is list:
+        ann = typing.get_args(ann)[0]
+    return getattr(ann, "__name__", str(ann))
+
+
+def tidy_metavar(param) -> None:
+    """Give ``param`` the help placeholder the toolkit uses everywhere (in place, once): an
+    argument its upper-case name (MAP, INPUT, ROOT), a flag none (typer 0.16+ writes ``<bool>``),
+    an option's value its upper-case type (PATH, TEXT, INTEGER, FLOAT); a metavar set by the
+    command (MIN:MAX, ADDRESS) stays."""
+    if getattr(param, "_ldl_tidy", False):
+        return
+    param._ldl_tidy = True
+    name = _value_type_name(param)
+    value = _TYPE_METAVARS.get(name, name.upper())
+    if param.param_type_name == "argument":
+        param.metavar = param.metavar or param.name.upper()
+        param.display_type_rich = lambda ctx: value  # the type column: PATH, not <path>
+    elif param.metavar is None:
+        param.metavar = "" if getattr(param, "is_flag", False) else value
+
+
+def _usage_pieces(command: click.Command, ctx: click.Context) -> list[str]:
+    """The usage line after the command name, as click writes it: ``[OPTIONS] MAP [ROOT]``
+    (typer 0.16+ writes required arguments in braces, ``{MAP}``)."""
+    pieces = [command.options_metavar] if command.options_metavar else []
+    for param in command.get_params(ctx):
+        if param.param_type_name == "argument":
+            name = param.metavar + ("..." if param.nargs != 1 else "")
+            pieces.append(name if param.required else f"[{name}]")
+    return pieces
+
+
+class _Command(TyperCommand):
+    """A command whose help names its parameters as every other command does
+    (:func:`tidy_metavar`, :func:`_usage_pieces`)."""
+
+    def get_params(self, ctx: click.Context) -> list:
+        params = super().get_params(ctx)
+        for param in params:
+            tidy_metavar(param)
+        return params
+
+    def collect_usage_pieces(self, ctx: click.Context) -> list[str]:
+        return _usage_pieces(self, ctx)
+
+
 class _ErrorHandlingGroup(TyperGroup):
+    def get_params(self, ctx: click.Context) -> list:
+        params = super().get_params(ctx)
+        for param in params:
+            tidy_metavar(param)
+        return params
+
     def invoke(self, ctx: click.Context):  # noqa: D401 - click API
         from ldlmap.core.errors import LdlError
 
@@ -108,6 +174,10 @@ class _ScriptApp(typer.Typer):
     every object alive at the end into the garbage collector's permanent generation: interpreter
     exit then skips a full collection over the million objects torch's import creates
     (docs/measurements.md#gc-freeze). ``CliRunner`` (tests) does not go through ``__call__``."""
+
+    def command(self, *args, cls=None, **kwargs):
+        """``Typer.command`` making :class:`_Command` commands (consistent help pages)."""
+        return super().command(*args, cls=cls or _Command, **kwargs)
 
     def __call__(self, *args, **kwargs):
         global _as_script
@@ -202,3 +272,111 @@ def ray_option():
                              "the one started here with `ray start`), HOST:PORT (its head node) or ray://HOST:PORT. "
                              "Inputs and outputs are read and written where the workers run: a shared filesystem "
                              "on several machines.")
+
+
+MAX_THREADS = 1024  # --threads above this is a typo (100000 made torch segfault)
+DEFAULT_THREADS = 1  # the work is many small tensor steps: more threads spin and wait (builds 3-4x slower, issue 22)
+
+
+def threads_option():
+    """``--threads N`` of ``build``, ``prepare``, ``localize`` and ``run``: CPU threads of torch and OpenCV."""
+    return typer.Option(DEFAULT_THREADS, "--threads", metavar="N",
+                        help="CPU threads for torch and OpenCV (default 1: the work is many small steps, which "
+                             "more threads slow down on a shared machine; 0: one per core).")
+
+
+def check_threads(threads: int) -> int:
+    """``--threads`` within 0..:data:`MAX_THREADS`, checked before any work."""
+    check_range(threads, "--threads", 0, MAX_THREADS, integer=True, why="0: one per core")
+    return threads
+
+
+def set_threads(threads: int) -> None:
+    """Use ``threads`` CPU threads in torch and OpenCV (0: their defaults, one per core)."""
+    if check_threads(threads):
+        import_heavy("torch", "cv2")
+        import cv2
+        import torch
+
+        torch.set_num_threads(threads)
+        cv2.setNumThreads(threads)
+
+
+# What the screen says while a build stage runs (stages of ldlmap.map.build), and what its steps count.
+STAGE_NAMES = {"load": "reading the input", "lines": "3D lines", "principal": "principal directions",
+               "translations": "candidate translations", "visibility": "line visibility",
+               "fields": "distance fields", "features": "features", "write": "writing the map"}
+STAGE_STEPS = {"fields": "translations", "features": "views"}
+
+
+class StageProgress:
+    """The live progress of `ldlmap build` and `prepare`: a row for the whole job (its scenes, its
+    time) and a row for the stage running now, named as it starts, with its own timer and, for
+    the stages that count them, its steps (distance fields: translations; features: views)."""
+
+    def __init__(self, out: Console, title: str, total: int | None = None, unit: str = ""):
+        from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+        self.bar = Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.fields[count]}"),
+                            TimeElapsedColumn(), console=out, transient=True)
+        self.title, self.total, self.unit = title, total, unit
+        self.current: tuple[str, str] | None = None  # (label, stage) shown on the stage row
+
+    def __enter__(self) -> "StageProgress":
+        self.bar.__enter__()
+        self.job = self.bar.add_task(self.title, total=self.total, count=self._count(0, self.total, self.unit))
+        self.stage_row = self.bar.add_task("starting", total=None, count="")
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.bar.__exit__(*exc)
+
+    @staticmethod
+    def _count(done: int, total: int | None, unit: str) -> str:
+        return f"{done}/{total} {unit}".rstrip() if total else ""
+
+    def stage(self, label: str, stage: str, done: int, total: int) -> None:
+        """A build's ``progress(stage, done, total)`` event (``done = 0``: the stage starts), shown
+        as ``label: stage``; a new stage restarts the stage row's timer."""
+        counted = total if total > 1 else None  # a stage without steps: a pulsing bar, no count
+        count = self._count(done, counted, STAGE_STEPS.get(stage, ""))
+        if (label, stage) != self.current:
+            self.current = (label, stage)
+            self.bar.reset(self.stage_row, total=counted, completed=done if counted else 0, count=count,
+                           description=f"{label}: {STAGE_NAMES.get(stage, stage)}")
+        elif counted:
+            self.bar.update(self.stage_row, completed=done, total=counted, count=count)
+
+    def job_done(self, completed: int, total: int | None = None) -> None:
+        """The job row: ``completed`` of its ``total`` items (scenes) done."""
+        total = total if total is not None else self.total
+        self.bar.update(self.job, completed=completed, total=total, count=self._count(completed, total, self.unit))
+
+
+DATASET_HELP = ("omniscenes | synthetic (written by `ldlmap synth`) | stanford | zind (default: detected from the "
+                "layout).")
+
+
+def open_dataset_root(root, dataset: str | None, give_root: str, **kwargs):
+    """``open_dataset`` for `prepare` and `run`: ``--dataset synthetic`` is read by the OmniScenes
+    reader (the layout `ldlmap synth` writes); without a root the kind's default folder is used,
+    and when it is not there one line says how to give one (``give_root``: ``ldlmap prepare
+    ROOT``, ``ldlloc run --root ROOT``)."""
+    from ldlmap.core.errors import InputError
+    from ldlmap.datasets import DATASET_KINDS, DEFAULT_ROOTS, open_dataset
+
+    if dataset is not None and dataset not in (*DATASET_KINDS, "synthetic"):
+        raise InputError(f"unknown --dataset {dataset!r}; choose one of {', '.join((*DATASET_KINDS, 'synthetic'))}")
+    kind = "omniscenes" if dataset == "synthetic" else dataset
+    if root is None:
+        kind = kind or "omniscenes"
+        default = DEFAULT_ROOTS[kind]
+        if not default.exists():
+            raise InputError(f"no dataset root given and the default one, {default}, is not there: give it as "
+                             f"`{give_root}` (see datasets/README.md)")
+    return open_dataset(root, kind, **kwargs)
+
+
+def dataset_label(ds) -> str:
+    """The dataset kind users see: ``synthetic`` for a dataset of `ldlmap synth`, else its kind."""
+    return getattr(ds, "label", ds.kind)

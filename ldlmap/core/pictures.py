@@ -15,6 +15,73 @@ from ldlmap.core.geometry import cam_from_world, normalize, pixel_from_bearing
 GROUP_COLORS_BGR = {0: (40, 40, 230), 1: (40, 180, 40), 2: (230, 90, 40), -1: (150, 150, 150)}
 
 
+GROUP_NAMES = {0: "d0", 1: "d1", 2: "d2", -1: "no group"}
+BAND_BGR = (30, 30, 30)  # the caption band under a picture: white text on dark grey
+
+
+def group_legend(principal: np.ndarray | None = None) -> list[tuple[tuple[int, int, int], str]]:
+    """Legend entries (BGR colour, label) of the principal groups; given the map's principal
+    directions (3, 3), each label says whether its direction is the vertical one."""
+    items = []
+    for g in (0, 1, 2):
+        label = GROUP_NAMES[g]
+        if principal is not None:
+            label += " vertical" if abs(float(np.asarray(principal)[g][2])) > 0.9 else " horizontal"
+        items.append((GROUP_COLORS_BGR[g], label))
+    return items + [(GROUP_COLORS_BGR[-1], GROUP_NAMES[-1])]
+
+
+def caption_band(width: int, caption: str, items: list[tuple[tuple[int, int, int], str]], note: str = "",
+                 scale: float = 1.0) -> np.ndarray:
+    """A dark BGR band ``width`` pixels wide to put under a picture: ``caption`` on the first row,
+    then a colour swatch and label per legend entry of ``items``, then ``note``; what does not fit
+    in a row goes to the next."""
+    import cv2
+
+    font, size, thick = cv2.FONT_HERSHEY_SIMPLEX, 0.55 * scale, max(1, int(round(1.2 * scale)))
+    pad, gap, swatch = int(8 * scale), int(18 * scale), int(26 * scale)
+    text_h = cv2.getTextSize("Ag", font, size, thick)[0][1]
+    row_h = text_h + int(12 * scale)
+
+    def text_w(text: str) -> int:
+        return cv2.getTextSize(text, font, size, thick)[0][0]
+
+    tokens = [("text", w) for w in caption.split()] + [("break", None)] + [("swatch", it) for it in items] \
+        + [("text", w) for w in note.split()]
+    rows: list[list[tuple[int, str, object]]] = [[]]
+    x = pad
+    for kind, payload in tokens:
+        if kind == "break":
+            rows.append([])
+            x = pad
+            continue
+        w = text_w(payload + " ") if kind == "text" else swatch + int(6 * scale) + text_w(payload[1]) + gap
+        if x + w > width - pad and rows[-1]:  # wrap
+            rows.append([])
+            x = pad
+        rows[-1].append((x, kind, payload))
+        x += w
+    band = np.full((len(rows) * row_h + pad, width, 3), BAND_BGR, np.uint8)
+    for r, row in enumerate(rows):
+        base = pad + r * row_h + text_h
+        for x0, kind, payload in row:
+            label = payload if kind == "text" else payload[1]
+            if kind == "swatch":
+                mid = base - text_h // 2
+                cv2.line(band, (x0, mid), (x0 + swatch, mid), payload[0], max(3, int(4 * scale)), cv2.LINE_AA)
+                x0 += swatch + int(6 * scale)
+            cv2.putText(band, label, (x0, base), font, size, (255, 255, 255), thick, cv2.LINE_AA)
+    return band
+
+
+def with_caption(image_bgr: np.ndarray, caption: str, items: list[tuple[tuple[int, int, int], str]],
+                 note: str = "") -> np.ndarray:
+    """``image_bgr`` with a :func:`caption_band` under it (text scaled to the picture's width)."""
+    width = image_bgr.shape[1]
+    band = caption_band(width, caption, items, note, scale=max(1.0, width / 1400))
+    return np.concatenate([image_bgr, band], axis=0)
+
+
 def arc_polylines(arcs_cam: np.ndarray, width: int, height: int, samples: int = 48) -> list[np.ndarray]:
     """Pixel polylines of great-circle arcs (N, 2, 3), split where they cross the u seam."""
     arcs = np.asarray(arcs_cam, dtype=np.float64).reshape(-1, 2, 3)

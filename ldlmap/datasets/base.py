@@ -112,7 +112,7 @@ def require_root(root: str | Path, kind: str) -> Path:
     r = Path(root).expanduser()
     what = f"{kind} dataset root" if kind else "dataset root"
     if not r.exists():
-        raise InputError(f"{what} not found: {r} (pass --root, see datasets/README.md)")
+        raise InputError(f"{what} not found: {r} (see datasets/README.md)")
     if not r.is_dir():
         raise InputError(f"{what} is not a folder: {r}")
     return r

@@ -26,20 +26,36 @@ from ldlmap.datasets.poses import read_pose_txt
 from ldlmap.core.errors import InputError
 
 
+SYNTH_GENERATOR = "ldlmap.synth"  # the ``generator`` of a dataset.json written by ``ldlmap synth``
+
+
+def written_by_synth(root: str | Path) -> bool:
+    """Whether ``root`` holds a dataset written by ``ldlmap synth`` (its ``dataset.json`` says so)."""
+    import json
+
+    try:
+        return json.loads((Path(root) / "dataset.json").read_text()).get("generator") == SYNTH_GENERATOR
+    except (OSError, ValueError, AttributeError):
+        return False
+
+
 _SCENE_FOLDER = re.compile(r"^(?:(?P<prefix>.*)_)?(?P<room>[^_]+_\d+)_(?P<state>scene_\d+)$")
 # ----------------------------------------------------------------------------------- OmniScenes
 
 
 class OmniScenes:
-    """Reader for the OmniScenes layout (also written by ``ldlmap synth``)."""
+    """Reader for the OmniScenes layout (also written by ``ldlmap synth``: its ``label`` is then
+    ``synthetic``, the name users see in tables, file names and errors)."""
 
     kind = "omniscenes"
 
     def __init__(self, root: str | Path) -> None:
         self.root = require_root(root, "OmniScenes")
+        self.label = "synthetic" if written_by_synth(self.root) else "omniscenes"
+        self.title = "synthetic" if self.label == "synthetic" else "OmniScenes"  # in messages
         has_pano = any(p.name.endswith("_pano") for p in visible_dirs(self.root))
         if not has_pano and not (self.root / "pcd").is_dir() and not (self.root / "pcd_line").is_dir():
-            raise InputError(f"not an OmniScenes root (no <split>_pano, pcd or pcd_line folder): {self.root}")
+            raise InputError(f"not an {self.title} root (no <split>_pano, pcd or pcd_line folder): {self.root}")
 
     def __repr__(self) -> str:
         return f"OmniScenes({str(self.root)!r})"
@@ -63,7 +79,7 @@ class OmniScenes:
                     return m["room"], m["state"]
         m = _SCENE_FOLDER.match(name)
         if not m:
-            raise InputError(f"unrecognised OmniScenes scene folder (expected <split>_<room>_<n>_scene_<k>): {folder}")
+            raise InputError(f"unrecognised {self.title} scene folder (expected <split>_<room>_<n>_scene_<k>): {folder}")
         return m["room"], m["state"]
 
     def _scene_folders(self, split: str) -> list[tuple[Path, str, str]]:
@@ -86,9 +102,9 @@ class OmniScenes:
         """Queries of the given split(s) (all when None), optionally of one scene; sorted by
         split (paper order), scene, capture session and image name."""
         available = self.splits()
-        wanted = as_split_list(split, available, "OmniScenes split")
+        wanted = as_split_list(split, available, f"{self.title} split")
         if scene is not None and scene not in self.scenes():
-            raise InputError(f"unknown OmniScenes scene {scene}; available: {', '.join(self.scenes()) or 'none'}")
+            raise InputError(f"unknown {self.title} scene {scene}; available: {', '.join(self.scenes()) or 'none'}")
         out: list[Query] = []
         for s in sorted(wanted, key=available.index):
             for folder, room, state in sorted(self._scene_folders(s), key=lambda f: (natural_key(f[1]), natural_key(f[2]))):

@@ -142,11 +142,15 @@ def build_map(input_path: str | Path, output: str | Path | None = None, lines_pa
     """Build the LDL map of one scene and write it to ``output`` (default: input with ``.h5``).
     ``images_path``: the photos of a COLMAP model without ``fused.ply`` (default: its workspace's).
 
-    ``progress(stage, done, total)`` is called as stages advance (for a progress bar).
+    ``progress(stage, done, total)`` is called as stages advance (for a progress bar): with
+    ``done = 0`` when a stage starts, ``done = total`` when it ends, and in between by the stages
+    that count their steps (``fields``: translations, ``features``: rendered views).
     """
     input_path = Path(input_path)
     output = Path(output) if output is not None else input_path.with_suffix(".h5")
     _check_params(params)
+    if progress:
+        progress("load", 0, 1)
     tick = time.perf_counter()
     src = load_input(input_path, lines_path, params.mesh_samples, images_path)
     load_seconds = time.perf_counter() - tick
@@ -284,13 +288,21 @@ def build_from_input(src: SceneInput, output: Path, params: BuildParams, name: s
         progress("load", 1, 1)
     tick = time.perf_counter()
 
-    def stage(name_: str) -> None:
+    def start(name_: str, total: int = 1) -> None:
+        """Say that stage ``name_`` (of ``total`` steps) begins: the screen shows it running."""
+        if progress:
+            progress(name_, 0, total)
+
+    def stage(name_: str, total: int = 1) -> None:
+        """Stage ``name_`` ended: its seconds, and the screen's next step."""
         nonlocal tick
         now = time.perf_counter()
         report.seconds[name_] = now - tick
         tick = now
         if progress:
-            progress(name_, 1, 1)
+            progress(name_, total, total)
+
+    start("lines")
 
     if src.points is not None and len(src.points) < 100:
         raise InputError(f"point cloud has only {len(src.points)} points: too few to build a map")
@@ -333,6 +345,7 @@ def build_from_input(src: SceneInput, output: Path, params: BuildParams, name: s
     paper_threshold = length_threshold(bmin, bmax, lam)
     rule = "threshold" if threshold == paper_threshold else ("floor" if threshold < paper_threshold else "cap")
     stage("lines")
+    start("principal")
     principal = principal_directions_3d(lines)
     deviation = np.zeros(3)
     if params.orthonormal_directions:
@@ -343,6 +356,7 @@ def build_from_input(src: SceneInput, output: Path, params: BuildParams, name: s
                 "(Manhattan) frame, which the map uses: noisy lines or a non-rectangular building")
     groups = assign_line_groups(line_directions(lines)[0], principal)
     stage("principal")
+    start("translations")
     translations, trans_info = scene_translations(src, lines, lines_raw, params)
     if len(translations) == 0:
         raise InputError("no candidate translation found in the free space of the scan")
@@ -352,6 +366,7 @@ def build_from_input(src: SceneInput, output: Path, params: BuildParams, name: s
     if walls is not None and len(walls):
         from ldlmap.map.visibility import line_visibility
 
+        start("visibility")
         visibility = line_visibility(lines, translations, walls)
         if len(src.walkable.ceiling_heights) == len(src.walkable.polygons):
             from ldlmap.map.visibility import coverage_fields, room_surfaces
@@ -360,19 +375,26 @@ def build_from_input(src: SceneInput, output: Path, params: BuildParams, name: s
                                                                     src.walkable.ceiling_heights))
         stage("visibility")
     fields, fields_attrs = {}, {}
+    n_t = len(translations) if params.distance_fields else 1
+    start("fields", n_t)
     if params.distance_fields:
         from ldlmap.map.fields3d import compute_fields
 
-        dist, fields_attrs = compute_fields(lines, groups, translations, device=params.device, visibility=visibility)
+        cb = (lambda d, t: progress("fields", d, t)) if progress else None  # per chunk of translations
+        dist, fields_attrs = compute_fields(lines, groups, translations, device=params.device, visibility=visibility,
+                                            progress=cb)
         fields = {"distances": dist}
-    stage("fields")
+    stage("fields", n_t)
     features = None
-    if params.features != "none" and src.points is not None:
+    with_features = params.features != "none" and src.points is not None
+    n_views = min(max(1, params.num_views), len(translations)) if with_features else 1
+    start("features", n_views)
+    if with_features:
         if src.colors is None:
             raise InputError("the point cloud has no colors: features need a colored cloud (or use --features none)")
         cb = (lambda d, t: progress("features", d, t)) if progress else None
         features = compute_features(src.points, src.colors, translations, params, cb)
-    stage("features")
+    stage("features", n_views)
     cloud_pts = cloud_cols = None
     if src.points is not None:
         rng = np.random.default_rng(params.seed)
@@ -397,6 +419,7 @@ def build_from_input(src: SceneInput, output: Path, params: BuildParams, name: s
         fields=fields, fields_attrs=fields_attrs, visibility=visibility, coverage=coverage,
         input_to_map=input_to_map,
     )
+    start("write")
     write_map(output, m)
     stage("write")
     report.seconds["total"] = sum(report.seconds.values())

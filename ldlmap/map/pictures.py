@@ -1,5 +1,6 @@
-"""A picture of a map (``ldlmap build --png``): its top view beside a panorama
-of the stored cloud with the map's lines projected."""
+"""A picture of a map (``ldlmap info --png``, ``ldlmap build --png``): its top view beside a panorama
+of the stored cloud with the map's lines projected, and a caption band under them (the map's name
+and counts, the legend of the colours)."""
 
 from __future__ import annotations
 
@@ -7,13 +8,22 @@ from pathlib import Path
 
 import numpy as np
 
-from ldlmap.core.pictures import draw_arcs, project_lines, write_picture
+from ldlmap.core.pictures import draw_arcs, group_legend, project_lines, with_caption, write_picture
 from ldlmap.lines3d import top_view_image
 from ldlmap.map.render import render_points_panorama
 
+DROPPED_BGR = (200, 200, 200)  # top_view_image's colour of the lines the length filter dropped
 
-def map_picture(ldl_map, path: str | Path, width: int = 1024) -> Path:
-    """A picture of a map: its top view beside a panorama of the stored cloud with projected lines.
+
+def map_caption(ldl_map, name: str) -> str:
+    """``name`` and what the picture shows of the map: its kept and extracted lines, its translations."""
+    return (f"{name}: {len(ldl_map.lines)} of {len(ldl_map.lines_raw)} 3D lines kept, "
+            f"{len(ldl_map.translations)} candidate translations")
+
+
+def map_picture(ldl_map, path: str | Path, width: int = 1024, name: str | None = None) -> Path:
+    """A picture of a map: its top view beside a panorama of the stored cloud with projected lines,
+    over a band with the map's ``name`` (default: its scene name) and counts, and the legend.
 
     The panorama is rendered at the candidate translation closest to the cloud's centre.
     """
@@ -30,4 +40,8 @@ def map_picture(ldl_map, path: str | Path, width: int = 1024) -> Path:
     pano = draw_arcs(pano, project_lines(ldl_map.lines, np.eye(3), t), ldl_map.line_groups)
     top = top_view_image(ldl_map.lines, size=height, principal=ldl_map.principal_directions,
                          dropped=ldl_map.lines_raw)
-    return write_picture(path, np.concatenate([top, pano], axis=1))
+    legend = [*group_legend(ldl_map.principal_directions), (DROPPED_BGR, "dropped by the length filter")]
+    picture = with_caption(np.concatenate([top, pano], axis=1),
+                           map_caption(ldl_map, name or ldl_map.name), legend,
+                           "left: top view; right: the lines seen from the central candidate translation")
+    return write_picture(path, picture)
