@@ -5,7 +5,6 @@ safety checks before a dataset folder is replaced.
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Mapping
@@ -13,6 +12,7 @@ from typing import Any, Callable, Mapping
 import numpy as np
 
 from ldlmap.core.errors import InputError, LdlError
+from ldlmap.datasets.omniscenes import written_by_synth
 from ldlmap.synth.poses import sample_poses
 from ldlmap.synth.render import Renderer, apply_illumination
 from ldlmap.synth.spec import MAX_COUNT as MAX_PER_SPLIT
@@ -160,19 +160,11 @@ def check_dataset_seed(seed: int) -> None:
         raise InputError(f"--seed must be in [0, 2**32), got {seed}")
 
 
-def is_synth_dataset(folder: Path) -> bool:
-    """Whether ``folder`` holds a dataset written by :func:`generate_dataset` (its ``dataset.json``)."""
-    try:
-        return json.loads((Path(folder) / "dataset.json").read_text()).get("generator") == "ldlmap.synth"
-    except (OSError, ValueError, AttributeError):
-        return False
-
-
 def refuse_replacing_other_dataset(out: Path, overwrite: bool) -> None:
     """``--overwrite`` replaces a synthetic dataset written before, never another non-empty folder
     (a typo in OUT must not delete a user's files)."""
     out = Path(out)
-    if overwrite and out.is_dir() and any(out.iterdir()) and not is_synth_dataset(out):
+    if overwrite and out.is_dir() and any(out.iterdir()) and not written_by_synth(out):
         raise LdlError(f"output folder {out} is not a dataset written by `ldlmap synth` (no dataset.json of ours): "
                        "--overwrite does not replace it; remove it yourself or choose another folder")
 

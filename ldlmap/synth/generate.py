@@ -30,6 +30,7 @@ from pathlib import Path
 from typing import Any, Sequence
 
 from ldlmap.core.errors import atomic_dir
+from ldlmap.datasets.omniscenes import SYNTH_GENERATOR
 from ldlmap.synth.capture import (BASE_SPLITS, DatasetSummary, GENERATOR_VERSION, ILLUMINATION_SPLITS, capture_settings,
                                   check_dataset_seed, write_split_panoramas, ProgressTicks, stream_rng)
 from ldlmap.synth.render import Renderer
@@ -119,7 +120,7 @@ def generate_dataset(out: Path, preset: str | None = "demo", spec_paths: Sequenc
             scene_info.append({"name": name, "spec": f"specs/{name}.toml", "changed_spec": f"specs/{name}_scene_2.toml",
                                "points": points[name], "triangles": int(mesh.num_triangles),
                                "gt_lines": int(len(segs)), "width": W, "height": H})
-        meta = {"generator": "ldlmap.synth", "version": GENERATOR_VERSION, "seed": int(seed),
+        meta = {"generator": SYNTH_GENERATOR, "version": GENERATOR_VERSION, "seed": int(seed),
                 "preset": None if spec_paths else (preset or "demo"),
                 "illumination": sorted({v for c in settings for v in c.illumination}),
                 "layout": "omniscenes", "scenes": scene_info,

@@ -207,6 +207,7 @@ def generate_multiroom(out: Path, preset: str = "multiroom", seed: int = 0, room
     """
     from ldlmap.io.linefiles import write_lines
     from ldlmap.synth.edges import mesh_edges
+    from ldlmap.datasets.omniscenes import SYNTH_GENERATOR
     from ldlmap.synth.capture import (BASE_SPLITS, GENERATOR_VERSION, ILLUMINATION_SPLITS, DatasetSummary,
                                       ProgressTicks, capture_settings, stream_rng, write_split_panoramas)
     from ldlmap.synth.meshio import write_textured_obj
@@ -282,7 +283,7 @@ def generate_multiroom(out: Path, preset: str = "multiroom", seed: int = 0, room
         W, H = settings[0].width, settings[0].height
         scene_info = {"name": name, "points": int(len(P)), "triangles": int(union.num_triangles),
                       "gt_lines": int(len(segs)), "width": W, "height": H, "rooms": rooms_info}
-        meta = {"generator": "ldlmap.synth", "version": GENERATOR_VERSION, "seed": int(seed), "preset": preset,
+        meta = {"generator": SYNTH_GENERATOR, "version": GENERATOR_VERSION, "seed": int(seed), "preset": preset,
                 "multiroom": asdict(params),
                 "illumination": sorted({v for c in settings for v in c.illumination}),
                 "layout": "omniscenes", "scenes": [scene_info],
