@@ -19,6 +19,7 @@ from ldlmap.synth.spec import load_spec
 from ldlmap.synth.presets import random_spec
 from tests.test_synth_render import vertex_pixel_offsets
 
+pytestmark = pytest.mark.xdist_group("synth_multiroom")  # one worker makes ``two_rooms``
 WIDTH = 512
 SEED = 1
 PARAMS = MultiRoomParams(rooms=2, scan_density=1000.0)  # a light scan: ~120 k points per room
