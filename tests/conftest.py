@@ -13,7 +13,8 @@ Schedule (``pytest_collection_modifyitems``): under ``--dist loadgroup`` xdist h
 units out in collection order (group-size reordering is turned off in ``pytest_configure``). The
 first unit is the ``ray`` group, which needs the demo dataset: its worker generates the dataset
 (the largest single piece of work) while the other runs the tests that need no demo data; the
-tests on the demo data follow, xdist groups first, so both workers end at about the same time.
+tests on the demo data follow, xdist groups and the slow modules first, so that both workers end
+at about the same time.
 """
 
 from __future__ import annotations
@@ -32,6 +33,9 @@ DEMO_PER_SPLIT = 5  # panoramas per scene and split: 10 per split over the 2 dem
 TINY_SEED = 1  # ``tiny_synth``: the seed the synth determinism tests compare against
 TINY = ["--width", "64", "--per-split", "1", "--quiet"]  # small panoramas: files and seeds, not images
 FIRST_GROUP = "ray"  # the unit that starts the run: it needs the demo dataset (see the module docstring)
+# Modules whose demo-data tests take 5-35 CPU seconds each: they run before the quick ones, so
+# that neither worker is left with a long test at the end.
+DEMO_HEAVY = ("test_learned_features.py", "test_cli_build_run.py", "test_sfm_frame.py", "test_cube_features.py")
 DEMO_SCENES = ("synthroom_1", "synthroom_2")
 
 
@@ -115,11 +119,14 @@ def _group(item) -> str | None:
     return (mark.args[0] if mark.args else mark.kwargs.get("name")) if mark else None
 
 
-def _schedule_rank(item) -> tuple[int, int]:
+def _schedule_rank(item) -> tuple[int, int, int]:
     group = _group(item)
     if "demo_dataset" not in item.fixturenames:
-        return (1, 0 if group else 1)
-    return (0, 0) if group == FIRST_GROUP else (2, 0 if group else 1)
+        return (1, 0 if group else 1, 0)
+    if group == FIRST_GROUP:
+        return (0, 0, 0)
+    module = item.path.name
+    return (2, 0 if group else 1, DEMO_HEAVY.index(module) if module in DEMO_HEAVY else len(DEMO_HEAVY))
 
 
 def pytest_collection_modifyitems(config, items) -> None:
