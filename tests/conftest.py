@@ -45,11 +45,9 @@ def _shared_dir(tmp_path_factory) -> Path:
     return base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base
 
 
-def _made_once(tmp_path_factory, name: str, done: str, make: Callable[[Path], None]) -> Path:
+def _made_once(tmp_path_factory, name: str, done: str, make: Callable[[Path], None], keep: str | None = None) -> Path:
     """``<shared>/<name>``, made by ``make`` unless ``<name>/<done>`` exists, under a file lock so
-    that the workers make it once. ``LDL_TEST_DEMO_DIR`` keeps it between runs while developing
-    (CI leaves it unset)."""
-    keep = os.environ.get("LDL_TEST_DEMO_DIR")
+    that the workers make it once; in the folder ``keep`` instead when given (kept between runs)."""
     shared = Path(keep) if keep else _shared_dir(tmp_path_factory)
     shared.mkdir(parents=True, exist_ok=True)
     root = shared / name
@@ -78,7 +76,9 @@ def demo_dataset(tmp_path_factory) -> Path:
                       "--per-split", str(DEMO_PER_SPLIT), "--quiet", "--overwrite"])
         _invoke(app, ["prepare", str(root), "--features", "sift"])
 
-    return _made_once(tmp_path_factory, f"demo_seed{DEMO_SEED}", "maps/synthroom_2.h5", make)
+    # LDL_TEST_DEMO_DIR keeps the dataset between runs while developing (CI leaves it unset).
+    return _made_once(tmp_path_factory, f"demo_seed{DEMO_SEED}", "maps/synthroom_2.h5", make,
+                      keep=os.environ.get("LDL_TEST_DEMO_DIR"))
 
 
 @pytest.fixture(scope="session")
