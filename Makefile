@@ -28,8 +28,10 @@ sysdeps:
 	  echo "sysdeps: not root or no apt-get; make sure libusb-1.0-0 and libgomp1 are installed"; \
 	fi
 
+# Two workers; tests/conftest.py orders the work so that they end together. The -p no: options
+# skip pytest plugins that other packages install and the tests do not use (~1 s each per process).
 test:
-	$(PYTHON) -m pytest -q -n 2 --dist loadgroup tests
+	$(PYTHON) -m pytest -q -n 2 --dist loadgroup -p no:hypothesispytest -p no:dash -p no:benchmark tests
 
 demo:
 	bash scripts/demo.sh $(DEMO_DIR)

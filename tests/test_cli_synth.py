@@ -9,9 +9,10 @@ import pytest
 from typer.testing import CliRunner
 
 from ldlmap.cli import app
+from tests.conftest import TINY
 
 runner = CliRunner()
-SMALL = ["--width", "64", "--per-split", "1", "--quiet"]
+SMALL = TINY  # --width 64 --per-split 1 --quiet: files and seeds, not images
 
 L_ROOM = """
 name = "lroom"
@@ -34,24 +35,24 @@ def synth(*args: str):
     return runner.invoke(app, ["synth", *map(str, args)])
 
 
-def test_same_seed_identical_files_other_seed_other_rooms(tmp_path):
-    r1 = synth(tmp_path / "s1", "--preset", "demo", "--seed", "1", *SMALL)
-    assert r1.exit_code == 0, r1.output
-    assert "synthroom_1" in r1.output and "extreme_gamma" in r1.output
+def test_same_seed_identical_files_other_seed_other_rooms(tiny_synth, tmp_path):
+    h1 = hashes(tiny_synth)  # `synth --preset demo --seed 1` with SMALL's options (conftest)
     r1b = synth(tmp_path / "s1b", "--seed", "1", *SMALL)  # --preset demo is the default
+    assert r1b.exit_code == 0, r1b.output
+    assert "synthroom_1" in r1b.output and "extreme_gamma" in r1b.output
     r2 = synth(tmp_path / "s2", "--preset", "demo", "--seed", "2", *SMALL)
-    assert r1b.exit_code == 0 and r2.exit_code == 0
-    h1, h1b, h2 = hashes(tmp_path / "s1"), hashes(tmp_path / "s1b"), hashes(tmp_path / "s2")
+    assert r2.exit_code == 0, r2.output
+    h1b, h2 = hashes(tmp_path / "s1b"), hashes(tmp_path / "s2")
     assert h1 == h1b
     assert set(h1) == set(h2)
     for f in ("specs/synthroom_1.toml", "specs/synthroom_2.toml", "pcd/synthroom_1.txt", "mesh/synthroom_1.obj"):
         assert h1[f] != h2[f], f
     # An existing non-empty folder needs --overwrite, and stays untouched without it.
-    r = synth(tmp_path / "s1", "--seed", "1", *SMALL)
+    r = synth(tmp_path / "s1b", "--seed", "1", *SMALL)
     assert r.exit_code == 1 and "--overwrite" in r.output
-    assert hashes(tmp_path / "s1") == h1
-    r = synth(tmp_path / "s1", "--seed", "2", "--overwrite", *SMALL)
-    assert r.exit_code == 0 and hashes(tmp_path / "s1") == h2
+    assert hashes(tmp_path / "s1b") == h1
+    r = synth(tmp_path / "s1b", "--seed", "2", "--overwrite", *SMALL)
+    assert r.exit_code == 0 and hashes(tmp_path / "s1b") == h2
 
 
 def test_spec_file_and_no_illumination(tmp_path):

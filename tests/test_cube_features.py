@@ -62,7 +62,7 @@ def test_unknown_extraction_is_refused(tmp_path):
 
 
 def test_cube_face_map_records_its_extraction_and_localizes(demo_dataset, tmp_path):
-    """Map features of one demo room from cube faces (8 views): the map records the extraction,
+    """Map features of one demo room from cube faces (4 views): the map records the extraction,
     the localizer extracts the queries' features the same way, and a robot and two extreme queries
     end within 0.1 m / 5 deg, refined by features."""
     from ldlmap.map.build import BuildParams, compute_features
@@ -76,7 +76,7 @@ def test_cube_face_map_records_its_extraction_and_localizes(demo_dataset, tmp_pa
     m = read_map(demo_dataset / "maps" / f"{scene}.h5", load_cloud=False)
     cloud = read_point_cloud(ds.point_cloud(scene))
     feats = compute_features(cloud.points, cloud.colors, m.translations,
-                             BuildParams(features="sift", num_views=8, feature_extraction="cube"))
+                             BuildParams(features="sift", num_views=4, feature_extraction="cube"))
     assert feats.extraction == "cube"
     path = write_map(tmp_path / "cube.h5", replace(m, features=feats))
     assert read_map_header(path)["feature_extraction"] == "cube"

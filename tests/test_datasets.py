@@ -272,14 +272,10 @@ def test_manifests_match_reader_constants() -> None:
         load_manifest("kitti")
 
 
-def test_reader_on_generated_synthetic_dataset(tmp_path: Path) -> None:
+def test_reader_on_generated_synthetic_dataset(tiny_synth: Path) -> None:
     """The OmniScenes reader on ``ldlmap synth`` output: every panorama is a query whose pose is
     exactly the file the generator wrote, and scenes/splits match its dataset.json."""
-    pytest.importorskip("ldlmap.synth.edges", reason="synthetic generator not complete in this checkout")
-    from ldlmap.synth.generate import generate_dataset
-
-    out = tmp_path / "syn"
-    generate_dataset(out, preset="demo", seed=5, progress=False, width=64, per_split=1)
+    out = tiny_synth
     meta = json.loads((out / "dataset.json").read_text())
     ds = open_dataset(out, None)
     assert isinstance(ds, OmniScenes)

@@ -16,6 +16,7 @@ from ldlmap.core.geometry import rotation_error_deg, translation_error
 from ldlmap.map.mapfile import read_map
 from ldlloc.pipeline import Localizer, load_image
 
+pytestmark = pytest.mark.xdist_group("end_to_end")  # one worker localizes the queries (``localized``)
 MAIN_SPLITS = ("robot", "handheld", "extreme")
 OTHER_SPLITS = ("change_robot", "change_handheld", "extreme_intensity", "extreme_gamma", "extreme_white_balance")
 

@@ -42,16 +42,10 @@ def cluster():
 
 
 @pytest.fixture(scope="module")
-def scans(demo_dataset, tmp_path_factory) -> Path:
+def scans(thin_scans, tmp_path_factory) -> Path:
     """An OmniScenes root with the demo rooms' scans thinned to a tenth, and an empty scan."""
-    from ldlmap.io.pointcloud import read_point_cloud
-    from ldlmap.synth.scan import write_ply
-
     root = tmp_path_factory.mktemp("scans")
-    (root / "pcd").mkdir()
-    for scene in ("synthroom_1", "synthroom_2"):
-        pc = read_point_cloud(demo_dataset / "pcd" / f"{scene}.ply")
-        write_ply(root / "pcd" / f"{scene}.ply", pc.points[::10], pc.colors[::10])
+    shutil.copytree(thin_scans / "pcd", root / "pcd")
     (root / "pcd" / "broken_1.txt").write_text("")
     return root
 

@@ -259,7 +259,7 @@ def test_localized_pose_given_back_in_the_input_frame(demo_dataset, tmp_path):
     np.testing.assert_allclose(out["input_frame"]["R"], R_in, atol=1e-6)
 
 
-def test_colmap_cameras_set_the_up_axis(demo_dataset, tmp_path):
+def test_colmap_cameras_set_the_up_axis(thin_scans, tmp_path):
     """A COLMAP workspace in a y-down SfM frame (a scan turned so that up = -y, upright panoramas):
     the cameras' down axes make the map z-up, the camera centres stay candidate translations."""
     import pycolmap
@@ -270,7 +270,7 @@ def test_colmap_cameras_set_the_up_axis(demo_dataset, tmp_path):
 
     rng = np.random.default_rng(0)
     R0 = rotation_with_up(AXES["-y"], 30.0)  # generator frame -> input frame
-    cloud = read_point_cloud(demo_dataset / "pcd" / "synthroom_1.ply")
+    cloud = read_point_cloud(thin_scans / "pcd" / "synthroom_1.ply")
     model = tmp_path / "ws" / "sparse" / "0"
     model.mkdir(parents=True)
     write_point_cloud(tmp_path / "ws" / "sparse" / "fused.ply", PointCloud(cloud.points @ R0.T, cloud.colors))

@@ -19,6 +19,7 @@ from ldlmap.lines3d import line_precision_recall
 from ldlmap.sfm.photo_lines import (_Segments, detect_segments, join_segments, reconstruct_lines, refine_with_planes,
                                     robust_extent, segment_support, triangulate_pair)
 
+pytestmark = pytest.mark.xdist_group("sfm_lines")  # one worker photographs the room (``workspace``)
 runner = CliRunner()
 SEED = 10  # a demo-preset room with plaster walls and a carpet: its lines are structure, not texture
 

@@ -19,6 +19,7 @@ from ldlmap.synth.spec import load_spec
 from ldlmap.synth.presets import random_spec
 from tests.test_synth_render import vertex_pixel_offsets
 
+pytestmark = pytest.mark.xdist_group("synth_multiroom")  # one worker makes ``two_rooms``
 WIDTH = 512
 SEED = 1
 PARAMS = MultiRoomParams(rooms=2, scan_density=1000.0)  # a light scan: ~120 k points per room
@@ -129,6 +130,7 @@ def test_reader_and_world_frame_poses_project_the_meshes(two_rooms):
                  for r, m in zip(rooms, room_meshes(two_rooms, changed=ch))}
     queries = ds.queries()
     assert len(queries) == 8 * 2
+    renders = {}  # the illumination splits reuse the extreme split's poses: render each pose once
     checked = 0
     for q in queries:
         inside = [r for r in rooms if r.contains(q.center)[0]]
@@ -136,7 +138,10 @@ def test_reader_and_world_frame_poses_project_the_meshes(two_rooms):
         room = inside[0]
         assert q.image.stem in room.queries[q.split]
         rend = renderers[room.index, q.split.startswith("change_")]
-        pano = rend.render(q.rot_cam_from_world, q.center, WIDTH, WIDTH // 2, supersample=2)
+        key = (room.index, q.split.startswith("change_"), q.rot_cam_from_world.tobytes(), q.center.tobytes())
+        if key not in renders:
+            renders[key] = rend.render(q.rot_cam_from_world, q.center, WIDTH, WIDTH // 2, supersample=2)
+        pano = renders[key]
         off = vertex_pixel_offsets(rend.mesh.vertices, q.rot_cam_from_world, q.center, pano.depth, pano.tri_id, rend)
         assert len(off) >= 8 and np.max(off) <= 1.0, (q.image, len(off), np.max(off) if len(off) else None)
         checked += len(off)

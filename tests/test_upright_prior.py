@@ -106,6 +106,7 @@ def robot_upright(demo_dataset):
     return rows
 
 
+@pytest.mark.xdist_group("upright_prior")  # one worker localizes the robot split (``robot_upright``)
 def test_upright_prior_keeps_the_robot_split_accurate(robot_upright):
     assert len(robot_upright) == 10
     ok = [translation_error(r.center, q.center) < 0.1
@@ -113,6 +114,7 @@ def test_upright_prior_keeps_the_robot_split_accurate(robot_upright):
     assert np.mean(ok) >= 0.9
 
 
+@pytest.mark.xdist_group("upright_prior")
 def test_every_candidate_respects_the_tilt_bound(robot_upright):
     for _, r in robot_upright:
         assert r.rotation_prior == "upright<=10deg"
