@@ -29,7 +29,8 @@ sysdeps:
 	fi
 
 # Two workers; tests/conftest.py orders the work so that they end together. The -p no: options
-# skip pytest plugins that other packages install and the tests do not use (~1 s each per process).
+# skip pytest plugins that other installed packages register and the tests do not use (loading
+# them cost each pytest process ~4 CPU seconds).
 test:
 	$(PYTHON) -m pytest -q -n 2 --dist loadgroup -p no:hypothesispytest -p no:dash -p no:benchmark tests
 
