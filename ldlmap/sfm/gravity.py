@@ -179,8 +179,9 @@ def _z_kept_or_overridden(P: np.ndarray, s: AxisScores, kz: int, params: Gravity
         k = int(np.flatnonzero(rival)[0])
         note, weak = f"{kept}{_vec(_signed(P, s, k)[0])} has more vertical structure and a smaller extent", True
     elif below_z < params.upside_down_share:
-        note, weak = (f"the lines put {1.0 - below_z:.0%} of their length above the middle of the input's z axis "
-                      "(upside down? then pass --up -z)"), True
+        note = (f"the lines put {1.0 - below_z:.0%} of their length above the middle of the input's z axis: pass "
+                "--up -z if the input is upside down")
+        return UpEstimate(up, "lines", sign_share=share, note=note, weak=True, kept_z=True)
     elif total[kz] - total[second] < params.weak_margin:
         note, weak = (f"kept the input's z axis as up; the lines barely tell it from {_vec(_signed(P, s, second)[0])} "
                       f"(score margin {total[kz] - total[second]:.2f})"), False
