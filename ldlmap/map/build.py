@@ -248,8 +248,8 @@ def _input_points(src: SceneInput) -> np.ndarray:
 
 def map_frame(src: SceneInput, lines_raw: np.ndarray, params: BuildParams) -> tuple[np.ndarray, dict, str, bool]:
     """The rotation input -> map (z up) of an already scaled input, its record for the map's
-    config, a one-line note for the user ("" when the input frame is kept) and whether the
-    note is a warning (the lines barely told the up axis)."""
+    config, a one-line note for the user ("" when the input frame is kept without doubt) and
+    whether the note is a warning (the lines barely told the up axis, or leaned elsewhere)."""
     from ldlmap.core.frame import parse_up
     from ldlmap.sfm.gravity import estimate_up, map_rotation
 
@@ -262,9 +262,10 @@ def map_frame(src: SceneInput, lines_raw: np.ndarray, params: BuildParams) -> tu
     R = map_rotation(est, principal)
     deg = float(np.degrees(np.arccos(np.clip((np.trace(R) - 1) / 2, -1.0, 1.0))))
     info = {"up_source": est.source, "up_input": [round(float(x), 6) for x in est.up], "rotation_deg": deg,
-            "snapped_deg": est.snapped_deg, "camera_agreement": est.camera_agreement, "sign_share": est.sign_share}
-    if deg == 0.0:
-        return R, info, "", False
+            "snapped_deg": est.snapped_deg, "camera_agreement": est.camera_agreement, "sign_share": est.sign_share,
+            "kept_z": est.kept_z}
+    if deg == 0.0:  # input frame kept: say so only when the lines had doubts
+        return R, info, (f"frame: {est.note}" if est.note and est.source == "lines" else ""), est.weak
     how = {"user": f"--up {params.up}", "cameras": "the cameras", "lines": "the lines"}[est.source]
     snap = f", snapped {est.snapped_deg:.1f} deg onto the lines' vertical" if est.snapped_deg else ""
     note = (f"frame: input up = ({est.up[0]:.3f}, {est.up[1]:.3f}, {est.up[2]:.3f}) from {how}{snap}; "

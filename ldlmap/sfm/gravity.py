@@ -1,4 +1,4 @@
-"""The input's up axis, and the rotation that makes a map z-up (DESIGN.md section 11).
+"""The input's up axis, and the rotation that makes a map z-up (DESIGN.md sections 11 and 14).
 
 Sources, first that applies:
 
@@ -6,36 +6,40 @@ Sources, first that applies:
 2. registered cameras (COLMAP): photos are mostly upright, so the mean of the images' +y axes
    (image down) in world coordinates points down; used when they agree (mean resultant length
    >= ``min_camera_agreement``: random orientations give ~1 / sqrt(M));
-3. the lines (:func:`up_from_lines`), a heuristic scored per principal direction, sum of:
+3. the lines (:func:`up_from_lines`), scored per principal direction as a candidate vertical
+   (:func:`axis_scores`): vertical structure (its share of the line length along the three axes
+   of its frame beyond its share of their extents: wall corners, jambs and furniture sides add
+   vertical edges beyond a box's proportions), the share of all the length it explains as
+   vertical or horizontal (walls and furniture at any azimuth), and how lopsided the length is
+   along it (furniture, doors and windows stand on the floor; the same share gives the sign, a
+   guess the build reports).
 
-   * its share of the line length along the three directions (within 5 degrees) minus its share
-     of their robust extents: a plain box has edge length along each axis in proportion to its
-     extent, and a room or building adds vertical edges beyond that (wall corners, door and
-     window jambs, furniture legs and sides; docs/measurements.md#gravity-vertical-share);
-   * the share of all the length it explains as vertical or horizontal: a vertical explains
-     horizontal edges of every azimuth (walls at any angle, turned furniture), a horizontal axis
-     only its own lines and those exactly perpendicular to it, so off-Manhattan horizontals, or
-     a second horizontal direction that is not at 90 degrees (SfM maps), count for the vertical;
-   * how lopsided the line length is along it: gravity puts furniture, doors and windows on the
-     floor (most of the length lies below the middle). The same share gives the sign, the floor
-     side down: a guess that the build reports. A bare box, or a facade without depth, leaves the
-     axis ambiguous: ``--up``.
+Scans, meshes and layouts are z-up by convention (DESIGN.md section 14): when a principal
+direction lies within ``keep_deg`` of the input's z axis, z stays the vertical unless another
+direction, nearly perpendicular to z, beats it by ``override_margin`` with more vertical
+structure *and* a smaller extent (rooms are wider than tall; sloped ceiling edges and beams run
+long and obliquely, so they cannot turn an upright room over); the note says why. When z is kept
+although another direction scores higher, or has more structure and a smaller extent, the build
+warns. Without such a direction (SfM frames) the best score wins, with a warning when it barely
+does or when structure and extent point elsewhere.
 
 An estimate from the user or the cameras is then snapped to the lines' principal direction
 within ``snap_deg`` (photos tilted up at a facade bias the camera mean; a frame's axis is only
 roughly vertical): the vertical edges of the structure are the precise vertical. A frame whose up
-lies within ``keep_deg`` of +z is kept as it is (scans and datasets are levelled; the search
-tolerates small tilts), so z-up inputs give the identity; from the lines alone, whose sign is a
-guess, so is one whose up lies within ``keep_deg`` of -z (never turn a scan upside down).
+lies within ``keep_deg`` of +z is kept as it is, so z-up inputs give the identity; from the lines
+alone, whose sign is a guess, so is one whose up lies within ``keep_deg`` of -z (never turn a scan
+upside down: the build warns when the lines put the floor on top).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from ldlmap.core.errors import InputError
+
+Z = np.array([0.0, 0.0, 1.0])  # the input's z axis: up by the convention of scans, meshes and layouts
 
 
 @dataclass(frozen=True)
@@ -48,6 +52,11 @@ class GravityParams:
     keep_deg: float = 5.0  # an up this close to +z keeps the input frame (identity)
     axis_tol_deg: float = 5.0  # a line is vertical / horizontal within this angle
     max_lines: int = 3000  # the longest lines used (voting cost)
+    override_margin: float = 0.1  # score lead another axis needs to turn an input whose z is a principal direction
+    across_deg: float = 15.0  # ... and it must be this close to perpendicular to z (z then a wall direction)
+    weak_margin: float = 0.05  # a lead smaller than this barely tells the axis (warning)
+    weak_share: float = 0.55  # a floor-side share smaller than this barely tells the sign (warning)
+    upside_down_share: float = 0.35  # a kept z with less of the length below its middle: floor on top?
 
 
 @dataclass(frozen=True)
@@ -61,6 +70,22 @@ class UpEstimate:
     sign_share: float | None = None  # lines: share of line length on the chosen floor side
     note: str = ""  # one line for the user ("" when there is nothing to say)
     weak: bool = False  # lines: the axis or its sign is barely told (the user should check, or pass --up)
+    kept_z: bool = False  # lines: the input's z axis kept as the vertical (z-up convention)
+
+
+@dataclass(frozen=True)
+class AxisScores:
+    """Evidence that each candidate direction is the vertical (arrays over the candidates)."""
+
+    structure: np.ndarray  # its share of the line length along its frame's axes minus its share of their extents
+    extent: np.ndarray  # its share of its frame's robust extents
+    below: np.ndarray  # share of the line length whose midpoint lies below the middle along it
+    explained: np.ndarray  # share of the line length parallel or perpendicular to it
+
+    @property
+    def total(self) -> np.ndarray:
+        """The lines' score of each candidate (module docstring, source 3)."""
+        return self.structure + np.abs(self.below - 0.5) + self.explained
 
 
 def _longest(lines: np.ndarray, n: int) -> np.ndarray:
@@ -80,33 +105,112 @@ def up_from_cameras(down_axes: np.ndarray) -> tuple[np.ndarray, float]:
     D = D / np.maximum(np.linalg.norm(D, axis=1, keepdims=True), 1e-12)
     m = D.mean(0)
     r = float(np.linalg.norm(m))
-    return (-m / r if r > 1e-12 else np.array([0.0, 0.0, 1.0])), r
+    return (-m / r if r > 1e-12 else Z.copy()), r
 
 
-def up_from_lines(lines: np.ndarray, principal: np.ndarray, tol_deg: float = 5.0) -> tuple[np.ndarray, float, float]:
-    """Up from lines alone (module docstring): ``(up, sign_share, margin)``: the chosen principal
-    direction, signed so that ``sign_share`` (>= 0.5) of the line length lies below the middle of
-    the robust extent along it, and the margin of its score over the next direction's."""
+def _frame(P: np.ndarray, k: int) -> np.ndarray:
+    """Orthonormal rows: candidate ``k`` and the other principal direction most nearly perpendicular
+    to it (made exactly so), then their cross product."""
+    v = P[k] / np.linalg.norm(P[k])
+    others = [j for j in range(len(P)) if j != k]
+    h = P[min(others, key=lambda j: abs(P[j] @ v))] if others else np.eye(3)[int(np.argmin(np.abs(v)))]
+    h = h - (h @ v) * v
+    if np.linalg.norm(h) < 1e-6:
+        h = np.cross(v, np.eye(3)[int(np.argmin(np.abs(v)))])
+    h = h / np.linalg.norm(h)
+    return np.stack([v, h, np.cross(v, h)])
+
+
+def axis_scores(lines: np.ndarray, principal: np.ndarray, tol_deg: float = 5.0) -> AxisScores:
+    """The evidence (:class:`AxisScores`) that each principal direction is the vertical."""
     from ldlmap.lines3d.principal import line_directions
 
     L = np.asarray(lines, dtype=np.float64).reshape(-1, 2, 3)
     P = np.asarray(principal, dtype=np.float64)
     d, w = line_directions(L)
     w = w / max(w.sum(), 1e-12)
-    c = np.abs(d @ P.T)  # (N, 3)
-    par = c >= np.cos(np.radians(tol_deg))
-    perp = c <= np.sin(np.radians(tol_deg))
-    h = L.reshape(-1, 3) @ P.T  # end points along each direction
-    lo, hi = np.percentile(h, [2.0, 98.0], axis=0)
-    extent = np.maximum(hi - lo, 0.0)
-    along = w @ par
-    mid = (L.mean(1) @ P.T) < 0.5 * (lo + hi)  # (N, 3) line below the middle along each direction
-    below = w @ mid
-    score = (along / max(along.sum(), 1e-12) - extent / max(extent.sum(), 1e-12) + w @ (par | perp)
-             + np.abs(below - 0.5))
-    order = np.argsort(-score)
-    k = int(order[0])
-    return (P[k] if below[k] >= 0.5 else -P[k]), max(below[k], 1.0 - below[k]), float(score[k] - score[order[1]])
+    ends, mids = L.reshape(-1, 3), L.mean(1)
+    cos_t, sin_t = np.cos(np.radians(tol_deg)), np.sin(np.radians(tol_deg))
+    out = np.zeros((4, len(P)))
+    for k in range(len(P)):
+        F = _frame(P, k)
+        c = np.abs(d @ F.T)
+        along = w @ (c >= cos_t)
+        lo, hi = np.percentile(ends @ F.T, [2.0, 98.0], axis=0)
+        extent = np.maximum(hi - lo, 0.0)
+        share = extent[0] / max(extent.sum(), 1e-12)
+        out[:, k] = (along[0] / max(along.sum(), 1e-12) - share, share,
+                     w @ (mids @ F[0] < 0.5 * (lo[0] + hi[0])), w @ ((c[:, 0] >= cos_t) | (c[:, 0] <= sin_t)))
+    return AxisScores(*out)
+
+
+def _vec(v: np.ndarray) -> str:
+    return f"({v[0]:.3f}, {v[1]:.3f}, {v[2]:.3f})"
+
+
+def _signed(P: np.ndarray, s: AxisScores, k: int) -> tuple[np.ndarray, float]:
+    """Candidate ``k`` pointing away from the floor side (where most of the line length lies), and
+    that side's share of the length."""
+    return (P[k] if s.below[k] >= 0.5 else -P[k]), float(max(s.below[k], 1.0 - s.below[k]))
+
+
+def _z_kept_or_overridden(P: np.ndarray, s: AxisScores, kz: int, params: GravityParams) -> UpEstimate:
+    """The z-up convention (module docstring): candidate ``kz`` lies along the input's z axis."""
+    total = s.total
+    best = int(np.argmax(total))
+    lead = float(total[best] - total[kz])
+    across = np.abs(P @ P[kz]) <= np.sin(np.radians(params.across_deg))
+    rival = across & (s.structure > s.structure[kz]) & (s.extent < s.extent[kz])
+    if best != kz and rival[best] and lead >= params.override_margin:
+        up, share = _signed(P, s, best)
+        weak = share < params.weak_share
+        sign = f"; the sign is a guess, {share:.0%} of the length on the floor side" if weak else ""
+        note = (f"the lines say the input's z axis is horizontal: this up has {s.structure[best]:+.2f} vertical "
+                f"structure and {s.extent[best]:.0%} of the extent, z {s.structure[kz]:+.2f} and {s.extent[kz]:.0%} "
+                f"(score lead {lead:.2f}{sign}); pass --up z to keep the input frame")
+        return UpEstimate(up, "lines", sign_share=share, note=note, weak=weak)
+    up, share = _signed(P, s, kz)
+    kept = "kept the input's z axis as up (scans, meshes and layouts are z-up) though "
+    below_z = share if up @ Z > 0 else 1.0 - share
+    second = int(np.argsort(-total)[1])
+    if best != kz:
+        note, weak = f"{kept}the lines lean to {_vec(_signed(P, s, best)[0])} (score lead {lead:.2f})", True
+    elif rival.any():
+        k = int(np.flatnonzero(rival)[0])
+        note, weak = f"{kept}{_vec(_signed(P, s, k)[0])} has more vertical structure and a smaller extent", True
+    elif below_z < params.upside_down_share:
+        note = (f"the lines put {1.0 - below_z:.0%} of their length above the middle of the input's z axis: pass "
+                "--up -z if the input is upside down")
+        return UpEstimate(up, "lines", sign_share=share, note=note, weak=True, kept_z=True)
+    elif total[kz] - total[second] < params.weak_margin:
+        note, weak = (f"kept the input's z axis as up; the lines barely tell it from {_vec(_signed(P, s, second)[0])} "
+                      f"(score margin {total[kz] - total[second]:.2f})"), False
+    else:
+        return UpEstimate(up, "lines", sign_share=share, kept_z=True)
+    return UpEstimate(up, "lines", sign_share=share, note=note + ": pass --up if the map is not upright",
+                      weak=weak, kept_z=True)
+
+
+def up_from_lines(lines: np.ndarray, principal: np.ndarray,
+                  params: GravityParams = GravityParams()) -> UpEstimate:
+    """Up from lines alone (module docstring): the chosen principal direction, signed so that most
+    of the line length lies below the middle of its robust extent (``sign_share`` >= 0.5)."""
+    P = np.asarray(principal, dtype=np.float64)
+    s = axis_scores(lines, P, params.axis_tol_deg)
+    cos_z = np.abs(P @ Z)
+    if cos_z.max() >= np.cos(np.radians(params.keep_deg)):
+        return _z_kept_or_overridden(P, s, int(np.argmax(cos_z)), params)
+    total = s.total
+    order = np.argsort(-total)
+    best, margin = int(order[0]), float(total[order[0]] - total[order[1]])
+    up, share = _signed(P, s, best)
+    odd = [what for what, ok in (("more vertical structure", s.structure[best] >= s.structure.max()),
+                                 ("a smaller extent", s.extent[best] <= s.extent.min())) if not ok]
+    weak = margin < params.weak_margin or share < params.weak_share or bool(odd)
+    note = (f"up axis {'barely ' if weak else ''}told by the lines (score margin {margin:.2f}, {share:.0%} of "
+            f"the line length on the floor side{'; another axis has ' + ' and '.join(odd) if odd else ''}): "
+            "pass --up if the map is not upright")
+    return UpEstimate(up, "lines", sign_share=share, note=note, weak=weak)
 
 
 def _angle_deg(a: np.ndarray, b: np.ndarray) -> float:
@@ -128,11 +232,8 @@ def estimate_up(lines: np.ndarray, up: np.ndarray | None = None, camera_down: np
         else:
             note = f"the {len(camera_down)} cameras disagree on down (agreement {agreement:.2f}): "
     if up is None:
-        v, share, margin = up_from_lines(L, P, params.axis_tol_deg)
-        weak = margin < 0.05 or share < 0.55
-        note += (f"up axis {'barely ' if weak else ''}told by the lines (score margin {margin:.2f}, {share:.0%} of "
-                 "the line length on the floor side): pass --up if the map is not upright")
-        return UpEstimate(v, "lines", None, agreement, share, note, weak), P
+        est = up_from_lines(L, P, params)
+        return (replace(est, camera_agreement=agreement, note=note + est.note) if note else est), P
     source = "user" if agreement is None else "cameras"
     u = np.asarray(up, dtype=np.float64) / np.linalg.norm(up)
     cos = P @ u
@@ -152,8 +253,7 @@ def map_rotation(est: UpEstimate, principal: np.ndarray, params: GravityParams =
     principal direction to +x (so that walls run along the axes and lattices)."""
     from ldlmap.core.frame import rotation_to_z
 
-    z = np.array([0.0, 0.0, 1.0])
-    ang = _angle_deg(est.up, z)
+    ang = _angle_deg(est.up, Z)
     if ang <= params.keep_deg or (est.source == "lines" and 180.0 - ang <= params.keep_deg):
         return np.eye(3)
     P = np.asarray(principal, dtype=np.float64)
