@@ -14,22 +14,11 @@ and the pose search), ``refine`` (by features or by lines alone); ``batch`` runs
 writes results and spreads them over Ray.
 """
 
-from importlib import import_module
-from typing import Any
+from ldlmap.core.lazy_api import lazy_api
 
 _API = {
     "Localizer": "ldlloc.pipeline", "LocalizeParams": "ldlloc.pipeline", "Localization": "ldlloc.pipeline",
     "load_image": "ldlloc.pipeline", "run_queries": "ldlloc.batch.run", "load_results": "ldlloc.batch.results",
     "QueryResult": "ldlloc.batch.accuracy", "summarize": "ldlloc.batch.accuracy",
 }
-__all__ = sorted(_API)
-
-
-def __getattr__(name: str) -> Any:
-    if name not in _API:
-        raise AttributeError(f"module 'ldlloc' has no attribute {name!r}")
-    return getattr(import_module(_API[name]), name)
-
-
-def __dir__() -> list[str]:
-    return __all__
+__all__, __getattr__, __dir__ = lazy_api("ldlloc", _API)

@@ -15,8 +15,7 @@ lines and gravity), ``features`` (local features), ``map`` (the map file and its
 ``datasets`` (dataset readers), ``batch`` (whole datasets, Ray), ``synth`` (synthetic scenes).
 """
 
-from importlib import import_module
-from typing import Any
+from ldlmap.core.lazy_api import lazy_api
 
 _API = {
     "BuildParams": "ldlmap.map.build", "BuildReport": "ldlmap.map.build", "build_map": "ldlmap.map.build",
@@ -26,14 +25,4 @@ _API = {
     "Lines3DParams": "ldlmap.lines3d", "read_point_cloud": "ldlmap.io.pointcloud", "read_lines": "ldlmap.io.linefiles",
     "generate_dataset": "ldlmap.synth.generate", "LdlError": "ldlmap.core.errors",
 }
-__all__ = sorted(_API)
-
-
-def __getattr__(name: str) -> Any:
-    if name not in _API:
-        raise AttributeError(f"module 'ldlmap' has no attribute {name!r}")
-    return getattr(import_module(_API[name]), name)
-
-
-def __dir__() -> list[str]:
-    return __all__
+__all__, __getattr__, __dir__ = lazy_api("ldlmap", _API)
