@@ -193,7 +193,8 @@ def render_page(results_path: Path, records: list[dict], meta: dict[str, Any], t
     """The whole page (``records`` in the order shown: :func:`worst_first`)."""
     results = [QueryResult.from_dict(q) for q in records]
     when = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
-    info = " · ".join(f"{k} {escape(str(meta[k]))}" for k in ("dataset", "root", "splits", "maps", "device")
+    show = lambda v: ", ".join(map(str, v)) if isinstance(v, (list, tuple)) else str(v)  # noqa: E731
+    info = " · ".join(f"{k} {escape(show(meta[k]))}" for k in ("dataset", "root", "splits", "maps", "device")
                       if meta.get(k) not in (None, ""))
     order = ("worst first: by the larger of t error / 0.1 m and R error / 5°" if has_ground_truth(records) else
              "worst first: failed, then by confidence (lowest first)")
