@@ -87,7 +87,7 @@ def _cards(records: list[dict], results: list[QueryResult]) -> str:
              (str(statuses["coarse"]), "coarse only"), (str(statuses["failed"]), "failed")]
     verdicts = [q.get("verdict") for q in records]
     if any(v is not None for v in verdicts):
-        cards += [(str(sum(v == k for v in verdicts)), k) for k in ("confident", "ambiguous", "failed")]
+        cards += [(str(sum(v == k for v in verdicts)), f"verdict {k}") for k in ("confident", "ambiguous", "failed")]
     if has_ground_truth(records):
         cards += [(_fmt(s["accuracy"][name], ".2f"), f"within {m:g} m, {d:g}°") for name, m, d in THRESHOLDS]
         cards += [(_fmt(s["median_t_error_m"], ".3f") + " m", "median t error"),

@@ -9,8 +9,8 @@ from html import escape
 
 import numpy as np
 
-WIDTH, HEIGHT = 400, 240  # the plot's size in CSS pixels
-LEFT, RIGHT, TOP, BOTTOM = 48, 128, 26, 40  # margins: axes' labels and the title; the legend on the right
+WIDTH, HEIGHT = 380, 240  # the plot's size in CSS pixels: three side by side in a 1280-pixel window
+LEFT, RIGHT, TOP, BOTTOM = 48, 118, 26, 40  # margins: axes' labels and the title; the legend on the right
 # Series colours (one per split, in order); none is close to the line colours of the thumbnails.
 PALETTE = ("#4e79a7", "#f28e2b", "#76b7b2", "#b07aa1", "#9c755f", "#edc948", "#bab0ac", "#ff9da7", "#59a14f",
            "#e15759")
@@ -80,7 +80,7 @@ def _legend(labels: list[str], colors: dict[str, str]) -> list[str]:
         y = TOP + 6 + 14 * i
         out.append(f'<rect x="{WIDTH - RIGHT + 10}" y="{y - 8}" width="10" height="10" '
                    f'fill="{colors.get(label, PALETTE[i % len(PALETTE)])}"/>')
-        out.append(f'<text x="{WIDTH - RIGHT + 24}" y="{y + 1}" font-size="10">{escape(label[:19])}</text>')
+        out.append(f'<text x="{WIDTH - RIGHT + 24}" y="{y + 1}" font-size="10">{escape(label[:17])}</text>')
     return out
 
 
