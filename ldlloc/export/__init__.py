@@ -78,6 +78,38 @@ def _frame_units(poses: list, frame: str, meta: dict[str, Any], map_path: Path |
     return units
 
 
+def _write_colmap(out: Path, poses: list, lines, text: bool, image_root: Path | None, overwrite: bool) -> str:
+    """Write the COLMAP model folder (atomically); returns what to say about it."""
+    from ldlmap.core.errors import atomic_dir
+    from ldlloc.export.colmap import line_points, write_colmap_model
+    from ldlloc.export.poses import image_names, image_size
+
+    sizes = [image_size(p.image) for p in poses]
+    root, names = image_names([p.image for p in poses], image_root)
+    points, colors = line_points(lines.lines, lines.groups)
+    with atomic_dir(out, overwrite=overwrite) as tmp:
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o777 & ~umask)  # the temporary folder is made 0700; the model is an ordinary folder
+        write_colmap_model(tmp, poses, names, sizes, points, colors, text)
+    return (f"image names relative to {root} (COLMAP's image path); points3D: the {len(lines.lines)} map lines' "
+            "end points")
+
+
+def _write_nerfstudio(out: Path, poses: list, frame: str, results: Path) -> None:
+    """Write the ``transforms.json`` (atomically)."""
+    from ldlmap.core.errors import atomic_file
+    from ldlloc.export.nerfstudio import transforms, write_transforms
+    from ldlloc.export.poses import image_size
+
+    sizes = [image_size(p.image) for p in poses]
+    world = "the map's (metres, z up)" if frame == "map" else "the map's input frame"
+    extra = {"ldl_export": {"results": str(results), "frame": frame,
+                            "convention": f"camera to world, OpenGL camera (x right, y up, z back); world: {world}"}}
+    with atomic_file(out) as tmp:
+        write_transforms(tmp, transforms(poses, out, sizes, extra))
+
+
 def export_results(results: str | Path, fmt: str, out: str | Path, include_all: bool = False, frame: str = "map",
                    text: bool = False, image_root: str | Path | None = None, map_path: str | Path | None = None,
                    scene: str | None = None, overwrite: bool = False) -> ExportOutcome:
@@ -88,9 +120,8 @@ def export_results(results: str | Path, fmt: str, out: str | Path, include_all: 
     model in text files (default binary); ``image_root``: the folder COLMAP image names are relative
     to (default: the deepest folder holding every image); ``map_path``: the map for records that do
     not name one that exists (``--map``); ``scene``: only this scene's queries."""
-    from ldlmap.core.errors import InputError, atomic_dir, atomic_file, refuse_overwriting_inputs
-    from ldlloc.export.poses import FRAMES, export_poses, image_names, image_size, map_lines, read_records, \
-        select_queries
+    from ldlmap.core.errors import InputError, atomic_file, refuse_overwriting_inputs
+    from ldlloc.export.poses import FRAMES, export_poses, map_lines, read_records, select_queries
 
     results, out = Path(results), Path(out)
     map_path = Path(map_path) if map_path is not None else None
@@ -105,42 +136,23 @@ def export_results(results: str | Path, fmt: str, out: str | Path, include_all: 
         why = (f"no query of scene {scene} (scenes: {', '.join(scenes[:8])})" if sel.other_scenes == len(records)
                else sel.describe(len(records)))
         raise InputError(f"nothing to export from {results}: {why}")
-    notes = []
-    if not sel.have_verdicts:
-        notes.append(f"{results} holds no verdicts (written before confidence existed): exporting every "
-                     f"localized query")
-    notes.append(f"exporting {sel.describe(len(records))}")
+    told = f"exporting {sel.describe(len(records))}"
+    notes = [told if sel.have_verdicts else f"{results} holds no verdicts (written before confidence existed): "
+             f"{told}, every localized one"]
     poses = export_poses(sel.chosen, frame, meta, map_path)
     refuse_overwriting_inputs([results, map_path, *(p.image for p in poses)], [out])
     scenes = sorted({p.scene for p in poses})
     if len(scenes) > 1:
         notes.append(f"poses of {len(scenes)} scenes/maps in one file: they share a frame only when their maps do "
                      f"(ZInD room maps of one floor do); --scene NAME exports one")
-    if fmt in ("colmap", "nerfstudio"):
-        sizes = [image_size(p.image) for p in poses]
-    if fmt in ("colmap", "ply"):
-        lines = map_lines(poses, frame, meta, map_path)
-        if lines.missing:
-            notes.append(f"no map lines of scene(s) {', '.join(lines.missing[:5])}: map not found (give it with --map)")
+    if fmt == "nerfstudio":
+        _write_nerfstudio(out, poses, frame, results)
+        return ExportOutcome(out=out, count=len(poses), notes=notes)
+    lines = map_lines(poses, frame, meta, map_path)
+    if lines.missing:
+        notes.append(f"no map lines of scene(s) {', '.join(lines.missing[:5])}: map not found (give it with --map)")
     if fmt == "colmap":
-        from ldlloc.export.colmap import line_points, write_colmap_model
-
-        root, names = image_names([p.image for p in poses], image_root)
-        points, colors = line_points(lines.lines, lines.groups)
-        with atomic_dir(out, overwrite=overwrite) as tmp:
-            umask = os.umask(0)
-            os.umask(umask)
-            os.chmod(tmp, 0o777 & ~umask)  # the temporary folder is made 0700; the model is an ordinary folder
-            write_colmap_model(tmp, poses, names, sizes, points, colors, text)
-        notes.append(f"image names relative to {root} (COLMAP's image_path); points3D: the {len(lines.lines)} "
-                     f"map lines' end points")
-    elif fmt == "nerfstudio":
-        from ldlloc.export.nerfstudio import transforms, write_transforms
-
-        extra = {"ldl_export": {"results": str(results), "frame": frame, "convention": "OpenGL camera (x right, "
-                                "y up, z back), camera to world; world as the map's (z up, metres)"}}
-        with atomic_file(out) as tmp:
-            write_transforms(tmp, transforms(poses, out, sizes, extra))
+        notes.append(_write_colmap(out, poses, lines, text, image_root, overwrite))
     else:
         from ldlloc.export.ply import write_cameras_ply
 
