@@ -258,6 +258,8 @@ def test_bad_results_files_are_one_line_errors(tmp_path):
     assert "results file not found" in _error(["export", tmp_path / "none.json", "--format", "ply", "-o",
                                                tmp_path / "o.ply"])
     empty = tmp_path / "empty.json"
+    empty.write_text('{"queries": []}')
+    assert "holds no queries" in _error(["export", empty, "--format", "ply", "-o", tmp_path / "o.ply"])
     empty.write_text('{"queries": [{"image": "a.jpg", "scene": "s", "split": "x", "name": "q", "status": "failed"}]}')
     assert "nothing to export" in _error(["export", empty, "--format", "ply", "-o", tmp_path / "o.ply"])
     assert not (tmp_path / "o.ply").exists()

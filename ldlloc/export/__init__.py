@@ -133,7 +133,8 @@ def export_results(results: str | Path, fmt: str, out: str | Path, include_all: 
     sel = select_queries(records, include_all, scene)
     if not sel.chosen:
         scenes = sorted({q["scene"] for q in records})
-        why = (f"no query of scene {scene} (scenes: {', '.join(scenes[:8])})" if sel.other_scenes == len(records)
+        why = ("it holds no queries" if not records else
+               f"no query of scene {scene} (scenes: {', '.join(scenes[:8])})" if sel.other_scenes == len(records)
                else sel.describe(len(records)))
         raise InputError(f"nothing to export from {results}: {why}")
     told = f"exporting {sel.describe(len(records))}"
