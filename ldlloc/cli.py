@@ -270,7 +270,7 @@ def run(
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
     args = (queries, maps, output, params, device, resume, save_vis)
-    meta = {"dataset": label, "root": str(root), "splits": split or "all", **level}
+    meta = {"dataset": label, "root": str(root), "splits": split or "all", "maps": str(maps), **level}
     say = lambda message: console.print(message, soft_wrap=True, highlight=False)  # noqa: E731
     opts = {"meta": meta, "any_options": resume_any_options, "say": say}
     if missing:
@@ -357,16 +357,71 @@ def _print_search_summary(results) -> None:
 
 
 @app.command()
-def report(results: Path = typer.Argument(..., help="Results JSON written by `ldlloc run`.")) -> None:
-    """Print the accuracy and timing tables of a results file again."""
+def report(
+    results: Path = typer.Argument(..., help="Results JSON written by `ldlloc run`."),
+    html: Optional[Path] = typer.Option(None, "--html", help="Also write one self-contained page (.html): summary, "
+                                        "confidence histogram, error CDFs per split, seconds per stage, a thumbnail "
+                                        "per query with the map's lines at its pose, worst first."),
+    max_thumbnails: int = typer.Option(200, "--max-thumbnails", metavar="N", help="With --html: thumbnails for the "
+                                       "N worst queries (0-100000)."),
+) -> None:
+    """Print the accuracy and timing tables of a results file again (and write an HTML report)."""
     from ldlloc.batch.results import load_results
     from ldlloc.batch.accuracy import summary_table, timing_table
 
+    check_range(max_thumbnails, "--max-thumbnails", 0, 100000, integer=True)
+    if html is not None:
+        from ldlloc.report import check_html_path
+
+        check_html_path(html)
     rs, meta = load_results(results)
     console.print(summary_table(rs, "scene", f"{results} by scene"))
     console.print(summary_table(rs, "split", f"{results} by split"))
     console.print(timing_table(rs))
     _print_search_summary(rs)
+    if html is not None:
+        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
+
+        from ldlloc.report import write_html_report
+
+        with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), console=console,
+                      transient=True) as bar:
+            task = bar.add_task("thumbnails", total=None)
+            write_html_report(results, html, max_thumbnails,
+                              progress=lambda done, total: bar.update(task, completed=done, total=total))
+        console.print(f"wrote {html}", soft_wrap=True, highlight=False)
+
+
+@app.command()
+def export(
+    results: Path = typer.Argument(..., help="Results JSON written by `ldlloc run`."),
+    fmt: str = typer.Option(..., "--format", help="colmap (a model folder: cameras, images, points3D) | nerfstudio "
+                            "(a transforms.json) | ply (cameras and map lines for a viewer)."),
+    output: Path = typer.Option(..., "--output", "-o", help="colmap: a folder; nerfstudio: a .json file; ply: a "
+                                ".ply file."),
+    include_all: bool = typer.Option(False, "--all", help="Also queries whose verdict is not `confident` (failed "
+                                     "queries never)."),
+    frame: str = typer.Option("map", "--frame", help="map (the map's frame: metres, z up) | input (the frame the "
+                              "map was built from: SfM, --up, --scale)."),
+    text: bool = typer.Option(False, "--text", help="colmap: text files (.txt) instead of binary (.bin)."),
+    image_root: Optional[Path] = typer.Option(None, "--image-root", help="colmap: the folder image names are "
+                                              "relative to (COLMAP's image path; default: the deepest folder "
+                                              "holding every image)."),
+    map_path: Optional[Path] = typer.Option(None, "--map", help="The map, for queries whose record names none that "
+                                            "exists (default: the run's maps folder + scene)."),
+    scene: Optional[str] = typer.Option(None, "--scene", help="Only this scene's (map's) queries."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing output."),
+) -> None:
+    """Write the poses of a results file for COLMAP, nerfstudio or a 3D viewer.
+
+    Only `confident` queries unless --all; a file without verdicts exports every localized query."""
+    from ldlloc.export import export_results
+
+    done = export_results(results, fmt, output, include_all=include_all, frame=frame, text=text,
+                          image_root=image_root, map_path=map_path, scene=scene, overwrite=overwrite)
+    for note in done.notes:
+        console.print(note, soft_wrap=True, highlight=False)
+    console.print(f"wrote {done.out} ({done.count} poses, {frame} frame)", soft_wrap=True, highlight=False)
 
 
 if __name__ == "__main__":  # python3 -m ldlloc.cli

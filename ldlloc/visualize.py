@@ -33,11 +33,7 @@ def localization_picture(image_rgb: np.ndarray, loc, ldl_map, caption: str = "")
 
     bgr = cv2.cvtColor(np.asarray(image_rgb), cv2.COLOR_RGB2BGR)
     top = draw_arcs(bgr, loc.arcs if loc.arcs is not None else np.zeros((0, 2, 3)), loc.arc_groups)
-    lines, groups = ldl_map.lines, ldl_map.line_groups
-    if getattr(ldl_map, "visibility", None) is not None:  # walls hide the other lines (layout maps)
-        seen = ldl_map.visibility[int(ldl_map.nearest_translation(loc.center))]
-        lines, groups = lines[seen], groups[seen]
-    bottom = draw_arcs(bgr, project_lines(lines, loc.rot_cam_from_world, loc.center), groups)
+    bottom = draw_map_lines(bgr, ldl_map, loc.rot_cam_from_world, loc.center)
     h = bgr.shape[0]
     scale = max(1.0, h / 512)
     how = loc.refine_method if getattr(loc, "refined", False) else "coarse"
@@ -47,6 +43,18 @@ def localization_picture(image_rgb: np.ndarray, loc, ldl_map, caption: str = "")
     return with_caption(np.concatenate([top, bottom], axis=0), caption,
                         group_legend(getattr(ldl_map, "principal_directions", None)),
                         "colour: the map's principal direction of each line")
+
+
+def draw_map_lines(image_bgr: np.ndarray, ldl_map, rot_cam_from_world: np.ndarray, center: np.ndarray,
+                   thickness: int = 2) -> np.ndarray:
+    """A copy of a BGR panorama with the map's 3D lines projected at pose ``(R, t)``, coloured by
+    principal group; on maps that record line visibility (layout maps), only the lines seen from
+    the candidate translation nearest to ``t`` (walls hide the others)."""
+    lines, groups = ldl_map.lines, ldl_map.line_groups
+    if getattr(ldl_map, "visibility", None) is not None:
+        seen = ldl_map.visibility[int(ldl_map.nearest_translation(center))]
+        lines, groups = lines[seen], groups[seen]
+    return draw_arcs(image_bgr, project_lines(lines, rot_cam_from_world, center), groups, thickness)
 
 
 def _title(img: np.ndarray, text: str, scale: float) -> None:
@@ -65,4 +73,4 @@ def save_localization_picture(image_rgb: np.ndarray, loc, ldl_map, path: str | P
     return write_picture(path, localization_picture(image_rgb, loc, ldl_map, caption))
 
 
-__all__ = ["localization_caption", "localization_picture", "save_localization_picture"]
+__all__ = ["draw_map_lines", "localization_caption", "localization_picture", "save_localization_picture"]

@@ -276,7 +276,7 @@ def test_distance_fields_reject_non_finite_float16_values():
 
 
 @pytest.mark.parametrize("app_name,command", [("ldlmap", c) for c in ("info", "lines", "synth", "build", "prepare")]
-                         + [("ldlloc", c) for c in ("localize", "run", "report")] + [("ldlmap", None), ("ldlloc", None)])
+                         + [("ldlloc", c) for c in ("localize", "run", "report", "export")] + [("ldlmap", None), ("ldlloc", None)])
 def test_help_is_not_an_error(app_name, command):
     """--help ends a command through click's/typer's own exit: exit 0, the help, no error line."""
     res = runner.invoke(map_app if app_name == "ldlmap" else loc_app, [c for c in (command, "--help") if c])

@@ -1,0 +1,166 @@
+"""Export the poses of a results file to the tools people use next (``ldlloc export``).
+
+``export_results(results, fmt, out)`` with ``fmt``:
+
+- ``colmap`` (:mod:`.colmap`): a model folder that ``pycolmap.Reconstruction(out)`` reads;
+- ``nerfstudio`` (:mod:`.nerfstudio`): a ``transforms.json``;
+- ``ply`` (:mod:`.ply`): cameras and map lines for a viewer.
+
+Which queries, which frame, image names and maps: :mod:`.poses`. Outputs are written through a
+temporary beside ``out`` and renamed at the end; an existing ``out`` is replaced only with
+``overwrite``.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+FORMATS = ("colmap", "nerfstudio", "ply")
+
+
+@dataclass
+class ExportOutcome:
+    """What :func:`export_results` wrote, and what it has to say about it (one line each)."""
+
+    out: Path
+    count: int
+    notes: list[str] = field(default_factory=list)
+
+
+def _check_options(fmt: str, out: Path, text: bool, image_root: Path | None, overwrite: bool) -> None:
+    """One-line errors for options that do not fit ``fmt`` and for an ``out`` that may not be replaced."""
+    from ldlmap.core.errors import InputError
+
+    if fmt not in FORMATS:
+        raise InputError(f"unknown --format {fmt!r}; valid: {', '.join(FORMATS)}")
+    if fmt != "colmap" and (text or image_root is not None):
+        raise InputError(f"{'--text' if text else '--image-root'} is for --format colmap (a COLMAP model), "
+                         f"not {fmt}")
+    suffix = {"nerfstudio": ".json", "ply": ".ply"}.get(fmt)
+    if suffix is not None:
+        if out.suffix.lower() != suffix:
+            raise InputError(f"--format {fmt} writes a {suffix} file: name -o OUT{suffix}, got {out}")
+        if out.is_dir():
+            raise InputError(f"output {out} is a folder; name a {suffix} file")
+        if out.exists() and not overwrite:
+            raise InputError(f"output {out} exists; use --overwrite to replace it, or another name")
+    else:
+        if out.exists() and not out.is_dir():
+            raise InputError(f"output {out} exists and is not a folder (a COLMAP model is a folder)")
+        if out.is_dir() and any(out.iterdir()) and not overwrite:
+            raise InputError(f"output folder {out} is not empty; use --overwrite to replace it, or another name")
+    if image_root is not None and not Path(image_root).is_dir():
+        raise InputError(f"--image-root is not a folder: {image_root}")
+
+
+def _frame_units(poses: list, frame: str, meta: dict[str, Any], map_path: Path | None) -> np.ndarray:
+    """Frame units per metre of each pose: 1 in the map frame; 1 / s in the input frame of a map
+    built with ``--scale s`` (1 where the map is not found)."""
+    from ldlmap.core.frame import decompose
+    from ldlloc.export.poses import input_to_map_of, map_path_for
+
+    units = np.ones(len(poses))
+    if frame != "input":
+        return units
+    scale: dict[Path, float] = {}
+    for i, p in enumerate(poses):
+        found, _ = map_path_for(p.record, meta, map_path)
+        if found is not None:
+            if found not in scale:
+                A = input_to_map_of(found)
+                scale[found] = 1.0 if A is None else decompose(A)[0]
+            units[i] = 1.0 / scale[found]
+    return units
+
+
+def _write_colmap(out: Path, poses: list, lines, text: bool, image_root: Path | None, overwrite: bool) -> str:
+    """Write the COLMAP model folder (atomically); returns what to say about it."""
+    from ldlmap.core.errors import atomic_dir
+    from ldlloc.export.colmap import line_points, write_colmap_model
+    from ldlloc.export.poses import image_names, image_size
+
+    sizes = [image_size(p.image) for p in poses]
+    root, names = image_names([p.image for p in poses], image_root)
+    points, colors = line_points(lines.lines, lines.groups)
+    with atomic_dir(out, overwrite=overwrite) as tmp:
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o777 & ~umask)  # the temporary folder is made 0700; the model is an ordinary folder
+        write_colmap_model(tmp, poses, names, sizes, points, colors, text)
+    return (f"image names relative to {root} (COLMAP's image path); points3D: the {len(lines.lines)} map lines' "
+            "end points")
+
+
+def _write_nerfstudio(out: Path, poses: list, frame: str, results: Path) -> None:
+    """Write the ``transforms.json`` (atomically)."""
+    from ldlmap.core.errors import atomic_file
+    from ldlloc.export.nerfstudio import transforms, write_transforms
+    from ldlloc.export.poses import image_size
+
+    sizes = [image_size(p.image) for p in poses]
+    world = "the map's (metres, z up)" if frame == "map" else "the map's input frame"
+    extra = {"ldl_export": {"results": str(results), "frame": frame,
+                            "convention": f"camera to world, OpenGL camera (x right, y up, z back); world: {world}"}}
+    with atomic_file(out) as tmp:
+        write_transforms(tmp, transforms(poses, out, sizes, extra))
+
+
+def export_results(results: str | Path, fmt: str, out: str | Path, include_all: bool = False, frame: str = "map",
+                   text: bool = False, image_root: str | Path | None = None, map_path: str | Path | None = None,
+                   scene: str | None = None, overwrite: bool = False) -> ExportOutcome:
+    """Write the poses of ``results`` (a results JSON of ``ldlloc run``) as ``fmt`` to ``out``.
+
+    ``include_all``: also the queries whose verdict is not ``confident`` (failed ones never);
+    ``frame``: ``map`` or ``input`` (:func:`ldlloc.export.poses.pose_in_frame`); ``text``: a COLMAP
+    model in text files (default binary); ``image_root``: the folder COLMAP image names are relative
+    to (default: the deepest folder holding every image); ``map_path``: the map for records that do
+    not name one that exists (``--map``); ``scene``: only this scene's queries."""
+    from ldlmap.core.errors import InputError, atomic_file, refuse_overwriting_inputs
+    from ldlloc.export.poses import FRAMES, export_poses, map_lines, read_records, select_queries
+
+    results, out = Path(results), Path(out)
+    map_path = Path(map_path) if map_path is not None else None
+    image_root = Path(image_root) if image_root is not None else None
+    if frame not in FRAMES:
+        raise InputError(f"--frame must be {' or '.join(FRAMES)}, got {frame!r}")
+    _check_options(fmt, out, text, image_root, overwrite)
+    records, meta = read_records(results)
+    sel = select_queries(records, include_all, scene)
+    if not sel.chosen:
+        scenes = sorted({q["scene"] for q in records})
+        why = ("it holds no queries" if not records else
+               f"no query of scene {scene} (scenes: {', '.join(scenes[:8])})" if sel.other_scenes == len(records)
+               else sel.describe(len(records)))
+        raise InputError(f"nothing to export from {results}: {why}")
+    told = f"exporting {sel.describe(len(records))}"
+    notes = [told if sel.have_verdicts else f"{results} holds no verdicts (written before confidence existed): "
+             f"{told}, every localized one"]
+    poses = export_poses(sel.chosen, frame, meta, map_path)
+    refuse_overwriting_inputs([results, map_path, *(p.image for p in poses)], [out])
+    scenes = sorted({p.scene for p in poses})
+    if len(scenes) > 1:
+        notes.append(f"poses of {len(scenes)} scenes/maps in one file: they share a frame only when their maps do "
+                     f"(ZInD room maps of one floor do); --scene NAME exports one")
+    if fmt == "nerfstudio":
+        _write_nerfstudio(out, poses, frame, results)
+        return ExportOutcome(out=out, count=len(poses), notes=notes)
+    lines = map_lines(poses, frame, meta, map_path)
+    if lines.missing:
+        notes.append(f"no map lines of scene(s) {', '.join(lines.missing[:5])}: map not found (give it with --map)")
+    if fmt == "colmap":
+        notes.append(_write_colmap(out, poses, lines, text, image_root, overwrite))
+    else:
+        from ldlloc.export.ply import write_cameras_ply
+
+        units = _frame_units(poses, frame, meta, map_path)
+        with atomic_file(out) as tmp:
+            write_cameras_ply(tmp, poses, lines.lines, lines.groups, units, comment=f"frame: {frame}")
+    return ExportOutcome(out=out, count=len(poses), notes=notes)
+
+
+__all__ = ["FORMATS", "ExportOutcome", "export_results"]

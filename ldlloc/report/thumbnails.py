@@ -1,0 +1,101 @@
+"""Thumbnails of the report: each query's panorama with its map's 3D lines drawn at the estimated
+pose (coloured by principal group, as in ``--save-vis`` pictures), as JPEG data URIs.
+
+A thumbnail without lines says why (failed query: no pose; map not found or unreadable); a query
+whose image cannot be read gets no thumbnail and the reason instead.
+"""
+
+from __future__ import annotations
+
+import base64
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from ldlmap.core.errors import LdlError
+
+THUMB_W, THUMB_H = 384, 192  # shown at this size (CSS pixels): 2:1 like the panoramas
+JPEG_QUALITY = 85
+
+
+@dataclass
+class Thumbnail:
+    data_uri: str | None  # data:image/jpeg;base64,... (None: the image could not be read)
+    note: str = ""  # why lines (or the picture) are missing; "" when all is drawn
+
+
+def read_small(path: str | Path) -> np.ndarray:
+    """The BGR image at ``path`` resized to THUMB_W x THUMB_H (JPEGs decoded at a reduced scale)."""
+    import cv2
+
+    from ldlmap.core.errors import InputError, require_file
+    from ldlloc.pipeline import _image_header_size
+
+    p = require_file(path, "image")
+    size = _image_header_size(p)
+    flag = cv2.IMREAD_COLOR
+    for factor, reduced in ((8, cv2.IMREAD_REDUCED_COLOR_8), (4, cv2.IMREAD_REDUCED_COLOR_4),
+                            (2, cv2.IMREAD_REDUCED_COLOR_2)):
+        if size is not None and size[0] >= factor * THUMB_W:
+            flag = reduced
+            break
+    img = cv2.imread(str(p), flag)
+    if img is None:
+        raise InputError(f"cannot decode image: {p}")
+    return cv2.resize(img, (THUMB_W, THUMB_H), interpolation=cv2.INTER_AREA)
+
+
+def data_uri(image_bgr: np.ndarray) -> str:
+    """A JPEG data URI of a BGR image."""
+    import cv2
+
+    ok, buf = cv2.imencode(".jpg", image_bgr, [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
+    if not ok:
+        raise LdlError("cannot encode a thumbnail")
+    return "data:image/jpeg;base64," + base64.b64encode(buf.tobytes()).decode("ascii")
+
+
+def make_thumbnails(records: list[dict], meta: dict[str, Any],
+                    progress: Callable[[], None] | None = None) -> dict[str, Thumbnail]:
+    """A :class:`Thumbnail` per record (by name). The map of each record is found as for exports
+    (:func:`ldlloc.export.poses.map_path_for`); each map is read once (records grouped by map)."""
+    from ldlmap.map.mapfile import read_map
+    from ldlloc.export.poses import has_pose, map_path_for
+    from ldlloc.visualize import draw_map_lines
+
+    by_map: dict[Path | None, list[dict]] = {}
+    looked_for: dict[str, list[Path]] = {}
+    for q in records:
+        path, looked = map_path_for(q, meta) if has_pose(q) else (None, [])
+        by_map.setdefault(path, []).append(q)
+        looked_for[q["name"]] = looked
+    out: dict[str, Thumbnail] = {}
+    for path, group in by_map.items():
+        ldl_map, map_note = None, ""
+        if path is not None:
+            try:
+                ldl_map = read_map(path, load_cloud=False)
+            except LdlError as exc:
+                map_note = f"no lines: {exc}"
+        for q in group:
+            out[q["name"]] = _thumbnail(q, ldl_map, map_note, looked_for[q["name"]], draw_map_lines, has_pose(q))
+            if progress is not None:
+                progress()
+    return out
+
+
+def _thumbnail(q: dict, ldl_map, map_note: str, looked: list[Path], draw, posed: bool) -> Thumbnail:
+    try:
+        img = read_small(q["image"])
+    except LdlError as exc:
+        return Thumbnail(None, str(exc))
+    if not posed:
+        return Thumbnail(data_uri(img), "no pose: no lines drawn")
+    if ldl_map is None:
+        note = map_note or ("no lines: map not found" + (f" ({', '.join(map(str, looked[:3]))})" if looked else ""))
+        return Thumbnail(data_uri(img), note)
+    drawn = draw(img, ldl_map, np.asarray(q["R"], dtype=np.float64), np.asarray(q["t"], dtype=np.float64),
+                 thickness=2)
+    return Thumbnail(data_uri(drawn))
