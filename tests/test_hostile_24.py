@@ -250,7 +250,7 @@ def test_records_lacking_status_or_errors_are_refused(small, line_map, tmp_path,
     path.write_text(json.dumps({"format_version": 1, "meta": {}, "queries": [rec]}))
     before = snapshot(tmp_path)
     line = assert_clean_failure(runner.invoke(loc_app, ["report", str(path)]), tmp_path, before)
-    assert f"queries[0] (robot/{SCENE}_scene_1/0000) lacks {lacks}" in line
+    assert f"queries[0] lacks {lacks}, query robot/{SCENE}_scene_1/0000" in line
     root = dataset_of(small, tmp_path / "ds", 1)
     before = snapshot(tmp_path)
     res = runner.invoke(loc_app, run_args(root, line_map.parent, path, "--resume"))

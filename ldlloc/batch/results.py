@@ -129,12 +129,12 @@ def validate_results(data: Any, source: str | Path = "results") -> tuple[list[Qu
             raise InputError(f"{bad} (queries[{i}] is a {type(q).__name__}, not an object)")
         missing = [k for k in _REQUIRED_FIELDS if k not in q]
         if missing:
-            who = f" ({q['name']})" if isinstance(q.get("name"), str) else ""
-            raise InputError(f"{bad} (queries[{i}]{who} lacks {', '.join(missing)})")
+            who = f", query {q['name']}" if isinstance(q.get("name"), str) else ""
+            raise InputError(f"{bad} (queries[{i}] lacks {', '.join(missing)}{who})")
         for key, (ok, what) in _FIELD_CHECKS.items():
             if key in q and not ok(q[key]):
-                who = f" ({q['name']})" if isinstance(q.get("name"), str) else ""
-                raise InputError(f"{bad} (queries[{i}]{who}.{key} must be {what}, got {json.dumps(q[key])[:40]})")
+                who = f", query {q['name']}" if isinstance(q.get("name"), str) else ""
+                raise InputError(f"{bad} (queries[{i}].{key} must be {what}, got {json.dumps(q[key])[:40]}{who})")
         if q["name"] in seen:
             raise InputError(f"{bad} (query {q['name']} appears twice)")
         seen.add(q["name"])
@@ -188,6 +188,7 @@ def refuse_replacing_results(path: str | Path, overwrite: bool = False, resume: 
         raise InputError(f"output {p} exists and is not a results file of `ldlloc run` ({str(exc)[-80:]}); use "
                          "--overwrite to replace it, or another --output") from None
     if meta.get("finished") is False:  # absent: written before the flag, or by a run that finished
+        _release_lock(_acquire_lock(p), lock_path(p))  # a run writing it now: ResultsBusy says so
         raise InputError(f"{p} holds {len(results)} results of a run that did not finish (killed or interrupted): "
                          "continue it with --resume, or replace it with --overwrite")
 
