@@ -103,6 +103,10 @@ def test_run_refuses_replacing_a_json_that_is_not_results(small, line_map, tmp_p
     assert "is not a results file" in line and "--overwrite" in line
     res = runner.invoke(loc_app, run_args(root, line_map.parent, notes, "--overwrite"))
     assert json.loads(notes.read_text())["summary"]["count"] == 2, res.output  # replaced when asked
+    (tmp_path / "table.csv").write_text("my,own\n1,2\n")  # where the CSV of -o table.json would go
+    before = snapshot(tmp_path)
+    res = runner.invoke(loc_app, run_args(root, line_map.parent, tmp_path / "table.json"))
+    assert "is not a results CSV" in assert_clean_failure(res, tmp_path, before)
 
 
 def test_run_never_writes_over_the_dataset_manifest(small, line_map, tmp_path):
