@@ -8,8 +8,8 @@ from typing import Optional
 import typer
 
 from ldlmap.core.cli_common import (DATASET_HELP, check_device, check_range, check_threads, console, dataset_label,
-                                    import_heavy, make_app, open_dataset_root, ray_option, set_threads,
-                                    threads_option)
+                                    import_heavy, make_app, open_dataset_root, ray_option, refuse_map_level,
+                                    set_threads, threads_option)
 
 app = make_app("ldlloc", "Localize panoramas against LDL maps with line distance functions.")
 
@@ -58,6 +58,8 @@ def _params(top_k: int, loss: str, no_decompose: bool, no_refine: bool, privacy:
 
     if refine not in REFINE_MODES:
         raise InputError(f"unknown --refine {refine!r}; valid: {', '.join(REFINE_MODES)}")
+    if no_refine and refine not in ("auto", "none"):  # auto: the default, i.e. --refine not given
+        raise InputError(f"--no-refine (= --refine none) contradicts --refine {refine}: give one of them")
     if query_frame not in QUERY_FRAMES:
         raise InputError(f"unknown --query-frame {query_frame!r}; valid: {', '.join(QUERY_FRAMES)}")
     if max_tilt is not None and not (0.0 < max_tilt <= 180.0):
@@ -232,13 +234,16 @@ def run(
     resume_any_options: bool = typer.Option(False, "--resume-any-options", help="With --resume: allow options other "
                                             "than the file's (the file's meta records the earlier ones)."),
     save_vis: Optional[Path] = typer.Option(None, "--save-vis", help="Write a picture per query into this folder."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an --output that is not a results file, or "
+                                   "the results of a run that did not finish (a finished run's are replaced "
+                                   "without it)."),
     threads: int = threads_option(),
     ray: Optional[str] = ray_option(),
 ) -> None:
     """Localize every query of a dataset split (or all splits) and print accuracy tables.
 
     With --ray, one Ray actor per scene map serves its queries (one GPU each with --device cuda)."""
-    from ldlloc.batch.results import check_results_path
+    from ldlloc.batch.results import check_results_path, refuse_replacing_results
     from ldlloc.batch.run import default_results_path, missing_maps_message, run_queries, scenes_without_maps
     from ldlmap.core.errors import InputError
 
@@ -255,12 +260,14 @@ def run(
     level = {"map_level": map_level} if map_level is not None else {}  # only when given
     ds = open_dataset_root(root, dataset, "ldlloc run --root ROOT", **level)
     root, kind, label = Path(ds.root), ds.kind, dataset_label(ds)
+    refuse_map_level(map_level, kind, label, root)
     queries = ds.queries(split or None, scene)
     if not queries:
         raise InputError(f"no queries in {root} for split(s) {', '.join(split or ['all'])}")
     output = output or default_results_path(label, kind, root, split, scene, getattr(ds, "map_level", None))
     maps_given, maps = maps is not None, maps or Path(root) / "maps"
-    _refuse_replacing_run_inputs(queries, maps, output, save_vis, weights)
+    _refuse_replacing_run_inputs(queries, maps, output, save_vis, weights, root)
+    refuse_replacing_results(output, overwrite, resume)
     missing = scenes_without_maps(queries, maps)
     if len(missing) == len({q.scene for q in queries}):  # nothing could run: say how to build the maps
         extra = (f" --dataset {dataset}" if dataset else "") + (f" --map-level {map_level}" if map_level else "")
@@ -332,15 +339,16 @@ def _print_priors_and_search(results: list, max_tilt: Optional[float]) -> None:
 
 
 def _refuse_replacing_run_inputs(queries: list, maps: Path, output: Path, save_vis: Optional[Path],
-                                 weights: Optional[Path]) -> None:
-    """One line, before any work, when the results or a picture would replace a panorama, a pose file or
-    a map of the run."""
+                                 weights: Optional[Path], root: Path) -> None:
+    """One line, before any work, when the results or a picture would replace a panorama, a pose file,
+    a map or a dataset manifest (``dataset.json`` of `ldlmap synth`, ZInD's ``zind_data.json``) of the run."""
     from ldlloc.batch.results import results_outputs
     from ldlloc.batch.run import picture_path
     from ldlmap.core.errors import refuse_overwriting_inputs
 
+    manifests = [root / "dataset.json", *root.glob("*/zind_data.json"), *root.glob("zind_data.json")]
     inputs = [p for p in (weights, *{maps / f"{q.scene}.h5" for q in queries}, *{q.pose_file for q in queries},
-                          *(q.image for q in queries)) if p is not None]
+                          *(q.image for q in queries), *manifests) if p is not None]
     pictures = [picture_path(save_vis, q) for q in queries] if save_vis is not None else []
     refuse_overwriting_inputs(inputs, [*results_outputs(output), *pictures])
 

@@ -255,7 +255,9 @@ class Localizer:
 
         half_icosphere_points(self.params.principal.icosphere_level)
         if self.refine_enabled:
-            import pycolmap  # noqa: F401
+            from ldlmap.core.signals import import_pycolmap
+
+            import_pycolmap()
 
     def _refine_and_keep(self, arcs: np.ndarray, rotations: np.ndarray, centers: np.ndarray,
                          translation_index: np.ndarray, n: int, assoc_deg: np.ndarray | None = None):

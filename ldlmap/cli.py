@@ -12,8 +12,8 @@ from typing import Optional
 import typer
 
 from ldlmap.core.cli_common import (DATASET_HELP, StageProgress, check_device, check_range, check_threads, console,
-                                    dataset_label, make_app, open_dataset_root, ray_option, set_threads,
-                                    threads_option)
+                                    dataset_label, make_app, open_dataset_root, ray_option, refuse_map_level,
+                                    set_threads, threads_option)
 
 app = make_app("ldlmap", "Build LDL maps (3D lines, principal directions, features) and synthetic datasets.")
 
@@ -46,13 +46,14 @@ def info(map_path: Path = typer.Argument(..., metavar="MAP", help="An LDL map (.
     with one line."""
     from rich.table import Table
 
-    from ldlmap.core.errors import refuse_overwriting_inputs
+    from ldlmap.core.errors import check_writable_output, refuse_overwriting_inputs
     from ldlmap.core.pictures import check_picture_path
     from ldlmap.map.mapfile import read_map, read_map_header
 
     if png is not None:
         check_picture_path(png, "--png")
         refuse_overwriting_inputs([map_path], [png])
+        check_writable_output(png, "--png")
     m = read_map(map_path)
     h = read_map_header(map_path)
     table = Table(title=f"LDL map {map_path}", show_header=False)
@@ -114,7 +115,8 @@ def _translations_summary(header: dict) -> str:
 
 
 def parse_band(text: Optional[str], option: str) -> Optional[tuple[float, float]]:
-    """``"MIN:MAX"`` as a (min, max) pair of finite floats with min <= max (None stays None)."""
+    """``"MIN:MAX"`` as a (min, max) pair of finite heights with 0 <= min <= max, max > 0 (None stays
+    None); whether the band meets the scene is checked by the build (``scene_translations``)."""
     import math
 
     from ldlmap.core.errors import InputError
@@ -127,6 +129,8 @@ def parse_band(text: Optional[str], option: str) -> Optional[tuple[float, float]
         raise InputError(f"{option} must be MIN:MAX in metres (e.g. 1.2:1.7), got {text!r}") from None
     if not (math.isfinite(lo) and math.isfinite(hi)) or lo > hi:
         raise InputError(f"{option} must be MIN:MAX with finite MIN <= MAX, got {text!r}")
+    if lo < 0 or hi <= 0:  # heights above the floor (a single height MIN = MAX is a band too)
+        raise InputError(f"{option} must be heights above the floor, 0 <= MIN <= MAX and MAX > 0 (metres), got {text!r}")
     return lo, hi
 
 
@@ -142,7 +146,8 @@ def lines(
                                    "files (line files written before are replaced without it)."),
 ) -> None:
     """Extract 3D line segments from a point cloud and write them as .obj and .txt."""
-    from ldlmap.core.errors import LdlError, refuse_overwriting_inputs, refuse_replacing_other_files
+    from ldlmap.core.errors import (LdlError, check_writable_output, refuse_overwriting_inputs,
+                                    refuse_replacing_other_files)
     from ldlmap.io.linefiles import sniff_line_file
     from ldlmap.io.pointcloud import read_point_cloud
     from ldlmap.lines3d import draw_top_view, extract_lines_with_stats, filter_by_length, write_line_files
@@ -152,12 +157,18 @@ def lines(
     check_range(lam, "--lambda", 0.0, 1.0)
     if png is not None:
         check_picture_path(png, "--png")
+    if output.is_dir():
+        raise LdlError(f"output {output} is a folder; give a file name (e.g. {output / 'lines.obj'})")
     line_outputs = [output.with_suffix(".obj"), output.with_suffix(".txt")]
     refuse_overwriting_inputs([input_path], [*line_outputs, png])
     for path in line_outputs:
         refuse_replacing_other_files(path, lambda p: sniff_line_file(p) is not None, "a 3D line file", overwrite)
+    for path, option in ((line_outputs[0], "-o"), (png, "--png")):
+        if path is not None:
+            check_writable_output(path, option)
     _refuse_line_file(input_path)
     pc = read_point_cloud(input_path)
+    _check_scan_extent(pc.points)
     raw, stats = extract_lines_with_stats(pc.points)
     lo, hi = pc.bounds()
     kept, mask, thr = filter_by_length(raw, lo, hi, lam=lam)
@@ -173,6 +184,22 @@ def lines(
         principal = principal_directions_3d(out_lines) if len(out_lines) else None
         draw_top_view(out_lines, png, principal=principal, dropped=None if no_filter else raw[~mask])
         console.print(f"wrote {png}", soft_wrap=True)
+
+
+def _check_scan_extent(points) -> None:
+    """Before extracting lines: refuse, as `build` does, a scan whose extent is not in metres
+    (millimetres, or an extent whose grids would not fit in memory)."""
+    import numpy as np
+
+    from ldlmap.core.errors import InputError
+    from ldlmap.core.frame import check_extent
+    from ldlmap.lines3d import robust_bounds
+
+    try:
+        check_extent(np.subtract(*robust_bounds(points)[::-1]))
+    except InputError as exc:  # `lines` has no --scale: convert the scan, or let `build` scale it
+        raise InputError(str(exc).split(" A map must")[0] + " Lines are extracted in metres: convert the scan, or "
+                         "build the map with `ldlmap build SCAN --scale 0.001`") from None
 
 
 def _refuse_line_file(path: Path) -> None:
@@ -204,7 +231,8 @@ def synth(
     from rich.table import Table
 
     from ldlmap.core.errors import InputError, refuse_overwriting_inputs
-    from ldlmap.synth.capture import (MAX_PER_SPLIT, MAX_WIDTH, MIN_WIDTH, check_dataset_seed,
+    from ldlmap.datasets.omniscenes import written_by_synth
+    from ldlmap.synth.capture import (MAX_PER_SPLIT, MAX_WIDTH, MIN_WIDTH, check_dataset_seed, files_not_generated,
                                       refuse_replacing_other_dataset)
     from ldlmap.synth.generate import generate_dataset
 
@@ -216,6 +244,7 @@ def synth(
     check_range(per_split, "--per-split", 0, MAX_PER_SPLIT, integer=True)
     refuse_overwriting_inputs(spec or [], [out])
     refuse_replacing_other_dataset(out, overwrite)
+    kept = files_not_generated(out) if overwrite and written_by_synth(out) else []
     s = generate_dataset(out, preset=preset, spec_paths=spec or [], seed=seed, overwrite=overwrite,
                          progress=not quiet, illumination=not no_illumination, width=width, per_split=per_split)
     table = Table(title=f"synthetic dataset {s.out} (seed {s.seed}, {s.width}x{s.height})")
@@ -226,6 +255,10 @@ def synth(
     table.add_row("[bold]total[/]", f"[bold]{s.images}[/]")
     console.print(table)
     console.print("scenes: " + ", ".join(f"{name} ({s.points[name]:,} scan points)" for name in s.scenes), soft_wrap=True)
+    if kept:
+        tops = sorted({k.split("/")[0] + ("/" if "/" in k else "") for k in kept})
+        console.print(f"kept {len(kept)} file(s) that `ldlmap synth` did not write: {', '.join(tops[:6])}"
+                      + (", ..." if len(tops) > 6 else ""), soft_wrap=True)
     console.print(f"done in {s.seconds:.1f} s", soft_wrap=True)
 
 
@@ -256,15 +289,15 @@ def build(
     device: str = typer.Option("cpu", "--device", help="Torch device for rendering and SuperPoint: cpu | cuda."),
     png: Optional[Path] = typer.Option(None, "--png", help="Also write a picture of the map (top view + panorama "
                                        "with lines, legend; .png, .jpg, .jpeg, .bmp, .tif, .tiff, .webp)."),
-    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing output that is not an HDF5 "
-                                   "file (a map built before is replaced without it)."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing output that is not an LDL "
+                                   "map (a map built before is replaced without it; another HDF5 file is not)."),
     threads: int = threads_option(),
 ) -> None:
     """Build an LDL map (3D lines, principal directions, translations, features) from a scan."""
     from rich.table import Table
 
     from ldlmap.map.build import BuildParams, build_map, params_with
-    from ldlmap.core.errors import refuse_overwriting_inputs
+    from ldlmap.core.errors import check_writable_output, refuse_overwriting_inputs
     from ldlmap.core.pictures import check_picture_path
     from ldlmap.batch.prepare import refuse_replacing_non_map
 
@@ -276,6 +309,9 @@ def build(
     output = output if output is not None else input_path.with_suffix(".h5")
     refuse_overwriting_inputs([input_path, lines_file, images, weights], [output, png])
     refuse_replacing_non_map(output, overwrite)
+    for path, option in ((output, "-o"), (png, "--png")):
+        if path is not None:
+            check_writable_output(path, option)
 
     params = params_with(BuildParams(), features=features, weights=str(weights) if weights else None,
                          feature_extraction=extraction, num_translations=num_trans, translation_method=method,
@@ -346,8 +382,8 @@ def prepare(
     root: Optional[Path] = typer.Argument(None, help="Dataset root (default ./data/<dataset>)."),
     dataset: Optional[str] = typer.Option(None, "--dataset", help=DATASET_HELP),
     maps: Optional[Path] = typer.Option(None, "--maps", help="Folder for the maps (default ROOT/maps)."),
-    map_level: str = typer.Option("room", "--map-level", help="ZInD: one map per complete room (room) or per "
-                                  "floor (floor, every room in one map)."),
+    map_level: Optional[str] = typer.Option(None, "--map-level", help="ZInD: one map per complete room (room, the "
+                                            "default) or per floor (floor, every room in one map)."),
     features: Optional[str] = typer.Option(None, "--features", help="sift | aliked | disk | xfeat | superpoint | none (default sift; "
                                            "ZInD layout maps: none)."),
     weights: Optional[Path] = typer.Option(None, "--weights", help="SuperPoint checkpoint."),
@@ -376,12 +412,15 @@ def prepare(
     from ldlmap.core.errors import InputError
     from ldlmap.batch.prepare import LINES_ONLY_NOTE, default_params
 
-    if map_level not in MAP_LEVELS:
+    if map_level is not None and map_level not in MAP_LEVELS:
         raise InputError(f"--map-level must be {' or '.join(MAP_LEVELS)}, got {map_level!r}")
     check_build_options(num_trans=num_trans, num_views=num_views, trans_spacing=trans_spacing, scale=scale,
                         device=device, extraction=extraction, threads=threads)
+    band = parse_band(camera_height, "--camera-height")
+    given_level, map_level = map_level, map_level or "room"
     ds = open_dataset_root(root, dataset, "ldlmap prepare ROOT", map_level=map_level)
     root, kind, label = Path(ds.root), ds.kind, dataset_label(ds)
+    refuse_map_level(given_level, kind, label, root)
     _check_maps_folder(maps if maps is not None else root / "maps", maps is not None)
     if kind == "zind":
         if features not in (None, "none"):
@@ -392,12 +431,12 @@ def prepare(
         if (up or "auto").lower() not in ("auto", "z", "+z") or (scale is not None and scale != 1.0):
             raise InputError("ZInD maps are built metric and z-up from the room layouts: --up and --scale do not apply")
         ds.scenes()  # reads and validates every home's zind_data.json before anything is printed
+        _print_warnings(w for home in ds.splits() for w in ds.home(home).warnings)
         console.print(f"ZInD: lines-only maps from the room layouts, one per {map_level} (features: none)")
     params = params_with(default_params(kind), features=features or ("none" if kind == "zind" else "sift"),
                          weights=str(weights) if weights else None, feature_extraction=extraction,
                          num_translations=num_trans, num_views=num_views,
-                         device=device, trans_spacing=trans_spacing,
-                         camera_height=parse_band(camera_height, "--camera-height"), up=up, scale=scale)
+                         device=device, trans_spacing=trans_spacing, camera_height=band, up=up, scale=scale)
     options = dict(overwrite=overwrite, use_line_files=line_files, scenes=scene or None, map_level=map_level)
     if ray is not None:  # one Ray task per scene (ldlmap/batch/ray_prepare.py)
         from ldlmap.batch.ray_cluster import ThroughputBar
@@ -423,6 +462,14 @@ def prepare(
     failed = [o for o in outcomes if o.status == "failed"]
     if failed:
         raise InputError(f"{len(failed)} of {len(outcomes)} scene(s) failed: " + "; ".join(f"{o.scene}: {o.message}" for o in failed))
+
+
+def _print_warnings(lines) -> None:
+    """Each line as a ``warning:`` on stderr."""
+    from ldlmap.core.cli_common import err_console
+
+    for line in lines:
+        err_console.print(f"[bold yellow]warning:[/] {line}", soft_wrap=True, highlight=False)
 
 
 def _check_maps_folder(maps: Path, given: bool) -> None:

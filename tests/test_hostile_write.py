@@ -59,7 +59,7 @@ REPLACING_INPUTS = [
     (["synth", "{r}", "--spec", "{r}/ds/room.toml", "--overwrite"], "would replace the folder"),
     # An existing file of another kind is replaced only with --overwrite; a folder never.
     (["lines", "{r}/scan.ply", "-o", "{r}/notes.obj"], "notes.txt exists and is not a 3D line file"),
-    (["build", "{r}/scan.ply", "-o", "{r}/notes.txt"], "exists and is not an HDF5 map"),
+    (["build", "{r}/scan.ply", "-o", "{r}/notes.txt"], "exists and is not an LDL map"),
     (["build", "{r}/scan.ply", "-o", "{r}/folder"], "is a folder"),
     (["synth", "{r}", "--overwrite"], "is not a dataset written by `ldlmap synth`"),
     (["synth", "{r}/folder/..", "--overwrite"], "is not a dataset written by `ldlmap synth`"),

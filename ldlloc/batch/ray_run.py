@@ -79,6 +79,7 @@ def _run_on_ray(writer: ResultsWriter, queries: list, maps_dir: str | Path, para
     done = writer.done()
     todo = [q for q in sorted(queries, key=query_key) if q.name not in done]
     if not todo:  # everything is in the results file already: nothing to start
+        writer.finish()
         return writer.results
     remaining = Counter(q.scene for q in todo)
     with ray_session(address) as ray:
@@ -114,5 +115,6 @@ def _run_on_ray(writer: ResultsWriter, queries: list, maps_dir: str | Path, para
             raise
     rank = {q.name: i for i, q in enumerate(todo)}  # resumed records first, as they were; then the plain order
     writer.results.sort(key=lambda r: rank.get(r.name, -1))
+    writer.meta["finished"] = True
     writer.flush()
     return writer.results

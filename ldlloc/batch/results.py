@@ -97,7 +97,9 @@ _FIELD_CHECKS: dict[str, tuple[Any, str]] = {
                                             and _is_matrix(x.get("t"), 3)), "{R: 3x3, t: 3} or null"),
     "picture_error": (lambda x: x is None or isinstance(x, str), "a string or null"),
 }
-_REQUIRED_FIELDS = ("image", "scene", "split", "name")
+# Fields every record has had since the first results file (ResultsWriter writes every field): a record
+# without one is not ours (``report`` would count it as a failure at 0.00 accuracy).
+_REQUIRED_FIELDS = ("image", "scene", "split", "name", "status", "t_error_m", "r_error_deg")
 
 
 def validate_results(data: Any, source: str | Path = "results") -> tuple[list[QueryResult], dict[str, Any]]:
@@ -127,10 +129,12 @@ def validate_results(data: Any, source: str | Path = "results") -> tuple[list[Qu
             raise InputError(f"{bad} (queries[{i}] is a {type(q).__name__}, not an object)")
         missing = [k for k in _REQUIRED_FIELDS if k not in q]
         if missing:
-            raise InputError(f"{bad} (queries[{i}] lacks {', '.join(missing)})")
+            who = f", query {q['name']}" if isinstance(q.get("name"), str) else ""
+            raise InputError(f"{bad} (queries[{i}] lacks {', '.join(missing)}{who})")
         for key, (ok, what) in _FIELD_CHECKS.items():
             if key in q and not ok(q[key]):
-                raise InputError(f"{bad} (queries[{i}].{key} must be {what}, got {json.dumps(q[key])[:40]})")
+                who = f", query {q['name']}" if isinstance(q.get("name"), str) else ""
+                raise InputError(f"{bad} (queries[{i}].{key} must be {what}, got {json.dumps(q[key])[:40]}{who})")
         if q["name"] in seen:
             raise InputError(f"{bad} (query {q['name']} appears twice)")
         seen.add(q["name"])
@@ -160,6 +164,43 @@ def check_results_path(path: str | Path) -> Path:
     if p.is_dir():
         raise InputError(f"--output is a folder: {p} (name a .json file)")
     return p
+
+
+def refuse_replacing_results(path: str | Path, overwrite: bool = False, resume: bool = False) -> None:
+    """Before a run writes results file ``path`` (and its CSV): refuse (one line) to replace a file
+    that is not a results file of `ldlloc run` (a user's own JSON or CSV), or the results of a run
+    that did not finish (killed or interrupted: ``meta["finished"]`` false), unless ``overwrite``;
+    ``resume`` continues such a file instead (and validates it when it opens)."""
+    p = Path(path)
+    if resume and overwrite:
+        raise InputError("--resume keeps the results file and --overwrite replaces it: give one of them")
+    if overwrite or resume:
+        return
+    csv_path = p.with_suffix(".csv")
+    if not p.exists():
+        if csv_path.is_file() and not _is_results_csv(csv_path):
+            raise InputError(f"{csv_path} (written beside --output {p.name}) exists and is not a results CSV of "
+                             "`ldlloc run`; use --overwrite to replace it, or another --output")
+        return
+    try:
+        results, meta = load_results(p)
+    except LdlError as exc:
+        raise InputError(f"output {p} exists and is not a results file of `ldlloc run` ({str(exc)[-80:]}); use "
+                         "--overwrite to replace it, or another --output") from None
+    if meta.get("finished") is False:  # absent: written before the flag, or by a run that finished
+        _release_lock(_acquire_lock(p), lock_path(p))  # a run writing it now: ResultsBusy says so
+        raise InputError(f"{p} holds {len(results)} results of a run that did not finish (killed or interrupted): "
+                         "continue it with --resume, or replace it with --overwrite")
+
+
+def _is_results_csv(path: Path) -> bool:
+    """Whether ``path`` starts with the header row of :func:`results_csv`."""
+    head = results_csv([]).splitlines()[0]
+    try:
+        with open(path, encoding="utf-8", errors="replace", newline="") as fh:
+            return fh.readline().startswith(head)  # then the stages' seconds columns
+    except OSError:
+        return False
 
 
 def results_outputs(path: str | Path) -> list[Path]:
@@ -236,7 +277,7 @@ class ResultsWriter:
         self._lock = None
         self.path = check_results_path(path)
         self.csv_path = self.path.with_suffix(".csv")
-        self.meta = dict(meta or {})
+        self.meta = {**(meta or {}), "finished": False}  # true once :meth:`finish` ran (a rerun checks it)
         self.results: list[QueryResult] = []
         self._records: dict[str, tuple[QueryResult, dict]] = {}  # name -> (result, its JSON-safe record)
         self.warn = warn or (lambda message: None)
@@ -267,6 +308,13 @@ class ResultsWriter:
 
     def __del__(self) -> None:
         self.close()
+
+    def finish(self) -> None:
+        """Record that the run ended with every query done (``meta["finished"]``): a later run
+        without ``--resume`` may replace the file (:func:`refuse_replacing_results`)."""
+        if self.meta.get("finished") is not True:
+            self.meta["finished"] = True
+            self.flush()
 
     def done(self) -> set[str]:
         """Names of the queries already in the file that a resumed run skips (failed ones excepted)."""

@@ -213,6 +213,7 @@ def run_queries(queries: list, maps_dir: str | Path, output: str | Path, params:
             writer.add(r)
             if progress:
                 progress(r)
+        writer.finish()
         return writer.results
 
 

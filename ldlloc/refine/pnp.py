@@ -37,8 +37,9 @@ def estimate_pose_spherical(keypoints_uv: np.ndarray, points_world: np.ndarray, 
     ``keypoints_uv`` (M, 2) are continuous image coordinates (pixel centre at +0.5), as everywhere
     in this toolkit; ``points_world`` (M, 3) the matched 3D points.
     """
-    import pycolmap
+    from ldlmap.core.signals import import_pycolmap
 
+    pycolmap = import_pycolmap()
     uv = np.ascontiguousarray(keypoints_uv, dtype=np.float64)
     X = np.ascontiguousarray(points_world, dtype=np.float64)
     if len(uv) < max(4, params.min_inliers):

@@ -28,8 +28,8 @@ from pathlib import Path
 from typing import Callable
 
 from ldlmap.map.build import BuildParams, BuildReport, build_lines_map, build_map
-from ldlmap.core.errors import HDF5_SIGNATURE, InputError, LdlError, refuse_overwriting_inputs, \
-    refuse_replacing_other_files, starts_with
+from ldlmap.core.errors import InputError, LdlError, refuse_overwriting_inputs, \
+    refuse_replacing_other_files
 
 # Paper hyperparameters per dataset (supplementary): N_t and the translation sampling.
 DATASET_DEFAULTS = {
@@ -52,9 +52,11 @@ class SceneOutcome:
 
 
 def refuse_replacing_non_map(output: Path, overwrite: bool = False) -> None:
-    """An existing ``output`` is replaced by a build only when it is an HDF5 file (a map built
-    before), or with ``overwrite``; a folder never."""
-    refuse_replacing_other_files(output, lambda p: starts_with(p, HDF5_SIGNATURE), "an HDF5 map", overwrite)
+    """An existing ``output`` is replaced by a build only when it is a map built before
+    (:func:`ldlmap.map.mapfile.is_map_file`), or with ``overwrite``; a folder never."""
+    from ldlmap.map.mapfile import is_map_file
+
+    refuse_replacing_other_files(output, is_map_file, "an LDL map", overwrite)
 
 
 def default_params(kind: str, base: BuildParams = BuildParams()) -> BuildParams:

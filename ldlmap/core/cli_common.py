@@ -136,8 +136,11 @@ class _ErrorHandlingGroup(TyperGroup):
 
         as_json = _wants_json([*getattr(ctx, "_protected_args", []), *ctx.args])
         debug = os.environ.get("LDL_DEBUG") == "1"
+        from ldlmap.core.signals import Terminated, sigterm_as_interrupt
+
         try:
-            return super().invoke(ctx)
+            with sigterm_as_interrupt():  # SIGTERM: as Ctrl-C, then "terminated" (exit 143)
+                return super().invoke(ctx)
         except _usage_error() as exc:  # a malformed option: click's message, or JSON with --json
             if not as_json:
                 raise
@@ -153,6 +156,8 @@ class _ErrorHandlingGroup(TyperGroup):
                 raise
             where = f": {exc.filename}" if getattr(exc, "filename", None) else ""
             fail(f"{exc.strerror or exc}{where}", as_json=as_json)
+        except Terminated:
+            fail("terminated", code=143, as_json=as_json)
         except KeyboardInterrupt:
             fail("interrupted", code=130, as_json=as_json)
         except MemoryError:
@@ -375,6 +380,16 @@ def open_dataset_root(root, dataset: str | None, give_root: str, **kwargs):
             raise InputError(f"no dataset root given and the default one, {default}, is not there: give it as "
                              f"`{give_root}` (see datasets/README.md)")
     return open_dataset(root, kind, **kwargs)
+
+
+def refuse_map_level(map_level: str | None, kind: str, label: str, root) -> None:
+    """One line when ``--map-level`` is given for a dataset other than ZInD (the only one with
+    map levels), instead of ignoring it."""
+    from ldlmap.core.errors import InputError
+
+    if map_level is not None and kind != "zind":
+        raise InputError(f"--map-level is for ZInD roots (room or floor maps); {root} is a {label} root, with one "
+                         "map per scene: leave --map-level out")
 
 
 def dataset_label(ds) -> str:

@@ -14,6 +14,7 @@ those of processes that are gone (a run killed with SIGKILL cannot clean up afte
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
 import re
 import shutil
@@ -109,6 +110,23 @@ def refuse_replacing_other_files(path: str | os.PathLike, is_ours: Callable[[Pat
         raise LdlError(f"output {p} exists and is not {what}; use --overwrite to replace it, or another name")
 
 
+def check_writable_output(path: str | os.PathLike, option: str = "output") -> Path:
+    """Before any work: refuse (one line naming ``path`` as the user gave it) an output whose folder,
+    or the nearest existing folder above it, cannot take a new file (read-only, /proc). Tried by
+    creating and removing a temporary file there, which also holds for root and odd filesystems."""
+    p = Path(path)
+    folder = next((d for d in (p.parent, *p.parent.parents) if d.exists()), Path("."))
+    try:
+        if not folder.is_dir():
+            raise NotADirectoryError(errno.ENOTDIR, "not a folder")
+        with tempfile.TemporaryFile(dir=folder, prefix=f".{p.name}.{_TMP_TAG}.probe."):
+            pass
+    except OSError as exc:
+        why = "files cannot be created there" if exc.errno == errno.ENOENT else exc.strerror or str(exc)
+        raise LdlError(f"cannot write {option} {p}: {folder} is not a writable folder ({why})") from None
+    return p
+
+
 def _umask() -> int:
     mask = os.umask(0)
     os.umask(mask)
@@ -199,11 +217,14 @@ def atomic_file(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
 
 
 @contextlib.contextmanager
-def atomic_dir(path: str | os.PathLike, overwrite: bool = False) -> Iterator[Path]:
+def atomic_dir(path: str | os.PathLike, overwrite: bool = False,
+               commit: Callable[[Path, Path], None] | None = None) -> Iterator[Path]:
     """Yield a temporary folder beside ``path``; move it to ``path`` if the block succeeds.
 
     Refuses to replace an existing non-empty folder unless ``overwrite`` is set. The temporary
     folders of ``path`` left by killed runs are removed first (:func:`remove_stale_temporaries`).
+    ``commit(tmp, path)``, when given, moves the contents into place instead of replacing the
+    whole folder (``ldlmap synth --overwrite`` keeps the files it did not write).
     """
     target = Path(path)
     if target.exists() and not target.is_dir():
@@ -215,9 +236,12 @@ def atomic_dir(path: str | os.PathLike, overwrite: bool = False) -> Iterator[Pat
     tmp = Path(tempfile.mkdtemp(prefix=_temp_prefix(target.name), suffix=".tmp", dir=target.parent))
     try:
         yield tmp
-        if target.exists():
-            shutil.rmtree(target)
-        os.replace(tmp, target)
+        if commit is not None:
+            commit(tmp, target)
+        else:
+            if target.exists():
+                shutil.rmtree(target)
+            os.replace(tmp, target)
     finally:
         if tmp.exists():
             shutil.rmtree(tmp, ignore_errors=True)

@@ -104,6 +104,13 @@ def rotation_to_z(up: np.ndarray, horizontal: np.ndarray | None = None) -> np.nd
 
 
 RECENTRE_BEYOND = 1000.0  # metres: farther from the origin, float32 map storage loses millimetres
+# Metres: no coordinate of a map lies farther from its origin. A build recentres inputs farther than
+# RECENTRE_BEYOND and refuses extents over MAX_EXTENT, so its maps stay within a few km; at 1e6 m
+# float32 coordinates are 6 cm apart, coarser than the 5 cm accuracy threshold (a damaged map).
+MAX_MAP_COORDINATE = 1e6
+# Metres (or input units): no ground-truth pose lies farther from its frame's origin. Input frames may
+# be geographic (UTM northings reach 1e7 m); beyond 1e8 m nothing on Earth is (a corrupt pose).
+MAX_POSE_COORDINATE = 1e8
 MAX_EXTENT = 1000.0  # units: a scan whose robust extent (mean side) is larger is refused (millimetres?)
 
 

@@ -79,15 +79,26 @@ def simple_polygon_problem(poly: np.ndarray, min_turn_deg: float = 0.5) -> str |
     bad = np.flatnonzero((turn < min_turn_deg) | (turn > 180.0 - min_turn_deg))
     if len(bad):
         return f"vertex {int(bad[0])} is collinear with its neighbours (degenerate corner)"
+    crossing = self_intersection(p)
+    if crossing is not None:
+        return f"is self-intersecting (edges {crossing[0]} and {crossing[1]} meet)"
+    if abs(signed_area(p)) < 1e-9:
+        return "has zero area"
+    return None
+
+
+def self_intersection(poly: np.ndarray) -> tuple[int, int] | None:
+    """The first pair of edges ``(i, j)`` of ``poly`` (K, 2) that meet other than at a shared
+    corner (edge i joins vertices i and i + 1), or None when the boundary does not cross itself."""
+    p = np.asarray(poly, dtype=np.float64).reshape(-1, 2)
+    k = len(p)
     for i in range(k):
         a0, a1 = p[i], p[(i + 1) % k]
         for j in range(i + 1, k):
-            if j == i or (j + 1) % k == i or j == (i + 1) % k:
+            if (j + 1) % k == i or j == (i + 1) % k:
                 continue  # adjacent edges share a corner
             if segments_intersect(a0, a1, p[j], p[(j + 1) % k]):
-                return f"is self-intersecting (edges {i} and {j} meet)"
-    if abs(signed_area(p)) < 1e-9:
-        return "has zero area"
+                return i, j
     return None
 
 

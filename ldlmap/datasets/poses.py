@@ -18,6 +18,11 @@ _STANFORD_FLIP = np.diag([-1.0, -1.0, 1.0])
 def _check_pose(R: np.ndarray, t: np.ndarray, source: Path) -> None:
     if not (np.all(np.isfinite(R)) and np.all(np.isfinite(t))):
         raise InputError(f"pose has non-finite values: {source}")
+    from ldlmap.core.frame import MAX_POSE_COORDINATE
+
+    if np.abs(t).max() > MAX_POSE_COORDINATE:
+        raise InputError(f"pose translation {np.abs(t).max():.3g} is beyond {MAX_POSE_COORDINATE:.0e} from the "
+                         f"origin (no place on Earth is): {source}")
     err = np.abs(R.T @ R - np.eye(3)).max()
     if err > ROTATION_TOLERANCE or np.linalg.det(R) <= 0:
         raise InputError(f"pose rotation is not a proper rotation (|R^T R - I| = {err:.2g}, "

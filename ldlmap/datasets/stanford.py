@@ -34,8 +34,8 @@ class Stanford2D3DS:
 
     def __init__(self, root: str | Path) -> None:
         self.root = require_root(root, "Stanford 2D-3D-S")
-        if not any((self.root / sub).is_dir() for sub in ("pano", "pcd", "pcd_line")):
-            raise InputError(f"not a Stanford 2D-3D-S root (no pano, pcd or pcd_line folder): {self.root}")
+        if not any(self._areas(sub) for sub in ("pano", "pcd", "pcd_line")):  # OmniScenes has pcd/ too
+            raise InputError(f"not a Stanford 2D-3D-S root (no area_N folder in pano, pcd or pcd_line): {self.root}")
 
     def __repr__(self) -> str:
         return f"Stanford2D3DS({str(self.root)!r})"

@@ -125,8 +125,9 @@ class ColmapViews:
 
 
 def _open_reconstruction(path: str | os.PathLike):
-    import pycolmap
+    from ldlmap.core.signals import import_pycolmap
 
+    pycolmap = import_pycolmap()
     p = Path(path)
     if not p.exists():
         raise InputError(f"COLMAP model folder not found: {p}")

@@ -40,8 +40,42 @@ def read_point_cloud(path: str | os.PathLike, mesh_samples: int = DEFAULT_MESH_S
     elif suffix == ".ply":
         pc = _read_ply(p)
     else:
+        if suffix == ".pcd":
+            _check_pcd_complete(p)
         pc = _read_open3d(p)
     return pc.validate(p)
+
+
+def _check_pcd_complete(path: Path) -> None:
+    """Refuse a PCD file that holds fewer points than its header's ``POINTS`` (a truncated file, which
+    open3d reads with the missing points at the origin): ASCII rows are counted, binary sizes checked."""
+    with open(path, "rb") as fh:
+        header: dict[str, list[str]] = {}
+        for _ in range(64):  # the header is a dozen lines; DATA ends it
+            words = fh.readline().decode("ascii", "replace").split()
+            if not words or words[0].startswith("#"):
+                continue
+            header[words[0].upper()] = words[1:]
+            if words[0].upper() == "DATA":
+                break
+        else:
+            return  # no DATA line: open3d says what is wrong
+        try:
+            points = int(header["POINTS"][0]) if "POINTS" in header else \
+                int(header["WIDTH"][0]) * int(header["HEIGHT"][0])
+            sizes = [int(x) for x in header.get("SIZE", [])]
+            counts = [int(x) for x in header.get("COUNT", ["1"] * len(sizes))]
+        except (KeyError, IndexError, ValueError):
+            return
+        kind = (header["DATA"] or ["?"])[0].lower()
+        if kind == "ascii":
+            got = sum(1 for line in fh if line.strip())
+        elif kind == "binary" and sizes and len(counts) == len(sizes):
+            got = (path.stat().st_size - fh.tell()) // sum(s * c for s, c in zip(sizes, counts))
+        else:
+            return  # binary_compressed: its own size field, checked by open3d
+    if got < points:
+        raise InputError(f"truncated PCD file: its header says {points} points, it holds {got}: {path}")
 
 
 def _read_ply(path: Path) -> PointCloud:

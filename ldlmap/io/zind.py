@@ -178,6 +178,7 @@ class ZindHome:
     meters_per_coordinate: dict[str, float]
     panos: tuple[ZindPano, ...]
     rooms: dict[tuple[str, str], ZindRoom]
+    warnings: tuple[str, ...] = ()  # rooms left out (a self-intersecting layout), one line each
 
     def floors(self) -> list[str]:
         return sorted({p.floor for p in self.panos} | {f for f, _ in self.rooms}, key=_natural_key)
@@ -283,6 +284,7 @@ def read_zind_home(folder: str | Path) -> ZindHome:
         raise InputError(f"{src}: scale_meters_per_coordinate must be an object keyed by floor")
     panos: list[ZindPano] = []
     rooms: dict[tuple[str, str], ZindRoom] = {}
+    warnings: list[str] = []
     meters: dict[str, float] = {}
     for floor, fdata in floors:
         m = _num(_field(scales, floor, "scale_meters_per_coordinate", src),
@@ -298,9 +300,33 @@ def read_zind_home(folder: str | Path) -> ZindHome:
             if not room_panos:
                 raise InputError(f"{src}: merger.{floor}.{room} has no panoramas")
             panos.extend(room_panos)
-            rooms[(floor, room)] = _make_room(floor, room, room_panos, src)
+            made = _make_room(floor, room, room_panos, src)
+            problem = _layout_problem(made.polygon)
+            if problem is not None:  # its map would be wrong: left out, said once per read
+                warnings.append(f"{src}: merger.{floor}.{room} left out: its layout_complete polygon "
+                                f"({made.source_pano}) {problem}")
+                continue
+            rooms[(floor, room)] = made
+    if not rooms:
+        raise InputError(f"{src}: no complete room with a usable layout on any floor: no map can be built"
+                         + (f" ({warnings[0]})" if warnings else ""))
     panos.sort(key=lambda p: (_natural_key(p.floor), _natural_key(p.partial_room), _natural_key(p.pano)))
-    return ZindHome(folder, folder.name, src, meters, tuple(panos), rooms)
+    return ZindHome(folder, folder.name, src, meters, tuple(panos), rooms, tuple(warnings))
+
+
+def _layout_problem(poly: np.ndarray) -> str | None:
+    """Why a room polygon cannot be a room (fewer than 3 corners, its boundary crossing itself, no
+    area), or None. Nearly collinear or repeated corners, common in annotations, are accepted."""
+    from ldlmap.core.polygon import self_intersection, signed_area
+
+    if len(poly) < 3:
+        return f"has {len(poly)} vertices"
+    crossing = self_intersection(poly)
+    if crossing is not None:
+        return f"crosses itself (edges {crossing[0]} and {crossing[1]})"
+    if abs(signed_area(poly)) < 1e-6:
+        return "has no area"
+    return None
 
 
 def _read_pano(folder: Path, floor: str, room: str, partial: str, pano: str, d: dict, m: float, src: Path) -> ZindPano:

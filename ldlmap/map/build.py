@@ -215,6 +215,7 @@ def scene_translations(src: SceneInput, lines: np.ndarray, lines_raw: np.ndarray
         T = candidate_translations(src.points, params.num_translations, params.translation_method,
                                    params.clearance, prior_centers=src.prior_centers)
         return T, {"method": params.translation_method, "num": int(params.num_translations)}
+    _check_band_meets_scene(params.camera_height, lines_raw)
     T = spaced_translations(lines_raw, params.trans_spacing, src.walkable, params.camera_height)
     if src.prior_centers is not None:
         T = np.concatenate([T, np.asarray(src.prior_centers, float).reshape(-1, 3)])
@@ -223,6 +224,19 @@ def scene_translations(src: SceneInput, lines: np.ndarray, lines_raw: np.ndarray
             "region": "layout polygons" if src.walkable is not None and src.walkable.polygons else "free space of the lines",
             "camera_height": [float(z) for z in zr] if zr is not None else None}
     return T, info
+
+
+def _check_band_meets_scene(band: tuple[float, float] | None, lines: np.ndarray) -> None:
+    """Refuse (one line) a camera-height band that lies wholly below the scene's floor or above its
+    ceiling (the lowest and highest line ends): no candidate translation could stand there."""
+    if band is None:
+        return
+    z = np.asarray(lines, dtype=np.float64)[..., 2]
+    floor, ceiling = float(z.min()), float(z.max())
+    if band[1] <= floor or band[0] >= ceiling:
+        where = "below the floor" if band[1] <= floor else "above the ceiling"
+        raise InputError(f"--camera-height {band[0]:g}:{band[1]:g} m lies {where}: the scene spans z = {floor:.2f} "
+                         f"to {ceiling:.2f} m, so no candidate translation is left")
 
 
 def _transformed(src: SceneInput, lines: np.ndarray | None, A: np.ndarray) -> tuple[SceneInput, np.ndarray | None]:

@@ -81,7 +81,10 @@ def write_map(path: str | Path, m: LdlMap) -> Path:
     validate_map(m)
     path = Path(path)
     with atomic_file(path) as tmp:
-        with h5py.File(tmp, "w") as h5:
+        # Built in memory, then written as one file image: a disk that fills up (or a file size
+        # limit) is then an OSError of a plain write, not an HDF5 driver failure that leaves the
+        # library in a state that crashes the interpreter at exit (exit 139).
+        with h5py.File(tmp, "w", driver="core", backing_store=False) as h5:
             h5.attrs["format_version"] = FORMAT_VERSION
             h5.attrs["name"] = m.name
             h5.attrs["created_with"] = "ldl-toolkit"
@@ -135,6 +138,13 @@ def write_map(path: str | Path, m: LdlMap) -> Path:
                     fl.create_dataset(k, data=v, **_COMPRESS)
             h5.flush()
             h5.attrs[_CHECKSUMS] = json.dumps(_checksums(*_read_datasets(h5, path)), sort_keys=True)
+            h5.flush()
+            image = h5.id.get_file_image()
+        try:
+            with open(tmp, "wb") as fh:
+                fh.write(image)
+        except OSError as exc:  # ENOSPC, EFBIG, EDQUOT: said of the map, not of its temporary file
+            raise InputError(f"cannot write map {path}: {exc.strerror or exc}") from None
     return path
 
 
@@ -281,6 +291,22 @@ def _attr_value(obj, key: str, kind: str, path: Path, default: Any = None) -> An
         if not isinstance(v, dict):
             raise InputError(f"corrupt LDL map {path}: {where} is not a JSON object")
     return v
+
+
+def is_map_file(path: str | Path) -> bool:
+    """Whether ``path`` is an HDF5 file written as an LDL map (``format_version`` and ``lines``), of
+    any version: the files a build may replace without ``--overwrite`` (never a user's other HDF5)."""
+    from ldlmap.core.errors import HDF5_SIGNATURE, starts_with
+
+    if not starts_with(path, HDF5_SIGNATURE):
+        return False
+    import h5py
+
+    try:
+        with h5py.File(path, "r") as h5:
+            return "format_version" in h5.attrs and isinstance(h5.get("lines"), h5py.Group)
+    except _H5_ERRORS:
+        return False
 
 
 def _open(path: Path):

@@ -31,6 +31,15 @@ KIND_NAMES = {"f": "floats", "i": "integers", "u": "unsigned integers", "b": "a 
 _MAX_IMAGE_SIDE = 1 << 15  # rendered views: at most this many pixels on a side
 
 
+def _check_coordinates(name: str, a: np.ndarray | None) -> None:
+    """Coordinates of the map frame within :data:`ldlmap.core.frame.MAX_MAP_COORDINATE` metres."""
+    from ldlmap.core.frame import MAX_MAP_COORDINATE
+
+    if a is not None and np.asarray(a).size and np.abs(a).max() > MAX_MAP_COORDINATE:
+        raise InputError(f"map field {name} has coordinates of {np.abs(a).max():.3g} m, beyond the "
+                         f"{MAX_MAP_COORDINATE:.0e} m of any map (damaged or not in metres)")
+
+
 def check_range(name: str, value: float, lo: float, hi: float) -> None:
     if not (np.isfinite(value) and lo <= value <= hi):
         raise InputError(f"map field {name} is {value}, expected a value in [{lo:g}, {hi:g}]")
@@ -62,6 +71,9 @@ def validate_map(m: LdlMap) -> None:
                        np.asarray(m.principal_directions), m.config.get("orthonormal_directions") is True)
     check_range("lambda", float(m.line_lambda), 0.0, np.inf)
     _check_array("translations", m.translations, (None, 3))
+    for name, a in (("bounds_min", m.bounds_min), ("bounds_max", m.bounds_max), ("lines_raw", m.lines_raw),
+                    ("lines", m.lines), ("translations", m.translations), ("cloud_points", m.cloud_points)):
+        _check_coordinates(name, a)
     if len(m.translations) == 0:
         raise InputError("map has no candidate translations")
     if len(m.lines) == 0:
@@ -121,6 +133,7 @@ def _validate_features(f: MapFeatures, num_translations: int) -> None:
     _check_array("features.view_centers", f.view_centers, (None, 3))
     _check_array("features.offsets", f.offsets, (f.num_views + 1,), "i")
     _check_array("features.xyz", f.xyz, (k, 3))
+    _check_coordinates("features.xyz", f.xyz)
     _check_array("features.keypoints", f.keypoints, (k, 2))
     _check_array("features.scores", f.scores, (k,))
     _check_array("features.descriptors", f.descriptors, (k, None), "d")

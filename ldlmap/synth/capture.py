@@ -11,7 +11,7 @@ from typing import Any, Callable, Mapping
 
 import numpy as np
 
-from ldlmap.core.errors import InputError, LdlError
+from ldlmap.core.errors import InputError, LdlError, atomic_dir
 from ldlmap.datasets.omniscenes import written_by_synth
 from ldlmap.synth.poses import sample_poses
 from ldlmap.synth.render import Renderer, apply_illumination
@@ -167,6 +167,80 @@ def refuse_replacing_other_dataset(out: Path, overwrite: bool) -> None:
     if overwrite and out.is_dir() and any(out.iterdir()) and not written_by_synth(out):
         raise LdlError(f"output folder {out} is not a dataset written by `ldlmap synth` (no dataset.json of ours): "
                        "--overwrite does not replace it; remove it yourself or choose another folder")
+
+
+GENERATED_TOP = ("dataset.json", "specs", "mesh", "gt_lines", "pcd")  # and <split>_pano, <split>_pose folders
+
+
+def generated_files(root: Path) -> set[str]:
+    """Paths (relative, posix) of the files `ldlmap synth` wrote in dataset ``root``: its
+    ``dataset.json`` lists them (``files``); a dataset written before that list, every file under
+    the generator's own top-level names."""
+    import json
+
+    root = Path(root)
+    try:
+        listed = json.loads((root / "dataset.json").read_text()).get("files")
+    except (OSError, ValueError, AttributeError):
+        listed = None
+    if isinstance(listed, list) and all(isinstance(f, str) for f in listed):
+        return {*listed, "dataset.json"}
+    ours = lambda top: top in GENERATED_TOP or top.endswith(("_pano", "_pose"))  # noqa: E731
+    return {p.relative_to(root).as_posix() for p in root.rglob("*")
+            if p.is_file() and ours(p.relative_to(root).parts[0])}
+
+
+def files_not_generated(root: Path) -> list[str]:
+    """The files (and empty folders) under synthetic dataset ``root`` that `ldlmap synth` did not
+    write (a user's notes, results, maps): ``synth --overwrite`` keeps them."""
+    root = Path(root)
+    ours = generated_files(root)
+    extra = [p.relative_to(root).as_posix() for p in sorted(root.rglob("*"))
+             if (p.is_symlink() or not p.is_dir() or not any(p.iterdir())) and p.relative_to(root).as_posix() not in ours]
+    return extra
+
+
+def list_generated(tmp: Path, meta: dict) -> dict:
+    """``meta`` with ``files``: every file written under ``tmp`` so far (before ``dataset.json``)."""
+    return {**meta, "files": sorted(p.relative_to(tmp).as_posix() for p in tmp.rglob("*") if p.is_file())}
+
+
+def dataset_output(out: Path, overwrite: bool):
+    """The :func:`atomic_dir` of a generated dataset: a new folder, or with ``overwrite`` one that
+    replaces only the files the generator wrote before, keeping any other (:func:`files_not_generated`)."""
+    out = Path(out)
+    if not (overwrite and out.is_dir() and written_by_synth(out) and files_not_generated(out)):
+        return atomic_dir(out, overwrite=overwrite)
+    return atomic_dir(out, overwrite=True, commit=lambda tmp, target: _replace_generated(tmp, target))
+
+
+def _replace_generated(tmp: Path, out: Path) -> None:
+    """Move the new dataset in ``tmp`` into ``out`` file by file: the old generated files go, the
+    others stay. ``dataset.json`` is replaced last, so a run killed midway leaves the old list (the
+    next ``--overwrite`` still knows what it wrote). A user's file where a new one would go is
+    refused before anything moves."""
+    import os
+    import shutil
+
+    old = generated_files(out)
+    new = sorted(p.relative_to(tmp).as_posix() for p in tmp.rglob("*") if p.is_file())
+    clash = [f for f in new if f not in old and (out / f).exists()]
+    if clash:
+        raise LdlError(f"the new dataset would replace {len(clash)} file(s) in {out} that `ldlmap synth` did not "
+                       f"write (first: {clash[0]}); move them away and run again")
+    for rel in sorted(old - {"dataset.json"}):
+        (out / rel).unlink(missing_ok=True)
+    for rel in new:
+        if rel != "dataset.json":
+            (out / rel).parent.mkdir(parents=True, exist_ok=True)
+            os.replace(tmp / rel, out / rel)
+    os.replace(tmp / "dataset.json", out / "dataset.json")
+    folders = {(out / rel).parent for rel in old} - {out}
+    for folder in sorted(folders, key=lambda p: len(p.parts), reverse=True):  # emptied folders of ours
+        while folder != out and folder.is_dir() and not any(folder.iterdir()):
+            folder.rmdir()
+            folder = folder.parent
+    shutil.rmtree(tmp, ignore_errors=True)
 
 
 class ProgressTicks:

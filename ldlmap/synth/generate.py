@@ -18,7 +18,9 @@ scan stays the unchanged scene.
 Everything derives from ``seed`` through independent random streams per scene and per stage
 (``np.random.default_rng([seed, spec.seed, scene, stage])``), so the same seed gives byte-identical files
 and turning the illumination splits off changes nothing else. The whole folder is built in a
-temporary sibling and renamed at the end (:func:`~ldlmap.core.errors.atomic_dir`).
+temporary sibling and renamed at the end (:func:`~ldlmap.core.errors.atomic_dir`); ``dataset.json``
+lists the files written (``files``), and ``--overwrite`` replaces only those, keeping a user's
+other files (:func:`ldlmap.synth.capture.dataset_output`).
 """
 
 from __future__ import annotations
@@ -29,9 +31,8 @@ import time
 from pathlib import Path
 from typing import Any, Sequence
 
-from ldlmap.core.errors import atomic_dir
 from ldlmap.datasets.omniscenes import SYNTH_GENERATOR
-from ldlmap.synth.capture import (BASE_SPLITS, DatasetSummary, GENERATOR_VERSION, ILLUMINATION_SPLITS, capture_settings,
+from ldlmap.synth.capture import (BASE_SPLITS, DatasetSummary, dataset_output, list_generated, GENERATOR_VERSION, ILLUMINATION_SPLITS, capture_settings,
                                   check_dataset_seed, write_split_panoramas, ProgressTicks, stream_rng)
 from ldlmap.synth.render import Renderer
 
@@ -89,7 +90,7 @@ def generate_dataset(out: Path, preset: str | None = "demo", spec_paths: Sequenc
     scene_info = []
     total = sum(4 + sum(c.counts.values()) for c in settings)
 
-    with atomic_dir(out, overwrite=overwrite) as tmp, ProgressTicks(progress, total) as tick:
+    with dataset_output(out, overwrite) as tmp, ProgressTicks(progress, total) as tick:
         for idx, (spec, cap, name) in enumerate(zip(specs, settings, names), start=1):
             W, H = cap.width, cap.height
             mesh = build_scene(spec)
@@ -125,7 +126,7 @@ def generate_dataset(out: Path, preset: str | None = "demo", spec_paths: Sequenc
                 "illumination": sorted({v for c in settings for v in c.illumination}),
                 "layout": "omniscenes", "scenes": scene_info,
                 "splits": {s: {"images": split_counts[s]} for s in splits}}
-        (tmp / "dataset.json").write_text(json.dumps(meta, indent=2) + "\n")
+        (tmp / "dataset.json").write_text(json.dumps(list_generated(tmp, meta), indent=2) + "\n")
 
     return DatasetSummary(out=out, seed=int(seed), scenes=names, splits=split_counts, points=points,
                           width=settings[0].width if settings else 0,

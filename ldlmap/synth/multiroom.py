@@ -39,7 +39,7 @@ from typing import Any
 
 import numpy as np
 
-from ldlmap.core.errors import InputError, atomic_dir
+from ldlmap.core.errors import InputError
 
 SCENE = "multiroom_1"
 
@@ -208,7 +208,8 @@ def generate_multiroom(out: Path, preset: str = "multiroom", seed: int = 0, room
     from ldlmap.io.linefiles import write_lines
     from ldlmap.synth.edges import mesh_edges
     from ldlmap.datasets.omniscenes import SYNTH_GENERATOR
-    from ldlmap.synth.capture import (BASE_SPLITS, GENERATOR_VERSION, ILLUMINATION_SPLITS, DatasetSummary,
+    from ldlmap.synth.capture import (BASE_SPLITS, GENERATOR_VERSION, ILLUMINATION_SPLITS, DatasetSummary, dataset_output,
+                                      list_generated,
                                       ProgressTicks, capture_settings, stream_rng, write_split_panoramas)
     from ldlmap.synth.meshio import write_textured_obj
     from ldlmap.synth.render import Renderer
@@ -235,7 +236,7 @@ def generate_multiroom(out: Path, preset: str = "multiroom", seed: int = 0, room
     first = {s: 0 for s in BASE_SPLITS}  # next image number of each split in the shared scene folder
     n_points = 0
 
-    with atomic_dir(out, overwrite=overwrite) as tmp, ProgressTicks(progress, total) as tick:
+    with dataset_output(out, overwrite) as tmp, ProgressTicks(progress, total) as tick:
         (tmp / "specs").mkdir(parents=True)
         for idx, (spec, cap, off) in enumerate(zip(specs, settings, offsets), start=1):
             room = f"{name}_room_{idx}"
@@ -288,7 +289,7 @@ def generate_multiroom(out: Path, preset: str = "multiroom", seed: int = 0, room
                 "illumination": sorted({v for c in settings for v in c.illumination}),
                 "layout": "omniscenes", "scenes": [scene_info],
                 "splits": {s: {"images": split_counts[s]} for s in splits}}
-        (tmp / "dataset.json").write_text(json.dumps(meta, indent=2) + "\n")
+        (tmp / "dataset.json").write_text(json.dumps(list_generated(tmp, meta), indent=2) + "\n")
 
     return DatasetSummary(out=out, seed=int(seed), scenes=[name], splits=split_counts, points={name: int(len(P))},
                           width=W, height=H, seconds=time.perf_counter() - start)

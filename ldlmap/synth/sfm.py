@@ -201,8 +201,9 @@ def write_colmap_workspace(mesh: SceneMesh, out: str | Path, cap: SfmCapture = S
     rgb = np.concatenate([rgb, rng.integers(0, 256, (n_out, 3))]).astype(np.uint8)
     _write_text_model(model_dir, K, cap, Rs, Cs, names, X, rgb, uv, seen)
     if cap.binary:
-        import pycolmap
+        from ldlmap.core.signals import import_pycolmap
 
+        pycolmap = import_pycolmap()
         pycolmap.Reconstruction(str(model_dir)).write_binary(str(model_dir))
         for f in model_dir.glob("*.txt"):
             f.unlink()
