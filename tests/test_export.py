@@ -249,9 +249,11 @@ def test_bad_options_are_one_line_errors(run_results, tmp_path, args, expect):
 
 def test_bad_results_files_are_one_line_errors(tmp_path):
     bad = tmp_path / "bad.json"
-    bad.write_text('{"queries": [{"image": "a.jpg", "scene": "s", "split": "x", "name": "q", "R": [1, 2]}]}')
+    bad.write_text('{"queries": [{"image": "a.jpg", "scene": "s", "split": "x", "name": "q", "status": "ok", "t_error_m": null, '
+                   '"r_error_deg": null, "R": [1, 2]}]}')
     assert "queries[0].R must be" in _error(["export", bad, "--format", "ply", "-o", tmp_path / "o.ply"])
-    bad.write_text('{"queries": [{"image": "a.jpg", "scene": "s", "split": "x", "name": "q", "verdict": "sure"}]}')
+    bad.write_text('{"queries": [{"image": "a.jpg", "scene": "s", "split": "x", "name": "q", "status": "ok", "t_error_m": null, '
+                   '"r_error_deg": null, "verdict": "sure"}]}')
     assert "queries[0].verdict must be" in _error(["export", bad, "--format", "ply", "-o", tmp_path / "o.ply"])
     bad.write_text("not json")
     assert "not JSON" in _error(["export", bad, "--format", "ply", "-o", tmp_path / "o.ply"])
@@ -260,7 +262,8 @@ def test_bad_results_files_are_one_line_errors(tmp_path):
     empty = tmp_path / "empty.json"
     empty.write_text('{"queries": []}')
     assert "holds no queries" in _error(["export", empty, "--format", "ply", "-o", tmp_path / "o.ply"])
-    empty.write_text('{"queries": [{"image": "a.jpg", "scene": "s", "split": "x", "name": "q", "status": "failed"}]}')
+    empty.write_text('{"queries": [{"image": "a.jpg", "scene": "s", "split": "x", "name": "q", "status": "failed", '
+                     '"t_error_m": null, "r_error_deg": null}]}')
     assert "nothing to export" in _error(["export", empty, "--format", "ply", "-o", tmp_path / "o.ply"])
     assert not (tmp_path / "o.ply").exists()
 
