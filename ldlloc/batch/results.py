@@ -42,7 +42,7 @@ from ldlmap.core.errors import (FormatVersionError, InputError, LdlError, atomic
 
 RESULTS_FORMAT_VERSION = 1  # top-level "format_version" of a results file (absent: written before it, read as 1)
 STATUSES = ("ok", "coarse", "failed")
-OPTION_KEYS = ("dataset", "root", "splits", "map_level", "device", "params", "max_tilt_deg")  # meta compared by --resume
+OPTION_KEYS = ("dataset", "root", "splits", "map_level", "device", "params", "max_tilt_deg", "maps", "top_maps")  # meta compared by --resume
 MAX_RESULTS_BYTES = 2 << 30  # a results file larger than this is not one of ours (2 GiB: ~1 million queries)
 
 
@@ -96,6 +96,11 @@ _FIELD_CHECKS: dict[str, tuple[Any, str]] = {
     "input_frame": (lambda x: x is None or (isinstance(x, dict) and _is_matrix(x.get("R"), 3, 3)
                                             and _is_matrix(x.get("t"), 3)), "{R: 3x3, t: 3} or null"),
     "picture_error": (lambda x: x is None or isinstance(x, str), "a string or null"),
+    "map": (lambda x: x is None or isinstance(x, str), "a string or null"),
+    "map_runner_up": (lambda x: x is None or (isinstance(x, dict) and isinstance(x.get("map"), str)
+                                              and _is_number(x.get("score"))), "{map: string, score: number} or null"),
+    "map_scores": (lambda x: x is None or (isinstance(x, list) and all(isinstance(v, dict) for v in x)),
+                   "a list of objects or null"),
 }
 _REQUIRED_FIELDS = ("image", "scene", "split", "name")
 
