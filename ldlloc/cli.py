@@ -334,16 +334,20 @@ def _run_images(images: str, maps: Optional[Path], output: Optional[Path], param
     say = lambda message: console.print(message, soft_wrap=True, highlight=False)  # noqa: E731
     meta = image_run_meta(images, maps, top_maps)
     opts = {"meta": meta, "top_maps": top_maps, "any_options": any_options, "say": say}
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
     if ray is not None:  # one Ray actor per CPU slot, each holding every map (ldlloc/batch/ray_run.py)
         from ldlloc.batch.ray_run import run_images_ray
         from ldlmap.batch.ray_cluster import ThroughputBar
 
+        with console.status(f"checking {len(files)} map(s)"):  # the actors load them; bad maps are said here
+            for f, why in MapSet.load(maps, params, "cpu").skipped:
+                say(f"[yellow]warning:[/] {f} left out: {why}")
         with ThroughputBar(console, "localizing") as bar:
             results = run_images_ray(queries, maps, output, params, device, resume, save_vis, **opts, progress=bar,
                                      address=ray, threads=threads)
         _print_run(results, "images", output, params.max_tilt_deg)
         return
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
     with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(),
                   console=console, transient=True) as bar:
