@@ -14,6 +14,8 @@ Results file (DESIGN.md section 4)::
                  search: {"top1_0.5m_10deg": a, "topk_0.5m_10deg": a} (when candidates were kept),
                  ...}}
 
+Image runs (``run --images``: ``split="images"``, no errors) add ``map``, ``map_runner_up`` and
+``map_scores`` (:mod:`ldlloc.batch.images`), and their summary counts by map instead of accuracies.
 The candidates are in the JSON only (not in the CSV). Files written before these fields existed
 still load (the fields get their defaults: no candidates, rotation prior "free").
 
