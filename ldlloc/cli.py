@@ -207,13 +207,20 @@ def _print_localization(pano: Path, loc, loading: dict, errors: Optional[dict], 
 
 @app.command()
 def run(
+    images: Optional[str] = typer.Option(None, "--images", metavar="PATH|GLOB", help="Your own panoramas instead of "
+                                         "a dataset (no ground truth): an image, a folder (searched recursively for "
+                                         ".jpg .jpeg .png .bmp .tif .tiff .webp) or a quoted glob ('shots/*.jpg'); "
+                                         "needs --maps FILE|DIR."),
+    top_maps: int = typer.Option(2, "--top-maps", metavar="N", help="--images with several maps: refine the panorama "
+                                 "on the N maps whose pose search scores best and keep the best of them."),
     root: Optional[Path] = typer.Option(None, "--root", help="Dataset root (default ./data/<dataset>)."),
     dataset: Optional[str] = typer.Option(None, "--dataset", help=DATASET_HELP),
     map_level: Optional[str] = typer.Option(None, "--map-level",
                                             help="room | floor: which maps of `ldlmap prepare` to use (zind)."),
     split: Optional[list[str]] = typer.Option(None, "--split", help=SPLIT_HELP),
     scene: Optional[str] = typer.Option(None, "--scene", help="Only queries of this scene."),
-    maps: Optional[Path] = typer.Option(None, "--maps", help="Folder of the maps (default ROOT/maps)."),
+    maps: Optional[Path] = typer.Option(None, "--maps", help="Folder of the maps (default ROOT/maps); with --images "
+                                        "a map file or a folder searched recursively for .h5 maps."),
     output: Optional[Path] = typer.Option(None, "--output", "-o", help="Results JSON, a .json name (a CSV of the "
                                           "same name is written beside it; a run holds NAME.json.lock while it writes); "
                                           "default results/DATASET[_ROOT][_LEVEL]_SPLITS[_SCENE].json, a name per "
@@ -240,9 +247,11 @@ def run(
     threads: int = threads_option(),
     ray: Optional[str] = ray_option(),
 ) -> None:
-    """Localize every query of a dataset split (or all splits) and print accuracy tables.
+    """Localize every query of a dataset split (or all splits) and print accuracy tables; or, with
+    --images, your own panoramas against a map or a folder of maps (which map: --top-maps).
 
-    With --ray, one Ray actor per scene map serves its queries (one GPU each with --device cuda)."""
+    With --ray, one Ray actor per scene map serves its queries (one GPU each with --device cuda);
+    with --images, one actor per Ray CPU slot holds all the maps."""
     from ldlloc.batch.results import check_results_path, refuse_replacing_results
     from ldlloc.batch.run import default_results_path, missing_maps_message, run_queries, scenes_without_maps
     from ldlmap.core.errors import InputError
@@ -253,6 +262,13 @@ def run(
         check_results_path(output)
     if resume_any_options and not resume:
         raise InputError("--resume-any-options goes with --resume")
+    if images is not None:
+        given = [o for o, v in (("--root", root), ("--dataset", dataset), ("--split", split), ("--scene", scene),
+                                ("--map-level", map_level)) if v]
+        if given:
+            raise InputError(f"--images runs without a dataset: drop {', '.join(given)}")
+        return _run_images(images, maps, output, params, top_maps, device, resume, resume_any_options, save_vis,
+                           weights, threads, ray, overwrite)
     from ldlmap.datasets import MAP_LEVELS
 
     if map_level is not None and map_level not in MAP_LEVELS:
@@ -303,14 +319,72 @@ def run(
     _print_run(results, label, output, max_tilt)
 
 
+def _run_images(images: str, maps: Optional[Path], output: Optional[Path], params, top_maps: int, device: str,
+                resume: bool, any_options: bool, save_vis: Optional[Path], weights: Optional[Path], threads: int,
+                ray: Optional[str], overwrite: bool) -> None:
+    """`run --images`: find the panoramas and the maps, localize, print the counts (ldlloc/batch/images.py)."""
+    from ldlloc.batch.images import default_images_output, find_images, image_run_meta, picture_path, run_images
+    from ldlloc.batch.which_map import MapSet, map_files
+    from ldlmap.core.errors import InputError, refuse_overwriting_inputs
+    from ldlloc.batch.results import refuse_replacing_results, results_outputs
+
+    if maps is None:
+        raise InputError("--images needs --maps: a map (.h5) or a folder of maps")
+    check_range(top_maps, "--top-maps", 1, 1000, integer=True)
+    queries = find_images(images, exclude=[save_vis] if save_vis is not None else [])
+    files, _ = map_files(maps)
+    output = output or default_images_output(images)
+    pictures = [picture_path(save_vis, q) for q in queries] if save_vis is not None else []
+    refuse_overwriting_inputs([weights, *files, *(q.image for q in queries)], [*results_outputs(output), *pictures])
+    refuse_replacing_results(output, overwrite, resume)
+    check_device(device, local=ray is None)
+    set_threads(threads)
+    say = lambda message: console.print(message, soft_wrap=True, highlight=False)  # noqa: E731
+    meta = image_run_meta(images, maps, top_maps)
+    opts = {"meta": meta, "top_maps": top_maps, "any_options": any_options, "say": say}
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+    if ray is not None:  # one Ray actor per CPU slot, each holding every map (ldlloc/batch/ray_run.py)
+        from ldlloc.batch.ray_run import run_images_ray
+        from ldlmap.batch.ray_cluster import ThroughputBar
+
+        with console.status(f"checking {len(files)} map(s)"):  # the actors load them; bad maps are said here
+            for f, why in MapSet.load(maps, params, "cpu").skipped:
+                say(f"[yellow]warning:[/] {f} left out: {why}")
+        with ThroughputBar(console, "localizing") as bar:
+            results = run_images_ray(queries, maps, output, params, device, resume, save_vis, **opts, progress=bar,
+                                     address=ray, threads=threads)
+        _print_run(results, "images", output, params.max_tilt_deg)
+        return
+
+    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(),
+                  console=console, transient=True) as bar:
+        task = bar.add_task(f"loading {len(files)} map(s)", total=len(files))
+        mapset = MapSet.load(maps, params, device, progress=lambda f: bar.update(task, advance=1,
+                                                                                   description=f"loading {f.name}"))
+        for f, why in mapset.skipped:
+            say(f"[yellow]warning:[/] {f} left out: {why}")
+        bar.update(task, total=len(queries), completed=0, description="localizing")
+
+        def progress(r) -> None:
+            bar.update(task, advance=1, description=f"{r.name}: {r.status}" + ("" if r.status == "failed"
+                                                                              else f" in {r.scene}"))
+
+        results = run_images(queries, mapset, output, params, device, resume, save_vis, **opts, progress=progress)
+    _print_run(results, "images", output, params.max_tilt_deg)
+
+
 def _print_run(results: list, label: str, output: Path, max_tilt: Optional[float]) -> None:
     """The tables of a run, its failures and pictures not written, and where the results went; a
     run in which no query could be localized is an error (exit 1) after its failures."""
-    from ldlloc.batch.accuracy import summary_table, timing_table
+    from ldlloc.batch.accuracy import has_ground_truth, summary_table, timing_table
     from ldlmap.core.errors import InputError
 
     failed = [r for r in results if r.status == "failed"]
-    if len(failed) < len(results):
+    if len(failed) < len(results) and not has_ground_truth(results):  # image runs: counts by map, timings
+        console.print(summary_table(results, "scene", f"{label} by map"))
+        console.print(timing_table(results))
+    elif len(failed) < len(results):
         console.print(summary_table(results, "scene", f"{label} by scene"))
         console.print(summary_table(results, "split", f"{label} by split"))
         console.print(timing_table(results))

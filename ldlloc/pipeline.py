@@ -209,6 +209,57 @@ def query_frame_groups(rotations: np.ndarray, max_frames: int = 3, split_deg: fl
     return [(R[f], np.flatnonzero(nearest == j)) for j, f in enumerate(frames)]
 
 
+def _check_panorama_array(image_rgb: np.ndarray) -> np.ndarray:
+    img = np.asarray(image_rgb)
+    if img.ndim != 3 or img.shape[2] != 3 or img.dtype != np.uint8 or img.shape[1] != 2 * img.shape[0]:
+        raise InputError(f"panorama must be uint8 (H, 2H, 3), got {img.dtype} {img.shape}")
+    return img
+
+
+class QueryLines:
+    """A panorama's 2D lines (stage 1: they do not depend on the map), detected once and shared by
+    every map it is localized against, with its vanishing points voted once per length ratio."""
+
+    def __init__(self, arcs: np.ndarray, seconds: float):
+        self.arcs, self.seconds = arcs, float(seconds)  # all detected arcs; seconds the detection took
+        self._vps: dict = {}
+
+    @classmethod
+    def detect(cls, img: np.ndarray, params: LocalizeParams) -> "QueryLines":
+        from ldlloc.lines2d import detect_lines
+
+        tick = time.perf_counter()
+        arcs = detect_lines(img, params.lines2d)
+        if len(arcs) < 3:
+            raise InputError(f"too few lines in the panorama ({len(arcs)} detected): a flat or empty image?")
+        return cls(arcs, time.perf_counter() - tick)
+
+    def vanishing_points(self, ratio: float, principal: PrincipalParams) -> np.ndarray:
+        """The vanishing points of the longest ``ratio`` of the lines (cached: the same for every map)."""
+        from ldlloc.lines2d import filter_by_length
+        from ldlloc.rotation import vanishing_points
+
+        key = (float(ratio), principal)
+        if key not in self._vps:
+            self._vps[key] = vanishing_points(filter_by_length(self.arcs, ratio), principal.k_2d, principal)
+        return self._vps[key]
+
+
+@dataclass
+class Searched:
+    """:meth:`Localizer.search`'s result: the coarse localization and what refinement needs."""
+
+    out: Localization  # the search's best pose as a Localization (not refined yet)
+    res: object  # ldlloc.search.pose_search.SearchResult: the top-K poses
+    arcs: np.ndarray  # the length-filtered arcs the search used
+    labels: np.ndarray  # (N_r, N) principal group of each arc under each candidate rotation
+
+    @property
+    def best_loss(self) -> float:
+        """The search's best loss (lower is better): the cheap score of a map for this panorama."""
+        return float(self.res.losses[0])
+
+
 class Localizer:
     """Holds one map (and its feature backend) and localizes panoramas against it."""
 
@@ -394,28 +445,31 @@ class Localizer:
     def feature_backend(self) -> str | None:
         return self.backend.name if self.backend is not None else None
 
-    def localize(self, image_rgb: np.ndarray, max_tilt_deg: float | None = None) -> Localization:
-        """Localize an RGB panorama (H, W, 3) uint8; raises InputError when it cannot even search.
+    def detect_lines(self, image_rgb: np.ndarray) -> QueryLines:
+        """Stage 1 of :meth:`localize` alone: the panorama's 2D lines, which do not depend on the map
+        (share them between the maps a panorama is localized against: :meth:`search`'s ``lines``)."""
+        return QueryLines.detect(_check_panorama_array(image_rgb), self.params)
 
-        ``max_tilt_deg``: the upright prior for this panorama, overriding
-        ``params.max_tilt_deg`` (None: the params'; 180: free rotation).
-        """
-        from ldlloc.lines2d import detect_lines, filter_by_length, query_keep_ratio
-        from ldlloc.rotation import candidate_rotations, filter_by_tilt, labels_for_rotations, vanishing_points
+    def search(self, image_rgb: np.ndarray, max_tilt_deg: float | None = None,
+               lines: QueryLines | None = None) -> Searched:
+        """Stages 1-3 of :meth:`localize` (2D lines, candidate rotations, pose search): the coarse
+        :class:`Localization` and what refinement needs. ``lines``: the panorama's 2D lines from
+        :meth:`detect_lines` (shared with other maps; their seconds are counted as ``lines2d``)."""
+        from ldlloc.lines2d import filter_by_length, query_keep_ratio
+        from ldlloc.rotation import candidate_rotations, filter_by_tilt, labels_for_rotations
         from ldlloc.search.pose_search import search_poses
         from ldlmap.core.frame import is_identity
 
         p, m = self.params, self.map
-        img = np.asarray(image_rgb)
-        if img.ndim != 3 or img.shape[2] != 3 or img.dtype != np.uint8 or img.shape[1] != 2 * img.shape[0]:
-            raise InputError(f"panorama must be uint8 (H, 2H, 3), got {img.dtype} {img.shape}")
+        img = _check_panorama_array(image_rgb)
         tilt = p.max_tilt_deg if max_tilt_deg is None else float(max_tilt_deg)
         if tilt is not None and not (0.0 < tilt <= 180.0):
             raise InputError(f"the tilt bound must be in (0, 180] degrees, got {tilt:g}")
         if tilt is not None and tilt >= 180.0:
             tilt = None
-        secs: dict[str, float] = {}
-        t0 = tick = time.perf_counter()
+        lines = QueryLines.detect(img, p) if lines is None else lines
+        secs: dict[str, float] = {"lines2d": lines.seconds}
+        tick = time.perf_counter()
 
         def lap(name: str) -> None:
             nonlocal tick
@@ -423,17 +477,14 @@ class Localizer:
             secs[name] = now - tick
             tick = now
 
-        arcs_all = detect_lines(img, p.lines2d)
-        if len(arcs_all) < 3:
-            raise InputError(f"too few lines in the panorama ({len(arcs_all)} detected): a flat or empty image?")
+        arcs_all = lines.arcs
         keep = query_keep_ratio(m.kept_ratio, p.lines2d)  # the map's kept ratio within bounds
         arcs = filter_by_length(arcs_all, keep)
-        lap("lines2d")
         # Vanishing points from the longest lines first; more (shorter) lines only when those
         # do not give 3 directions that match the map's (within the tilt bound, if any).
         found = 0
         for ratio in sorted({max(keep, p.vp_keep_ratio), 0.5, 1.0}):
-            vps = vanishing_points(filter_by_length(arcs_all, ratio), p.principal.k_2d, p.principal)
+            vps = lines.vanishing_points(ratio, p.principal)
             rots = candidate_rotations(vps, m.principal_directions, params=p.principal)
             found = max(found, len(rots))
             if tilt is not None:
@@ -458,6 +509,30 @@ class Localizer:
                            candidates_loss=np.asarray(res.losses, dtype=np.float64),
                            rotation_prior=rotation_prior_name(tilt),
                            input_to_map=None if is_identity(m.input_to_map) else m.input_to_map)
+        return Searched(out, res, arcs, labels)
+
+    def localize(self, image_rgb: np.ndarray, max_tilt_deg: float | None = None, lines: QueryLines | None = None,
+                 searched: Searched | None = None) -> Localization:
+        """Localize an RGB panorama (H, W, 3) uint8; raises InputError when it cannot even search.
+
+        ``max_tilt_deg``: the upright prior for this panorama, overriding
+        ``params.max_tilt_deg`` (None: the params'; 180: free rotation). ``lines``: its 2D lines
+        (:meth:`detect_lines`), ``searched``: its :meth:`search` on this map, when already done
+        (several maps: ``ldlloc.batch.which_map``). ``seconds["total"]`` is the sum of the stages.
+        """
+        img = _check_panorama_array(image_rgb)
+        if searched is None:
+            searched = self.search(img, max_tilt_deg, lines)
+        out, res, arcs, labels = searched.out, searched.res, searched.arcs, searched.labels
+        secs = out.seconds
+        tick = time.perf_counter()
+
+        def lap(name: str) -> None:
+            nonlocal tick
+            now = time.perf_counter()
+            secs[name] = now - tick
+            tick = now
+
         if self.refine_enabled:
             ref, out.num_query_features = self._refine_features(img, arcs[out.arc_groups >= 0], res)
             out.rot_cam_from_world, out.center = ref.rot_cam_from_world, ref.center
@@ -473,5 +548,5 @@ class Localizer:
         else:
             out.message = "pose search only (no refinement)"
         lap("refine")
-        secs["total"] = time.perf_counter() - t0
+        secs["total"] = sum(v for k, v in secs.items() if k != "total")
         return out

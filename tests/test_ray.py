@@ -258,3 +258,22 @@ def test_worker_imports_this_source_tree(cluster):
         return ldlmap.__file__
 
     assert cluster.get(cluster.remote(where).remote()) == ldlmap.__file__
+
+
+def test_image_run_on_ray_equals_the_plain_one(cluster, demo_dataset, tmp_path):
+    """`run --images --ray`: actors holding both maps give the plain image run's records (and its
+    failed one for a corrupt image) but for the timings."""
+    imgs = tmp_path / "imgs"
+    imgs.mkdir()
+    for room, stem in (("synthroom_1", "0001"), ("synthroom_2", "0003")):
+        (imgs / f"{room}.jpg").symlink_to(demo_dataset / "robot_pano" / f"robot_{room}_scene_1" / f"{stem}.jpg")
+    (imgs / "broken.jpg").write_bytes(b"\x00" * 64)
+    base = ["run", "--images", str(imgs), "--maps", str(demo_dataset / "maps"), "--top-maps", "1"]
+    for out, extra in ((tmp_path / "plain.json", []), (tmp_path / "ray.json", ["--ray", "local"])):
+        res = runner.invoke(loc_app, [*base, *extra, "--output", str(out)])
+        assert res.exit_code == 0, res.output
+    plain, on_ray = (json.loads((tmp_path / f"{k}.json").read_text())["queries"] for k in ("plain", "ray"))
+    strip = lambda rs: [{k: v for k, v in r.items() if k not in ("seconds", "message")} for r in rs]  # noqa: E731
+    assert strip(plain) == strip(on_ray)
+    assert [r["scene"] for r in on_ray] == ["(none)", "synthroom_1", "synthroom_2"]
+    assert on_ray[0]["status"] == "failed" and "image" in on_ray[0]["message"]

@@ -28,7 +28,7 @@ THRESHOLDS: tuple[tuple[str, float, float], ...] = (
     ("0.1m_5deg", 0.1, 5.0),
     ("0.2m_10deg", 0.2, 10.0),
 )
-STAGES = ("lines2d", "rotation", "search", "refine", "total")
+STAGES = ("lines2d", "rotation", "search", "refine", "total")  # image runs on several maps add "choose"
 GOOD_T_M = 0.5  # a top-K candidate is "good" within 0.5 m and 10 degrees of the truth
 GOOD_R_DEG = 10.0
 
@@ -70,6 +70,9 @@ class QueryResult:
     first_good_rank: int | None = None  # 1-based rank of the first candidate within 0.5 m / 10 deg
     input_frame: dict | None = None  # maps built from another frame (SfM): the pose {R, t} in that frame
     picture_error: str | None = None  # --save-vis: why this query's picture was not written (its result stands)
+    map: str | None = None  # image runs: path of the map the pose is in (the chosen one)
+    map_runner_up: dict | None = None  # image runs on several maps: the next best {"map": path, "score": loss}
+    map_scores: list | None = None  # image runs on several maps: [{"map", "search_loss", "loss"}], best search first
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> "QueryResult":
@@ -102,9 +105,13 @@ def _median(values: Iterable[float]) -> float | None:
 def summarize(results: list[QueryResult], device: str | None = None) -> dict[str, Any]:
     """Counts, median errors, accuracy at each threshold and median per-stage seconds.
 
-    Failed queries count as not localized (infinite error) in the accuracies and medians.
+    Failed queries count as not localized (infinite error) in the accuracies and medians. Runs
+    without ground truth (:func:`has_ground_truth`: image runs) have no errors, accuracies or
+    search ranks (None) but per-map counts (``maps``: map -> {count, ok, coarse, failed}).
     """
     n = len(results)
+    if not has_ground_truth(results):
+        return _summarize_without_truth(results, device)
     terr = np.array([r.t_error_m if r.t_error_m is not None else np.inf for r in results], float)
     rerr = np.array([r.r_error_deg if r.r_error_deg is not None else np.inf for r in results], float)
     acc = {name: (float(np.mean((terr < m) & (rerr < d))) if n else None) for name, m, d in THRESHOLDS}
@@ -130,6 +137,35 @@ def summarize(results: list[QueryResult], device: str | None = None) -> dict[str
     return out
 
 
+def has_ground_truth(results: list[QueryResult]) -> bool:
+    """Whether errors can be known: records of a dataset run (image runs, ``split="images"``, have none)."""
+    return not results or any(r.split != "images" for r in results)
+
+
+def _summarize_without_truth(results: list[QueryResult], device: str | None) -> dict[str, Any]:
+    """:func:`summarize` of an image run: counts by status and by map, median stage seconds."""
+    stages = sorted({s for r in results for s in r.seconds})
+    per_map: dict[str, dict[str, int]] = {}
+    for r in results:
+        c = per_map.setdefault(r.map or r.scene, {"count": 0, "ok": 0, "coarse": 0, "failed": 0})
+        c["count"] += 1
+        c[r.status] += 1
+    out: dict[str, Any] = {
+        "count": len(results),
+        "localized": int(sum(r.status == "ok" for r in results)),
+        "failed": int(sum(r.status == "failed" for r in results)),
+        "coarse_only": int(sum(r.status == "coarse" for r in results)),
+        "median_t_error_m": None, "median_r_error_deg": None,
+        "accuracy": {name: None for name, _, _ in THRESHOLDS},
+        "median_seconds": {s: _median(r.seconds.get(s) for r in results if r.status != "failed") for s in stages},
+        "median_num_rotations": _median(r.num_rotations for r in results if r.status != "failed"),
+        "maps": dict(sorted(per_map.items())),
+    }
+    if device is not None:
+        out["device"] = device
+    return out
+
+
 def group_by(results: list[QueryResult], key: str) -> dict[str, list[QueryResult]]:
     """Results grouped by an attribute (``scene`` or ``split``), keys sorted."""
     groups: dict[str, list[QueryResult]] = {}
@@ -147,13 +183,13 @@ def results_csv(results: list[QueryResult]) -> str:
     w = csv.writer(buf)
     w.writerow(["name", "scene", "split", "image", "status", "t_error_m", "r_error_deg", "tx", "ty", "tz",
                 "num_rotations", "num_matches", "num_inliers", "refined", "refine_method", "rotation_prior",
-                "best_candidate_t_error_m", "best_candidate_r_error_deg", "first_good_rank"]
+                "best_candidate_t_error_m", "best_candidate_r_error_deg", "first_good_rank", "map"]
                + [f"sec_{s}" for s in stages])
     for r in results:
         t = r.t if r.t is not None else [None] * 3
         w.writerow([r.name, r.scene, r.split, r.image, r.status, r.t_error_m, r.r_error_deg, *t,
                     r.num_rotations, r.num_matches, r.num_inliers, int(r.refined), r.refine_method, r.rotation_prior,
-                    r.best_candidate_t_error_m, r.best_candidate_r_error_deg, r.first_good_rank]
+                    r.best_candidate_t_error_m, r.best_candidate_r_error_deg, r.first_good_rank, r.map]
                    + [r.seconds.get(s) for s in stages])
     return buf.getvalue()
 
@@ -167,6 +203,8 @@ def summary_table(results: list[QueryResult], by: str, title: str):
     from rich.table import Table
 
     groups = group_by(results, by)
+    if not has_ground_truth(results):
+        return _counts_table(groups, by, title)
     table = Table(title=title, caption="accuracy: fraction of queries within (t, R) error; errors are medians")
     table.add_column(by, no_wrap=True, min_width=max([len(k) for k in groups] + [3]))
     for col in ("n", "fail", "t m", "R °", "5cm,5°", "10cm,5°", "20cm,10°", "s"):
@@ -182,14 +220,32 @@ def summary_table(results: list[QueryResult], by: str, title: str):
     return table
 
 
+def _counts_table(groups: dict[str, list[QueryResult]], by: str, title: str):
+    """:func:`summary_table` without ground truth: per group, queries localized (refined), coarse
+    (the search's pose kept) and failed, and the median seconds."""
+    from rich.table import Table
+
+    table = Table(title=title, caption="no ground truth: ok = refined pose, coarse = the search's pose")
+    table.add_column(by, no_wrap=True, min_width=max([len(k) for k in groups] + [3]))
+    for col in ("n", "ok", "coarse", "fail", "s"):
+        table.add_column(col, justify="right", no_wrap=True)
+    rows = list(groups.items()) + ([("all", [r for rs in groups.values() for r in rs])] if len(groups) > 1 else [])
+    for name, rs in rows:
+        s = summarize(rs)
+        table.add_row(name, str(s["count"]), str(s["localized"]), str(s["coarse_only"]), str(s["failed"]),
+                      _fmt(s["median_seconds"].get("total"), ".2f"), style="bold" if name == "all" else None)
+    return table
+
+
 def timing_table(results: list[QueryResult], title: str = "median seconds per stage"):
     """A Rich table of the median seconds of each stage (successful queries)."""
     from rich.table import Table
 
     ok = [r for r in results if r.status != "failed"]
     s = summarize(ok)["median_seconds"] if ok else {}
+    stages = [*STAGES[:-1], *sorted(set(s) - set(STAGES)), STAGES[-1]]  # e.g. image runs' "choose"
     table = Table(title=title)
-    for st in STAGES:
+    for st in stages:
         table.add_column(st, justify="right")
-    table.add_row(*[_fmt(s.get(st), ".3f") for st in STAGES])
+    table.add_row(*[_fmt(s.get(st), ".3f") for st in stages])
     return table

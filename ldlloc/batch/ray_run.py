@@ -118,3 +118,78 @@ def _run_on_ray(writer: ResultsWriter, queries: list, maps_dir: str | Path, para
     writer.meta["finished"] = True
     writer.flush()
     return writer.results
+
+
+# ------------------------------------------------------------------ --images: actors holding all maps
+
+
+class ImagesLocalizer:
+    """Ray actor of ``run --images``: every map of the run (a panorama may be in any of them, and
+    the which-map ranking searches them all), loaded once, and the panoramas sent to it."""
+
+    def __init__(self, cwd: str, maps: str, params: LocalizeParams, device: str, top_maps: int,
+                 save_vis: str | None = None, threads: int = 1):
+        from ldlloc.batch.which_map import MapSet
+        from ldlmap.core.cli_common import set_threads
+
+        enter_folder(cwd)
+        set_threads(threads)
+        self.params, self.top_maps, self.save_vis = params, top_maps, save_vis
+        self.maps = MapSet.load(maps, params, device)
+
+    def localize(self, q) -> tuple[QueryResult, WorkerInfo]:
+        from ldlloc.batch.images import localize_image_query
+
+        return localize_image_query(self.maps, q, self.params, self.top_maps, self.save_vis), current_worker()
+
+
+def run_images_ray(queries: list, maps: str | Path, output: str | Path, params: LocalizeParams, device: str = "cpu",
+                   resume: bool = False, save_vis: str | Path | None = None, meta: dict | None = None,
+                   top_maps: int = 3, progress: Callable[[TaskDone], None] | None = None, address: str = "local",
+                   threads: int = 1, any_options: bool = False,
+                   say: Callable[[str], None] | None = None) -> list[QueryResult]:
+    """:func:`ldlloc.batch.images.run_images` on a Ray cluster: as many :class:`ImagesLocalizer`
+    actors as the cluster has slots of ``threads`` CPUs (one GPU each with cuda), at most one per
+    panorama, each holding all the maps (so any actor can take any panorama: the panoramas are
+    dealt out in turn). Results are written by the driver as they arrive; faults and Ctrl-C as
+    :func:`run_queries_ray`."""
+    from ldlloc.batch.images import failed_image_result
+
+    with open_results(output, params, device, meta, resume, any_options, queries, say) as writer:
+        done = writer.done()
+        todo = [q for q in sorted(queries, key=lambda q: q.name) if q.name not in done]
+        if not todo:
+            return writer.results
+        with ray_session(address) as ray:
+            need = check_resources(ray, device, max(1, threads))
+            have = ray.cluster_resources()
+            slots = int(have.get("CPU", 1) // need["num_cpus"])
+            if "num_gpus" in need:
+                slots = min(slots, int(have.get("GPU", 1)))
+            actor_cls = ray.remote(ImagesLocalizer).options(**need, max_restarts=RETRIES, max_task_retries=RETRIES)
+            vis = None if save_vis is None else str(save_vis)
+            actors = [actor_cls.remote(os.getcwd(), str(maps), params, device, top_maps, vis, threads)
+                      for _ in range(max(1, min(slots, len(todo))))]
+            refs = {actors[i % len(actors)].localize.remote(q): q for i, q in enumerate(todo)}
+            finished: set = set()
+            try:
+                for batch in as_completed(list(refs)):
+                    arrived = []
+                    for ref, value, exc in batch:
+                        q = refs[ref]
+                        r, worker = (value if exc is None
+                                     else (failed_image_result(q, params, failure_reason(exc), 0.0), None))
+                        finished.add(ref)
+                        arrived.append(r)
+                        if progress:
+                            progress(TaskDone(f"{r.name}: {r.status}", worker, len(finished), len(todo)))
+                    writer.extend(arrived)
+            except BaseException:
+                stop([r for r in refs if r not in finished], actors)
+                raise
+            for a in actors:
+                ray.kill(a)
+        rank = {q.name: i for i, q in enumerate(todo)}
+        writer.results.sort(key=lambda r: rank.get(r.name, -1))
+        writer.flush()
+        return writer.results

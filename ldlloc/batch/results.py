@@ -14,6 +14,8 @@ Results file (DESIGN.md section 4)::
                  search: {"top1_0.5m_10deg": a, "topk_0.5m_10deg": a} (when candidates were kept),
                  ...}}
 
+Image runs (``run --images``: ``split="images"``, no errors) add ``map``, ``map_runner_up`` and
+``map_scores`` (:mod:`ldlloc.batch.images`), and their summary counts by map instead of accuracies.
 The candidates are in the JSON only (not in the CSV). Files written before these fields existed
 still load (the fields get their defaults: no candidates, rotation prior "free").
 
@@ -42,7 +44,7 @@ from ldlmap.core.errors import (FormatVersionError, InputError, LdlError, atomic
 
 RESULTS_FORMAT_VERSION = 1  # top-level "format_version" of a results file (absent: written before it, read as 1)
 STATUSES = ("ok", "coarse", "failed")
-OPTION_KEYS = ("dataset", "root", "splits", "map_level", "device", "params", "max_tilt_deg")  # meta compared by --resume
+OPTION_KEYS = ("dataset", "root", "splits", "map_level", "device", "params", "max_tilt_deg", "maps", "top_maps")  # meta compared by --resume
 MAX_RESULTS_BYTES = 2 << 30  # a results file larger than this is not one of ours (2 GiB: ~1 million queries)
 
 
@@ -96,6 +98,11 @@ _FIELD_CHECKS: dict[str, tuple[Any, str]] = {
     "input_frame": (lambda x: x is None or (isinstance(x, dict) and _is_matrix(x.get("R"), 3, 3)
                                             and _is_matrix(x.get("t"), 3)), "{R: 3x3, t: 3} or null"),
     "picture_error": (lambda x: x is None or isinstance(x, str), "a string or null"),
+    "map": (lambda x: x is None or isinstance(x, str), "a string or null"),
+    "map_runner_up": (lambda x: x is None or (isinstance(x, dict) and isinstance(x.get("map"), str)
+                                              and _is_number(x.get("score"))), "{map: string, score: number} or null"),
+    "map_scores": (lambda x: x is None or (isinstance(x, list) and all(isinstance(v, dict) for v in x)),
+                   "a list of objects or null"),
 }
 # Fields every record has had since the first results file (ResultsWriter writes every field): a record
 # without one is not ours (``report`` would count it as a failure at 0.00 accuracy).
