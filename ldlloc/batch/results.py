@@ -96,6 +96,13 @@ _FIELD_CHECKS: dict[str, tuple[Any, str]] = {
     "input_frame": (lambda x: x is None or (isinstance(x, dict) and _is_matrix(x.get("R"), 3, 3)
                                             and _is_matrix(x.get("t"), 3)), "{R: 3x3, t: 3} or null"),
     "picture_error": (lambda x: x is None or isinstance(x, str), "a string or null"),
+    "confidence": (lambda x: x is None or (_is_number(x) and 0 <= x <= 1), "a number in [0, 1] or null"),
+    "verdict": (lambda x: x is None or x in ("confident", "ambiguous", "failed"), "confident | ambiguous | failed or null"),
+    "competitors": (lambda x: isinstance(x, list) and all(
+        isinstance(c, dict) and _is_matrix(c.get("R"), 3, 3) and _is_matrix(c.get("t"), 3)
+        and isinstance(c.get("why", ""), str) for c in x), "a list of {R: 3x3, t: 3, loss, why}"),
+    "confidence_signals": (lambda x: x is None or (isinstance(x, dict) and all(
+        isinstance(k, str) and _is_number(v) for k, v in x.items())), "an object of finite numbers or null"),
 }
 _REQUIRED_FIELDS = ("image", "scene", "split", "name")
 
