@@ -15,7 +15,7 @@ Sets (each run once and cached under ``bench/.cache/confidence/``; ``--rerun`` r
 Printed per set: the verdict counts, the precision of the confident poses (within 0.25 m / 5 deg
 and 0.1 m / 5 deg), their coverage and the risk-coverage table (accuracy within 0.25 m / 5 deg of
 the x % most confident queries, x = 50, 70, 80, 90, 100). The confidence is recomputed from each
-record's ``confidence_signals`` with the current :data:`ldlloc.confidence.MODELS`, so cached runs
+record's ``confidence_signals`` with the current :data:`ldlloc.confidence.MODEL`, so cached runs
 stay valid when the model is refitted. ``--fit`` fits the logistic on the synthetic records (both
 refinements) and prints the constants to put into ``ldlloc/confidence.py``; the real home is never
 fitted on, only checked. Results: ``bench/confidence.json``.
@@ -82,8 +82,7 @@ def cached_run(name: str, queries: list, maps: Path, params, rerun: bool) -> lis
     path = CACHE / "confidence" / f"{name}.json"
     if path.exists() and not rerun:
         results, _ = load_results(path)
-        if all(r.status == "failed" or (r.confidence_signals and ("inliers" in r.confidence_signals
-                                                                   or "margin" in r.confidence_signals))
+        if all(r.status == "failed" or (r.confidence_signals and "features" in r.confidence_signals)
                for r in results):
             return results
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -151,16 +150,15 @@ def real_results(data: Path, real_maps: Path | None, rerun: bool) -> dict[str, l
 
 def rows(results: list) -> list[dict]:
     """Per query: the signals, the confidence and verdict of the current model, right or not."""
-    from ldlloc.confidence import MODELS, model_kind, verdict_for
+    from ldlloc.confidence import MODEL, verdict_for
 
     out = []
     for r in results:
         ok = r.status != "failed" and r.t_error_m is not None
         sig = r.confidence_signals or {}
-        kind = model_kind(r.refine_method)
-        conf = MODELS[kind].confidence(sig) if ok and sig else 0.0
-        out.append({"name": f"{r.scene}/{r.split}/{r.name}", "kind": kind, "signals": sig, "confidence": conf,
-                    "verdict": verdict_for(conf, r.competitors, MODELS[kind]) if ok else "failed",
+        conf = MODEL.confidence(sig) if ok and sig else 0.0
+        out.append({"name": f"{r.scene}/{r.split}/{r.name}", "signals": sig, "confidence": conf,
+                    "verdict": verdict_for(conf, r.competitors) if ok else "failed",
                     "competitors": [c["why"] for c in r.competitors],
                     "good": bool(ok and r.t_error_m < OK_T and r.r_error_deg < OK_R),
                     "tight": bool(ok and r.t_error_m < TIGHT_T and r.r_error_deg < TIGHT_R),
@@ -185,15 +183,14 @@ def set_summary(rs: list[dict]) -> dict:
             "ambiguous_with_competitors": sum(bool(r["competitors"]) for r in rs if r["verdict"] == "ambiguous")}
 
 
-def fit(rs: list[dict], kind: str) -> dict:
-    """L2-regularized logistic on the standardized signals of ``kind`` (scipy), folded back to raw
-    weights, and the smallest threshold at which the confident poses are >= TARGET_PRECISION right."""
+def fit(rs: list[dict], signals: tuple[str, ...]) -> dict:
+    """L2-regularized logistic with non-negative weights on the standardized ``signals`` (scipy),
+    folded back to raw weights, and the smallest threshold at which the confident poses are >=
+    TARGET_PRECISION right."""
     from scipy.optimize import minimize
 
-    from ldlloc.confidence import SIGNALS
-
-    rs = [r for r in rs if r["signals"] and r["kind"] == kind]
-    X = np.array([[r["signals"].get(k, 0.0) for k in SIGNALS[kind]] for r in rs], float)
+    rs = [r for r in rs if r["signals"]]
+    X = np.array([[r["signals"].get(k, 0.0) for k in signals] for r in rs], float)
     y = np.array([r["good"] for r in rs], float)
     mu, sd = X.mean(0), X.std(0).clip(1e-6)
     Z = (X - mu) / sd
@@ -202,7 +199,10 @@ def fit(rs: list[dict], kind: str) -> dict:
         z = w[0] + Z @ w[1:]
         return float(np.sum(np.logaddexp(0, z) - y * z) + L2 * np.sum(w[1:] ** 2))
 
-    w = minimize(nll, np.zeros(X.shape[1] + 1), method="BFGS").x
+    # monotone: no signal may lower the confidence as it grows (an explainable model, and one that
+    # cannot learn a synthetic quirk backwards)
+    bounds = [(None, None)] + [(0.0, None)] * X.shape[1]
+    w = minimize(nll, np.zeros(X.shape[1] + 1), method="L-BFGS-B", bounds=bounds).x
     weights = w[1:] / sd
     bias = w[0] - float(np.sum(w[1:] * mu / sd))
     p = 1 / (1 + np.exp(-(bias + X @ weights)))
@@ -213,7 +213,7 @@ def fit(rs: list[dict], kind: str) -> dict:
             threshold = float(t)
         elif sel.sum() >= 10:
             break
-    return {"bias": round(float(bias), 3), "weights": {k: round(float(v), 3) for k, v in zip(SIGNALS[kind], weights)},
+    return {"bias": round(float(bias), 3), "weights": {k: round(float(v), 3) for k, v in zip(signals, weights)},
             "confident_at": round(threshold, 3), "n": int(len(y)), "right": int(y.sum())}
 
 
@@ -237,9 +237,8 @@ def print_queries(name: str, rs: list[dict]) -> None:
     from rich.table import Table
 
     t = Table(title=f"{name}: per query")
-    from ldlloc.confidence import SIGNALS
+    from ldlloc.confidence import SIGNALS as names
 
-    names = SIGNALS["lines"]
     for col in ("query", *names, "conf", "verdict", "competitors", "t err m", "r err deg"):
         t.add_column(col)
     for r in sorted(rs, key=lambda r: -r["confidence"]):
@@ -274,7 +273,9 @@ def main(argv: list[str] | None = None) -> int:
     out: dict = {}
     synthetic = [r for name, rs in table.items() if name.startswith("synthetic") for r in rs]
     if args.fit:
-        out["fit"] = {kind: fit(synthetic, kind) for kind in ("features", "lines")}
+        from ldlloc.confidence import SIGNALS
+
+        out["fit"] = fit(synthetic, SIGNALS)
         console().print(f"fitted on synthetic: {out['fit']}")
     summaries = {name: set_summary(rs) for name, rs in table.items()}
     if synthetic:
@@ -285,9 +286,9 @@ def main(argv: list[str] | None = None) -> int:
             print_queries(name, table[name])
     from dataclasses import asdict
 
-    from ldlloc.confidence import MODELS
+    from ldlloc.confidence import MODEL
 
-    out.update(models={k: asdict(m) for k, m in MODELS.items()},
+    out.update(model=asdict(MODEL),
                sets=summaries, queries=table)
     Path(args.output).write_text(json.dumps(out, indent=1))
     print(f"wrote {args.output}")

@@ -38,36 +38,28 @@ UP_AXIS_DEG = 20.0  # a relative rotation whose axis is within this of the world
 @dataclass(frozen=True)
 class ConfidenceModel:
     """``confidence = sigmoid(bias + sum(weights[k] * signals[k]))``; ``confident`` at or above
-    ``confident_at``, else ``ambiguous`` when a competitor is named, else ``failed``."""
+    ``confident_at``; else ``ambiguous`` when a competitor is named and the confidence is at least
+    ``failed_below``; else ``failed``."""
 
     bias: float
     weights: dict[str, float]
     confident_at: float
+    failed_below: float = 0.1  # below this the logistic gives the pose < 10 % of being right: not a candidate
 
     def confidence(self, signals: dict[str, float]) -> float:
         z = self.bias + sum(w * float(signals.get(k, 0.0)) for k, w in self.weights.items())
         return float(1.0 / (1.0 + np.exp(-np.clip(z, -50, 50))))
 
 
-# One model per kind of final pose (model_kind): ``features`` (PnP on matched local features) and
-# ``lines`` (the geometric refinement, or the coarse pose). Fitted by bench/bench_confidence.py --fit
-# on the synthetic set (docs/measurements.md#confidence): an L2-regularized logistic on standardized
-# signals folded back to raw weights; ``confident_at``: the smallest confidence above which >= 99 % of
-# the synthetic poses of that kind are within 0.25 m / 5 deg.
-MODELS: dict[str, ConfidenceModel] = {
-    "features": ConfidenceModel(bias=-4.0, weights={"gap": 4.0, "support": 4.0, "support_gap": 4.0,
-                                                    "inliers": 1.0}, confident_at=0.9),
-    "lines": ConfidenceModel(bias=-4.0, weights={"gap": 4.0, "support": 4.0, "support_gap": 8.0, "margin": 8.0,
-                                                 "refined": 1.0}, confident_at=0.9),
-}
-SIGNALS = {"features": ("gap", "support", "support_gap", "inliers"),
-           "lines": ("gap", "support", "support_gap", "margin", "refined")}
-NO_CONTENDER_MARGIN = 0.5  # ``margin`` when no distinct refined pose came within the selection's reach
-
-
-def model_kind(refine_method: str) -> str:
-    """``features`` when local features made the final pose, else ``lines``."""
-    return "features" if str(refine_method).startswith("features") else "lines"
+# Fitted by `bench/bench_confidence.py --fit` on the synthetic sets only (256 poses; docs/measurements.md#confidence):
+# a logistic with non-negative weights, L2-regularized on the standardized signals and folded back to raw
+# weights. support and support_gap got 0 next to margin. ``confident_at``: the smallest confidence above
+# which >= 99 % of the synthetic poses are within 0.25 m / 5 deg.
+MODEL = ConfidenceModel(bias=-7.082, weights={"gap": 5.313, "support": 0.0, "support_gap": 0.0, "margin": 16.704,
+                                              "features": 7.011, "refined": 5.438}, confident_at=0.799)
+SIGNALS = ("gap", "support", "support_gap", "margin", "features", "refined")
+NO_CONTENDER_MARGIN = 0.5  # ``margin`` when no distinct refined pose came within the selection's reach (its
+# support_within, 0.25, plus a support gap); the signal is clipped to it
 
 
 def rotation_kind(R_final: np.ndarray, R_other: np.ndarray) -> str:
@@ -158,14 +150,12 @@ def confidence_signals(loc, ldl_map, support_deg: float = 1.0) -> tuple[dict[str
         vis = ldl_map.visibility[ldl_map.nearest_translation(t)]
     arcs = loc.arcs if loc.arcs is not None else np.zeros((0, 2, 3))
     support = map_line_support(arcs, R, t, ldl_map.lines, ldl_map.line_groups, vis, support_deg)
+    m = loc.selection_margin  # None: no selection among refined poses ran (feature refinement, its fallback)
     signals = {"gap": gap, "support": float(support[0]),
                "support_gap": float(support[0] - support[1]) if len(support) > 1 else float(support[0]),
-               "refined": float(bool(loc.refined))}
-    if model_kind(loc.refine_method) == "features":
-        signals["inliers"] = float(np.log1p(loc.num_inliers))  # PnP inliers, on a log scale
-    else:
-        m = loc.selection_margin
-        signals["margin"] = NO_CONTENDER_MARGIN if m is None else float(np.clip(m, -1.0, NO_CONTENDER_MARGIN))
+               "margin": 0.0 if m is None else float(np.clip(m, -1.0, NO_CONTENDER_MARGIN)),
+               "features": float(str(loc.refine_method).startswith("features")),
+               "refined": float(bool(loc.refined)), "inliers": float(loc.num_inliers)}
     return signals, others
 
 
@@ -187,20 +177,20 @@ def competitor_dicts(loc, others: np.ndarray, max_gap: float = COMPETITOR_GAP,
     return out
 
 
-def verdict_for(confidence: float | None, competitors: list, model: ConfidenceModel) -> str:
+def verdict_for(confidence: float | None, competitors: list, model: ConfidenceModel = MODEL) -> str:
     """``confident`` at or above the model's threshold; else ``ambiguous`` when competitors are
-    named; else ``failed`` (no pose, or a doubtful one with nothing to offer beside it)."""
+    named and the pose is still plausible (``failed_below``); else ``failed`` (no pose, a pose the
+    model gives little chance, or a doubtful one with nothing to offer beside it)."""
     if confidence is None:
         return "failed"
     if confidence >= model.confident_at:
         return "confident"
-    return "ambiguous" if competitors else "failed"
+    return "ambiguous" if competitors and confidence >= model.failed_below else "failed"
 
 
-def assess(loc, ldl_map, support_deg: float = 1.0, models: dict[str, ConfidenceModel] = MODELS) -> None:
+def assess(loc, ldl_map, support_deg: float = 1.0, model: ConfidenceModel = MODEL) -> None:
     """Set ``confidence``, ``verdict``, ``competitors`` and ``confidence_signals`` on ``loc``."""
     signals, others = confidence_signals(loc, ldl_map, support_deg)
-    model = models[model_kind(loc.refine_method)]
     loc.confidence_signals = {k: round(v, 6) for k, v in signals.items()}
     loc.confidence = round(model.confidence(signals), 6)
     loc.competitors = competitor_dicts(loc, others)

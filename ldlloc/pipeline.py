@@ -94,7 +94,8 @@ class Localization:
     rotation_prior: str = "free"  # "free" or "upright<=Xdeg" (see rotation_prior_name)
     input_to_map: np.ndarray | None = None  # the map's input -> map similarity when not the identity
     selection_margin: float | None = None  # geometric refinement: the winner's selection score (-loss / max|loss|
-    # + map-line support) over the best refined pose distinct from it (ldlloc.confidence.distinct); None: none competed
+    # + map-line support) over the best refined pose distinct from it (ldlloc.confidence.distinct); None: no
+    # selection ran (feature refinement, or its geometric fallback)
     confidence: float | None = None  # how far to trust the pose, in [0, 1] (ldlloc.confidence)
     verdict: str | None = None  # confident | ambiguous | failed
     competitors: list = field(default_factory=list)  # distinct poses of nearly the same loss: {R, t, loss, why}
@@ -333,10 +334,10 @@ class Localizer:
             score = full
         k = int(np.argmax(score))
         c = int(cand[k])
-        from ldlloc.confidence import distinct
+        from ldlloc.confidence import NO_CONTENDER_MARGIN, distinct
 
         other = distinct(rots[k], centers[k], rots, centers) & np.isfinite(score)
-        out.selection_margin = float(score[k] - score[other].max()) if other.any() else None
+        out.selection_margin = float(score[k] - score[other].max()) if other.any() else NO_CONTENDER_MARGIN
         out.coarse_rot, out.coarse_center = res.rotations[c], res.centers[c]
         out.rot_cam_from_world, out.center = rots[k], centers[k]
         out.arc_groups = assign_arcs_to_principal(arcs, (out.rot_cam_from_world @ m.principal_directions.T).T,

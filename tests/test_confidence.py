@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from ldlloc.confidence import MODELS, assess, rotation_kind, verdict_for, why
+from ldlloc.confidence import MODEL, assess, rotation_kind, verdict_for, why
 from ldlloc.pipeline import Localization
 
 runner = CliRunner()
@@ -64,7 +64,7 @@ def test_clear_winner_is_confident():
     assess(loc, m)
     assert loc.confidence_signals["gap"] == pytest.approx(0.55)
     assert loc.confidence_signals["support"] > 0.9  # the map's edges lie on the image's lines
-    assert loc.verdict == "confident" and loc.confidence >= MODELS["lines"].confident_at
+    assert loc.verdict == "confident" and loc.confidence >= MODEL.confident_at
     assert loc.competitors == []  # 55 % worse: no competitor
 
 
@@ -77,7 +77,7 @@ def test_near_equal_twin_is_ambiguous_and_named():
     assess(loc, m)
     assert loc.confidence_signals["gap"] == pytest.approx(0.01)
     assert abs(loc.confidence_signals["support_gap"]) < 0.05  # both explain the box
-    assert loc.verdict == "ambiguous" and loc.confidence < MODELS["lines"].confident_at
+    assert loc.verdict == "ambiguous" and loc.confidence < MODEL.confident_at
     assert [c["why"] for c in loc.competitors] == ["180-degree twin"]
     assert np.allclose(loc.competitors[0]["R"], twin) and loc.competitors[0]["loss"] == -99.0
 
@@ -86,14 +86,16 @@ def test_no_pose_is_failed():
     from ldlloc.batch.run import failed_result
     from ldlloc.pipeline import LocalizeParams
 
-    model = MODELS["lines"]
+    model = MODEL
     assert verdict_for(None, [], model) == "failed"
     q = SimpleNamespace(image="p.jpg", scene="s", split="robot", name="p", upright=False)
     r = failed_result(q, LocalizeParams(), "too few lines")
     assert (r.verdict, r.confidence, r.competitors) == ("failed", 0.0, [])
-    # a doubtful pose with nothing beside it is failed too; with a competitor, ambiguous
-    assert verdict_for(0.0, [], model) == "failed"
-    assert verdict_for(0.0, [{"why": "other position"}], model) == "ambiguous"
+    # a doubtful pose is failed without a competitor, or when it is too unlikely; else ambiguous
+    doubtful = (model.failed_below + model.confident_at) / 2
+    assert verdict_for(doubtful, [], model) == "failed"
+    assert verdict_for(0.0, [{"why": "other position"}], model) == "failed"
+    assert verdict_for(doubtful, [{"why": "other position"}], model) == "ambiguous"
 
 
 def test_competitor_reasons():
