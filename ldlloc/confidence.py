@@ -14,10 +14,15 @@ axis) whose loss comes close to it. The signals (:func:`confidence_signals`):
   there, that lie on an image line; the inlier loss counts the other way round;
 - ``support_gap``: ``support`` minus the best distinct candidate's support (what tells a
   symmetric twin apart);
-- ``refined``: 1 when the refinement was kept (0: the coarse pose).
+- ``margin``: the geometric refinement's selection score of the final pose (its loss over the
+  best's plus its support) over the best refined pose distinct from it
+  (``Localization.selection_margin``), clipped to [-1, 0.5]; 0.5 when none came within reach, 0
+  where no such selection ran (feature refinement and its fallback);
+- ``features``: 1 when the feature refinement (PnP) made the final pose; ``refined``: 1 when a
+  refinement was kept (0: the coarse pose); ``inliers``: PnP inliers (recorded, not weighted).
 
 ``confidence = sigmoid(MODEL . signals)``, a logistic fitted on synthetic data and checked on the
-real ZInD home (docs/measurements.md#confidence; ``bench/bench_confidence.py`` refits it).
+real ZInD home (docs/measurements.md#confidence; ``bench/bench_confidence.py --fit`` refits it).
 """
 
 from __future__ import annotations
@@ -27,7 +32,6 @@ from typing import Any
 
 import numpy as np
 
-VERDICTS = ("confident", "ambiguous", "failed")
 SAME_T_M = 0.5  # a candidate within 0.5 m and 20 deg of the final pose (or of its start) is that pose
 SAME_R_DEG = 20.0  # (the search keeps its top K 0.35 m / 5 deg apart: nearby ones are one pose's neighbours)
 COMPETITOR_GAP = 0.1  # a distinct candidate whose loss is within 10 % of the final pose's start competes
