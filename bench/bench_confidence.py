@@ -4,10 +4,15 @@ Run: ``python bench/bench_confidence.py [--data ../shared/data] [--real-maps DIR
 
 Sets (each run once and cached under ``bench/.cache/confidence/``; ``--rerun`` runs again):
 
-- ``synthetic``: two demo-preset datasets of ``ldlmap synth`` (seeds 11 and 12: 4 rooms, every
-  split, 3 panoramas per split and scene, 96 queries) with SIFT maps (``ldlmap prepare``),
+- ``synthetic rooms``: the demo-preset dataset of ``ldlmap synth`` of seed 11 (2 rooms, every
+  split, 3 panoramas per split and room: 48 queries) with SIFT maps (``ldlmap prepare``),
   localized twice: ``--refine auto`` (features) and ``--refine geometric`` (lines alone, as the
-  real layout maps are);
+  real layout maps are); ``synthetic rooms wrong map``: the first panorama of each split and room
+  against the other room's map (16 queries, every pose wrong), both refinements;
+- ``synthetic multiroom``: ``--preset multiroom --per-split 2`` of seed 11 (4 demo rooms in one
+  map, a synthetic floor map: 64 queries), both refinements;
+- ``held-out multiroom``: ``--preset multiroom`` of seed 12 (64 queries, both refinements), never
+  fitted on: the synthetic check of the fit;
 - ``real room`` and ``real floor``: the 19 panoramas of the shared ZInD home against its room
   maps and its floor map (maps from ``--real-maps`` (folders ``room_*``/``floor_*`` as
   ``bench/bench_real.py`` caches them), else built by bench_real's :func:`build_maps`).
@@ -16,8 +21,8 @@ Printed per set: the verdict counts, the precision of the confident poses (withi
 and 0.1 m / 5 deg), their coverage and the risk-coverage table (accuracy within 0.25 m / 5 deg of
 the x % most confident queries, x = 50, 70, 80, 90, 100). The confidence is recomputed from each
 record's ``confidence_signals`` with the current :data:`ldlloc.confidence.MODEL`, so cached runs
-stay valid when the model is refitted. ``--fit`` fits the logistic on the synthetic records (both
-refinements) and prints the constants to put into ``ldlloc/confidence.py``; the real home is never
+stay valid when the model is refitted. ``--fit`` fits the logistic on the ``synthetic`` sets (256
+poses) and prints the constants to put into ``ldlloc/confidence.py``; the real home is never
 fitted on, only checked. Results: ``bench/confidence.json``.
 """
 
@@ -39,6 +44,7 @@ from bench.common import CACHE, console  # noqa: E402
 
 SEEDS = (11,)  # demo-preset datasets (2 rooms each)
 MULTIROOM_SEED = 11
+HELD_OUT_SEED = 12  # a second multiroom dataset, never fitted on: the synthetic check of the fit
 COVERAGES = (50, 70, 80, 90, 100)
 OK_T, OK_R = 0.25, 5.0  # the confidence target: confident poses within 0.25 m / 5 deg
 TIGHT_T, TIGHT_R = 0.1, 5.0
@@ -104,14 +110,17 @@ def wrong_map_queries(queries: list) -> list:
     return [replace(q, scene=other[q.scene]) for q in first.values()]
 
 
-def synthetic_results(rerun: bool) -> dict[str, list]:
+def synthetic_results(rerun: bool, held_out: bool = True) -> dict[str, list]:
     from dataclasses import replace
 
     from ldlmap.datasets import open_dataset
     from ldlloc.pipeline import LocalizeParams
 
     out: dict[str, list] = {}
-    for root in [synthetic_dataset(seed) for seed in SEEDS] + [multiroom_dataset(MULTIROOM_SEED)]:
+    roots = [synthetic_dataset(seed) for seed in SEEDS] + [multiroom_dataset(MULTIROOM_SEED)]
+    if held_out:
+        roots.append(multiroom_dataset(HELD_OUT_SEED))
+    for root in roots:
         queries = open_dataset(root, "omniscenes").queries()
         runs = [(root.name, queries)]
         if len({q.scene for q in queries}) > 1:
@@ -119,6 +128,8 @@ def synthetic_results(rerun: bool) -> dict[str, list]:
         for name, qs in runs:
             for mode, kind in (("auto", "features"), ("geometric", "geometric")):
                 label = "synthetic multiroom" if name.startswith("multiroom") else "synthetic rooms"
+                if root.name.endswith(f"_s{HELD_OUT_SEED}") and name.startswith("multiroom"):
+                    label = "held-out multiroom"  # not "synthetic ...": left out of the fit
                 key = f"{label}{' wrong map' * name.endswith('wrong_map')} {kind}"
                 out.setdefault(key, []).extend(cached_run(f"{name}_{mode}", qs, root / "maps",
                                                           replace(LocalizeParams(), refine_mode=mode), rerun))
@@ -259,6 +270,7 @@ def main(argv: list[str] | None = None) -> int:
                     "another checkout's bench/.cache/real (default: build them like bench_real.py)")
     ap.add_argument("--fit", action="store_true", help="fit the logistic on the synthetic sets and print it")
     ap.add_argument("--rerun", action="store_true", help="localize again instead of reading cached runs")
+    ap.add_argument("--no-held-out", action="store_true", help="skip the held-out multiroom dataset (seed 12)")
     ap.add_argument("--threads", type=int, default=1, help="torch and OpenCV threads (default 1)")
     ap.add_argument("--output", default=str(HERE / "confidence.json"))
     args = ap.parse_args(argv)
@@ -267,7 +279,7 @@ def main(argv: list[str] | None = None) -> int:
 
     torch.set_num_threads(args.threads)
     cv2.setNumThreads(args.threads)
-    sets = synthetic_results(args.rerun)
+    sets = synthetic_results(args.rerun, not args.no_held_out)
     sets.update(real_results(real_data_root(args.data), Path(args.real_maps) if args.real_maps else None, args.rerun))
     table = {name: rows(rs) for name, rs in sets.items()}
     out: dict = {}

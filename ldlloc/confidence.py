@@ -160,6 +160,7 @@ def confidence_signals(loc, ldl_map, support_deg: float = 1.0) -> tuple[dict[str
                "margin": 0.0 if m is None else float(np.clip(m, -1.0, NO_CONTENDER_MARGIN)),
                "features": float(str(loc.refine_method).startswith("features")),
                "refined": float(bool(loc.refined)), "inliers": float(loc.num_inliers)}
+    signals = {k: v if np.isfinite(v) else 0.0 for k, v in signals.items()}  # a NaN loss says nothing
     return signals, others
 
 
