@@ -109,7 +109,8 @@ def distinct(R: np.ndarray, t: np.ndarray, Rs: np.ndarray, ts: np.ndarray) -> np
 def own_candidate(loc) -> int:
     """Index of the top-K candidate that the final pose started from (its coarse pose)."""
     Rs, ts = np.asarray(loc.candidates_rot, float), np.asarray(loc.candidates_center, float)
-    diff = np.abs(Rs - np.asarray(loc.coarse_rot, float)).sum((1, 2)) + np.abs(ts - np.asarray(loc.coarse_center)).sum(1)
+    diff = (np.abs(Rs - np.asarray(loc.coarse_rot, float)).sum((1, 2))
+            + np.abs(ts - np.asarray(loc.coarse_center, float)).sum(1))
     return int(np.argmin(diff))
 
 
