@@ -96,7 +96,9 @@ def localize(
 ) -> None:
     """Localize one panorama: prints R (world to camera) and t (camera centre, metres).
 
-    With --json, also the search's top-K candidates (best first, with their losses).
+    With --json, also the search's top-K candidates (best first, with their losses). Both say how
+    far to trust the pose: confidence in [0, 1], verdict confident | ambiguous | failed, and the
+    competing poses of an ambiguous one.
     """
     import json
     import time
@@ -128,6 +130,8 @@ def localize(
            "message": loc.message, "num_rotations": loc.num_rotations, "num_lines": loc.num_lines,
            "num_matches": loc.num_matches, "num_inliers": loc.num_inliers, "rotation_prior": loc.rotation_prior,
            "refine_method": loc.refine_method, "refine_residual_deg": loc.refine_residual_deg,
+           "confidence": loc.confidence, "verdict": loc.verdict, "competitors": loc.competitors,
+           "confidence_signals": loc.confidence_signals,
            "seconds": {k: round(v, 4) for k, v in loc.seconds.items()},
            "load_seconds": {k: round(v, 4) for k, v in loading.items()}}
     if truth is not None:
@@ -198,11 +202,23 @@ def _print_localization(pano: Path, loc, loading: dict, errors: Optional[dict], 
                   f"{loc.num_inliers} inliers; " + ", ".join(f"{k} {v:.3f} s" for k, v in loc.seconds.items())
                   + f" (map read {loading['read_map']:.3f} s beside the imports, setup {loading['setup']:.3f} s)",
                   soft_wrap=True)
+    _print_verdict(loc)
     if errors is not None:
         _, t_max, r_max = THRESHOLDS[1]
         ok = "[green]localized[/] (within" if errors["localized"] else "[yellow]not localized[/] (not within"
         console.print(f"error against {gt.name}: {errors['t_error_m']:.4f} m, {errors['r_error_deg']:.3f} deg: "
                       f"{ok} {t_max:g} m / {r_max:g} deg)", soft_wrap=True)
+
+
+def _print_verdict(loc) -> None:
+    """The confidence line of `localize` and, for each competing pose, where it is and why."""
+    color = {"confident": "green", "ambiguous": "yellow", "failed": "red"}.get(loc.verdict or "", "white")
+    console.print(f"confidence {loc.confidence:.2f}: [{color}]{loc.verdict}[/]"
+                  + (f", {len(loc.competitors)} competing pose(s):" if loc.competitors else ""), soft_wrap=True)
+    for c in loc.competitors:
+        t = c["t"]
+        console.print(f"  {c['why']}: t = [{t[0]:.3f}, {t[1]:.3f}, {t[2]:.3f}], search loss {c['loss']:.1f}",
+                      soft_wrap=True)
 
 
 @app.command()
@@ -389,6 +405,7 @@ def _print_run(results: list, label: str, output: Path, max_tilt: Optional[float
         console.print(summary_table(results, "split", f"{label} by split"))
         console.print(timing_table(results))
         _print_priors_and_search(results, max_tilt)
+    _print_verdicts(results)
     for r in failed[:10]:
         console.print(f"[yellow]failed[/] {r.name}: {r.message}", soft_wrap=True)
     if len(failed) > 10:
@@ -427,6 +444,15 @@ def _refuse_replacing_run_inputs(queries: list, maps: Path, output: Path, save_v
     refuse_overwriting_inputs(inputs, [*results_outputs(output), *pictures])
 
 
+def _print_verdicts(results) -> None:
+    """How many poses are confident, ambiguous, failed (and how right the confident ones are)."""
+    from ldlloc.batch.accuracy import verdict_line
+
+    line = verdict_line(results)
+    if line:
+        console.print(line, soft_wrap=True, highlight=False)
+
+
 def _print_search_summary(results) -> None:
     """The pose search alone: its best pose, and the best of its top K, within 0.5 m / 10 deg."""
     from ldlloc.batch.accuracy import summarize
@@ -461,6 +487,7 @@ def report(
     console.print(summary_table(rs, "split", f"{results} by split"))
     console.print(timing_table(rs))
     _print_search_summary(rs)
+    _print_verdicts(rs)
     if html is not None:
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
 

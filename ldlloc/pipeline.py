@@ -4,7 +4,8 @@ Stages (timed): ``lines2d`` (LSD on crops, arcs, adaptive length filter: the lon
 fraction of the arcs equal to the map's kept ratio within bounds, ``query_keep_ratio``),
 ``rotation`` (vanishing points and candidate rotations, then the optional upright prior
 ``max_tilt_deg``), ``search`` (line distance functions over N_t x N_r poses, top K),
-``refine`` (query features, matching, spherical PnP), ``total``.
+``refine`` (query features, matching, spherical PnP), ``confidence`` (how far to trust the pose,
+:mod:`ldlloc.confidence`), ``total``.
 """
 
 from __future__ import annotations
@@ -92,6 +93,13 @@ class Localization:
     candidates_loss: np.ndarray | None = None  # (K,) search loss of each top-K pose (lower is better)
     rotation_prior: str = "free"  # "free" or "upright<=Xdeg" (see rotation_prior_name)
     input_to_map: np.ndarray | None = None  # the map's input -> map similarity when not the identity
+    selection_margin: float | None = None  # geometric refinement: the winner's selection score (-loss / max|loss|
+    # + map-line support) over the best refined pose distinct from it (ldlloc.confidence.distinct); None: no
+    # selection ran (feature refinement, or its geometric fallback)
+    confidence: float | None = None  # how far to trust the pose, in [0, 1] (ldlloc.confidence)
+    verdict: str | None = None  # confident | ambiguous | failed
+    competitors: list = field(default_factory=list)  # distinct poses of nearly the same loss: {R, t, loss, why}
+    confidence_signals: dict = field(default_factory=dict)  # what the confidence was computed from
 
     @property
     def status(self) -> str:
@@ -379,6 +387,10 @@ class Localizer:
             score = full
         k = int(np.argmax(score))
         c = int(cand[k])
+        from ldlloc.confidence import NO_CONTENDER_MARGIN, distinct
+
+        other = distinct(rots[k], centers[k], rots, centers) & np.isfinite(score)
+        out.selection_margin = float(score[k] - score[other].max()) if other.any() else NO_CONTENDER_MARGIN
         out.coarse_rot, out.coarse_center = res.rotations[c], res.centers[c]
         out.rot_cam_from_world, out.center = rots[k], centers[k]
         out.arc_groups = assign_arcs_to_principal(arcs, (out.rot_cam_from_world @ m.principal_directions.T).T,
@@ -548,5 +560,9 @@ class Localizer:
         else:
             out.message = "pose search only (no refinement)"
         lap("refine")
+        from ldlloc.confidence import assess
+
+        assess(out, self.map, support_deg=self.params.geometric.support_deg)
+        lap("confidence")
         secs["total"] = sum(v for k, v in secs.items() if k != "total")
         return out

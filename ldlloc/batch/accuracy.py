@@ -28,7 +28,8 @@ THRESHOLDS: tuple[tuple[str, float, float], ...] = (
     ("0.1m_5deg", 0.1, 5.0),
     ("0.2m_10deg", 0.2, 10.0),
 )
-STAGES = ("lines2d", "rotation", "search", "refine", "total")  # image runs on several maps add "choose"
+STAGES = ("lines2d", "rotation", "search", "refine", "confidence", "total")  # image runs on several maps add "choose"
+CONFIDENT_T_M, CONFIDENT_R_DEG = 0.25, 5.0  # a confident pose is meant to be within 0.25 m / 5 deg (issue 20)
 GOOD_T_M = 0.5  # a top-K candidate is "good" within 0.5 m and 10 degrees of the truth
 GOOD_R_DEG = 10.0
 
@@ -73,6 +74,10 @@ class QueryResult:
     map: str | None = None  # image runs: path of the map the pose is in (the chosen one)
     map_runner_up: dict | None = None  # image runs on several maps: the next best {"map": path, "score": loss}
     map_scores: list | None = None  # image runs on several maps: [{"map", "search_loss", "loss"}], best search first
+    confidence: float | None = None  # how far to trust the pose, in [0, 1] (ldlloc.confidence; None: older runs)
+    verdict: str | None = None  # confident | ambiguous | failed (None: older runs)
+    competitors: list = field(default_factory=list)  # distinct poses of nearly the same loss: {R, t, loss, why}
+    confidence_signals: dict | None = None  # what the confidence was computed from (ldlloc.confidence)
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> "QueryResult":
@@ -132,6 +137,9 @@ def summarize(results: list[QueryResult], device: str | None = None) -> dict[str
         key = f"{GOOD_T_M:g}m_{GOOD_R_DEG:g}deg"
         out["search"] = {f"top1_{key}": float(np.mean([k == 1 for k in ranks])),
                          f"topk_{key}": float(np.mean([k is not None for k in ranks]))}
+    verdicts = verdict_summary(results)
+    if verdicts:
+        out["verdicts"] = verdicts
     if device is not None:
         out["device"] = device
     return out
@@ -166,6 +174,36 @@ def _summarize_without_truth(results: list[QueryResult], device: str | None) -> 
     return out
 
 
+def verdict_summary(results: list[QueryResult]) -> dict[str, Any] | None:
+    """How many queries are confident, ambiguous, failed (None when no result has a verdict: older
+    runs) and, when errors exist, the share of the confident ones within 0.25 m / 5 deg
+    (``confident_within_0.25m_5deg``) and 0.1 m / 5 deg."""
+    if not any(r.verdict is not None for r in results):
+        return None
+    out: dict[str, Any] = {v: sum(r.verdict == v for r in results) for v in ("confident", "ambiguous", "failed")}
+    conf = [r for r in results if r.verdict == "confident" and r.t_error_m is not None and r.r_error_deg is not None]
+    if conf:
+        for t_max, r_max in ((CONFIDENT_T_M, CONFIDENT_R_DEG), THRESHOLDS[1][1:]):
+            out[f"confident_within_{t_max:g}m_{r_max:g}deg"] = float(np.mean(
+                [r.t_error_m < t_max and r.r_error_deg < r_max for r in conf]))
+    return out
+
+
+def verdict_line(results: list[QueryResult]) -> str | None:
+    """One line: the verdict counts and, with ground truth, the accuracy of the confident poses."""
+    v = verdict_summary(results)
+    if v is None:
+        return None
+    n = len(results)
+    line = f"verdicts: {v['confident']} confident, {v['ambiguous']} ambiguous, {v['failed']} failed (of {n})"
+    key = f"confident_within_{CONFIDENT_T_M:g}m_{CONFIDENT_R_DEG:g}deg"
+    if key in v:
+        k = round(v[key] * v["confident"])
+        line += (f"; confident poses within {CONFIDENT_T_M:g} m / {CONFIDENT_R_DEG:g} deg: {v[key]:.3f} "
+                 f"({k} / {v['confident']})")
+    return line
+
+
 def group_by(results: list[QueryResult], key: str) -> dict[str, list[QueryResult]]:
     """Results grouped by an attribute (``scene`` or ``split``), keys sorted."""
     groups: dict[str, list[QueryResult]] = {}
@@ -183,13 +221,15 @@ def results_csv(results: list[QueryResult]) -> str:
     w = csv.writer(buf)
     w.writerow(["name", "scene", "split", "image", "status", "t_error_m", "r_error_deg", "tx", "ty", "tz",
                 "num_rotations", "num_matches", "num_inliers", "refined", "refine_method", "rotation_prior",
-                "best_candidate_t_error_m", "best_candidate_r_error_deg", "first_good_rank", "map"]
+                "best_candidate_t_error_m", "best_candidate_r_error_deg", "first_good_rank", "map", "confidence",
+                "verdict"]
                + [f"sec_{s}" for s in stages])
     for r in results:
         t = r.t if r.t is not None else [None] * 3
         w.writerow([r.name, r.scene, r.split, r.image, r.status, r.t_error_m, r.r_error_deg, *t,
                     r.num_rotations, r.num_matches, r.num_inliers, int(r.refined), r.refine_method, r.rotation_prior,
-                    r.best_candidate_t_error_m, r.best_candidate_r_error_deg, r.first_good_rank, r.map]
+                    r.best_candidate_t_error_m, r.best_candidate_r_error_deg, r.first_good_rank, r.map, r.confidence,
+                    r.verdict]
                    + [r.seconds.get(s) for s in stages])
     return buf.getvalue()
 

@@ -103,6 +103,13 @@ _FIELD_CHECKS: dict[str, tuple[Any, str]] = {
                                               and _is_number(x.get("score"))), "{map: string, score: number} or null"),
     "map_scores": (lambda x: x is None or (isinstance(x, list) and all(isinstance(v, dict) for v in x)),
                    "a list of objects or null"),
+    "confidence": (lambda x: x is None or (_is_number(x) and 0 <= x <= 1), "a number in [0, 1] or null"),
+    "verdict": (lambda x: x is None or x in ("confident", "ambiguous", "failed"), "confident | ambiguous | failed or null"),
+    "competitors": (lambda x: isinstance(x, list) and all(
+        isinstance(c, dict) and _is_matrix(c.get("R"), 3, 3) and _is_matrix(c.get("t"), 3)
+        and isinstance(c.get("why", ""), str) for c in x), "a list of {R: 3x3, t: 3, loss, why}"),
+    "confidence_signals": (lambda x: x is None or (isinstance(x, dict) and all(
+        isinstance(k, str) and _is_number(v) for k, v in x.items())), "an object of finite numbers or null"),
 }
 # Fields every record has had since the first results file (ResultsWriter writes every field): a record
 # without one is not ours (``report`` would count it as a failure at 0.00 accuracy).

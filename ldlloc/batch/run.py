@@ -71,6 +71,8 @@ def result_from_localization(q, loc: Localization) -> QueryResult:
         best_candidate_t_error_m=None if best is None else float(cand_t[best]),
         best_candidate_r_error_deg=None if best is None else float(cand_r[best]),
         first_good_rank=first_good_rank(cand_t, cand_r), input_frame=input_frame,
+        confidence=loc.confidence, verdict=loc.verdict, competitors=list(loc.competitors),
+        confidence_signals=dict(loc.confidence_signals) or None,
     )
 
 
@@ -151,7 +153,7 @@ def failed_result(q, params: LocalizeParams, message: str, seconds: float | None
     """The ``failed`` record of query ``q``, with its reason."""
     return QueryResult(image=str(q.image), scene=q.scene, split=q.split, name=q.name, status="failed",
                        message=message, seconds={} if seconds is None else {"total": seconds},
-                       rotation_prior=rotation_prior_name(max_tilt_for(q, params)))
+                       rotation_prior=rotation_prior_name(max_tilt_for(q, params)), confidence=0.0, verdict="failed")
 
 
 def localize_query(cache: MapCache, q, params: LocalizeParams, save_vis: str | Path | None = None) -> QueryResult:

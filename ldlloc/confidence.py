@@ -1,0 +1,203 @@
+"""How far to trust a localization, from what it already knows (never the ground truth).
+
+:func:`assess` turns a :class:`ldlloc.pipeline.Localization` into ``confidence`` in [0, 1], a
+``verdict`` (``confident | ambiguous | failed``) and the ``competitors``: the search's poses
+distinct from the final one (another position, a 180-degree twin, a 90-degree turn, another up
+axis) whose loss comes close to it. The signals (:func:`confidence_signals`):
+
+- ``gap``: the search loss of the best distinct candidate over that of the final pose's own
+  start, ``(L_comp - L_own) / |L_own|`` (inlier losses are negative counts, lower is better),
+  clipped to [-1, 1]; 1 when every candidate is the same pose. Negative when the final pose did
+  not start from the search's best (the geometric refinement chose it on map-line support);
+- ``support``: the map-line support of the final pose
+  (:func:`ldlloc.refine.geometric.map_line_support`): the share of the map's lines, seen from
+  there, that lie on an image line; the inlier loss counts the other way round;
+- ``support_gap``: ``support`` minus the best distinct candidate's support (what tells a
+  symmetric twin apart);
+- ``margin``: the geometric refinement's selection score of the final pose (its loss over the
+  best's plus its support) over the best refined pose distinct from it
+  (``Localization.selection_margin``), clipped to [-1, 0.5]; 0.5 when none came within reach, 0
+  where no such selection ran (feature refinement and its fallback);
+- ``features``: 1 when the feature refinement (PnP) made the final pose; ``refined``: 1 when a
+  refinement was kept (0: the coarse pose); ``inliers``: PnP inliers (recorded, not weighted).
+
+``confidence = sigmoid(MODEL . signals)``, a logistic fitted on synthetic data and checked on the
+real ZInD home (docs/measurements.md#confidence; ``bench/bench_confidence.py --fit`` refits it).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+SAME_T_M = 0.5  # a candidate within 0.5 m and 20 deg of the final pose (or of its start) is that pose
+SAME_R_DEG = 20.0  # (the search keeps its top K 0.35 m / 5 deg apart: nearby ones are one pose's neighbours)
+COMPETITOR_GAP = 0.1  # a distinct candidate whose loss is within 10 % of the final pose's start competes
+MAX_COMPETITORS = 3
+UP_AXIS_DEG = 20.0  # a relative rotation whose axis is within this of the world's z is a turn about the up axis
+
+
+@dataclass(frozen=True)
+class ConfidenceModel:
+    """``confidence = sigmoid(bias + sum(weights[k] * signals[k]))``; ``confident`` at or above
+    ``confident_at``; else ``ambiguous`` when a competitor is named and the confidence is at least
+    ``failed_below``; else ``failed``."""
+
+    bias: float
+    weights: dict[str, float]
+    confident_at: float
+    failed_below: float = 0.1  # below this the logistic gives the pose < 10 % of being right: not a candidate
+
+    def confidence(self, signals: dict[str, float]) -> float:
+        z = self.bias + sum(w * float(signals.get(k, 0.0)) for k, w in self.weights.items())
+        return float(1.0 / (1.0 + np.exp(-np.clip(z, -50, 50))))
+
+
+# Fitted by `bench/bench_confidence.py --fit` on the synthetic sets only (256 poses; docs/measurements.md#confidence):
+# a logistic with non-negative weights, L2-regularized on the standardized signals and folded back to raw
+# weights. support and support_gap got 0 next to margin. ``confident_at``: the smallest confidence above
+# which >= 99 % of the synthetic poses are within 0.25 m / 5 deg.
+MODEL = ConfidenceModel(bias=-7.082, weights={"gap": 5.313, "support": 0.0, "support_gap": 0.0, "margin": 16.704,
+                                              "features": 7.011, "refined": 5.438}, confident_at=0.799)
+SIGNALS = ("gap", "support", "support_gap", "margin", "features", "refined")
+NO_CONTENDER_MARGIN = 0.5  # ``margin`` when no distinct refined pose came within the selection's reach (its
+# support_within, 0.25, plus a support gap); the signal is clipped to it
+
+
+def rotation_kind(R_final: np.ndarray, R_other: np.ndarray) -> str:
+    """What turns one camera into the other: ``180-degree twin``, ``90-degree rotation``,
+    ``N-degree rotation`` (about the world's up axis) or ``other up axis``."""
+    M = np.asarray(R_final, float).T @ np.asarray(R_other, float)  # a rotation of the world frame
+    angle = float(np.degrees(np.arccos(np.clip((np.trace(M) - 1) / 2, -1, 1))))
+    if angle < SAME_R_DEG:
+        return "same rotation"
+    axis = np.array([M[2, 1] - M[1, 2], M[0, 2] - M[2, 0], M[1, 0] - M[0, 1]])
+    if np.linalg.norm(axis) < 1e-6:  # 180 degrees: the axis from the symmetric part
+        w, v = np.linalg.eigh((M + M.T) / 2)
+        axis = v[:, np.argmax(w)]
+    axis = axis / max(np.linalg.norm(axis), 1e-12)
+    if abs(axis[2]) < np.cos(np.radians(UP_AXIS_DEG)):
+        return "other up axis"
+    if angle > 135:
+        return "180-degree twin"
+    if 45 < angle <= 135:
+        return "90-degree rotation"
+    return f"{angle:.0f}-degree rotation"
+
+
+def why(R_final, t_final, R_other, t_other) -> str:
+    """A competitor's reason in words: ``other position`` (>= 0.5 m away, with its turn when it is
+    turned too) or the rotation that separates it (:func:`rotation_kind`)."""
+    d = float(np.linalg.norm(np.asarray(t_other, float) - np.asarray(t_final, float)))
+    kind = rotation_kind(R_final, R_other)
+    if d >= SAME_T_M:
+        return f"other position ({d:.1f} m)" + ("" if kind == "same rotation" else f", {kind}")
+    return kind
+
+
+def distinct(R: np.ndarray, t: np.ndarray, Rs: np.ndarray, ts: np.ndarray) -> np.ndarray:
+    """(K,) whether each pose (Rs, ts) is another pose than (R, t): SAME_T_M or more away, or
+    turned SAME_R_DEG or more."""
+    Rs, ts = np.asarray(Rs, float).reshape(-1, 3, 3), np.asarray(ts, float).reshape(-1, 3)
+    d = np.linalg.norm(ts - np.asarray(t, float), axis=1)
+    c = (np.einsum("kij,ij->k", Rs, np.asarray(R, float)) - 1) / 2  # trace(R^T Rk) = sum(R * Rk)
+    return (d >= SAME_T_M) | (np.degrees(np.arccos(np.clip(c, -1, 1))) >= SAME_R_DEG)
+
+
+def own_candidate(loc) -> int:
+    """Index of the top-K candidate that the final pose started from (its coarse pose)."""
+    Rs, ts = np.asarray(loc.candidates_rot, float), np.asarray(loc.candidates_center, float)
+    diff = (np.abs(Rs - np.asarray(loc.coarse_rot, float)).sum((1, 2))
+            + np.abs(ts - np.asarray(loc.coarse_center, float)).sum(1))
+    return int(np.argmin(diff))
+
+
+def distinct_candidates(loc) -> np.ndarray:
+    """Indices of the top-K candidates that are not the final pose (nor its start), best loss first."""
+    Rs, ts = np.asarray(loc.candidates_rot, float), np.asarray(loc.candidates_center, float)
+    if len(Rs) == 0:
+        return np.zeros(0, dtype=int)
+    other = distinct(loc.rot_cam_from_world, loc.center, Rs, ts) & distinct(loc.coarse_rot, loc.coarse_center, Rs, ts)
+    idx = np.flatnonzero(other)
+    if loc.candidates_loss is None:
+        return idx
+    return idx[np.argsort(np.asarray(loc.candidates_loss, float)[idx], kind="stable")]
+
+
+def relative_gap(loss_other: float, loss_own: float) -> float:
+    """``(loss_other - loss_own) / |loss_own|`` clipped to [-1, 1] (1: the own loss is 0 and the other worse)."""
+    scale = abs(loss_own)
+    if scale < 1e-12:
+        return 0.0 if loss_other <= loss_own else 1.0
+    return float(np.clip((loss_other - loss_own) / scale, -1.0, 1.0))
+
+
+def confidence_signals(loc, ldl_map, support_deg: float = 1.0) -> tuple[dict[str, float], np.ndarray]:
+    """The signals of a localization (module docstring) and its distinct candidates (indices, best first)."""
+    from ldlloc.refine.geometric import map_line_support
+
+    others = distinct_candidates(loc)
+    losses = None if loc.candidates_loss is None else np.asarray(loc.candidates_loss, float)
+    own = own_candidate(loc)
+    gap = 1.0
+    if len(others) and losses is not None and np.isfinite(losses[own]):
+        gap = relative_gap(float(losses[others[0]]), float(losses[own]))
+    R = [np.asarray(loc.rot_cam_from_world, float)]
+    t = [np.asarray(loc.center, float)]
+    if len(others):
+        R.append(np.asarray(loc.candidates_rot, float)[others[0]])
+        t.append(np.asarray(loc.candidates_center, float)[others[0]])
+    R, t = np.stack(R), np.stack(t)
+    vis = None
+    if getattr(ldl_map, "visibility", None) is not None:
+        vis = ldl_map.visibility[ldl_map.nearest_translation(t)]
+    arcs = loc.arcs if loc.arcs is not None else np.zeros((0, 2, 3))
+    support = map_line_support(arcs, R, t, ldl_map.lines, ldl_map.line_groups, vis, support_deg)
+    m = loc.selection_margin  # None: no selection among refined poses ran (feature refinement, its fallback)
+    signals = {"gap": gap, "support": float(support[0]),
+               "support_gap": float(support[0] - support[1]) if len(support) > 1 else float(support[0]),
+               "margin": 0.0 if m is None else float(np.clip(m, -1.0, NO_CONTENDER_MARGIN)),
+               "features": float(str(loc.refine_method).startswith("features")),
+               "refined": float(bool(loc.refined)), "inliers": float(loc.num_inliers)}
+    signals = {k: v if np.isfinite(v) else 0.0 for k, v in signals.items()}  # a NaN loss says nothing
+    return signals, others
+
+
+def competitor_dicts(loc, others: np.ndarray, max_gap: float = COMPETITOR_GAP,
+                     limit: int = MAX_COMPETITORS) -> list[dict[str, Any]]:
+    """The distinct candidates whose loss is within ``max_gap`` of the final pose's start, best
+    first: ``{"R", "t", "loss", "why"}``."""
+    if loc.candidates_loss is None or len(others) == 0:
+        return []
+    losses = np.asarray(loc.candidates_loss, float)
+    own = float(losses[own_candidate(loc)])
+    out = []
+    for i in others[:limit]:
+        if relative_gap(float(losses[i]), own) > max_gap:
+            break
+        R, t = np.asarray(loc.candidates_rot, float)[i], np.asarray(loc.candidates_center, float)[i]
+        out.append({"R": np.round(R, 8).tolist(), "t": np.round(t, 6).tolist(), "loss": float(losses[i]),
+                    "why": why(loc.rot_cam_from_world, loc.center, R, t)})
+    return out
+
+
+def verdict_for(confidence: float | None, competitors: list, model: ConfidenceModel = MODEL) -> str:
+    """``confident`` at or above the model's threshold; else ``ambiguous`` when competitors are
+    named and the pose is still plausible (``failed_below``); else ``failed`` (no pose, a pose the
+    model gives little chance, or a doubtful one with nothing to offer beside it)."""
+    if confidence is None:
+        return "failed"
+    if confidence >= model.confident_at:
+        return "confident"
+    return "ambiguous" if competitors and confidence >= model.failed_below else "failed"
+
+
+def assess(loc, ldl_map, support_deg: float = 1.0, model: ConfidenceModel = MODEL) -> None:
+    """Set ``confidence``, ``verdict``, ``competitors`` and ``confidence_signals`` on ``loc``."""
+    signals, others = confidence_signals(loc, ldl_map, support_deg)
+    loc.confidence_signals = {k: round(v, 6) for k, v in signals.items()}
+    loc.confidence = round(model.confidence(signals), 6)
+    loc.competitors = competitor_dicts(loc, others)
+    loc.verdict = verdict_for(loc.confidence, loc.competitors, model)

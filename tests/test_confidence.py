@@ -1,0 +1,150 @@
+"""Confidence of a localization (ldlloc/confidence.py): the rule on constructed poses, and end to
+end on the demo dataset (confident poses are right; the fields reach the results and `localize --json`)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from ldlloc.confidence import MODEL, assess, rotation_kind, verdict_for, why
+from ldlloc.pipeline import Localization
+
+runner = CliRunner()
+
+BOX = np.array([4.0, 6.0, 3.0])  # a box room; the camera at its centre sees it the same turned by 180 degrees
+CENTRE = BOX / 2
+
+
+def _rz(deg: float) -> np.ndarray:
+    a = np.radians(deg)
+    return np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]])
+
+
+def _box_map():
+    """The 12 edges of the box as a map (grouped by direction, no visibility)."""
+    corners = np.array([[x, y, z] for x in (0, BOX[0]) for y in (0, BOX[1]) for z in (0, BOX[2])])
+    lines, groups = [], []
+    for i in range(8):
+        for j in range(i + 1, 8):
+            d = corners[j] - corners[i]
+            if np.count_nonzero(d) == 1:
+                lines.append([corners[i], corners[j]])
+                groups.append(int(np.flatnonzero(d)[0]))
+    return SimpleNamespace(lines=np.array(lines), line_groups=np.array(groups), visibility=None)
+
+
+def _arcs(m, R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """The map's edges as the camera (R, t) sees them: unit start and end directions (N, 2, 3)."""
+    d = (m.lines - t) @ R.T
+    return d / np.linalg.norm(d, axis=2, keepdims=True)
+
+
+def _localization(m, R0: np.ndarray, poses: list[tuple[np.ndarray, np.ndarray]], losses: list[float],
+                  margin: float) -> Localization:
+    """A geometric refinement whose final pose is the first of ``poses`` (the search's top K, with
+    ``losses``), chosen by ``margin`` over the next distinct refined pose; its image shows the map
+    from R0 at the centre."""
+    Rs = np.stack([p[0] for p in poses])
+    ts = np.stack([p[1] for p in poses])
+    return Localization(Rs[0], ts[0], Rs[0], ts[0], Rs, ts, {}, num_rotations=len(poses), num_lines=12,
+                        refined=True, arcs=_arcs(m, R0, CENTRE), candidates_loss=np.array(losses, float),
+                        refine_method="geometric", selection_margin=margin)
+
+
+def test_clear_winner_is_confident():
+    m = _box_map()
+    R0 = _rz(30)
+    # the other candidate is 1.5 m away and explains far fewer lines
+    loc = _localization(m, R0, [(R0, CENTRE), (R0, CENTRE + [0, 1.5, 0])], [-100.0, -45.0], margin=0.4)
+    assess(loc, m)
+    assert loc.confidence_signals["gap"] == pytest.approx(0.55)
+    assert loc.confidence_signals["support"] > 0.9  # the map's edges lie on the image's lines
+    assert loc.verdict == "confident" and loc.confidence >= MODEL.confident_at
+    assert loc.competitors == []  # 55 % worse: no competitor
+
+
+def test_near_equal_twin_is_ambiguous_and_named():
+    m = _box_map()
+    R0 = _rz(30)
+    twin = R0 @ _rz(180)  # the same camera turned half a turn about the up axis: the box looks the same
+    loc = _localization(m, R0, [(R0, CENTRE), (twin, CENTRE), (R0, CENTRE + [0, 1.5, 0])], [-100.0, -99.0, -45.0],
+                        margin=0.01)  # the twin, refined, scores the same
+    assess(loc, m)
+    assert loc.confidence_signals["gap"] == pytest.approx(0.01)
+    assert abs(loc.confidence_signals["support_gap"]) < 0.05  # both explain the box
+    assert loc.verdict == "ambiguous" and loc.confidence < MODEL.confident_at
+    assert [c["why"] for c in loc.competitors] == ["180-degree twin"]
+    assert np.allclose(loc.competitors[0]["R"], twin) and loc.competitors[0]["loss"] == -99.0
+
+
+def test_no_pose_is_failed():
+    from ldlloc.batch.run import failed_result
+    from ldlloc.pipeline import LocalizeParams
+
+    model = MODEL
+    assert verdict_for(None, [], model) == "failed"
+    q = SimpleNamespace(image="p.jpg", scene="s", split="robot", name="p", upright=False)
+    r = failed_result(q, LocalizeParams(), "too few lines")
+    assert (r.verdict, r.confidence, r.competitors) == ("failed", 0.0, [])
+    # a doubtful pose is failed without a competitor, or when it is too unlikely; else ambiguous
+    doubtful = (model.failed_below + model.confident_at) / 2
+    assert verdict_for(doubtful, [], model) == "failed"
+    assert verdict_for(0.0, [{"why": "other position"}], model) == "failed"
+    assert verdict_for(doubtful, [{"why": "other position"}], model) == "ambiguous"
+
+
+def test_competitor_reasons():
+    R = _rz(10)
+    assert rotation_kind(R, R @ _rz(180)) == "180-degree twin"
+    assert rotation_kind(R, R @ _rz(-90)) == "90-degree rotation"
+    flip = np.diag([1.0, -1.0, -1.0])  # upside down: a half turn about x
+    assert rotation_kind(R, R @ flip) == "other up axis"
+    assert why(R, CENTRE, R, CENTRE + [0.0, 2.0, 0.0]) == "other position (2.0 m)"
+    assert why(R, CENTRE, R @ _rz(180), CENTRE + [1.0, 0.0, 0.0]) == "other position (1.0 m), 180-degree twin"
+
+
+def test_results_without_confidence_still_load():
+    from ldlloc.batch.accuracy import summarize, verdict_line
+    from ldlloc.batch.results import validate_results
+    from ldlmap.core.errors import InputError
+
+    old = {"format_version": 1, "queries": [{"image": "a.jpg", "scene": "s", "split": "robot", "name": "a",
+                                             "t_error_m": 0.01, "r_error_deg": 0.1}]}
+    rs, _ = validate_results(old)
+    assert rs[0].verdict is None and rs[0].confidence is None and rs[0].competitors == []
+    assert "verdicts" not in summarize(rs) and verdict_line(rs) is None
+    bad = {"queries": [{**old["queries"][0], "verdict": "sure"}]}
+    with pytest.raises(InputError, match="verdict"):
+        validate_results(bad)
+
+
+@pytest.mark.xdist_group("end_to_end")
+def test_confident_poses_are_right_and_reach_the_outputs(demo_dataset, tmp_path):
+    from ldlloc.cli import app as loc_app
+
+    out = tmp_path / "r.json"
+    res = runner.invoke(loc_app, ["run", "--root", str(demo_dataset), "--split", "extreme", "--scene", "synthroom_1",
+                                  "-o", str(out)])
+    assert res.exit_code == 0, res.output
+    queries = json.loads(out.read_text())["queries"]
+    assert len(queries) == 5
+    confident = [q for q in queries if q["verdict"] == "confident"]
+    assert confident, [(q["confidence"], q["t_error_m"]) for q in queries]
+    assert all(q["t_error_m"] < 0.25 and q["r_error_deg"] < 5 for q in confident)
+    assert all(0 <= q["confidence"] <= 1 and set(q["confidence_signals"]) >= {"gap", "support"} for q in queries)
+    line = next(x for x in res.output.splitlines() if x.startswith("verdicts:"))
+    assert f"{len(confident)} confident" in line and f"({len(confident)} / {len(confident)})" in line
+    report = runner.invoke(loc_app, ["report", str(out)])
+    assert line in report.output
+    # one panorama with --json: the same fields
+    img = Path(queries[0]["image"])
+    res = runner.invoke(loc_app, ["localize", str(demo_dataset / "maps" / "synthroom_1.h5"), str(img), "--json"])
+    assert res.exit_code == 0, res.output
+    one = json.loads(res.stdout)
+    assert one["verdict"] == queries[0]["verdict"] and one["confidence"] == pytest.approx(queries[0]["confidence"])
+    assert isinstance(one["competitors"], list)
