@@ -114,7 +114,7 @@ def test_results_without_confidence_still_load():
     from ldlmap.core.errors import InputError
 
     old = {"format_version": 1, "queries": [{"image": "a.jpg", "scene": "s", "split": "robot", "name": "a",
-                                             "t_error_m": 0.01, "r_error_deg": 0.1}]}
+                                             "status": "ok", "t_error_m": 0.01, "r_error_deg": 0.1}]}
     rs, _ = validate_results(old)
     assert rs[0].verdict is None and rs[0].confidence is None and rs[0].competitors == []
     assert "verdicts" not in summarize(rs) and verdict_line(rs) is None

@@ -74,9 +74,12 @@ def test_colmap_model_reads_back_binary_and_text(run_results, demo_dataset, tmp_
 
     records = _records(run_results)
     m = read_map(demo_dataset / "maps" / f"{SCENE}.h5", load_cloud=False)
+    # A results file of an older run (no verdicts): every localized query is exported.
+    no_verdicts = _with_fields(run_results, tmp_path / "old.json",
+                               **{n: {"verdict": None, "confidence": None} for n in records})
     for text in (False, True):
         out = tmp_path / ("txt" if text else "bin")
-        output = _ok(["export", run_results, "--format", "colmap", "-o", out, *(["--text"] if text else [])])
+        output = _ok(["export", no_verdicts, "--format", "colmap", "-o", out, *(["--text"] if text else [])])
         assert "holds no verdicts" in output and f"exporting {len(records)} of {len(records)} queries" in output
         assert sorted(p.suffix for p in out.iterdir()) == [".txt" if text else ".bin"] * 5  # + rigs, frames
         rec = pycolmap.Reconstruction(str(out))
