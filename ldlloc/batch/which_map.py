@@ -13,7 +13,7 @@ panorama against them:
    the paper's multi-room mode (one search over the poses of every room, sec. 4.2 and the
    supplement's 20 offices) split per map;
 3. the ``top_maps`` best are refined (:meth:`~ldlloc.pipeline.Localizer.localize` from their search)
-   and :func:`choose_map` keeps one.
+   and :func:`choose_map` keeps the most confident (:mod:`ldlloc.confidence`).
 
 A single map skips the ranking and the choice: it is plain ``localize``.
 """
@@ -113,8 +113,11 @@ class MapChoice:
         others = [o for o in self.ranked if o is not self.chosen]
         if not others:
             return None
-        best = min(others, key=option_score)
-        return {"map": str(best.entry.path), "score": option_score(best)}
+        best = min(others, key=choice_key)
+        out = {"map": str(best.entry.path), "score": option_score(best)}
+        if best.loc is not None and best.loc.confidence is not None:
+            out["confidence"] = float(best.loc.confidence)
+        return out
 
     def scores(self) -> list[dict]:
         """Per map that was refined: ``{"map", "search_loss", "loss"}``; then the next ranked maps'
@@ -129,12 +132,19 @@ def option_score(o: MapOption) -> float:
     return float(o.loss) if o.loss is not None else float(o.search_loss)
 
 
+def choice_key(o: MapOption) -> tuple[float, float, float]:
+    """How :func:`choose_map` orders options (smallest first): the refined ones by confidence
+    (:mod:`ldlloc.confidence`, highest first), then by :func:`option_score`, then by search loss."""
+    conf = o.loc.confidence if o.loc is not None and o.loc.confidence is not None else -1.0
+    return (-conf, option_score(o), o.search_loss)
+
+
 def choose_map(options: list[MapOption]) -> MapOption:
-    """The map kept among the refined ``options`` (the top of the ranking): the lowest loss of the
-    final pose (:func:`final_pose_loss`: line distance functions as the search scores, so the
-    maps compare on one scale); ties go to the better search loss. Everything here is known to
-    the run, nothing comes from ground truth. (One function, so the rule can change in one place.)"""
-    return min(options, key=lambda o: (option_score(o), o.search_loss))
+    """The map kept among the refined ``options`` (the top of the ranking): the most confident
+    final pose, ties to the lowest loss of the final pose (:func:`final_pose_loss`: line distance
+    functions as the search scores them). On the real home it picks the map-given run's accuracy
+    more often than the loss alone (docs/measurements.md#which-map). Nothing comes from ground truth."""
+    return min(options, key=choice_key)
 
 
 def final_pose_loss(localizer: Localizer, loc: Localization) -> float:
