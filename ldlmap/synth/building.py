@@ -342,7 +342,9 @@ def plan_building(seed: int, p: BuildingParams = BuildingParams()) -> list[list[
         stair_room = PlannedRoom(f"f{f}_stairwell", f, "stairwell", "stairwell", stair,
                                  (length + t, y_corr + cw / 2 - p.stair_depth / 2, z))
         corr_off = np.array([0.0, y_corr, z])
-        neighbours = [(r.id, r.spec, np.asarray(r.offset), 0, 0 if r.offset[1] == 0.0 else 2) for r in rooms]
+        # Every room's door is its opening 0, facing the corridor's south wall (0, offices) or
+        # north wall (2, the north row); the stairwell's faces the corridor's east wall (1).
+        neighbours = [(r.id, r.spec, np.asarray(r.offset), 0, 0 if r.kind == "office" else 2) for r in rooms]
         neighbours.append((stair_room.id, stair, np.asarray(stair_room.offset), 0, 1))
         corridor, doors = _corridor(rng(4, f), p, f, length, corr_off, neighbours)
         corridor_id = f"f{f}_corridor"
