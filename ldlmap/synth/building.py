@@ -71,7 +71,8 @@ class BuildingParams:
     wall: float = 0.2  # thickness of the walls between neighbouring rooms
     ceiling: float = 2.7  # floor to ceiling
     slab: float = 0.3  # ceiling to the next floor's floor
-    scan_density: float = 1500.0  # scan points per m^2 of every room's surface
+    # Scan points per m^2 of every room's surface: ~2.5 M points a floor (docs/measurements.md#building-preset).
+    scan_density: float = 1500.0
     views: int = 1  # panoramas per split and room (--per-split overrides)
     width: int = 1024  # panorama width (--width overrides)
 
