@@ -15,7 +15,6 @@ from ldlmap.core.polygon import points_in_polygon
 from ldlmap.synth.building import (BuildingParams, building_params, floor_scene, plan_building, read_building,
                                    room_at, room_mesh)
 from ldlmap.synth.render import Renderer
-from ldlmap.synth.scene import build_scene
 from ldlmap.synth.spec import load_spec
 
 pytestmark = pytest.mark.xdist_group("synth_building")  # one worker makes ``small_building``
