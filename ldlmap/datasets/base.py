@@ -42,6 +42,8 @@ class Query:
     scene_state: str = ""  # ``scene_2`` (OmniScenes capture session), the Stanford area or the ZInD home
     upright: bool = False  # captured upright (ZInD): localization may use an upright rotation prior
     pose_file: Path | None = None  # where the ground truth was read (never to be written over)
+    floor: int | None = None  # synthetic buildings: the floor the camera is on (0 = ground floor)
+    room: str | None = None  # synthetic multi-room scenes and buildings: id of the room holding the camera
 
 
 @runtime_checkable

@@ -12,6 +12,10 @@ capture type in the released change splits (``change_handheld_pano/handheld_pyeb
 scene_2``); both are accepted. When a scene has both ``pcd/<scene>.ply`` and ``.txt`` the
 ``.ply`` is used: it holds the same points (the generator writes both) and binary PLY reads
 several times faster than text.
+
+Synthetic scenes of several rooms (``--preset multiroom``, ``building``) name each query's room,
+and a building's its floor, in the ground truth: ``Query.room``, ``Query.floor``
+(:func:`query_rooms`).
 """
 
 from __future__ import annotations
@@ -37,6 +41,30 @@ def written_by_synth(root: str | Path) -> bool:
         return json.loads((Path(root) / "dataset.json").read_text()).get("generator") == SYNTH_GENERATOR
     except (OSError, ValueError, AttributeError):
         return False
+
+
+def query_rooms(root: str | Path) -> dict[tuple[str, str, str], tuple[int | None, str]]:
+    """``(split, scene, image stem) -> (floor, room id)`` of the queries of a synthetic dataset
+    whose scenes hold several rooms (``ldlmap synth --preset multiroom | building``: the rooms and
+    their query stems in ``dataset.json``); empty for any other dataset. Multi-room rooms have no
+    floor and are named ``room<i>``."""
+    import json
+
+    try:
+        meta = json.loads((Path(root) / "dataset.json").read_text())
+    except (OSError, ValueError):
+        return {}
+    if not isinstance(meta, dict) or meta.get("generator") != SYNTH_GENERATOR:
+        return {}
+    out: dict[tuple[str, str, str], tuple[int | None, str]] = {}
+    for scene in meta.get("scenes", []):
+        for room in scene.get("rooms", []) or []:
+            rid = room.get("id") or f"room{room.get('index')}"
+            floor = room.get("floor")
+            for split, stems in (room.get("queries") or {}).items():
+                for stem in stems:
+                    out[(split, scene.get("name"), stem)] = (None if floor is None else int(floor), rid)
+    return out
 
 
 _SCENE_FOLDER = re.compile(r"^(?:(?P<prefix>.*)_)?(?P<room>[^_]+_\d+)_(?P<state>scene_\d+)$")
@@ -106,6 +134,7 @@ class OmniScenes:
         if scene is not None and scene not in self.scenes():
             raise InputError(f"unknown {self.title} scene {scene}; available: {', '.join(self.scenes()) or 'none'}")
         out: list[Query] = []
+        rooms = query_rooms(self.root) if self.label == "synthetic" else {}
         for s in sorted(wanted, key=available.index):
             for folder, room, state in sorted(self._scene_folders(s), key=lambda f: (natural_key(f[1]), natural_key(f[2]))):
                 if scene is not None and room != scene:
@@ -117,8 +146,10 @@ class OmniScenes:
                     if not pose_path.is_file():
                         raise InputError(f"no pose file for query {img} (expected {pose_path})")
                     R, t = read_pose_txt(pose_path)
+                    floor, room_id = rooms.get((s, room, img.stem), (None, None))
                     out.append(Query(image=img, scene=room, split=s, rot_cam_from_world=R, center=t,
-                                     name=f"{s}/{room}_{state}/{img.stem}", scene_state=state, pose_file=pose_path))
+                                     name=f"{s}/{room}_{state}/{img.stem}", scene_state=state, pose_file=pose_path,
+                                     floor=floor, room=room_id))
         return out
 
     def point_cloud(self, scene: str) -> Path:

@@ -109,18 +109,22 @@ def _write_pose(path: Path, R: np.ndarray, t: np.ndarray) -> None:
 def write_split_panoramas(tmp: Path, name: str, spec: Any, idx: int, cap: CaptureSettings, seed: int,
                           renderer: Renderer, changed_renderer: Renderer, split_counts: dict[str, int],
                           tick: Callable[[str], None] = lambda description="": None,
-                          first_stem: Mapping[str, int] | None = None) -> dict[str, list[str]]:
+                          first_stem: Mapping[str, int] | None = None,
+                          offset: np.ndarray | None = None) -> dict[str, list[str]]:
     """Render and write the panoramas of every split of one room under the scene ``name``.
 
     ``idx`` is the room's index in the random streams (:func:`stream_rng`); ``renderer`` draws the
     unchanged room and ``changed_renderer`` the changed one (``change_*`` splits, ``scene_2``).
     Images of a split are numbered (``%04d``) from ``first_stem[split]`` (default 0; the
     illumination variants share the extreme split's numbers), so that several rooms can share
-    one scene folder. ``split_counts`` is increased in place; returns split -> stems written.
+    one scene folder. ``offset`` (3,) moves the written camera centres from the renderers' frame
+    into the world frame (a room rendered where its spec puts it, floor at z = 0, then placed in
+    a building). ``split_counts`` is increased in place; returns split -> stems written.
     """
     written: dict[str, list[str]] = {}
     first = dict(first_stem or {})
     W, H = cap.width, cap.height
+    shift = np.zeros(3) if offset is None else np.asarray(offset, dtype=np.float64).reshape(3)
     for split in BASE_SPLITS:
         n = cap.counts[split]
         if n == 0:
@@ -139,7 +143,7 @@ def write_split_panoramas(tmp: Path, name: str, spec: Any, idx: int, cap: Captur
                                noise_sigma=cap.noise_sigma, rng=rng)
             stem = f"{first.get(split, 0) + k:04d}"
             _write_jpeg(tmp / f"{split}_pano" / folder / f"{stem}.jpg", pano.rgb)
-            _write_pose(tmp / f"{split}_pose" / folder / f"{stem}.txt", R, t)
+            _write_pose(tmp / f"{split}_pose" / folder / f"{stem}.txt", R, t + shift)
             split_counts[split] += 1
             written.setdefault(split, []).append(stem)
             if split == "extreme":
@@ -147,7 +151,7 @@ def write_split_panoramas(tmp: Path, name: str, spec: Any, idx: int, cap: Captur
                     vfolder = f"{var}_{name}_{state}"
                     _write_jpeg(tmp / f"{var}_pano" / vfolder / f"{stem}.jpg",
                                 apply_illumination(pano.rgb, kind, **params))
-                    _write_pose(tmp / f"{var}_pose" / vfolder / f"{stem}.txt", R, t)
+                    _write_pose(tmp / f"{var}_pose" / vfolder / f"{stem}.txt", R, t + shift)
                     split_counts[var] += 1
                     written.setdefault(var, []).append(stem)
             tick(f"{name}: {split} {k + 1}/{n}")

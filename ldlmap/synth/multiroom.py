@@ -195,6 +195,71 @@ def merge_meshes(meshes: list[Any], name: str = SCENE) -> Any:
                      object_boxes=boxes, tri_part=np.concatenate(parts))
 
 
+def lift_mesh(mesh: Any, offset: Any) -> Any:
+    """``mesh`` moved by ``offset`` (dx, dy, dz) metres: vertices, footprint and object boxes.
+
+    ``ceiling_height`` becomes the world height of the ceiling (``dz`` + the room's height): the
+    moved mesh is for writing and merging; render and sample poses in the unmoved one.
+    """
+    off = np.asarray(offset, dtype=np.float64).reshape(3)
+    if not off.any():
+        return mesh
+    return replace(mesh, vertices=np.asarray(mesh.vertices, dtype=np.float64) + off,
+                   footprint=np.asarray(mesh.footprint, dtype=np.float64) + off[:2],
+                   ceiling_height=float(mesh.ceiling_height) + float(off[2]),
+                   object_boxes=[np.asarray(b, dtype=np.float64) + off for b in mesh.object_boxes])
+
+
+@dataclass
+class CapturedRoom:
+    """What :func:`capture_room` made of one room, in the world frame."""
+
+    mesh: Any  # SceneMesh moved by the room's offset
+    edges: np.ndarray  # (E, 2, 3) true 3D edges
+    points: np.ndarray  # (N, 3) scan points
+    colors: np.ndarray  # (N, 3) uint8
+    changed: Any  # the changed spec (change_* splits), in the spec's own frame
+    queries: dict[str, list[str]]  # split -> image stems written
+
+
+def capture_room(tmp: Path, scene: str, spec: Any, idx: int, cap: Any, seed: int, tick: Any,
+                 first_stem: dict[str, int], split_counts: dict[str, int], offset: Any = (0.0, 0.0, 0.0),
+                 label: str = "room", cache: dict | None = None) -> CapturedRoom:
+    """Scan one room and write its panoramas into the scene ``scene`` (numbered on from
+    ``first_stem``; ``split_counts`` grows in place), with the room's own random streams (``idx``).
+
+    The room is built, scanned and rendered where ``spec`` puts it (floor at z = 0), then its
+    mesh, edges, scan and camera centres are moved by ``offset`` (dx, dy, dz) into the world.
+    ``cache`` (spec -> mesh, renderer, edges), when given, holds built rooms for identical rooms
+    to share: equal specs give equal meshes and textures.
+    """
+    from ldlmap.synth.capture import stream_rng, write_split_panoramas
+    from ldlmap.synth.edges import mesh_edges
+    from ldlmap.synth.presets import changed_spec
+    from ldlmap.synth.render import Renderer
+    from ldlmap.synth.scan import sample_scan
+    from ldlmap.synth.scene import build_scene
+
+    off = np.asarray(offset, dtype=np.float64).reshape(3)
+    built = cache.get(spec) if cache is not None else None
+    if built is None:
+        mesh = build_scene(spec)
+        built = (mesh, Renderer(mesh), mesh_edges(mesh))
+        if cache is not None:
+            cache[spec] = built
+    mesh, renderer, edges = built
+    tick(f"{label}: scan")
+    pts, cols = sample_scan(mesh, spec.scan, stream_rng(seed, spec, idx, "scan"), renderer=renderer)
+    tick(f"{label}: changed room")
+    changed = changed_spec(spec, stream_rng(seed, spec, idx, "change"))
+    changed_renderer = Renderer(build_scene(changed))
+    tick(f"{label}: panoramas")
+    stems = write_split_panoramas(tmp, scene, spec, idx, cap, seed, renderer, changed_renderer, split_counts, tick,
+                                  first_stem=first_stem, offset=off)
+    return CapturedRoom(mesh=lift_mesh(mesh, off), edges=np.asarray(edges, dtype=np.float64) + off,
+                        points=pts + off, colors=cols, changed=changed, queries=stems)
+
+
 def generate_multiroom(out: Path, preset: str = "multiroom", seed: int = 0, rooms: int | None = None,
                        overwrite: bool = False, progress: bool = True, illumination: bool = True,
                        width: int | None = None, per_split: int | None = None,
@@ -206,16 +271,12 @@ def generate_multiroom(out: Path, preset: str = "multiroom", seed: int = 0, room
     Same seed, same bytes.
     """
     from ldlmap.io.linefiles import write_lines
-    from ldlmap.synth.edges import mesh_edges
     from ldlmap.datasets.omniscenes import SYNTH_GENERATOR
     from ldlmap.synth.capture import (BASE_SPLITS, GENERATOR_VERSION, ILLUMINATION_SPLITS, DatasetSummary, dataset_output,
                                       list_generated,
                                       ProgressTicks, capture_settings, stream_rng, write_split_panoramas)
     from ldlmap.synth.meshio import write_textured_obj
-    from ldlmap.synth.render import Renderer
-    from ldlmap.synth.scan import sample_scan, write_ply, write_txt
-    from ldlmap.synth.scene import build_scene
-    from ldlmap.synth.presets import changed_spec
+    from ldlmap.synth.scan import write_ply, write_txt
     from ldlmap.synth.spec import dump_spec_toml
 
     start = time.perf_counter()
@@ -240,25 +301,16 @@ def generate_multiroom(out: Path, preset: str = "multiroom", seed: int = 0, room
         (tmp / "specs").mkdir(parents=True)
         for idx, (spec, cap, off) in enumerate(zip(specs, settings, offsets), start=1):
             room = f"{name}_room_{idx}"
-            mesh = build_scene(spec)
-            renderer = Renderer(mesh)
             (tmp / "specs" / f"{room}.toml").write_text(dump_spec_toml(spec))
-            meshes.append(mesh)
-            edges.append(mesh_edges(mesh))
-            tick(f"room {idx}: scan")
-            pts, cols = sample_scan(mesh, spec.scan, stream_rng(seed, spec, idx, "scan"), renderer=renderer)
-            clouds.append(pts)
-            colors.append(cols)
-            tick(f"room {idx}: changed room")
-            changed = changed_spec(spec, stream_rng(seed, spec, idx, "change"))
-            (tmp / "specs" / f"{room}_scene_2.toml").write_text(dump_spec_toml(changed))
-            changed_renderer = Renderer(build_scene(changed))
-            tick(f"room {idx}: panoramas")
             # Every split is numbered on from the previous rooms' images (one stem, one image).
-            stems = write_split_panoramas(tmp, name, spec, idx, cap, seed, renderer, changed_renderer, split_counts,
-                                          tick, first_stem=first)
+            got = capture_room(tmp, name, spec, idx, cap, seed, tick, first, split_counts, label=f"room {idx}")
+            (tmp / "specs" / f"{room}_scene_2.toml").write_text(dump_spec_toml(got.changed))
+            meshes.append(got.mesh)
+            edges.append(got.edges)
+            clouds.append(got.points)
+            colors.append(got.colors)
             for split in BASE_SPLITS:
-                first[split] += len(stems.get(split, []))
+                first[split] += len(got.queries.get(split, []))
             z_top = float(spec.ceiling_height)
             fp = np.asarray(spec.footprint, dtype=np.float64)
             rooms_info.append({
@@ -266,9 +318,9 @@ def generate_multiroom(out: Path, preset: str = "multiroom", seed: int = 0, room
                 "offset": [float(off[0]), float(off[1]), 0.0],
                 "bounds_min": [float(x) for x in fp.min(0)] + [0.0],
                 "bounds_max": [float(x) for x in fp.max(0)] + [z_top],
-                "points": [n_points, n_points + int(len(pts))], "triangles": int(mesh.num_triangles),
-                "gt_lines": int(len(edges[-1])), "queries": stems})
-            n_points += int(len(pts))
+                "points": [n_points, n_points + int(len(got.points))], "triangles": int(got.mesh.num_triangles),
+                "gt_lines": int(len(got.edges)), "queries": got.queries})
+            n_points += int(len(got.points))
         tick(f"{name}: writing the union")
         P, C = np.concatenate(clouds), np.concatenate(colors)
         (tmp / "pcd").mkdir()

@@ -60,7 +60,7 @@ _AGAINST_WALL = {"shelf", "cabinet", "sofa"}
 def get_preset(preset: str) -> dict:
     """The preset named ``preset``; unknown names raise :class:`InputError` listing valid ones."""
     if preset not in PRESETS:
-        raise InputError(f"unknown preset {preset!r} (valid: {', '.join(sorted(PRESETS) + ['multiroom'])})")
+        raise InputError(f"unknown preset {preset!r} (valid: {', '.join(sorted(PRESETS) + ['multiroom', 'building', 'building_small'])})")
     return PRESETS[preset]
 
 
