@@ -41,7 +41,7 @@ from typing import Any
 
 import numpy as np
 
-from ldlmap.core.errors import InputError, atomic_dir
+from ldlmap.core.errors import InputError
 
 KINDS = ("office", "hotel", "room", "corridor", "stairwell")
 
@@ -370,7 +370,7 @@ def generate_building(out: Path, preset: str = "building", seed: int = 0, overwr
     from ldlmap.datasets.omniscenes import SYNTH_GENERATOR
     from ldlmap.io.linefiles import write_lines
     from ldlmap.synth.capture import (BASE_SPLITS, GENERATOR_VERSION, ILLUMINATION_SPLITS, DatasetSummary,
-                                      ProgressTicks, capture_settings)
+                                      ProgressTicks, capture_settings, dataset_output, list_generated)
     from ldlmap.synth.meshio import write_textured_obj
     from ldlmap.synth.multiroom import capture_room, merge_meshes, translate_spec
     from ldlmap.synth.scan import write_ply, write_txt
@@ -392,7 +392,7 @@ def generate_building(out: Path, preset: str = "building", seed: int = 0, overwr
     cache: dict = {}  # built rooms of the identical groups, shared by their copies
     scenes, points, idx = [], {}, 0
 
-    with atomic_dir(out, overwrite=overwrite) as tmp, ProgressTicks(progress, total) as tick:
+    with dataset_output(out, overwrite) as tmp, ProgressTicks(progress, total) as tick:
         (tmp / "specs").mkdir(parents=True)
         for f, rooms in enumerate(plan):
             name = floor_scene(f)
@@ -447,7 +447,7 @@ def generate_building(out: Path, preset: str = "building", seed: int = 0, overwr
                 "building": asdict(params), "illumination": sorted(cap0.illumination),
                 "layout": "omniscenes", "scenes": scenes,
                 "splits": {s: {"images": split_counts[s]} for s in splits}}
-        (tmp / "dataset.json").write_text(json.dumps(meta, indent=2) + "\n")
+        (tmp / "dataset.json").write_text(json.dumps(list_generated(tmp, meta), indent=2) + "\n")
 
     return DatasetSummary(out=out, seed=int(seed), scenes=[s["name"] for s in scenes], splits=split_counts,
                           points=points, width=cap0.width, height=cap0.height, seconds=time.perf_counter() - start)

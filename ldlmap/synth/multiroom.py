@@ -272,9 +272,8 @@ def generate_multiroom(out: Path, preset: str = "multiroom", seed: int = 0, room
     """
     from ldlmap.io.linefiles import write_lines
     from ldlmap.datasets.omniscenes import SYNTH_GENERATOR
-    from ldlmap.synth.capture import (BASE_SPLITS, GENERATOR_VERSION, ILLUMINATION_SPLITS, DatasetSummary, dataset_output,
-                                      list_generated,
-                                      ProgressTicks, capture_settings, stream_rng, write_split_panoramas)
+    from ldlmap.synth.capture import (BASE_SPLITS, GENERATOR_VERSION, ILLUMINATION_SPLITS, DatasetSummary,
+                                      ProgressTicks, capture_settings, dataset_output, list_generated)
     from ldlmap.synth.meshio import write_textured_obj
     from ldlmap.synth.scan import write_ply, write_txt
     from ldlmap.synth.spec import dump_spec_toml
