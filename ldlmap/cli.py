@@ -191,7 +191,8 @@ def _refuse_line_file(path: Path) -> None:
 def synth(
     out: Path = typer.Argument(..., help="Output dataset folder (OmniScenes layout)."),
     preset: Optional[str] = typer.Option(None, "--preset", help="Random-room preset (demo, standard; multiroom: 4 demo rooms "
-                                          "in one scan, one scene multiroom_1); default demo."),
+                                          "in one scan, one scene multiroom_1; rooms that are not boxes: angled, sloped, "
+                                          "stepped, arched, curved, shapes = one of each); default demo."),
     spec: Optional[list[Path]] = typer.Option(None, "--spec", help="Scene spec .toml (repeatable); replaces --preset."),
     seed: int = typer.Option(0, "--seed", help="Random seed in [0, 2**32): same seed, identical files."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace a non-empty OUT folder."),
