@@ -125,6 +125,24 @@ def distance_to_boundary(points: np.ndarray, poly: np.ndarray) -> np.ndarray:
     return np.min(np.linalg.norm(pts - closest, axis=-1), axis=-1)
 
 
+def corner_turns_deg(poly: np.ndarray) -> np.ndarray:
+    """How far the boundary turns at each corner (degrees, 0 = straight on), corner i between
+    edges i - 1 and i."""
+    p = np.asarray(poly, dtype=np.float64)
+    e = np.roll(p, -1, axis=0) - p
+    prev = np.roll(e, 1, axis=0)
+    return np.degrees(np.abs(np.arctan2(prev[:, 0] * e[:, 1] - prev[:, 1] * e[:, 0], np.sum(prev * e, axis=1))))
+
+
+def is_convex(poly: np.ndarray, eps: float = 1e-9) -> bool:
+    """True when every corner of the simple polygon ``poly`` turns the same way (straight corners allowed)."""
+    p = np.asarray(poly, dtype=np.float64)
+    e = np.roll(p, -1, axis=0) - p
+    f = np.roll(e, -1, axis=0)
+    cross = e[:, 0] * f[:, 1] - e[:, 1] * f[:, 0]
+    return bool(np.all(cross >= -eps) or np.all(cross <= eps))
+
+
 def convex_inside_polygon(convex: np.ndarray, poly: np.ndarray, eps: float = 1e-7) -> bool:
     """True when the convex polygon ``convex`` lies inside simple polygon ``poly`` (touching allowed)."""
     c = np.asarray(convex, dtype=np.float64)

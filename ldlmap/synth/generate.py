@@ -81,6 +81,7 @@ def generate_dataset(out: Path, preset: str | None = "demo", spec_paths: Sequenc
     from ldlmap.synth.scan import sample_scan, write_ply, write_txt
     from ldlmap.synth.scene import build_scene
     from ldlmap.synth.presets import changed_spec
+    from ldlmap.synth.shapes import classify_room
     from ldlmap.synth.spec import dump_spec_toml
     from ldlmap.io.linefiles import write_lines
 
@@ -126,7 +127,7 @@ def generate_dataset(out: Path, preset: str | None = "demo", spec_paths: Sequenc
                                   tick)
             scene_info.append({"name": name, "spec": f"specs/{name}.toml", "changed_spec": f"specs/{name}_scene_2.toml",
                                "points": points[name], "triangles": int(mesh.num_triangles),
-                               "gt_lines": int(len(segs)), "width": W, "height": H})
+                               "gt_lines": int(len(segs)), "width": W, "height": H, "kind": classify_room(spec)})
         meta = {"generator": SYNTH_GENERATOR, "version": GENERATOR_VERSION, "seed": int(seed),
                 "preset": None if spec_paths else (preset or "demo"),
                 "illumination": sorted({v for c in settings for v in c.illumination}),

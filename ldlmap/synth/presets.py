@@ -1,4 +1,5 @@
-"""Random scene specs: the presets (``demo``, ``standard``) and the random rooms, furniture, wall
+"""Random scene specs: the presets (``demo``, ``standard``; the non-box rooms ``angled``, ``sloped``,
+``stepped``, ``arched``, ``curved`` and the mix ``shapes``) and the random rooms, furniture, wall
 items and scene changes drawn from them; every spec is validated before it is returned.
 """
 
@@ -11,7 +12,8 @@ import numpy as np
 
 from ldlmap.core.errors import InputError
 from ldlmap.core import polygon as pg
-from ldlmap.synth.spec import (CaptureSpec, FRAME_WIDTH, OBJECT_KINDS, ObjectSpec, OpeningSpec, PosterSpec, ScanSpec,
+from ldlmap.synth.shapes import SHAPE_KINDS, random_ceiling, shape_footprint
+from ldlmap.synth.spec import (CaptureSpec, CeilingSpec, FRAME_WIDTH, OBJECT_KINDS, ObjectSpec, OpeningSpec, PosterSpec, ScanSpec,
                                SceneSpec, object_footprint, validate_spec, _from_dict)
 
 
@@ -47,6 +49,24 @@ PRESETS: dict[str, dict] = {
     },
 }
 
+# Rooms that are not boxes (ldlmap/synth/shapes.py): demo-sized capture, one preset per kind, and
+# "shapes" cycling through the kinds (scene i is kind i mod 5).
+_SHAPE_BASE = {
+    "scenes": 2,
+    "size": (4.5, 6.5),
+    "ceiling": (2.3, 2.7),  # m, the lowest ceiling (eaves, springing of a vault)
+    "objects": (3, 5),
+    "doors": (1, 2),
+    "windows": (1, 2),
+    "posters": (1, 3),
+    "non_orthogonal": 0.0,
+    "capture": PRESETS["demo"]["capture"],
+    "scan": PRESETS["demo"]["scan"],
+}
+for _kind in SHAPE_KINDS:
+    PRESETS[_kind] = {**_SHAPE_BASE, "shape": _kind}
+PRESETS["shapes"] = {**_SHAPE_BASE, "scenes": len(SHAPE_KINDS), "shape": "mixed"}
+
 _OBJECT_SIZES = {  # kind -> (min (sx, sy, sz), max (sx, sy, sz)) in m
     "box": ((0.35, 0.35, 0.3), (0.8, 0.8, 0.9)),
     "table": ((0.9, 0.6, 0.7), (1.8, 1.0, 0.8)),
@@ -60,7 +80,8 @@ _AGAINST_WALL = {"shelf", "cabinet", "sofa"}
 def get_preset(preset: str) -> dict:
     """The preset named ``preset``; unknown names raise :class:`InputError` listing valid ones."""
     if preset not in PRESETS:
-        raise InputError(f"unknown preset {preset!r} (valid: {', '.join(sorted(PRESETS) + ['multiroom', 'building', 'building_small'])})")
+        valid = sorted(PRESETS) + ["multiroom", "building", "building_small"]
+        raise InputError(f"unknown preset {preset!r} (valid: {', '.join(valid)})")
     return PRESETS[preset]
 
 
@@ -212,15 +233,28 @@ def _capture_from_preset(cfg: dict) -> CaptureSpec:
     return _from_dict(CaptureSpec, cfg.get("capture", {}), "capture")
 
 
+def room_kind(preset: str, index: int) -> str:
+    """The kind of room scene ``index`` of ``preset`` is: ``box`` (demo, standard) or one of
+    :data:`~ldlmap.synth.shapes.SHAPE_KINDS` (``shapes`` cycles through them from index 1)."""
+    shape = get_preset(preset).get("shape", "box")
+    return SHAPE_KINDS[(int(index) - 1) % len(SHAPE_KINDS)] if shape == "mixed" else shape
+
+
 def random_spec(preset: str, seed: int, index: int = 0) -> SceneSpec:
     """A random but reproducible room for ``preset``; ``(seed, index)`` selects the layout."""
     cfg = get_preset(preset)
     rng = np.random.default_rng([int(seed) & 0xFFFFFFFF, int(index), 0x1D1])
+    shape = room_kind(preset, index)
     for _attempt in range(50):
-        fp = _footprint(rng, cfg["size"], cfg["non_orthogonal"])
+        if shape == "box":
+            fp = _footprint(rng, cfg["size"], cfg["non_orthogonal"])
+        else:
+            fp = shape_footprint(rng, shape, cfg["size"])
         if pg.simple_polygon_problem(fp) is None:
             break
     ceiling = round(float(rng.uniform(*cfg["ceiling"])), 2)
+    # Box presets draw nothing more, so that their rooms stay the ones measured before.
+    ceiling_shape = CeilingSpec() if shape == "box" else random_ceiling(rng, shape, fp, ceiling)
     counts = {"door": int(rng.integers(cfg["doors"][0], cfg["doors"][1] + 1)),
               "window": int(rng.integers(cfg["windows"][0], cfg["windows"][1] + 1)),
               "poster": int(rng.integers(cfg["posters"][0], cfg["posters"][1] + 1))}
@@ -249,6 +283,7 @@ def random_spec(preset: str, seed: int, index: int = 0) -> SceneSpec:
         wall_material=str(rng.choice(walls)),
         floor_material=str(rng.choice(floors)),
         ceiling_material="ceiling",
+        ceiling=ceiling_shape,
         capture=_capture_from_preset(cfg),
         scan=_from_dict(ScanSpec, cfg.get("scan", {}), "scan"),
     )

@@ -2,7 +2,8 @@
 
 Parts (each a planar-faced piece; ``SceneMesh.tri_part`` numbers them):
 
-* room shell: floor polygon (ear clipping, non-convex OK), ceiling, one quad per wall; normals
+* room shell: floor polygon (ear clipping, non-convex OK), ceiling (flat, or planar pieces and
+  steps: :mod:`ldlmap.synth.ceiling`), one planar face per wall up to the ceiling above it; normals
   point into the room;
 * door / window frames: closed prisms standing ``FRAME_DEPTH`` out of the wall around a
   textured panel (a quad ``PANEL_OFFSET`` in front of the wall); doors have no bottom bar;
@@ -25,6 +26,7 @@ import numpy as np
 
 from ldlmap.core import polygon as pg
 from ldlmap.synth import textures as tx
+from ldlmap.synth.ceiling import ceiling_pieces, ceiling_profile, step_faces, wall_loop
 from ldlmap.synth.spec import (FRAME_DEPTH, FRAME_WIDTH, PANEL_OFFSET, POSTER_OFFSET, ObjectSpec,
                                SceneSpec, validate_spec)
 from ldlmap.synth.types import SceneMesh
@@ -152,17 +154,23 @@ def _collect_faces(spec: SceneSpec) -> list[_Face]:
     floor = np.column_stack([fp, np.zeros(k)])
     faces.append(_face(floor, np.array([0, 0, 1.0]), texture=spec.floor_material, obj=-1, part=part,
                        tex_seed=_seed(spec.seed, "floor")))
-    ceil = np.column_stack([fp, np.full(k, h)])
-    faces.append(_face(ceil, np.array([0, 0, -1.0]), texture=spec.ceiling_material, obj=-1, part=part,
-                       tex_seed=_seed(spec.seed, "ceiling")))
-    tones = 1.0 + 0.07 * np.where(np.arange(k) % 2 == 0, 1.0, -1.0) + rng.uniform(-0.02, 0.02, k)
+    profile = ceiling_profile(spec.ceiling, fp, h)
+    pieces = ceiling_pieces(profile, fp) + step_faces(profile, fp)
+    # Pieces of one ceiling share a colour (its own stream: box rooms keep their draws).
+    ceil_base = tx.pick_base(spec.ceiling_material, np.random.default_rng([spec.seed, 18])) if len(pieces) > 1 else None
+    for j, (loop, normal) in enumerate(pieces):
+        faces.append(_face(loop, normal, texture=spec.ceiling_material, obj=-1, part=part, base=ceil_base,
+                           tex_seed=_seed(spec.seed, "ceiling", j) if j else _seed(spec.seed, "ceiling")))
+    # Walls alternate in tone at corners; the facets of a curved wall (turning < 20 deg) keep one tone.
+    turn = pg.corner_turns_deg(fp)
+    group = np.concatenate([[0], np.cumsum(turn[1:] >= 20.0)])
+    tones = 1.0 + 0.07 * np.where(group % 2 == 0, 1.0, -1.0) + rng.uniform(-0.02, 0.02, k)[group]
     for i in range(k):
         a, b = fp[i], fp[(i + 1) % k]
         t = (b - a) / np.linalg.norm(b - a)
         inward = np.array([-t[1], t[0], 0.0])
-        loop = np.array([[a[0], a[1], 0], [b[0], b[1], 0], [b[0], b[1], h], [a[0], a[1], h]])
-        faces.append(_face(loop, inward, texture=spec.wall_material, obj=-1, part=part, tone=float(tones[i]),
-                           base=wall_base, tex_seed=_seed(spec.seed, "wall", i)))
+        faces.append(_face(wall_loop(profile, a, b), inward, texture=spec.wall_material, obj=-1, part=part,
+                           tone=float(tones[i]), base=wall_base, tex_seed=_seed(spec.seed, "wall", i)))
     part += 1
 
     def wall_frame(wall: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -26,6 +26,7 @@ import numpy as np
 
 from ldlmap.core.errors import InputError, require_file
 from ldlmap.core import polygon as pg
+from ldlmap.synth.ceiling import CEILING_KINDS, ceiling_profile
 
 
 OBJECT_KINDS = ("box", "table", "shelf", "cabinet", "sofa")
@@ -160,6 +161,19 @@ class ScanSpec:
 
 
 @dataclass(frozen=True)
+class CeilingSpec:
+    """The ceiling's shape (:mod:`ldlmap.synth.ceiling`); ``ceiling_height`` is its lowest point."""
+
+    kind: str = "flat"  # flat | shed (one slope) | gable (two slopes, a ridge) | stepped | vault (barrel)
+    direction_deg: float = 0.0  # deg, azimuth of the axis along which the height varies
+    slope_deg: float = 30.0  # deg, shed and gable pitch
+    step: float = 0.5  # m, stepped: how much higher the first part (smaller positions along the axis) is
+    step_at: float = 0.5  # stepped: where the step stands, as a fraction of the room's extent along the axis
+    rise: float = 0.8  # m, vault: height of the arch's crown above its springing (the walls' top)
+    segments: int = 12  # vault: flat facets of the arch
+
+
+@dataclass(frozen=True)
 class SceneSpec:
     """One synthetic room."""
 
@@ -173,6 +187,7 @@ class SceneSpec:
     wall_material: str = "plaster"
     floor_material: str = "parquet"
     ceiling_material: str = "ceiling"
+    ceiling: CeilingSpec = CeilingSpec()
     capture: CaptureSpec = CaptureSpec()
     scan: ScanSpec = ScanSpec()
 
@@ -407,8 +422,28 @@ def validate_spec(spec: SceneSpec) -> None:
         _check_on_wall(path, po.wall, po.offset, po.width, po.height, po.bottom, lengths, h, 0.0, bottom_frame=False)
         box = (po.offset, po.offset + po.width, po.bottom, po.bottom + po.height, path)
         _check_no_overlap_on_wall(spans.setdefault(po.wall, []), box)
+    _validate_ceiling(spec, fp)
     _validate_capture(spec.capture)
     _validate_scan(spec.scan)
+
+
+def _validate_ceiling(spec: SceneSpec, fp: np.ndarray) -> None:
+    c = spec.ceiling
+    if c.kind not in CEILING_KINDS:
+        raise InputError(f"spec field 'ceiling.kind' must be one of {', '.join(CEILING_KINDS)}, got {c.kind!r}")
+    if c.kind == "flat":
+        return
+    if not pg.is_convex(fp):
+        raise InputError(f"spec field 'ceiling.kind' = {c.kind!r} needs a convex footprint (only flat ceilings "
+                         "cover other rooms)")
+    _in_range(c.direction_deg, -360, 360, "ceiling.direction_deg")
+    _in_range(c.slope_deg, 0, 60, "ceiling.slope_deg", positive=True)
+    _in_range(c.step, 0, MAX_CEILING, "ceiling.step", positive=True)
+    _in_range(c.step_at, 0.05, 0.95, "ceiling.step_at")
+    _in_range(c.rise, 0, MAX_CEILING, "ceiling.rise", positive=True)
+    _in_range(c.segments, 2, 64, "ceiling.segments")
+    top = ceiling_profile(c, fp, spec.ceiling_height).top
+    _at_most(top, MAX_CEILING, "ceiling", "the ceiling's highest point in metres")
 
 
 def _check_on_wall(path: str, wall: int, offset: float, width: float, height: float, bottom: float,
