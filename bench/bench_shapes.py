@@ -1,6 +1,7 @@
 """Rooms that are not boxes (issue 23): localization per room kind and split.
 
-Run: ``python bench/bench_shapes.py [--scenes 4] [--per-split 3] [--maps edges,scan] [--max-tilt 10]``.
+Run: ``python bench/bench_shapes.py [--scenes 2] [--per-split 3] [--maps edges,scan] [--max-tilt 10]
+[--build field=value]``.
 
 For each room kind of the generator (``angled``: 5-8 walls at 30/45/60 deg; ``sloped``: shed and
 gable ceilings of 15-45 deg; ``stepped``; ``arched``: segmental barrel vaults; ``curved``: bays,
@@ -66,19 +67,21 @@ def shapes_dataset(kind: str, scenes: int, seed: int, per_split: int) -> Path:
     return out
 
 
-def build_maps(root: Path, source: str) -> Path:
-    """One map per scene of ``root`` from its true edges (``edges``) or its scan (``scan``)."""
+def build_maps(root: Path, source: str, overrides: dict | None = None) -> Path:
+    """One map per scene of ``root`` from its true edges (``edges``) or its scan (``scan``);
+    ``overrides``: BuildParams fields of the edge maps (experiments)."""
     from ldlmap.batch.prepare import default_params, prepare_dataset
     from ldlmap.datasets import open_dataset
     from ldlmap.io.linefiles import read_lines
     from ldlmap.map.build import BuildParams, build_lines_map
 
-    maps = root / f"maps_{source}_{map_tag()}"
+    tag = "".join(f"_{k}={v}" for k, v in sorted((overrides or {}).items()))
+    maps = root / f"maps_{source}{tag}_{map_tag()}"
     ds = open_dataset(root, "omniscenes")
     if source == "scan":
         prepare_dataset(root, "omniscenes", maps, default_params("omniscenes"))
         return maps
-    params = BuildParams(features="none", up="z")
+    params = replace(BuildParams(features="none", up="z"), **(overrides or {}))
     for scene in ds.scenes():
         target = maps / f"{scene}.h5"
         if not target.exists():
@@ -149,22 +152,30 @@ def main() -> None:
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--kinds", default=",".join(SHAPE_KINDS))
-    ap.add_argument("--scenes", type=int, default=4, help="rooms per kind")
+    ap.add_argument("--scenes", type=int, default=2, help="rooms per kind")
     ap.add_argument("--per-split", type=int, default=3)
     ap.add_argument("--seed", type=int, default=23)
     ap.add_argument("--maps", default="edges", help="edges, scan or edges,scan")
     ap.add_argument("--max-tilt", type=float, default=None, help="upright prior (deg); default free rotation")
+    ap.add_argument("--build", action="append", default=[], help="field=value: a BuildParams field of the edge maps")
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--out", type=Path, default=HERE / "shapes.json")
     args = ap.parse_args()
     set_threads(args.threads)
+    from ldlmap.map.build import BuildParams
+
+    overrides = {}
+    for kv in args.build:
+        key, value = kv.split("=", 1)
+        kind = type(getattr(BuildParams(), key))
+        overrides[key] = (value.lower() in ("1", "true", "yes")) if kind is bool else kind(value)
     report = {"machine": machine_info(), "args": {k: str(v) for k, v in vars(args).items()}, "maps": {}}
     for source in args.maps.split(","):
         table, all_rows = {}, []
         for kind in args.kinds.split(","):
             t0 = time.perf_counter()
             root = shapes_dataset(kind, args.scenes, args.seed, args.per_split)
-            maps = build_maps(root, source)
+            maps = build_maps(root, source, overrides)
             t1 = time.perf_counter()
             rows = localize(root, maps, args.max_tilt)
             for r in rows:
