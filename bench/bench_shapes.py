@@ -85,7 +85,7 @@ def build_maps(root: Path, source: str, overrides: dict | None = None) -> Path:
     for scene in ds.scenes():
         target = maps / f"{scene}.h5"
         if not target.exists():
-            build_lines_map(read_lines(ds.line_file(scene)), target, params, name=scene, source=f"edges:{scene}")
+            build_lines_map(read_lines(ds.gt_line_file(scene)), target, params, name=scene, source=f"edges:{scene}")
     return maps
 
 
