@@ -102,3 +102,24 @@ def test_export_overwrite_keeps_the_maps_folder(image_run):
                               "--all", "--overwrite"])
     assert "would replace the folder that holds the input" in one_error_line(res)
     assert (work / "maps" / "synthroom_1.h5").is_file()
+
+
+def test_report_html_refusal_names_no_missing_option(image_run):
+    """`report --html mine.html` onto a user's page said "use --overwrite", an option `report` lacks."""
+    work, _ = image_run
+    mine = work / "mine.html"
+    mine.write_text("<html>mine</html>")
+    line = one_error_line(runner.invoke(app, ["report", str(work / "r.json"), "--html", str(mine)]))
+    assert "--overwrite" not in line and "remove it first" in line
+    assert mine.read_text() == "<html>mine</html>"
+
+
+def test_run_refusing_a_user_json_gives_a_whole_reason(image_run):
+    """`run --images ... -o notes.json` onto a user's JSON said `(esults file of \\`ldlloc run\\`:
+    notes.json ("queries" must be a list, got None`: the reason cut mid-word, the path twice."""
+    work, args = image_run
+    notes = work / "notes.json"
+    notes.write_text('{"a": 1}')
+    line = one_error_line(runner.invoke(app, [*args[:-1], str(notes)]))
+    assert line.count(str(notes)) == 1 and "(\"queries\" must be a list, got NoneType);" in line, line
+    assert notes.read_text() == '{"a": 1}'
