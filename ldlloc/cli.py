@@ -110,7 +110,7 @@ def localize(
     from ldlmap.datasets import read_pose_file
     from ldlmap.core.pictures import check_picture_path
 
-    from ldlmap.core.errors import refuse_overwriting_inputs
+    from ldlmap.core.errors import LdlError, refuse_overwriting_inputs
 
     params = _params(top_k, loss, no_decompose, no_refine, privacy, features, weights, max_tilt, refine, query_frame)
     check_threads(threads)
@@ -124,7 +124,14 @@ def localize(
     tick = time.perf_counter()
     localizer = Localizer(m, params, device)
     loading["setup"] = time.perf_counter() - tick
-    loc = localizer.localize(img)
+    try:
+        loc = localizer.localize(img)
+    except LdlError as exc:  # the panorama could not be localized (too few lines, ...): a failed result
+        if not as_json:
+            raise
+        typer.echo(json.dumps({"error": str(exc), "image": str(pano), "map": str(map_path), "status": "failed",
+                               "confidence": 0.0, "verdict": "failed"}, indent=1))
+        raise typer.Exit(1) from None
     out = {"image": str(pano), "map": str(map_path), "R": np.round(loc.rot_cam_from_world, 8).tolist(),
            "t": np.round(loc.center, 6).tolist(), "status": loc.status, "refined": loc.refined,
            "message": loc.message, "num_rotations": loc.num_rotations, "num_lines": loc.num_lines,

@@ -114,6 +114,8 @@ def image_result(q: ImageQuery, loc: Localization, choice: MapChoice) -> QueryRe
         refine_residual_deg=loc.refine_residual_deg, input_frame=input_frame,
         map=str(entry.path), map_runner_up=choice.runner_up(),
         map_scores=choice.scores() if len(choice.ranked) > 1 else None,
+        confidence=loc.confidence, verdict=loc.verdict, competitors=list(loc.competitors),
+        confidence_signals=dict(loc.confidence_signals) or None,
     )
 
 
@@ -121,7 +123,7 @@ def failed_image_result(q: ImageQuery, params: LocalizeParams, message: str, sec
     """The ``failed`` record of image query ``q``, with its reason."""
     return QueryResult(image=str(q.image), scene=q.scene, split=q.split, name=q.name, status="failed",
                        message=message, seconds={"total": seconds},
-                       rotation_prior=rotation_prior_name(params.max_tilt_deg))
+                       rotation_prior=rotation_prior_name(params.max_tilt_deg), confidence=0.0, verdict="failed")
 
 
 def localize_image_query(maps: MapSet, q: ImageQuery, params: LocalizeParams, top_maps: int = TOP_MAPS,
@@ -169,4 +171,5 @@ def run_images(queries: list[ImageQuery], maps: MapSet, output: str | Path, para
             writer.add(r)
             if progress:
                 progress(r)
+        writer.finish()  # every query done: a later run without --resume may replace the file
         return writer.results

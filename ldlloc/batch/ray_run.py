@@ -159,6 +159,7 @@ def run_images_ray(queries: list, maps: str | Path, output: str | Path, params: 
         done = writer.done()
         todo = [q for q in sorted(queries, key=lambda q: q.name) if q.name not in done]
         if not todo:
+            writer.finish()
             return writer.results
         with ray_session(address) as ray:
             need = check_resources(ray, device, max(1, threads))
@@ -191,5 +192,5 @@ def run_images_ray(queries: list, maps: str | Path, output: str | Path, params: 
                 ray.kill(a)
         rank = {q.name: i for i, q in enumerate(todo)}
         writer.results.sort(key=lambda r: rank.get(r.name, -1))
-        writer.flush()
+        writer.finish()  # every query done (as run_images); flushes the sorted results
         return writer.results

@@ -199,7 +199,9 @@ def refuse_replacing_results(path: str | Path, overwrite: bool = False, resume: 
     try:
         results, meta = load_results(p)
     except LdlError as exc:
-        raise InputError(f"output {p} exists and is not a results file of `ldlloc run` ({str(exc)[-80:]}); use "
+        why = str(exc).removeprefix(f"not a results file of `ldlloc run`: {p}").strip(" ()")  # the reason alone
+        why = why if len(why) <= 80 else why[:77] + "..."
+        raise InputError(f"output {p} exists and is not a results file of `ldlloc run` ({why}); use "
                          "--overwrite to replace it, or another --output") from None
     if meta.get("finished") is False:  # absent: written before the flag, or by a run that finished
         _release_lock(_acquire_lock(p), lock_path(p))  # a run writing it now: ResultsBusy says so

@@ -141,7 +141,10 @@ def export_results(results: str | Path, fmt: str, out: str | Path, include_all: 
     notes = [told if sel.have_verdicts else f"{results} holds no verdicts (written before confidence existed): "
              f"{told}, every localized one"]
     poses = export_poses(sel.chosen, frame, meta, map_path)
-    refuse_overwriting_inputs([results, map_path, *(p.image for p in poses)], [out])
+    from ldlloc.export.poses import map_path_for
+
+    maps = {map_path_for(p.record, meta, map_path)[0] for p in poses}  # the maps whose lines the export reads
+    refuse_overwriting_inputs([results, map_path, *maps, *(p.image for p in poses)], [out])
     scenes = sorted({p.scene for p in poses})
     if len(scenes) > 1:
         notes.append(f"poses of {len(scenes)} scenes/maps in one file: they share a frame only when their maps do "

@@ -166,12 +166,27 @@ def pose_in_frame(record: dict, frame: str, meta: dict[str, Any], given_map: Pat
     return np.asarray(record["R"], dtype=np.float64), np.asarray(record["t"], dtype=np.float64)
 
 
+ROTATION_TOL = 1e-4  # largest |R R^T - I| entry and |det R - 1| of a rotation as the pipeline writes it (~1e-15)
+
+
+def check_rotation(R: np.ndarray, name: str) -> None:
+    """One-line error when ``R`` (3x3) is not a rotation (a hand-edited pose: a reflection, det -1,
+    or a scaled matrix): COLMAP, nerfstudio and viewers would take it as a camera and go wrong."""
+    R = np.asarray(R, dtype=np.float64)
+    off = float(np.abs(R @ R.T - np.eye(3)).max())
+    det = float(np.linalg.det(R))
+    if off > ROTATION_TOL or abs(det - 1.0) > ROTATION_TOL:
+        raise InputError(f"query {name}: R is not a rotation (det {det:.4g}, |R R^T - I| up to {off:.2g}): "
+                         "was the results file edited? Fix or drop that query")
+
+
 def export_poses(records: list[dict], frame: str, meta: dict[str, Any], given_map: Path | None = None
                  ) -> list[ExportPose]:
     """The :class:`ExportPose` of each chosen record in ``frame``."""
     out = []
     for q in records:
         R, t = pose_in_frame(q, frame, meta, given_map)
+        check_rotation(R, q["name"])
         out.append(ExportPose(name=q["name"], scene=q["scene"], image=Path(q["image"]), rot_cam_from_world=R,
                               center=t, record=q))
     return out

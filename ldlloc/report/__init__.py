@@ -27,7 +27,8 @@ def check_html_path(path: str | Path) -> Path:
         except OSError:
             return False
 
-    refuse_replacing_other_files(p, is_ours, "an HTML report of `ldlloc report`")
+    refuse_replacing_other_files(p, is_ours, "an HTML report of `ldlloc report`",  # report has no --overwrite
+                                 remedy="remove it first, or give another name")
     return p
 
 

@@ -99,15 +99,17 @@ def starts_with(path: str | os.PathLike, signature: bytes) -> bool:
 
 
 def refuse_replacing_other_files(path: str | os.PathLike, is_ours: Callable[[Path], bool], what: str,
-                                 overwrite: bool = False) -> None:
+                                 overwrite: bool = False,
+                                 remedy: str = "use --overwrite to replace it, or another name") -> None:
     """Raise :class:`LdlError` when ``path`` exists and is not a ``what`` (``is_ours``: one this
     command writes, which a new run replaces as a user expects), unless ``overwrite``. A folder is
-    never replaced by a file."""
+    never replaced by a file. ``remedy``: what the message tells the user to do (a command without
+    ``--overwrite`` says something else)."""
     p = Path(path)
     if p.is_dir():
         raise LdlError(f"output {p} is a folder; give a file name")
     if p.exists() and not overwrite and not is_ours(p):
-        raise LdlError(f"output {p} exists and is not {what}; use --overwrite to replace it, or another name")
+        raise LdlError(f"output {p} exists and is not {what}; {remedy}")
 
 
 def check_writable_output(path: str | os.PathLike, option: str = "output") -> Path:
