@@ -23,7 +23,6 @@ down (camera up more than 90 deg from the truth's). Results go to ``bench/shapes
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from dataclasses import replace
@@ -36,35 +35,17 @@ ROOT = HERE.parent
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from bench.common import CACHE, console, machine_info, map_tag, set_threads, synth_tag, write_json  # noqa: E402
+from bench.common import (CACHE, console, machine_info, map_tag, preset_rooms_dataset, set_threads, synth_tag,  # noqa: E402
+                          write_json)
 
 SPLITS = ("robot", "handheld", "extreme")
 
 
 def shapes_dataset(kind: str, scenes: int, seed: int, per_split: int) -> Path:
     """``scenes`` rooms of ``kind`` with ``per_split`` panoramas in each of :data:`SPLITS`."""
-    from ldlmap.synth.generate import generate_dataset
-    from ldlmap.synth.presets import random_spec
-    from ldlmap.synth.spec import dump_spec_toml
-
     out = CACHE / "shapes" / f"{kind}_s{seed}_k{scenes}_n{per_split}_{synth_tag()}"
-    if (out / "dataset.json").exists():
-        return out
-    spec_dir = out.with_name(out.name + "_specs")
-    spec_dir.mkdir(parents=True, exist_ok=True)
-    paths = []
-    for i in range(1, scenes + 1):
-        spec = random_spec(kind, seed, i)
-        cap = spec.capture
-        cap = replace(cap, robot=replace(cap.robot, count=per_split), handheld=replace(cap.handheld, count=per_split),
-                      extreme=replace(cap.extreme, count=per_split), change=replace(cap.change, count=0),
-                      illumination=replace(cap.illumination, enabled=False))
-        spec = replace(spec, name=f"{kind}{i:02d}", capture=cap)
-        p = spec_dir / f"{kind}{i:02d}.toml"
-        p.write_text(dump_spec_toml(spec))
-        paths.append(p)
-    generate_dataset(out, None, paths, seed, overwrite=True, progress=False, illumination=False)
-    return out
+    return preset_rooms_dataset(out, out.with_name(out.name + "_specs"), kind, seed, scenes, kind,
+                                {split: per_split for split in SPLITS})
 
 
 def build_maps(root: Path, source: str, overrides: dict | None = None) -> Path:

@@ -97,35 +97,42 @@ def demo_dataset(seed: int = 1) -> Path:
     return out
 
 
-def extreme_dataset(seed: int = 7, per_split: int = 10, scenes: int = 3) -> Path:
-    """Demo-preset rooms whose only split is ``extreme`` with ``per_split`` panoramas each.
-
-    The specs are the demo preset's random rooms (``random_spec('demo', seed, i)``) with the
-    other splits' counts set to 0 and the illumination variants off, written as TOML and
-    passed to the generator (so the dataset records the exact specs it used).
-    """
+def preset_rooms_dataset(out: Path, spec_dir: Path, preset: str, seed: int, scenes: int, name: str,
+                         counts: dict[str, int]) -> Path:
+    """A dataset of the preset's random rooms ``random_spec(preset, seed, i)``, ``i = 1..scenes``,
+    named ``<name><i>``, with ``counts[split]`` panoramas in the robot / handheld / extreme splits
+    (0 for the others), no change or illumination splits. The specs are written as TOML into
+    ``spec_dir`` and passed to the generator (so the dataset records the exact specs it used);
+    an existing dataset at ``out`` is reused."""
     from ldlmap.synth.generate import generate_dataset
     from ldlmap.synth.spec import dump_spec_toml
     from ldlmap.synth.presets import random_spec
 
-    out = CACHE / f"ablation_s{seed}_n{per_split}_k{scenes}_{synth_tag()}"
     if (out / "dataset.json").exists():
         return out
-    spec_dir = CACHE / f"ablation_specs_s{seed}_n{per_split}_k{scenes}"
     spec_dir.mkdir(parents=True, exist_ok=True)
     paths = []
     for i in range(1, scenes + 1):
-        spec = random_spec("demo", seed, i)
+        spec = random_spec(preset, seed, i)
         cap = spec.capture
-        cap = replace(cap, robot=replace(cap.robot, count=0), handheld=replace(cap.handheld, count=0),
-                      extreme=replace(cap.extreme, count=per_split), change=replace(cap.change, count=0),
+        cap = replace(cap, robot=replace(cap.robot, count=counts.get("robot", 0)),
+                      handheld=replace(cap.handheld, count=counts.get("handheld", 0)),
+                      extreme=replace(cap.extreme, count=counts.get("extreme", 0)), change=replace(cap.change, count=0),
                       illumination=replace(cap.illumination, enabled=False))
-        spec = replace(spec, name=f"abl{i:02d}", capture=cap)
-        p = spec_dir / f"abl{i:02d}.toml"
+        spec = replace(spec, name=f"{name}{i:02d}", capture=cap)
+        p = spec_dir / f"{name}{i:02d}.toml"
         p.write_text(dump_spec_toml(spec))
         paths.append(p)
     generate_dataset(out, None, paths, seed, overwrite=True, progress=False, illumination=False)
     return out
+
+
+def extreme_dataset(seed: int = 7, per_split: int = 10, scenes: int = 3) -> Path:
+    """Demo-preset rooms whose only split is ``extreme`` with ``per_split`` panoramas each
+    (:func:`preset_rooms_dataset`)."""
+    return preset_rooms_dataset(CACHE / f"ablation_s{seed}_n{per_split}_k{scenes}_{synth_tag()}",
+                                CACHE / f"ablation_specs_s{seed}_n{per_split}_k{scenes}", "demo", seed, scenes, "abl",
+                                {"extreme": per_split})
 
 
 def room_scan(points: int = 1_000_000, seed: int = 0) -> tuple[Path, dict[str, Any]]:
