@@ -458,14 +458,10 @@ def generate_building(out: Path, preset: str = "building", seed: int = 0, overwr
 
 def read_building(root: str | Path) -> list[BuildingRoom]:
     """The rooms of a generated building (from its ``dataset.json``), floor by floor."""
+    from ldlmap.synth.capture import read_dataset_meta
+
     root = Path(root)
-    path = root / "dataset.json"
-    if not path.is_file():
-        raise InputError(f"not a generated synthetic dataset (no dataset.json): {root}")
-    try:
-        meta = json.loads(path.read_text())
-    except (OSError, ValueError) as exc:
-        raise InputError(f"cannot read {path}: {exc}") from None
+    meta = read_dataset_meta(root)
     if "building" not in meta:
         raise InputError(f"{root} is not a synthetic building (generate one with --preset building)")
     return [BuildingRoom(id=r["id"], index=int(r["index"]), floor=int(r["floor"]), scene=s["name"], kind=r["kind"],

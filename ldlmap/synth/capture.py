@@ -5,6 +5,7 @@ safety checks before a dataset folder is replaced.
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Mapping
@@ -180,8 +181,6 @@ def generated_files(root: Path) -> set[str]:
     """Paths (relative, posix) of the files `ldlmap synth` wrote in dataset ``root``: its
     ``dataset.json`` lists them (``files``); a dataset written before that list, every file under
     the generator's own top-level names."""
-    import json
-
     root = Path(root)
     try:
         listed = json.loads((root / "dataset.json").read_text()).get("files")
@@ -202,6 +201,17 @@ def files_not_generated(root: Path) -> list[str]:
     extra = [p.relative_to(root).as_posix() for p in sorted(root.rglob("*"))
              if (p.is_symlink() or not p.is_dir() or not any(p.iterdir())) and p.relative_to(root).as_posix() not in ours]
     return extra
+
+
+def read_dataset_meta(root: str | Path) -> dict:
+    """The ``dataset.json`` of a generated dataset; one-line errors when it is missing or unreadable."""
+    path = Path(root) / "dataset.json"
+    if not path.is_file():
+        raise InputError(f"not a generated synthetic dataset (no dataset.json): {root}")
+    try:
+        return json.loads(path.read_text())
+    except (OSError, ValueError) as exc:
+        raise InputError(f"cannot read {path}: {exc}") from None
 
 
 def list_generated(tmp: Path, meta: dict) -> dict:

@@ -348,14 +348,10 @@ def generate_multiroom(out: Path, preset: str = "multiroom", seed: int = 0, room
 
 def read_layout(root: str | Path, scene: str = SCENE) -> list[RoomInfo]:
     """The rooms of the multi-room ``scene`` of a generated dataset (from its ``dataset.json``)."""
+    from ldlmap.synth.capture import read_dataset_meta
+
     root = Path(root)
-    path = root / "dataset.json"
-    if not path.is_file():
-        raise InputError(f"not a generated synthetic dataset (no dataset.json): {root}")
-    try:
-        meta = json.loads(path.read_text())
-    except (OSError, ValueError) as exc:
-        raise InputError(f"cannot read {path}: {exc}") from None
+    meta = read_dataset_meta(root)
     for s in meta.get("scenes", []):
         if s.get("name") == scene:
             if "rooms" not in s:
@@ -367,7 +363,7 @@ def read_layout(root: str | Path, scene: str = SCENE) -> list[RoomInfo]:
                              points=(int(r["points"][0]), int(r["points"][1])),
                              queries={k: list(v) for k, v in r["queries"].items()})
                     for r in s["rooms"]]
-    raise InputError(f"no scene {scene} in {path}")
+    raise InputError(f"no scene {scene} in {root / 'dataset.json'}")
 
 
 def room_meshes(root: str | Path, scene: str = SCENE, changed: bool = False) -> list[Any]:
