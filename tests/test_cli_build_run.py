@@ -20,18 +20,10 @@ from typer.testing import CliRunner
 from ldlloc.cli import app as loc_app
 from ldlmap.cli import app as map_app
 from ldlmap.datasets import read_pose_txt
-from ldlmap.core.geometry import rotation_error_deg
 from ldlmap.map.mapfile import FORMAT_VERSION, read_map
+from tests._hostile import error_line
 
 runner = CliRunner()
-
-
-def one_error_line(res) -> str:
-    lines = [line for line in res.output.splitlines() if line.strip()]
-    assert res.exit_code == 1, res.output
-    assert "Traceback" not in res.output
-    assert len(lines) == 1 and lines[0].startswith("error:"), res.output
-    return lines[0]
 
 
 def test_prepare_skips_up_to_date_maps(demo_dataset):
@@ -107,10 +99,10 @@ def test_lines_only_map_from_a_line_file(demo_dataset, tmp_path):
         coarse, out = coarse_loc.localize(pano), refine_loc.localize(pano)
         assert coarse.status == "coarse" and (out.status == "ok") == (out.refine_method == "geometric")
         errors.append([np.linalg.norm(o.center - t_true) for o in (coarse, out)])
-    line = one_error_line(runner.invoke(loc_app, ["localize", str(tmp_path / "lines.h5"), str(images[0]),
+    line = error_line(runner.invoke(loc_app, ["localize", str(tmp_path / "lines.h5"), str(images[0]),
                                                   "--refine", "features"]))
     assert "no features" in line
-    assert "--refine" in one_error_line(runner.invoke(loc_app, ["localize", str(tmp_path / "lines.h5"), str(images[0]),
+    assert "--refine" in error_line(runner.invoke(loc_app, ["localize", str(tmp_path / "lines.h5"), str(images[0]),
                                                                 "--refine", "bogus"]))
     # A map with features: `both` polishes the feature pose with the lines and says what it kept.
     res = runner.invoke(loc_app, ["localize", str(demo_dataset / "maps" / "synthroom_1.h5"), str(images[0]), "--json",
@@ -129,23 +121,23 @@ def test_lines_only_map_from_a_line_file(demo_dataset, tmp_path):
     assert short.length_threshold == pytest.approx(0.25) and m.length_threshold > 0.3
     assert len(short.lines) > len(m.lines)
     assert np.linalg.norm(short.lines[:, 1] - short.lines[:, 0], axis=1).min() >= 0.25 - 1e-9
-    assert "minimum line length" in one_error_line(runner.invoke(
+    assert "minimum line length" in error_line(runner.invoke(
         map_app, ["build", str(demo_dataset / "gt_lines" / "synthroom_1.obj"), "-o", str(tmp_path / "bad.h5"),
                   "--min-line-length", "0"]))
     assert not (tmp_path / "bad.h5").exists()
 
 
 def test_build_bad_inputs(tmp_path):
-    one_error_line(runner.invoke(map_app, ["build", str(tmp_path / "missing.ply")]))
+    error_line(runner.invoke(map_app, ["build", str(tmp_path / "missing.ply")]))
     (tmp_path / "cloud.xyzw").write_text("1 2 3\n")
-    assert "unsupported" in one_error_line(runner.invoke(map_app, ["build", str(tmp_path / "cloud.xyzw")]))
+    assert "unsupported" in error_line(runner.invoke(map_app, ["build", str(tmp_path / "cloud.xyzw")]))
     (tmp_path / "empty.txt").write_text("")
-    one_error_line(runner.invoke(map_app, ["build", str(tmp_path / "empty.txt")]))
+    error_line(runner.invoke(map_app, ["build", str(tmp_path / "empty.txt")]))
     pts = np.random.default_rng(0).uniform(0, 3, size=(500, 6))
     pts[10, 1] = np.nan
     np.savetxt(tmp_path / "nan.txt", pts)
-    assert "NaN" in one_error_line(runner.invoke(map_app, ["build", str(tmp_path / "nan.txt")]))
-    one_error_line(runner.invoke(map_app, ["build", str(tmp_path / "nan.txt"), "--features", "orb"]))
+    assert "NaN" in error_line(runner.invoke(map_app, ["build", str(tmp_path / "nan.txt")]))
+    error_line(runner.invoke(map_app, ["build", str(tmp_path / "nan.txt"), "--features", "orb"]))
     # No partial map files are left behind.
     assert not list(tmp_path.glob("*.h5")) and not list(tmp_path.glob(".*tmp*"))
 
@@ -156,7 +148,7 @@ def test_unreachable_superpoint_weights(thin_scans, tmp_path, monkeypatch):
     src = tmp_path / "room.ply"
     shutil.copy(thin_scans / "pcd" / "synthroom_2.ply", src)
     # (few translations: the build gets to the weights after the lines, translations and fields)
-    line = one_error_line(runner.invoke(map_app, ["build", str(src), "--features", "superpoint", "--num-trans", "60",
+    line = error_line(runner.invoke(map_app, ["build", str(src), "--features", "superpoint", "--num-trans", "60",
                                                   "--weights", str(tmp_path / "nope.pth")]))
     assert "SuperPoint" in line or "weights" in line
     assert not (tmp_path / "room.h5").exists()
@@ -174,20 +166,20 @@ def test_localize_and_bad_maps(demo_dataset, tmp_path):
     h, w, _ = cv2.imread(str(tmp_path / "v.jpg")).shape  # the two 1024 x 512 halves and the caption band
     assert w == 1024 and 1024 < h < 1024 + 200
     # Wrong backend, other format version, corrupt map, missing or broken image.
-    assert "built with sift" in one_error_line(runner.invoke(loc_app, ["localize", str(map_path), str(img),
+    assert "built with sift" in error_line(runner.invoke(loc_app, ["localize", str(map_path), str(img),
                                                                        "--features", "superpoint"]))
     old = tmp_path / "old.h5"
     shutil.copy(map_path, old)
     with h5py.File(old, "a") as h5:
         h5.attrs["format_version"] = FORMAT_VERSION + 1
-    assert "format version" in one_error_line(runner.invoke(loc_app, ["localize", str(old), str(img)]))
+    assert "format version" in error_line(runner.invoke(loc_app, ["localize", str(old), str(img)]))
     (tmp_path / "bad.h5").write_bytes(b"\x89HDF garbage")
-    one_error_line(runner.invoke(loc_app, ["localize", str(tmp_path / "bad.h5"), str(img)]))
-    one_error_line(runner.invoke(loc_app, ["localize", str(map_path), str(tmp_path / "none.jpg")]))
+    error_line(runner.invoke(loc_app, ["localize", str(tmp_path / "bad.h5"), str(img)]))
+    error_line(runner.invoke(loc_app, ["localize", str(map_path), str(tmp_path / "none.jpg")]))
     (tmp_path / "broken.jpg").write_bytes(b"not a jpeg")
-    assert "decode" in one_error_line(runner.invoke(loc_app, ["localize", str(map_path), str(tmp_path / "broken.jpg")]))
+    assert "decode" in error_line(runner.invoke(loc_app, ["localize", str(map_path), str(tmp_path / "broken.jpg")]))
     cv2.imwrite(str(tmp_path / "grey.png"), np.full((256, 512, 3), 128, np.uint8))
-    assert "lines" in one_error_line(runner.invoke(loc_app, ["localize", str(map_path), str(tmp_path / "grey.png")]))
+    assert "lines" in error_line(runner.invoke(loc_app, ["localize", str(map_path), str(tmp_path / "grey.png")]))
 
 
 def test_run_flags_failures_and_resumes(demo_dataset, tmp_path):
@@ -258,7 +250,7 @@ def test_superpoint_map_with_a_checkpoint_written_here(demo_dataset, thin_scans,
     assert res.exit_code == 0, res.output
     assert json.loads(res.output)["num_rotations"] > 0
     # A SIFT query against this map is refused with one line.
-    assert "built with superpoint" in one_error_line(
+    assert "built with superpoint" in error_line(
         runner.invoke(loc_app, ["localize", str(tmp_path / "room.h5"), str(img), "--features", "sift"]))
 
 

@@ -9,23 +9,15 @@ from __future__ import annotations
 
 import json
 import shutil
-from pathlib import Path
 
 import numpy as np
 import pytest
 from typer.testing import CliRunner
 
 from ldlloc.cli import app
+from tests._hostile import error_line
 
 runner = CliRunner()
-
-
-def one_error_line(res) -> str:
-    lines = [line for line in res.output.splitlines() if line.strip()]
-    assert res.exit_code == 1, res.output
-    assert "Traceback" not in res.output
-    assert len(lines) == 1 and lines[0].startswith("error:"), res.output
-    return lines[0]
 
 
 @pytest.fixture(scope="module")
@@ -90,7 +82,7 @@ def test_export_refuses_a_pose_that_is_not_a_rotation(image_run, tmp_path, edit)
     edited.write_text(json.dumps(data))
     for fmt, out in (("nerfstudio", tmp_path / "t.json"), ("colmap", tmp_path / "model")):
         res = runner.invoke(app, ["export", str(edited), "--format", fmt, "-o", str(out), "--all"])
-        assert "R is not a rotation" in one_error_line(res)
+        assert "R is not a rotation" in error_line(res)
         assert not out.exists()
 
 
@@ -100,7 +92,7 @@ def test_export_overwrite_keeps_the_maps_folder(image_run):
     work, _ = image_run
     res = runner.invoke(app, ["export", str(work / "r.json"), "--format", "colmap", "-o", str(work / "maps"),
                               "--all", "--overwrite"])
-    assert "would replace the folder that holds the input" in one_error_line(res)
+    assert "would replace the folder that holds the input" in error_line(res)
     assert (work / "maps" / "synthroom_1.h5").is_file()
 
 
@@ -109,7 +101,7 @@ def test_report_html_refusal_names_no_missing_option(image_run):
     work, _ = image_run
     mine = work / "mine.html"
     mine.write_text("<html>mine</html>")
-    line = one_error_line(runner.invoke(app, ["report", str(work / "r.json"), "--html", str(mine)]))
+    line = error_line(runner.invoke(app, ["report", str(work / "r.json"), "--html", str(mine)]))
     assert "--overwrite" not in line and "remove it first" in line
     assert mine.read_text() == "<html>mine</html>"
 
@@ -120,6 +112,6 @@ def test_run_refusing_a_user_json_gives_a_whole_reason(image_run):
     work, args = image_run
     notes = work / "notes.json"
     notes.write_text('{"a": 1}')
-    line = one_error_line(runner.invoke(app, [*args[:-1], str(notes)]))
+    line = error_line(runner.invoke(app, [*args[:-1], str(notes)]))
     assert line.count(str(notes)) == 1 and "(\"queries\" must be a list, got NoneType);" in line, line
     assert notes.read_text() == '{"a": 1}'

@@ -19,17 +19,10 @@ from typer.testing import CliRunner
 from ldlloc.cli import app
 from ldlmap.core.geometry import rotation_error_deg, translation_error
 from ldlmap.datasets import open_dataset
+from tests._hostile import error_line
 
 runner = CliRunner()
 PICK = {"synthroom_1": ("0000", "0001"), "synthroom_2": ("0000", "0003")}  # robot split: 2 per room, one stem twice
-
-
-def one_error_line(res) -> str:
-    lines = [line for line in res.output.splitlines() if line.strip()]
-    assert res.exit_code == 1, res.output
-    assert "Traceback" not in res.output
-    assert len(lines) == 1 and lines[0].startswith("error:"), res.output
-    return lines[0]
 
 
 @pytest.fixture(scope="module")
@@ -98,7 +91,7 @@ def test_resume_skips_done_images_and_retries_failed_ones(demo_dataset, picked, 
     assert all(after[n]["seconds"] == before[n]["seconds"] for n in before if n != "broken")
     res = runner.invoke(app, ["run", "--images", str(folder), "--maps", str(demo_dataset / "maps"),
                               "--output", str(copy), "--top-maps", "1", "--resume"])
-    assert "other options (top_maps)" in one_error_line(res)
+    assert "other options (top_maps)" in error_line(res)
 
 
 def test_one_map_file_and_a_non_map_beside_it(demo_dataset, picked, tmp_path):
@@ -123,26 +116,26 @@ def test_one_map_file_and_a_non_map_beside_it(demo_dataset, picked, tmp_path):
 
 @pytest.mark.parametrize("maps, why", [("missing", "--maps not found"), ("empty", "no .h5 map"),
                                        ("junk.h5", "no usable map")])
-def test_bad_maps_are_one_error_line(picked, tmp_path, maps, why):
+def test_bad_maps_are_error_line(picked, tmp_path, maps, why):
     folder, _ = picked
     (tmp_path / "empty").mkdir()
     (tmp_path / "junk.h5").write_bytes(b"not hdf5")
     res = runner.invoke(app, ["run", "--images", str(folder), "--maps", str(tmp_path / maps),
                               "--output", str(tmp_path / "r.json")])
-    assert why in one_error_line(res)
+    assert why in error_line(res)
     assert not (tmp_path / "r.json").exists()
 
 
 @pytest.mark.parametrize("args, why", [(["--root", "x"], "drop --root"), ([], "needs --maps"),
                                        (["--top-maps", "0"], "--top-maps")])
-def test_bad_image_run_options_are_one_error_line(picked, demo_dataset, tmp_path, args, why):
+def test_bad_image_run_options_are_error_line(picked, demo_dataset, tmp_path, args, why):
     folder, _ = picked
     maps = [] if not args else ["--maps", str(demo_dataset / "maps")]
     res = runner.invoke(app, ["run", "--images", str(folder), *maps, *args, "--output", str(tmp_path / "r.json")])
-    assert why in one_error_line(res)
+    assert why in error_line(res)
 
 
-def test_no_images_is_one_error_line(demo_dataset, tmp_path):
+def test_no_images_is_error_line(demo_dataset, tmp_path):
     res = runner.invoke(app, ["run", "--images", str(tmp_path / "*.jpg"), "--maps", str(demo_dataset / "maps"),
                               "--output", str(tmp_path / "r.json")])
-    assert "no file matches" in one_error_line(res)
+    assert "no file matches" in error_line(res)
