@@ -268,6 +268,19 @@ class Searched:
         return float(self.res.losses[0])
 
 
+class _StageLaps:
+    """Seconds per stage into ``secs``: ``lap(name)`` records the time since the previous lap (or
+    since it was made)."""
+
+    def __init__(self, secs: dict[str, float]):
+        self.secs, self._tick = secs, time.perf_counter()
+
+    def __call__(self, name: str) -> None:
+        now = time.perf_counter()
+        self.secs[name] = now - self._tick
+        self._tick = now
+
+
 class Localizer:
     """Holds one map (and its feature backend) and localizes panoramas against it."""
 
@@ -481,13 +494,7 @@ class Localizer:
             tilt = None
         lines = QueryLines.detect(img, p) if lines is None else lines
         secs: dict[str, float] = {"lines2d": lines.seconds}
-        tick = time.perf_counter()
-
-        def lap(name: str) -> None:
-            nonlocal tick
-            now = time.perf_counter()
-            secs[name] = now - tick
-            tick = now
+        lap = _StageLaps(secs)
 
         arcs_all = lines.arcs
         keep = query_keep_ratio(m.kept_ratio, p.lines2d)  # the map's kept ratio within bounds
@@ -537,13 +544,7 @@ class Localizer:
             searched = self.search(img, max_tilt_deg, lines)
         out, res, arcs, labels = searched.out, searched.res, searched.arcs, searched.labels
         secs = out.seconds
-        tick = time.perf_counter()
-
-        def lap(name: str) -> None:
-            nonlocal tick
-            now = time.perf_counter()
-            secs[name] = now - tick
-            tick = now
+        lap = _StageLaps(out.seconds)
 
         if self.refine_enabled:
             ref, out.num_query_features = self._refine_features(img, arcs[out.arc_groups >= 0], res)

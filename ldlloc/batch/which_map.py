@@ -28,7 +28,7 @@ from typing import Callable
 import numpy as np
 
 from ldlmap.core.errors import InputError, LdlError
-from ldlloc.pipeline import Localization, LocalizeParams, Localizer, QueryLines, Searched
+from ldlloc.pipeline import Localization, LocalizeParams, Localizer, Searched
 
 TOP_MAPS = 2  # --top-maps default: maps refined after the ranking; 3 or 5 chose no better on the real home (docs/measurements.md#which-map)
 

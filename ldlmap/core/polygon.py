@@ -72,10 +72,7 @@ def simple_polygon_problem(poly: np.ndarray, min_turn_deg: float = 0.5) -> str |
     if np.any(dist < 1e-6):
         i, j = np.argwhere(dist < 1e-6)[0]
         return f"has repeated vertices {int(i)} and {int(j)}"
-    e_in = p - np.roll(p, 1, axis=0)
-    e_out = np.roll(p, -1, axis=0) - p
-    cosang = np.sum(e_in * e_out, axis=1) / (np.linalg.norm(e_in, axis=1) * np.linalg.norm(e_out, axis=1))
-    turn = np.degrees(np.arccos(np.clip(cosang, -1.0, 1.0)))
+    turn = corner_turns_deg(p)
     bad = np.flatnonzero((turn < min_turn_deg) | (turn > 180.0 - min_turn_deg))
     if len(bad):
         return f"vertex {int(bad[0])} is collinear with its neighbours (degenerate corner)"

@@ -38,16 +38,6 @@ class CeilingProfile:
         b = (self.h_left[j + 1] - self.h_right[j]) / (s1 - s0)
         return float(self.h_right[j] - b * s0), float(b)
 
-    def height(self, xy: np.ndarray) -> np.ndarray:
-        """Ceiling height above each point (N, 2); the lower side at a step."""
-        s = np.asarray(xy, dtype=np.float64) @ self.direction
-        j = np.clip(np.searchsorted(self.s, s, side="right") - 1, 0, len(self.s) - 2)
-        t = np.clip((s - self.s[j]) / (self.s[j + 1] - self.s[j]), 0.0, 1.0)
-        h = self.h_right[j] + t * (self.h_left[j + 1] - self.h_right[j])
-        at_knot = np.isclose(s[:, None], self.s[None, :], atol=1e-9)
-        low = np.minimum(self.h_left, self.h_right)
-        return np.where(at_knot.any(axis=1), np.min(np.where(at_knot, low[None, :], np.inf), axis=1), h)
-
     @property
     def top(self) -> float:
         """The highest point of the ceiling."""
