@@ -13,7 +13,6 @@ temporary beside ``out`` and renamed at the end; an existing ``out`` is replaced
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -88,9 +87,6 @@ def _write_colmap(out: Path, poses: list, lines, text: bool, image_root: Path | 
     root, names = image_names([p.image for p in poses], image_root)
     points, colors = line_points(lines.lines, lines.groups)
     with atomic_dir(out, overwrite=overwrite) as tmp:
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o777 & ~umask)  # the temporary folder is made 0700; the model is an ordinary folder
         write_colmap_model(tmp, poses, names, sizes, points, colors, text)
     return (f"image names relative to {root} (COLMAP's image path); points3D: the {len(lines.lines)} map lines' "
             "end points")

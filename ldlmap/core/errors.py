@@ -236,6 +236,7 @@ def atomic_dir(path: str | os.PathLike, overwrite: bool = False,
     _check_writable_dir(target.parent)
     remove_stale_temporaries(target)
     tmp = Path(tempfile.mkdtemp(prefix=_temp_prefix(target.name), suffix=".tmp", dir=target.parent))
+    os.chmod(tmp, 0o777 & ~_umask())  # mkdtemp makes 0700; outputs get the usual permissions
     try:
         yield tmp
         if commit is not None:
