@@ -115,8 +115,7 @@ def _run_on_ray(writer: ResultsWriter, queries: list, maps_dir: str | Path, para
             raise
     rank = {q.name: i for i, q in enumerate(todo)}  # resumed records first, as they were; then the plain order
     writer.results.sort(key=lambda r: rank.get(r.name, -1))
-    writer.meta["finished"] = True
-    writer.flush()
+    writer.finish()  # every query done; flushes the sorted results
     return writer.results
 
 
