@@ -25,7 +25,7 @@ from ldlmap.datasets import open_dataset
 from ldlmap.core.errors import InputError
 from ldlmap.core.geometry import rotation_error_deg, translation_error
 from ldlmap.map.mapfile import read_map
-from tests.test_cli_build_run import one_error_line
+from tests._hostile import error_line
 
 runner = CliRunner()
 TILTS = (0.0, 5.0, 30.0, 90.0)
@@ -194,17 +194,17 @@ def test_localize_json_lists_the_top_k_candidates(demo_dataset):
 
 
 @pytest.mark.parametrize("tilt", ["0", "500", "-3", "nan"])
-def test_bad_max_tilt_is_one_error_line(demo_dataset, tilt):
+def test_bad_max_tilt_is_error_line(demo_dataset, tilt):
     map_path = demo_dataset / "maps" / "synthroom_1.h5"
     img = sorted((demo_dataset / "robot_pano" / "robot_synthroom_1_scene_1").glob("*.jpg"))[0]
-    line = one_error_line(runner.invoke(loc_app, ["localize", str(map_path), str(img), "--max-tilt", tilt]))
+    line = error_line(runner.invoke(loc_app, ["localize", str(map_path), str(img), "--max-tilt", tilt]))
     assert "--max-tilt" in line
-    line = one_error_line(runner.invoke(loc_app, ["run", "--root", str(demo_dataset), "--max-tilt", tilt]))
+    line = error_line(runner.invoke(loc_app, ["run", "--root", str(demo_dataset), "--max-tilt", tilt]))
     assert "--max-tilt" in line
 
 
-def test_bad_map_level_is_one_error_line(demo_dataset):
-    line = one_error_line(runner.invoke(loc_app, ["run", "--root", str(demo_dataset), "--map-level", "house"]))
+def test_bad_map_level_is_error_line(demo_dataset):
+    line = error_line(runner.invoke(loc_app, ["run", "--root", str(demo_dataset), "--map-level", "house"]))
     assert "--map-level" in line
 
 
