@@ -115,8 +115,11 @@ def which_room(zind_root: Path, room_maps: Path, params, default_n: int, sweep: 
         rows.append({"image": Path(r.image).name, "truth": q.scene.split("/")[-1], "chosen": r.scene.split("/")[-1],
                      "right_room": r.scene == q.scene, "runner_up": (r.map_runner_up or {}).get("map", "-"),
                      "t_error_m": None if e is None else e[0], "r_error_deg": None if e is None else e[1],
-                     "given_t_error_m": (given["errors"][q.name] or (None,))[0], "status": r.status})
+                     "given_t_error_m": (given["errors"][q.name] or (None,))[0], "status": r.status,
+                     "verdict": r.verdict, "confidence": r.confidence})
+    confident = [e for r, e in zip(rows, errs) if r["verdict"] == "confident"]
     out = {"top_maps": default_n, "right_room": int(sum(r["right_room"] for r in rows)), "count": len(rows),
+           "confident": len(confident), "confident_wrong": len(confident) - accuracy(confident)["0.25m_5deg"],
            "accuracy": accuracy(errs), "given_accuracy": given["accuracy"], "seconds": stage_medians(res),
            "given_seconds": given["seconds"], "wall_s": wall, "map_load_s": t_load, "rows": rows,
            "sweep": sweep_top_maps(zind_root, room_maps, params, sweep, gt)}
@@ -131,7 +134,7 @@ def sweep_top_maps(zind_root: Path, room_maps: Path, params, sweep: list[int], g
 
     mapset = MapSet.load(room_maps, params)
     n_max = max(sweep)
-    per_n = {n: {"right": 0, "errs": [], "search_top1_right": 0} for n in sweep}
+    per_n = {n: {"right": 0, "errs": [], "confident": []} for n in sweep}
     for q_img in find_images(zind_root / "000" / "panos"):
         q = gt[Path(q_img.image).resolve()]
         _, choice = localize_on_maps(load_image(q_img.image), mapset, params.max_tilt_deg, n_max)
@@ -139,7 +142,10 @@ def sweep_top_maps(zind_root: Path, room_maps: Path, params, sweep: list[int], g
             c = choose_map([o for o in choice.ranked[:n] if o.loc is not None])
             per_n[n]["right"] += c.entry.scene == q.scene
             per_n[n]["errs"].append(errors(c.loc.rot_cam_from_world, c.loc.center, q))
-    return [{"top_maps": n, "right_room": v["right"], "accuracy": accuracy(v["errs"])} for n, v in per_n.items()]
+            if c.loc.verdict == "confident":
+                per_n[n]["confident"].append(per_n[n]["errs"][-1])
+    return [{"top_maps": n, "right_room": v["right"], "accuracy": accuracy(v["errs"]), "confident": len(v["confident"]),
+             "confident_wrong": len(v["confident"]) - accuracy(v["confident"])["0.25m_5deg"]} for n, v in per_n.items()]
 
 
 def floor(zind_root: Path, floor_map: Path, params, tmp: Path) -> dict:
@@ -187,20 +193,21 @@ def print_report(res: dict) -> None:
     room = res.get("room")
     if room:
         t = Table(title=f"ZInD, 19 panoramas vs the folder of 15 room maps (top {room['top_maps']} refined)")
-        for col in ("image", "truth", "chosen", "right", "t err m", "given t err m", "status"):
+        for col in ("image", "truth", "chosen", "right", "t err m", "given t err m", "status", "verdict"):
             t.add_column(col)
         f = lambda x: "-" if x is None else f"{x:.3f}"  # noqa: E731
         for r in room["rows"]:
             t.add_row(r["image"], r["truth"], r["chosen"], "yes" if r["right_room"] else "NO", f(r["t_error_m"]),
-                      f(r["given_t_error_m"]), r["status"])
+                      f(r["given_t_error_m"]), r["status"], r["verdict"] or "-")
         c.print(t)
         c.print(f"right room {room['right_room']} / {room['count']}; accuracy {room['accuracy']} "
-                f"(map given: {room['given_accuracy']}); wall {room['wall_s']:.1f} s (maps loaded in "
+                f"(map given: {room['given_accuracy']}); confident {room['confident']}, of them beyond 0.25 m / 5 deg "
+                f"{room['confident_wrong']}; wall {room['wall_s']:.1f} s (maps loaded in "
                 f"{room['map_load_s']:.1f} s)")
         c.print(f"median seconds, which map: {room['seconds']}\nmedian seconds, map given: {room['given_seconds']}")
         for s in room["sweep"]:
             c.print(f"  --top-maps {s['top_maps']}: right room {s['right_room']} / {room['count']}, "
-                    f"accuracy {s['accuracy']}")
+                    f"accuracy {s['accuracy']}, confident {s['confident']} ({s['confident_wrong']} beyond 0.25 m / 5 deg)")
     fl = res.get("floor")
     if fl:
         c.print(f"floor map: accuracy {fl['accuracy']} (dataset run: {fl['given_accuracy']}); "

@@ -234,8 +234,9 @@ def run(
                                          "a dataset (no ground truth): an image, a folder (searched recursively for "
                                          ".jpg .jpeg .png .bmp .tif .tiff .webp) or a quoted glob ('shots/*.jpg'); "
                                          "needs --maps FILE|DIR."),
-    top_maps: int = typer.Option(2, "--top-maps", metavar="N", help="--images with several maps: refine the panorama "
-                                 "on the N maps whose pose search scores best and keep the best of them."),
+    top_maps: Optional[int] = typer.Option(None, "--top-maps", metavar="N", help="--images with several maps: refine "
+                                           "the panorama on the N maps whose pose search scores best and keep the "
+                                           "most confident of them (default 5)."),
     root: Optional[Path] = typer.Option(None, "--root", help="Dataset root (default ./data/<dataset>)."),
     dataset: Optional[str] = typer.Option(None, "--dataset", help=DATASET_HELP),
     map_level: Optional[str] = typer.Option(None, "--map-level",
@@ -342,17 +343,18 @@ def run(
     _print_run(results, label, output, max_tilt)
 
 
-def _run_images(images: str, maps: Optional[Path], output: Optional[Path], params, top_maps: int, device: str,
+def _run_images(images: str, maps: Optional[Path], output: Optional[Path], params, top_maps: Optional[int], device: str,
                 resume: bool, any_options: bool, save_vis: Optional[Path], weights: Optional[Path], threads: int,
                 ray: Optional[str], overwrite: bool) -> None:
     """`run --images`: find the panoramas and the maps, localize, print the counts (ldlloc/batch/images.py)."""
     from ldlloc.batch.images import default_images_output, find_images, image_run_meta, picture_path, run_images
-    from ldlloc.batch.which_map import MapSet, map_files
+    from ldlloc.batch.which_map import TOP_MAPS, MapSet, map_files
     from ldlmap.core.errors import InputError, refuse_overwriting_inputs
     from ldlloc.batch.results import refuse_replacing_results, results_outputs
 
     if maps is None:
         raise InputError("--images needs --maps: a map (.h5) or a folder of maps")
+    top_maps = TOP_MAPS if top_maps is None else top_maps
     check_range(top_maps, "--top-maps", 1, 1000, integer=True)
     queries = find_images(images, exclude=[save_vis] if save_vis is not None else [])
     files, _ = map_files(maps)

@@ -51,6 +51,7 @@ class ConfidenceModel:
     failed_below: float = 0.1  # below this the logistic gives the pose < 10 % of being right: not a candidate
 
     def confidence(self, signals: dict[str, float]) -> float:
+        signals = effective_signals(signals)
         z = self.bias + sum(w * float(signals.get(k, 0.0)) for k, w in self.weights.items())
         return float(1.0 / (1.0 + np.exp(-np.clip(z, -50, 50))))
 
@@ -64,6 +65,14 @@ MODEL = ConfidenceModel(bias=-7.082, weights={"gap": 5.313, "support": 0.0, "sup
 SIGNALS = ("gap", "support", "support_gap", "margin", "features", "refined")
 NO_CONTENDER_MARGIN = 0.5  # ``margin`` when no distinct refined pose came within the selection's reach (its
 # support_within, 0.25, plus a support gap); the signal is clipped to it
+
+
+def effective_signals(signals: dict[str, float]) -> dict[str, float]:
+    """The signals the model weighs: with several maps (``map_margin`` present, :func:`assess_across`)
+    the selection margin is the smaller of the margin within the pose's map and across the maps."""
+    if "map_margin" not in signals:
+        return signals
+    return {**signals, "margin": min(float(signals.get("margin", 0.0)), float(signals["map_margin"]))}
 
 
 def rotation_kind(R_final: np.ndarray, R_other: np.ndarray) -> str:
@@ -201,3 +210,42 @@ def assess(loc, ldl_map, support_deg: float = 1.0, model: ConfidenceModel = MODE
     loc.confidence = round(model.confidence(signals), 6)
     loc.competitors = competitor_dicts(loc, others)
     loc.verdict = verdict_for(loc.confidence, loc.competitors, model)
+
+
+def assess_across(locs: list, losses: list[float], names: list[str], params=None, model: ConfidenceModel = MODEL) -> None:
+    """Judge one panorama's refined localizations on several maps together (``ldlloc run --images
+    --maps DIR``), after :func:`assess` judged each within its map: the maps' final poses compete
+    as the refined poses of one map do (:func:`ldlloc.refine.geometric.selection_scores` on their
+    exact losses, ``losses``, and map-line supports; the maps' losses compare: same query lines).
+    Each gets ``map_margin``: its score over the best pose of another map that is distinct from it
+    (poses that agree, maps sharing a frame, confirm each other), -1 when its loss is out of the
+    selection's reach, :data:`NO_CONTENDER_MARGIN` when no other map competes. The confidence then
+    uses the smaller margin (:func:`effective_signals`), and the other maps' poses whose loss is
+    within :data:`COMPETITOR_GAP` are named as competitors (``map``: the map's name). Calling it
+    again on a subset of the maps recomputes all of this from the in-map assessment."""
+    from ldlloc.refine.geometric import GeometricParams, selection_scores
+
+    params = params or GeometricParams()
+    support = np.array([float(loc.confidence_signals.get("support", 0.0)) for loc in locs])
+    losses = np.asarray(losses, dtype=np.float64)
+    score = selection_scores(losses, params, lambda idx: support[idx])
+    R = np.stack([np.asarray(loc.rot_cam_from_world, float) for loc in locs])
+    t = np.stack([np.asarray(loc.center, float) for loc in locs])
+    for i, loc in enumerate(locs):
+        other = distinct(R[i], t[i], R, t)
+        other[i] = False
+        reach = other & np.isfinite(score)
+        if not np.isfinite(score[i]):
+            margin = -1.0
+        elif reach.any():
+            margin = float(np.clip(score[i] - score[reach].max(), -1.0, NO_CONTENDER_MARGIN))
+        else:
+            margin = NO_CONTENDER_MARGIN
+        loc.confidence_signals = {**loc.confidence_signals, "map_margin": round(margin, 6)}
+        loc.confidence = round(model.confidence(loc.confidence_signals), 6)
+        own = [c for c in loc.competitors if "map" not in c]
+        across = [j for j in np.flatnonzero(other)[np.argsort(losses[other], kind="stable")]
+                  if relative_gap(float(losses[j]), float(losses[i])) <= COMPETITOR_GAP][:MAX_COMPETITORS]
+        loc.competitors = own + [{"R": np.round(R[j], 8).tolist(), "t": np.round(t[j], 6).tolist(),
+                                  "loss": float(losses[j]), "why": f"map {names[j]}", "map": names[j]} for j in across]
+        loc.verdict = verdict_for(loc.confidence, loc.competitors, model)

@@ -371,7 +371,7 @@ class Localizer:
         map-line support together (:func:`ldlloc.refine.geometric.map_line_support`). The best
         ``GeometricParams.wide_poses`` are refined twice, the second time with wider first
         associations (``wide_assoc_deg``); both results compete."""
-        from ldlloc.refine.geometric import map_line_support
+        from ldlloc.refine.geometric import map_line_support, selection_scores
         from ldlloc.rotation import assign_arcs_to_principal
 
         m, p = self.map, self.params
@@ -384,20 +384,18 @@ class Localizer:
                                               res.translation_index[cand], n + w, assoc)
         rots, centers = res.rotations[cand], res.centers[cand]
         rots[:n + w][kept[:n + w]], centers[:n + w][kept[:n + w]] = g.rotations[kept[:n + w]], g.centers[kept[:n + w]]
-        score = -loss / max(float(np.abs(loss).max()), 1e-12)
-        if p.geometric.support_weight > 0:  # the close contenders compete on map-line support too
-            top = np.flatnonzero(score >= score.max() - p.geometric.support_within)
+
+        def support_of(top: np.ndarray) -> np.ndarray:  # the contenders' map-line support
             vis = None
             if m.visibility is not None:  # the lines seen from each pose's nearest candidate translation
                 vis = m.visibility[m.nearest_translation(centers[top])]
             # poses refined as one (GeometricParams.merge_m) are the same pose: one support each
             _, first, back = np.unique(np.concatenate([rots[top].reshape(-1, 9), centers[top]], 1), axis=0,
                                        return_index=True, return_inverse=True)
-            support = map_line_support(arcs, rots[top[first]], centers[top[first]], m.lines, m.line_groups,
-                                       None if vis is None else vis[first], p.geometric.support_deg)[back.reshape(-1)]
-            full = np.full(len(score), -np.inf)
-            full[top] = score[top] + p.geometric.support_weight * support
-            score = full
+            return map_line_support(arcs, rots[top[first]], centers[top[first]], m.lines, m.line_groups,
+                                    None if vis is None else vis[first], p.geometric.support_deg)[back.reshape(-1)]
+
+        score = selection_scores(loss, p.geometric, support_of)
         k = int(np.argmax(score))
         c = int(cand[k])
         from ldlloc.confidence import NO_CONTENDER_MARGIN, distinct

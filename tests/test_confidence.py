@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from ldlloc.confidence import MODEL, assess, rotation_kind, verdict_for, why
+from ldlloc.confidence import MODEL, assess, assess_across, rotation_kind, verdict_for, why
 from ldlloc.pipeline import Localization
 
 runner = CliRunner()
@@ -80,6 +80,50 @@ def test_near_equal_twin_is_ambiguous_and_named():
     assert loc.verdict == "ambiguous" and loc.confidence < MODEL.confident_at
     assert [c["why"] for c in loc.competitors] == ["180-degree twin"]
     assert np.allclose(loc.competitors[0]["R"], twin) and loc.competitors[0]["loss"] == -99.0
+
+
+def _clear_winner(m, R0, t):
+    loc = _localization(m, R0, [(R0, t), (R0, t + [0, 1.5, 0])], [-100.0, -80.0], margin=0.4)
+    assess(loc, m)
+    assert loc.verdict == "confident"
+    return loc
+
+
+def test_maps_judged_together():
+    """Several maps (`run --images --maps DIR`): each map's pose is confident within its map; a
+    distinct pose of another map that scores as well takes the confidence away and is named; a
+    pose that another map confirms (maps sharing a frame) stays confident; a map whose loss is far
+    behind cannot be confident."""
+    m = _box_map()
+    R0 = _rz(30)
+    here, there = CENTRE, CENTRE + [5.0, 0.0, 0.0]
+    twin = R0 @ _rz(180)  # another room like this one, whose map puts the camera turned by half a turn
+    a = _clear_winner(m, R0, here)
+    b = _localization(m, R0, [(twin, here), (twin, there)], [-99.0, -80.0], margin=0.4)
+    assess(b, m)
+    assess_across([a, b], [-100.0, -99.0], ["room_a", "room_b"])
+    for loc, other in ((a, "room_b"), (b, "room_a")):
+        assert abs(loc.confidence_signals["map_margin"]) < 0.05
+        assert loc.verdict == "ambiguous" and loc.confidence < MODEL.confident_at
+        assert [(c["why"], c["map"]) for c in loc.competitors] == [(f"map {other}", other)]
+    assert np.allclose(a.competitors[0]["R"], twin) and a.competitors[0]["loss"] == -99.0
+
+    a, b = _clear_winner(m, R0, here), _clear_winner(m, R0, here + [0.05, 0, 0])  # the same pose twice
+    assess_across([a, b], [-100.0, -99.0], ["room_a", "room_b"])
+    assert a.verdict == b.verdict == "confident" and a.competitors == b.competitors == []
+
+    a, b = _clear_winner(m, R0, here), _clear_winner(m, R0, there)
+    assess_across([a, b], [-100.0, -60.0], ["room_a", "room_b"])  # room_b explains 40 % fewer lines
+    assert a.verdict == "confident" and a.confidence_signals["map_margin"] == 0.5
+    assert b.confidence_signals["map_margin"] == -1.0 and b.verdict != "confident"
+
+    a = _clear_winner(m, R0, here)  # judged again on a subset: as alone
+    b = _localization(m, R0, [(twin, here), (twin, there)], [-99.0, -80.0], margin=0.4)
+    assess(b, m)
+    assess_across([a, b], [-100.0, -99.0], ["room_a", "room_b"])
+    assert a.verdict == "ambiguous"
+    assess_across([a], [-100.0], ["room_a"])
+    assert a.verdict == "confident" and a.competitors == []
 
 
 def test_no_pose_is_failed():

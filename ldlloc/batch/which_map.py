@@ -28,9 +28,11 @@ from typing import Callable
 import numpy as np
 
 from ldlmap.core.errors import InputError, LdlError
+from ldlloc.confidence import assess_across
 from ldlloc.pipeline import Localization, LocalizeParams, Localizer, Searched
+from ldlloc.refine.geometric import GeometricParams
 
-TOP_MAPS = 2  # --top-maps default: maps refined after the ranking; 3 or 5 chose no better on the real home (docs/measurements.md#which-map)
+TOP_MAPS = 5  # --top-maps default: maps refined after the ranking (docs/measurements.md#which-map)
 
 
 @dataclass
@@ -139,11 +141,15 @@ def choice_key(o: MapOption) -> tuple[float, float, float]:
     return (-conf, option_score(o), o.search_loss)
 
 
-def choose_map(options: list[MapOption]) -> MapOption:
-    """The map kept among the refined ``options`` (the top of the ranking): the most confident
-    final pose, ties to the lowest loss of the final pose (:func:`final_pose_loss`: line distance
-    functions as the search scores them). On the real home it picks the map-given run's accuracy
-    more often than the loss alone (docs/measurements.md#which-map). Nothing comes from ground truth."""
+def choose_map(options: list[MapOption], params: GeometricParams | None = None) -> MapOption:
+    """The map kept among the refined ``options`` (the top of the ranking). With several, their
+    poses are first judged together (:func:`ldlloc.confidence.assess_across`: a pose that another
+    map's distinct pose matches on loss and map-line support is not confident, and that pose is
+    named as its competitor); then the most confident is kept, ties to the lowest loss of the final
+    pose (:func:`final_pose_loss`). Nothing comes from ground truth (docs/measurements.md#which-map)."""
+    if len(options) > 1:
+        assess_across([o.loc for o in options], [option_score(o) for o in options],
+                      [o.entry.scene for o in options], params)
     return min(options, key=choice_key)
 
 
@@ -193,7 +199,9 @@ def localize_on_maps(img: np.ndarray, maps: MapSet, max_tilt_deg: float | None, 
         o.loss = final_pose_loss(o.entry.localizer, o.loc)
         secs["choose"] += time.perf_counter() - tick
     ranked = [o for o, _ in searched]
-    chosen = choose_map([o for o in ranked if o.loc is not None])
+    tick = time.perf_counter()
+    chosen = choose_map([o for o in ranked if o.loc is not None], first.params.geometric)
+    secs["choose"] += time.perf_counter() - tick
     secs["total"] = sum(secs.values())
     loc = chosen.loc
     loc.seconds = dict(secs)

@@ -419,3 +419,18 @@ def map_line_support(arcs: np.ndarray, rotations: np.ndarray, centers: np.ndarra
         near = (D[:, :N].abs() < tol) & (torch.minimum(D[:, N:2 * N], D[:, 2 * N:]) > -tol)  # arcs < 180 deg: one lune
         out[k] = float(near.any(1).float().mean())
     return out
+
+
+def selection_scores(loss: np.ndarray, params: GeometricParams, support_of) -> np.ndarray:
+    """The score that picks the final pose among refined ones (higher is better): ``-loss /
+    max|loss| + support_weight x map-line support`` for the poses whose normalized loss is within
+    ``support_within`` of the best, ``-inf`` for the others (they cannot win). ``support_of(idx)``
+    returns the support of the poses ``idx`` (computed only for the contenders)."""
+    loss = np.asarray(loss, dtype=np.float64)
+    score = -loss / max(float(np.abs(loss).max()), 1e-12)
+    if params.support_weight <= 0:
+        return score
+    top = np.flatnonzero(score >= score.max() - params.support_within)
+    full = np.full(len(score), -np.inf)
+    full[top] = score[top] + params.support_weight * np.asarray(support_of(top), dtype=np.float64)
+    return full
