@@ -13,21 +13,34 @@ from ldlmap.core.errors import InputError
 from ldlmap.lines3d.params import Lines3DParams, _check_points
 
 
-def _neighbours(P: np.ndarray, k: int) -> np.ndarray:
+def _knn(P: np.ndarray, k: int):
+    """k-d tree of ``P`` (scipy ``cKDTree``) and the indices (N, k) of each point's ``k`` nearest
+    points, itself first: one query serves normals, the plane graph and later look-ups."""
     from scipy.spatial import cKDTree
 
-    k = min(k + 1, len(P))
-    _, idx = cKDTree(P).query(P, k=k, workers=-1)
-    return idx[:, 1:] if k > 1 else idx[:, :0]
+    tree = cKDTree(P)
+    _, idx = tree.query(P, k=min(k, len(P)), workers=-1)
+    return tree, idx.reshape(len(P), -1)
 
 
-def _normals_and_curvature(P: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Per point: normal, surface variation, main axis and linearity ``1 - lambda_1 / lambda_2``."""
-    import open3d as o3d
+def _normals_and_curvature(P: np.ndarray, knn: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Per point, from the covariance of its neighbourhood ``knn`` (N, k; itself included): normal,
+    surface variation, main axis and linearity ``1 - lambda_1 / lambda_2``.
 
-    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(P))
-    pcd.estimate_covariances(o3d.geometry.KDTreeSearchParamKNN(knn=int(k)))
-    C = np.asarray(pcd.covariances)
+    The neighbourhood means of the coordinates and their products come from one sparse
+    averaging matrix (first and second moments about the cloud's centroid, which keeps them
+    well conditioned for scenes far from the origin).
+    """
+    from scipy.sparse import csr_matrix
+
+    n, k = knn.shape
+    A = csr_matrix((np.full(n * k, 1.0 / k), knn.ravel(), np.arange(0, n * k + 1, k)), shape=(n, n))
+    X = P - P.mean(0)
+    a, b = np.triu_indices(3)
+    M = A @ np.column_stack([X, X[:, a] * X[:, b]])
+    m = M[:, :3]
+    C = np.empty((n, 3, 3))
+    C[:, a, b] = C[:, b, a] = M[:, 3:] - m[:, a] * m[:, b]
     w, V = np.linalg.eigh(C)  # ascending eigenvalues
     curv = w[:, 0] / np.maximum(w.sum(axis=1), 1e-18)
     return V[:, :, 0], curv, V[:, :, 2], 1.0 - w[:, 1] / np.maximum(w[:, 2], 1e-18)
@@ -59,6 +72,7 @@ class PlaneRegions:
     spacing: float = 0.0  # voxel size actually used (0: no downsampling)
     axes: np.ndarray | None = None  # (N, 3) main axis of each point's neighbourhood
     linearity: np.ndarray | None = None  # (N,) 1 - lambda_1 / lambda_2 (1: points along a line)
+    kdtree: object | None = None  # k-d tree of ``points`` when already built (see :attr:`tree`)
 
     @cached_property
     def members(self) -> list[np.ndarray]:
@@ -72,24 +86,52 @@ class PlaneRegions:
         """k-d tree of the points (scipy ``cKDTree``), built once for every look-up."""
         from scipy.spatial import cKDTree
 
-        return cKDTree(self.points)
+        return self.kdtree if self.kdtree is not None else cKDTree(self.points)
+
+
+def _voxels(P: np.ndarray, v: float) -> tuple[np.ndarray, np.ndarray]:
+    """Grid cells (integer (N, 3)) of the points on a ``v`` grid anchored half a cell below the
+    cloud's minimum (open3d's ``voxel_down_sample`` grid), and each point's voxel number, in
+    order of the occupied voxels' (x, y, z) cells."""
+    q = np.floor((P - (P.min(0) - 0.5 * v)) / v).astype(np.int64)
+    dims = q.max(0) + 1
+    _, inv = np.unique((q[:, 0] * dims[1] + q[:, 1]) * dims[2] + q[:, 2], return_inverse=True)
+    return q, inv.reshape(-1)
+
+
+def _morton_order(q: np.ndarray) -> np.ndarray:
+    """Indices that sort integer cells (N, 3) along a Z-order curve (21 bits an axis; coarser
+    cells when the grid is wider): nearby cells end up nearby in memory, which makes the
+    k-nearest-neighbour queries that follow several times faster."""
+    q = q - q.min(0)
+    shift = max(0, int(q.max()).bit_length() - 21)
+    q = q >> shift
+    code = np.zeros(len(q), np.int64)
+    for bit in range(21):
+        for ax in range(3):
+            code |= ((q[:, ax] >> bit) & 1) << (3 * bit + ax)
+    return np.argsort(code, kind="stable")
 
 
 def _downsample(P: np.ndarray, params: Lines3DParams) -> tuple[np.ndarray, float]:
-    """Voxel-grid downsampling to at most ``params.max_points`` points; returns (points, voxel)."""
+    """Voxel-grid downsampling to at most ``params.max_points`` points: the mean of each occupied
+    voxel (as open3d's ``voxel_down_sample``), in Z-order of the voxels; returns (points, voxel)."""
     if params.voxel_size <= 0:
         return P, 0.0
-    import open3d as o3d
-
-    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(P))
     v = params.voxel_size
-    Q = np.asarray(pcd.voxel_down_sample(v).points)
+    q, inv = _voxels(P, v)
     for _ in range(4):
-        if len(Q) <= params.max_points:
+        nv = int(inv.max()) + 1
+        if nv <= params.max_points:
             break
-        v *= 1.03 * np.sqrt(len(Q) / params.max_points)
-        Q = np.asarray(pcd.voxel_down_sample(v).points)
-    return Q, v
+        v *= 1.03 * np.sqrt(nv / params.max_points)
+        q, inv = _voxels(P, v)
+    nv = int(inv.max()) + 1
+    cnt = np.bincount(inv, minlength=nv)
+    Q = np.stack([np.bincount(inv, P[:, i], nv) for i in range(3)], 1) / cnt[:, None]
+    cell = np.empty((nv, 3), np.int64)
+    cell[inv] = q
+    return Q[_morton_order(cell)], v
 
 
 def _dominant_orientations(normals: np.ndarray, params: Lines3DParams) -> np.ndarray:
@@ -205,8 +247,9 @@ def segment_planes(points: np.ndarray, params: Lines3DParams = Lines3DParams()) 
     P, v = _downsample(P, params)
     if len(P) < max(params.normal_k, 10):
         raise InputError(f"point cloud too small for line extraction ({len(P)} points)")
-    normals, curv, axes, linearity = _normals_and_curvature(P, params.normal_k)
-    nbr = _neighbours(P, params.graph_k)
+    tree, knn = _knn(P, max(params.normal_k, params.graph_k + 1))
+    normals, curv, axes, linearity = _normals_and_curvature(P, knn[:, :params.normal_k])
+    nbr = knn[:, 1:params.graph_k + 1]
     flat = curv <= params.max_curvature
     D = _dominant_orientations(normals[flat], params)
     n = len(P)
@@ -239,10 +282,10 @@ def segment_planes(points: np.ndarray, params: Lines3DParams = Lines3DParams()) 
     labels = np.where(comp >= 0, remap[np.maximum(comp, 0)], -1)
     L = int(big.sum())
     if L == 0:
-        return PlaneRegions(P, labels, np.zeros((0, 3)), np.zeros((0, 3)), nbr, v, axes, linearity)
+        return PlaneRegions(P, labels, np.zeros((0, 3)), np.zeros((0, 3)), nbr, v, axes, linearity, tree)
     sel = labels >= 0
     c, nrm, rms, _ = _plane_fits(P[sel], labels[sel], L)
     good = rms <= params.max_plane_rms
     remap = np.where(good, np.cumsum(good) - 1, -1)
     labels = np.where(labels >= 0, remap[np.maximum(labels, 0)], -1)
-    return PlaneRegions(P, labels, c[good], nrm[good], nbr, v, axes, linearity)
+    return PlaneRegions(P, labels, c[good], nrm[good], nbr, v, axes, linearity, tree)
