@@ -14,13 +14,14 @@ from ldlmap.lines3d.params import Lines3DParams, _check_points
 
 
 def _knn(P: np.ndarray, k: int):
-    """k-d tree of ``P`` (scipy ``cKDTree``) and the indices (N, k) of each point's ``k`` nearest
-    points, itself first: one query serves normals, the plane graph and later look-ups."""
+    """k-d tree of ``P`` (scipy ``cKDTree``), and the distances and indices (N, k) of each point's
+    ``k`` nearest points, itself first: one query serves normals, the plane graph and later
+    look-ups."""
     from scipy.spatial import cKDTree
 
     tree = cKDTree(P)
-    _, idx = tree.query(P, k=min(k, len(P)), workers=-1)
-    return tree, idx.reshape(len(P), -1)
+    dist, idx = tree.query(P, k=min(k, len(P)), workers=-1)
+    return tree, dist.reshape(len(P), -1), idx.reshape(len(P), -1)
 
 
 def _normals_and_curvature(P: np.ndarray, knn: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -91,12 +92,11 @@ class PlaneRegions:
 
 def _voxels(P: np.ndarray, v: float) -> tuple[np.ndarray, np.ndarray]:
     """Grid cells (integer (N, 3)) of the points on a ``v`` grid anchored half a cell below the
-    cloud's minimum (open3d's ``voxel_down_sample`` grid), and each point's voxel number, in
-    order of the occupied voxels' (x, y, z) cells."""
+    cloud's minimum (open3d's ``voxel_down_sample`` grid), and a number per cell (ordered as the
+    cells' (x, y, z))."""
     q = np.floor((P - (P.min(0) - 0.5 * v)) / v).astype(np.int64)
     dims = q.max(0) + 1
-    _, inv = np.unique((q[:, 0] * dims[1] + q[:, 1]) * dims[2] + q[:, 2], return_inverse=True)
-    return q, inv.reshape(-1)
+    return q, (q[:, 0] * dims[1] + q[:, 1]) * dims[2] + q[:, 2]
 
 
 def _morton_order(q: np.ndarray) -> np.ndarray:
@@ -119,13 +119,16 @@ def _downsample(P: np.ndarray, params: Lines3DParams) -> tuple[np.ndarray, float
     if params.voxel_size <= 0:
         return P, 0.0
     v = params.voxel_size
-    q, inv = _voxels(P, v)
+    q, key = _voxels(P, v)
     for _ in range(4):
-        nv = int(inv.max()) + 1
+        srt = np.sort(key)
+        nv = 1 + int(np.count_nonzero(srt[1:] != srt[:-1]))  # occupied voxels
         if nv <= params.max_points:
             break
         v *= 1.03 * np.sqrt(nv / params.max_points)
-        q, inv = _voxels(P, v)
+        q, key = _voxels(P, v)
+    _, inv = np.unique(key, return_inverse=True)
+    inv = inv.reshape(-1)
     nv = int(inv.max()) + 1
     cnt = np.bincount(inv, minlength=nv)
     Q = np.stack([np.bincount(inv, P[:, i], nv) for i in range(3)], 1) / cnt[:, None]
@@ -156,28 +159,47 @@ def _dominant_orientations(normals: np.ndarray, params: Lines3DParams) -> np.nda
     cols = np.concatenate([pairs[:, 1], pairs[:, 0], np.arange(nv)])
     S = csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(nv, nv))
     _, vi = tree.query(normals)
-    _, vj = tree.query(-normals)
+    vj = tree.query(-V)[1][vi]  # the vertex nearest to -n: the antipode of n's (the icosphere is symmetric)
     alive = np.ones(len(normals), bool)
+    votes0 = np.bincount(vi, minlength=nv) + np.bincount(vj, minlength=nv)  # of the alive normals
+    # Normals bucketed by their vertex: those within an angle of d (either sign) are found among
+    # the buckets of vertices within that angle plus the largest normal-to-vertex angle.
+    by_vertex = np.argsort(vi, kind="stable")
+    starts = np.searchsorted(vi[by_vertex], np.arange(nv + 1))
+    slack = float(np.arccos(np.clip(np.einsum("ij,ij->i", normals, V[vi]).min(initial=1.0), -1.0, 1.0)))
+
+    def near(d: np.ndarray, cos_t: float) -> np.ndarray:
+        """Indices (ascending) of the alive normals with ``|n . d| >= cos_t``."""
+        ang = min(float(np.arccos(cos_t)) + slack + 1e-6, np.pi / 2)
+        verts = np.unique(np.concatenate(tree.query_ball_point([d, -d], 2.0 * np.sin(ang / 2.0))).astype(np.int64))
+        idx = np.sort(np.concatenate([by_vertex[starts[u]:starts[u + 1]] for u in verts] + [np.zeros(0, np.int64)]))
+        idx = idx[alive[idx]]
+        return idx[np.abs(normals[idx] @ d) >= cos_t]
+
+    def drop(idx: np.ndarray) -> None:
+        alive[idx] = False
+        votes0[:] -= np.bincount(vi[idx], minlength=nv) + np.bincount(vj[idx], minlength=nv)
+
     cos_r = np.cos(np.radians(params.orient_radius_deg))
     cos_c = np.cos(np.radians(params.orient_cone_deg))
     out: list[np.ndarray] = []
     for _ in range(params.max_orientations):
-        votes = S @ (np.bincount(vi[alive], minlength=nv) + np.bincount(vj[alive], minlength=nv)).astype(np.float64)
+        votes = S @ votes0.astype(np.float64)
         top = int(np.argmax(votes))
         if votes[top] / 2.0 < params.min_orientation_points:
             break
         d = V[top]
         for _ in range(2):  # refine: principal axis of the normals near the peak
-            sel = alive & (np.abs(normals @ d) >= cos_r)
-            if not sel.any():
+            sel = near(d, cos_r)
+            if not len(sel):
                 break
             w, U = np.linalg.eigh(normals[sel].T @ normals[sel])
             d = U[:, 2]
-        if (alive & (np.abs(normals @ d) >= cos_r)).sum() < params.min_orientation_points:
-            alive &= ~(np.abs(normals @ V[top]) >= cos_r)
+        if len(near(d, cos_r)) < params.min_orientation_points:
+            drop(near(V[top], cos_r))
             continue
         out.append(d)
-        alive &= ~(np.abs(normals @ d) >= cos_c)
+        drop(near(d, cos_c))
     return np.asarray(out, dtype=np.float64).reshape(-1, 3)
 
 
@@ -240,16 +262,16 @@ def segment_planes(points: np.ndarray, params: Lines3DParams = Lines3DParams()) 
     into connected pieces (kNN links within ``link_dist``), pieces with fewer than
     ``min_region_points`` points are dropped, and each piece gets its own least-squares plane.
     """
-    from scipy.sparse import coo_matrix
+    from scipy.sparse import csr_matrix
     from scipy.sparse.csgraph import connected_components
 
     P = _check_points(points)
     P, v = _downsample(P, params)
     if len(P) < max(params.normal_k, 10):
         raise InputError(f"point cloud too small for line extraction ({len(P)} points)")
-    tree, knn = _knn(P, max(params.normal_k, params.graph_k + 1))
+    tree, dist, knn = _knn(P, max(params.normal_k, params.graph_k + 1))
     normals, curv, axes, linearity = _normals_and_curvature(P, knn[:, :params.normal_k])
-    nbr = knn[:, 1:params.graph_k + 1]
+    nbr, dist = knn[:, 1:params.graph_k + 1], dist[:, 1:params.graph_k + 1]
     flat = curv <= params.max_curvature
     D = _dominant_orientations(normals[flat], params)
     n = len(P)
@@ -270,10 +292,9 @@ def segment_planes(points: np.ndarray, params: Lines3DParams = Lines3DParams()) 
             n_planes += 1
         free[cand] = sub_free
     # Connected pieces of each plane.
-    i = np.repeat(np.arange(n), nbr.shape[1])
-    j = nbr.ravel()
-    ok = (lab[i] >= 0) & (lab[i] == lab[j]) & (np.linalg.norm(P[i] - P[j], axis=1) <= params.link_dist)
-    g = coo_matrix((np.ones(ok.sum(), np.int8), (i[ok], j[ok])), shape=(n, n))
+    link = (lab[:, None] >= 0) & (lab[:, None] == lab[nbr]) & (dist <= params.link_dist)
+    indptr = np.concatenate([[0], np.cumsum(link.sum(1))])
+    g = csr_matrix((np.ones(indptr[-1], np.int8), nbr[link], indptr), shape=(n, n))
     n_comp, comp = connected_components(g, directed=False)
     comp = np.where(lab >= 0, comp, -1)
     sizes = np.bincount(comp[comp >= 0], minlength=n_comp)
