@@ -12,7 +12,9 @@ recall against the *observable* long edges (at least 70 % of the edge within 3 c
 point) and the share of long edges that are observable at all (an upper bound on recall), and
 the recall per kind of edge (room shell, door/window frames, furniture kinds), the number of
 lines above the length threshold and the kept ratio (the share of raw lines the length filter
-keeps, which the 2D line filter matches). The box room (tests/_room_cloud.py) gives the timings
+keeps, which the 2D line filter matches), the extraction's wall and process CPU seconds (all
+threads: what compares with a single-threaded tool) and, at the end, the CPU seconds per stage.
+The box room (tests/_room_cloud.py) gives the timings
 of the extraction stages and of the downstream stages (principal directions, candidate
 translations) on a large cloud.
 """
