@@ -179,6 +179,15 @@ def test_extract_lines_box_room_precision_recall(room):
     assert recall >= 0.7 and precision >= 0.7, (precision, recall)
 
 
+def test_extract_lines_is_deterministic(room):
+    """The same scan, in any point order, gives the same lines (the downsampled points come in
+    the voxels' Z-order, whatever the input order)."""
+    P, _ = room
+    a = extract_lines(P)
+    b = extract_lines(P[np.random.default_rng(0).permutation(len(P))])
+    assert a.shape == b.shape and np.allclose(a, b, atol=1e-9)
+
+
 def test_extract_lines_bad_input():
     with pytest.raises(InputError):
         extract_lines(np.zeros((0, 3)))
