@@ -1,11 +1,12 @@
 """3D line segments from an unorganized point cloud (DESIGN.md 5.1, paper sec. 3.1).
 
 An equivalent of Lu Xiaohu et al. 2019 ("Fast 3D line segment detection from unorganized point
-cloud") on numpy / scipy / open3d / OpenCV:
+cloud") on numpy / scipy / OpenCV:
 
-1. voxel downsampling (``voxel_size``) when the cloud is denser than that;
+1. voxel downsampling (``voxel_size``) when the cloud is denser than that, the points in the
+   voxels' Z-order (fast neighbour queries, the same result for any input order);
 2. normals and surface variation ``lambda_0 / (lambda_0 + lambda_1 + lambda_2)`` from k-nearest
-   neighbour covariances (open3d);
+   neighbour covariances (one scipy k-d tree query, which also links the plane graph);
 3. planar regions (robust to scan noise, down to 8 cm faces): dominant normal orientations
    (greedy peaks of the sign-free normal histogram on an icosphere), then per orientation the
    strongest peaks of the histogram of offsets ``x . n`` claim, strongest first, every point
