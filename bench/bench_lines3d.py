@@ -12,7 +12,9 @@ recall against the *observable* long edges (at least 70 % of the edge within 3 c
 point) and the share of long edges that are observable at all (an upper bound on recall), and
 the recall per kind of edge (room shell, door/window frames, furniture kinds), the number of
 lines above the length threshold and the kept ratio (the share of raw lines the length filter
-keeps, which the 2D line filter matches). The box room (tests/_room_cloud.py) gives the timings
+keeps, which the 2D line filter matches), the extraction's wall and process CPU seconds (all
+threads: what compares with a single-threaded tool) and, at the end, the CPU seconds per stage.
+The box room (tests/_room_cloud.py) gives the timings
 of the extraction stages and of the downstream stages (principal directions, candidate
 translations) on a large cloud.
 """
@@ -95,14 +97,16 @@ def synth_table(preset: str, seeds: list[int]) -> None:
     from ldlmap.lines3d import extract_lines_with_stats, filter_by_length, line_precision_recall
 
     print(f"{'seed':>4} {'points':>8} {'proc':>7} {'planes':>6} {'raw':>5} {'kept':>5} {'ratio':>6} {'prec':>5} {'recall':>6} "
-          f"{'obs':>5} {'rec|obs':>7} {'extract_s':>9} {'planes_s':>8}  recall per kind (found/long)")
+          f"{'obs':>5} {'rec|obs':>7} {'extract_s':>9} {'cpu_s':>6} {'planes_s':>8} {'pl_cpu':>6}  recall per kind (found/long)")
     allk: dict[str, list[int]] = {}
+    cpu: list[dict] = []  # per seed: CPU seconds per stage
     for seed in seeds:
         r = synth_room(preset, seed)
         P, E = r["points"], r["edges"]
-        t = time.perf_counter()
+        t, c = time.perf_counter(), time.process_time()
         raw, st = extract_lines_with_stats(P)
-        dt = time.perf_counter() - t
+        dt, dc = time.perf_counter() - t, time.process_time() - c
+        cpu.append({k[:-6]: v for k, v in st.items() if k.endswith("_cpu_s")})
         kept, _, thr = filter_by_length(raw, P.min(0), P.max(0))
         long = np.linalg.norm(E[:, 1] - E[:, 0], axis=1) >= thr
         precision, _ = line_precision_recall(kept, E)
@@ -119,10 +123,13 @@ def synth_table(preset: str, seeds: list[int]) -> None:
             per.append(f"{k} {f[kinds == k].sum()}/{(kinds == k).sum()}")
         print(f"{seed:>4} {len(P):>8} {st['points_processed']:>7} {st['planes']:>6} {len(raw):>5} {len(kept):>5} "
               f"{len(kept) / max(len(raw), 1):>6.1%} {precision:>5.3f} "
-              f"{recall:>6.3f} {obs.mean():>5.2f} {f[obs].mean():>7.3f} {dt:>9.1f} {st['planes_s']:>8.1f}  "
+              f"{recall:>6.3f} {obs.mean():>5.2f} {f[obs].mean():>7.3f} {dt:>9.1f} {dc:>6.1f} {st['planes_s']:>8.1f} "
+              f"{st['planes_cpu_s']:>6.1f}  "
               + ", ".join(per), flush=True)
     print("per kind over all seeds: found / long / observable: "
           + ", ".join(f"{k} {a[0]}/{a[1]}/{a[2]}" for k, a in sorted(allk.items())))
+    print("CPU s per stage, mean over seeds: "
+          + ", ".join(f"{k} {np.mean([c[k] for c in cpu]):.2f}" for k in cpu[0]))
 
 
 def box_room_table(points: int) -> None:

@@ -179,6 +179,15 @@ def test_extract_lines_box_room_precision_recall(room):
     assert recall >= 0.7 and precision >= 0.7, (precision, recall)
 
 
+def test_extract_lines_is_deterministic(room):
+    """The same scan, in any point order, gives the same lines (the downsampled points come in
+    the voxels' Z-order, whatever the input order)."""
+    P, _ = room
+    a = extract_lines(P)
+    b = extract_lines(P[np.random.default_rng(0).permutation(len(P))])
+    assert a.shape == b.shape and np.allclose(a, b, atol=1e-9)
+
+
 def test_extract_lines_bad_input():
     with pytest.raises(InputError):
         extract_lines(np.zeros((0, 3)))
@@ -351,3 +360,52 @@ def test_facets_of_a_curved_surface_meet_at_no_line_across_a_gap():
     params = Lines3DParams()
     assert _smooth_continuation(side, np.array([0]), regions(9.0), params)[0]
     assert not _smooth_continuation(side, np.array([0]), regions(40.0), params)[0]
+
+
+# ------------------------------------------------------------------------------------ plane finding
+
+
+def test_downsample_is_open3d_voxel_grid_in_z_order():
+    """The voxel means are open3d's ``voxel_down_sample`` points; consecutive points are near each
+    other (Z-order); too many voxels grow the grid until at most ``max_points`` remain."""
+    import open3d as o3d
+
+    from ldlmap.lines3d.planes import _downsample
+
+    rng = np.random.default_rng(3)
+    P = rng.uniform([0, 0, 0], [4, 3, 2.5], (30_000, 3))
+    Q, v = _downsample(P, Lines3DParams(voxel_size=0.1))
+    ref = np.asarray(o3d.geometry.PointCloud(o3d.utility.Vector3dVector(P)).voxel_down_sample(0.1).points)
+    assert v == 0.1 and Q.shape == ref.shape
+    assert np.allclose(Q[np.lexsort(Q.T)], ref[np.lexsort(ref.T)], atol=1e-12)
+    step = np.linalg.norm(np.diff(Q, axis=0), axis=1)
+    assert np.median(step) < 0.25  # vs ~2 m between random voxels
+    small, v2 = _downsample(P, Lines3DParams(voxel_size=0.1, max_points=3000))
+    assert len(small) <= 3000 and v2 > 0.1
+
+
+def test_normals_and_orientations_of_planes_and_a_rod():
+    """Points on three walls (one tilted 30 deg) and a rod: normals along the walls' normals with
+    low surface variation, the rod linear along its axis; the dominant orientations are the
+    walls' normals."""
+    from ldlmap.lines3d.planes import _dominant_orientations, _knn, _normals_and_curvature
+
+    rng = np.random.default_rng(4)
+    g = rng.uniform(0, 2, (6000, 2))
+    t = np.radians(30.0)
+    walls = [np.array([[0, 0, 1.0]]), np.array([[1.0, 0, 0]]), np.array([[0, np.cos(t), np.sin(t)]])]
+    planes = [np.column_stack([g, np.zeros(len(g))]),  # z = 0
+              np.column_stack([np.full(len(g), 3.0), g]),  # x = 3
+              np.column_stack([g[:, 0] - 3, g[:, 1] * -np.sin(t), g[:, 1] * np.cos(t)])]  # tilted
+    rod = np.column_stack([np.full(300, 5.0), np.full(300, 5.0), np.linspace(0, 1.5, 300)])
+    P = np.concatenate(planes + [rod]) + rng.normal(0, 0.002, (3 * len(g) + 300, 3))
+    _, _, knn = _knn(P, 16)
+    assert (knn[:, 0] == np.arange(len(P))).all()
+    n, curv, axis, lin = _normals_and_curvature(P, knn)
+    for k, w in enumerate(walls):
+        sl = slice(k * len(g), (k + 1) * len(g))
+        assert np.median(np.abs(n[sl] @ w[0])) > 0.999 and np.median(curv[sl]) < 0.01
+    assert np.median(lin[-300:]) > 0.9 and np.median(np.abs(axis[-300:, 2])) > 0.99
+    D = _dominant_orientations(n[:-300], Lines3DParams())
+    assert len(D) == 3
+    assert sorted(np.abs(D @ np.concatenate(walls).T).max(0)) == pytest.approx([1, 1, 1], abs=1e-4)

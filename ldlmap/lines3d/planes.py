@@ -13,21 +13,35 @@ from ldlmap.core.errors import InputError
 from ldlmap.lines3d.params import Lines3DParams, _check_points
 
 
-def _neighbours(P: np.ndarray, k: int) -> np.ndarray:
+def _knn(P: np.ndarray, k: int):
+    """k-d tree of ``P`` (scipy ``cKDTree``), and the distances and indices (N, k) of each point's
+    ``k`` nearest points, itself first: one query serves normals, the plane graph and later
+    look-ups."""
     from scipy.spatial import cKDTree
 
-    k = min(k + 1, len(P))
-    _, idx = cKDTree(P).query(P, k=k, workers=-1)
-    return idx[:, 1:] if k > 1 else idx[:, :0]
+    tree = cKDTree(P)
+    dist, idx = tree.query(P, k=min(k, len(P)), workers=-1)
+    return tree, dist.reshape(len(P), -1), idx.reshape(len(P), -1)
 
 
-def _normals_and_curvature(P: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Per point: normal, surface variation, main axis and linearity ``1 - lambda_1 / lambda_2``."""
-    import open3d as o3d
+def _normals_and_curvature(P: np.ndarray, knn: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Per point, from the covariance of its neighbourhood ``knn`` (N, k; itself included): normal,
+    surface variation, main axis and linearity ``1 - lambda_1 / lambda_2``.
 
-    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(P))
-    pcd.estimate_covariances(o3d.geometry.KDTreeSearchParamKNN(knn=int(k)))
-    C = np.asarray(pcd.covariances)
+    The neighbourhood means of the coordinates and their products come from one sparse
+    averaging matrix (first and second moments about the cloud's centroid, which keeps them
+    well conditioned for scenes far from the origin).
+    """
+    from scipy.sparse import csr_matrix
+
+    n, k = knn.shape
+    A = csr_matrix((np.full(n * k, 1.0 / k), knn.ravel(), np.arange(0, n * k + 1, k)), shape=(n, n))
+    X = P - P.mean(0)
+    a, b = np.triu_indices(3)
+    M = A @ np.column_stack([X, X[:, a] * X[:, b]])
+    m = M[:, :3]
+    C = np.empty((n, 3, 3))
+    C[:, a, b] = C[:, b, a] = M[:, 3:] - m[:, a] * m[:, b]
     w, V = np.linalg.eigh(C)  # ascending eigenvalues
     curv = w[:, 0] / np.maximum(w.sum(axis=1), 1e-18)
     return V[:, :, 0], curv, V[:, :, 2], 1.0 - w[:, 1] / np.maximum(w[:, 2], 1e-18)
@@ -59,6 +73,7 @@ class PlaneRegions:
     spacing: float = 0.0  # voxel size actually used (0: no downsampling)
     axes: np.ndarray | None = None  # (N, 3) main axis of each point's neighbourhood
     linearity: np.ndarray | None = None  # (N,) 1 - lambda_1 / lambda_2 (1: points along a line)
+    kdtree: object | None = None  # k-d tree of ``points`` when already built (see :attr:`tree`)
 
     @cached_property
     def members(self) -> list[np.ndarray]:
@@ -72,24 +87,54 @@ class PlaneRegions:
         """k-d tree of the points (scipy ``cKDTree``), built once for every look-up."""
         from scipy.spatial import cKDTree
 
-        return cKDTree(self.points)
+        return self.kdtree if self.kdtree is not None else cKDTree(self.points)
+
+
+def _voxels(P: np.ndarray, v: float) -> tuple[np.ndarray, np.ndarray]:
+    """Grid cells (integer (N, 3)) of the points on a ``v`` grid anchored half a cell below the
+    cloud's minimum (open3d's ``voxel_down_sample`` grid), and a number per cell (ordered as the
+    cells' (x, y, z))."""
+    q = np.floor((P - (P.min(0) - 0.5 * v)) / v).astype(np.int64)
+    dims = q.max(0) + 1
+    return q, (q[:, 0] * dims[1] + q[:, 1]) * dims[2] + q[:, 2]
+
+
+def _morton_order(q: np.ndarray) -> np.ndarray:
+    """Indices that sort integer cells (N, 3) along a Z-order curve (21 bits an axis; coarser
+    cells when the grid is wider): nearby cells end up nearby in memory, which makes the
+    k-nearest-neighbour queries that follow several times faster."""
+    q = q - q.min(0)
+    shift = max(0, int(q.max()).bit_length() - 21)
+    q = q >> shift
+    code = np.zeros(len(q), np.int64)
+    for bit in range(21):
+        for ax in range(3):
+            code |= ((q[:, ax] >> bit) & 1) << (3 * bit + ax)
+    return np.argsort(code, kind="stable")
 
 
 def _downsample(P: np.ndarray, params: Lines3DParams) -> tuple[np.ndarray, float]:
-    """Voxel-grid downsampling to at most ``params.max_points`` points; returns (points, voxel)."""
+    """Voxel-grid downsampling to at most ``params.max_points`` points: the mean of each occupied
+    voxel (as open3d's ``voxel_down_sample``), in Z-order of the voxels; returns (points, voxel)."""
     if params.voxel_size <= 0:
         return P, 0.0
-    import open3d as o3d
-
-    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(P))
     v = params.voxel_size
-    Q = np.asarray(pcd.voxel_down_sample(v).points)
+    q, key = _voxels(P, v)
     for _ in range(4):
-        if len(Q) <= params.max_points:
+        srt = np.sort(key)
+        nv = 1 + int(np.count_nonzero(srt[1:] != srt[:-1]))  # occupied voxels
+        if nv <= params.max_points:
             break
-        v *= 1.03 * np.sqrt(len(Q) / params.max_points)
-        Q = np.asarray(pcd.voxel_down_sample(v).points)
-    return Q, v
+        v *= 1.03 * np.sqrt(nv / params.max_points)
+        q, key = _voxels(P, v)
+    _, inv = np.unique(key, return_inverse=True)
+    inv = inv.reshape(-1)
+    nv = int(inv.max()) + 1
+    cnt = np.bincount(inv, minlength=nv)
+    Q = np.stack([np.bincount(inv, P[:, i], nv) for i in range(3)], 1) / cnt[:, None]
+    cell = np.empty((nv, 3), np.int64)
+    cell[inv] = q
+    return Q[_morton_order(cell)], v
 
 
 def _dominant_orientations(normals: np.ndarray, params: Lines3DParams) -> np.ndarray:
@@ -114,28 +159,47 @@ def _dominant_orientations(normals: np.ndarray, params: Lines3DParams) -> np.nda
     cols = np.concatenate([pairs[:, 1], pairs[:, 0], np.arange(nv)])
     S = csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(nv, nv))
     _, vi = tree.query(normals)
-    _, vj = tree.query(-normals)
+    vj = tree.query(-V)[1][vi]  # the vertex nearest to -n: the antipode of n's (the icosphere is symmetric)
     alive = np.ones(len(normals), bool)
+    votes0 = np.bincount(vi, minlength=nv) + np.bincount(vj, minlength=nv)  # of the alive normals
+    # Normals bucketed by their vertex: those within an angle of d (either sign) are found among
+    # the buckets of vertices within that angle plus the largest normal-to-vertex angle.
+    by_vertex = np.argsort(vi, kind="stable")
+    starts = np.searchsorted(vi[by_vertex], np.arange(nv + 1))
+    slack = float(np.arccos(np.clip(np.einsum("ij,ij->i", normals, V[vi]).min(initial=1.0), -1.0, 1.0)))
+
+    def near(d: np.ndarray, cos_t: float) -> np.ndarray:
+        """Indices (ascending) of the alive normals with ``|n . d| >= cos_t``."""
+        ang = min(float(np.arccos(cos_t)) + slack + 1e-6, np.pi / 2)
+        verts = np.unique(np.concatenate(tree.query_ball_point([d, -d], 2.0 * np.sin(ang / 2.0))).astype(np.int64))
+        idx = np.sort(np.concatenate([by_vertex[starts[u]:starts[u + 1]] for u in verts] + [np.zeros(0, np.int64)]))
+        idx = idx[alive[idx]]
+        return idx[np.abs(normals[idx] @ d) >= cos_t]
+
+    def drop(idx: np.ndarray) -> None:
+        alive[idx] = False
+        votes0[:] -= np.bincount(vi[idx], minlength=nv) + np.bincount(vj[idx], minlength=nv)
+
     cos_r = np.cos(np.radians(params.orient_radius_deg))
     cos_c = np.cos(np.radians(params.orient_cone_deg))
     out: list[np.ndarray] = []
     for _ in range(params.max_orientations):
-        votes = S @ (np.bincount(vi[alive], minlength=nv) + np.bincount(vj[alive], minlength=nv)).astype(np.float64)
+        votes = S @ votes0.astype(np.float64)
         top = int(np.argmax(votes))
         if votes[top] / 2.0 < params.min_orientation_points:
             break
         d = V[top]
         for _ in range(2):  # refine: principal axis of the normals near the peak
-            sel = alive & (np.abs(normals @ d) >= cos_r)
-            if not sel.any():
+            sel = near(d, cos_r)
+            if not len(sel):
                 break
             w, U = np.linalg.eigh(normals[sel].T @ normals[sel])
             d = U[:, 2]
-        if (alive & (np.abs(normals @ d) >= cos_r)).sum() < params.min_orientation_points:
-            alive &= ~(np.abs(normals @ V[top]) >= cos_r)
+        if len(near(d, cos_r)) < params.min_orientation_points:
+            drop(near(V[top], cos_r))
             continue
         out.append(d)
-        alive &= ~(np.abs(normals @ d) >= cos_c)
+        drop(near(d, cos_c))
     return np.asarray(out, dtype=np.float64).reshape(-1, 3)
 
 
@@ -198,15 +262,16 @@ def segment_planes(points: np.ndarray, params: Lines3DParams = Lines3DParams()) 
     into connected pieces (kNN links within ``link_dist``), pieces with fewer than
     ``min_region_points`` points are dropped, and each piece gets its own least-squares plane.
     """
-    from scipy.sparse import coo_matrix
+    from scipy.sparse import csr_matrix
     from scipy.sparse.csgraph import connected_components
 
     P = _check_points(points)
     P, v = _downsample(P, params)
     if len(P) < max(params.normal_k, 10):
         raise InputError(f"point cloud too small for line extraction ({len(P)} points)")
-    normals, curv, axes, linearity = _normals_and_curvature(P, params.normal_k)
-    nbr = _neighbours(P, params.graph_k)
+    tree, dist, knn = _knn(P, max(params.normal_k, params.graph_k + 1))
+    normals, curv, axes, linearity = _normals_and_curvature(P, knn[:, :params.normal_k])
+    nbr, dist = knn[:, 1:params.graph_k + 1], dist[:, 1:params.graph_k + 1]
     flat = curv <= params.max_curvature
     D = _dominant_orientations(normals[flat], params)
     n = len(P)
@@ -227,10 +292,9 @@ def segment_planes(points: np.ndarray, params: Lines3DParams = Lines3DParams()) 
             n_planes += 1
         free[cand] = sub_free
     # Connected pieces of each plane.
-    i = np.repeat(np.arange(n), nbr.shape[1])
-    j = nbr.ravel()
-    ok = (lab[i] >= 0) & (lab[i] == lab[j]) & (np.linalg.norm(P[i] - P[j], axis=1) <= params.link_dist)
-    g = coo_matrix((np.ones(ok.sum(), np.int8), (i[ok], j[ok])), shape=(n, n))
+    link = (lab[:, None] >= 0) & (lab[:, None] == lab[nbr]) & (dist <= params.link_dist)
+    indptr = np.concatenate([[0], np.cumsum(link.sum(1))])
+    g = csr_matrix((np.ones(indptr[-1], np.int8), nbr[link], indptr), shape=(n, n))
     n_comp, comp = connected_components(g, directed=False)
     comp = np.where(lab >= 0, comp, -1)
     sizes = np.bincount(comp[comp >= 0], minlength=n_comp)
@@ -239,10 +303,10 @@ def segment_planes(points: np.ndarray, params: Lines3DParams = Lines3DParams()) 
     labels = np.where(comp >= 0, remap[np.maximum(comp, 0)], -1)
     L = int(big.sum())
     if L == 0:
-        return PlaneRegions(P, labels, np.zeros((0, 3)), np.zeros((0, 3)), nbr, v, axes, linearity)
+        return PlaneRegions(P, labels, np.zeros((0, 3)), np.zeros((0, 3)), nbr, v, axes, linearity, tree)
     sel = labels >= 0
     c, nrm, rms, _ = _plane_fits(P[sel], labels[sel], L)
     good = rms <= params.max_plane_rms
     remap = np.where(good, np.cumsum(good) - 1, -1)
     labels = np.where(labels >= 0, remap[np.maximum(labels, 0)], -1)
-    return PlaneRegions(P, labels, c[good], nrm[good], nbr, v, axes, linearity)
+    return PlaneRegions(P, labels, c[good], nrm[good], nbr, v, axes, linearity, tree)
