@@ -384,6 +384,22 @@ def test_downsample_is_open3d_voxel_grid_in_z_order():
     assert len(small) <= 3000 and v2 > 0.1
 
 
+def test_point_cap_follows_the_footprint():
+    """A room keeps ``max_points``; a building floor (27 x 11 m) keeps a room's density: its cap
+    grows with its footprint, so its voxel grid stays finer than under the room's cap."""
+    from ldlmap.lines3d.planes import _downsample, point_cap
+
+    rng = np.random.default_rng(5)
+    p = Lines3DParams(voxel_size=0.05, max_points=2000, max_points_area_m2=50.0)
+    room = rng.uniform([0, 0, 0], [6, 5, 2.7], (20_000, 3))
+    floor = rng.uniform([0, 0, 0], [27, 11, 2.7], (200_000, 3))
+    assert point_cap(room, p) == 2000
+    assert point_cap(floor, p) == pytest.approx(2000 * 27 * 11 / 50, rel=0.01)  # the samples span ~27 x 11 m
+    _, v_floor = _downsample(floor, p)
+    _, v_fixed = _downsample(floor, Lines3DParams(voxel_size=0.05, max_points=2000, max_points_area_m2=1e9))
+    assert v_floor < 0.6 * v_fixed
+
+
 def test_normals_and_orientations_of_planes_and_a_rod():
     """Points on three walls (one tilted 30 deg) and a rod: normals along the walls' normals with
     low surface variation, the rod linear along its axis; the dominant orientations are the

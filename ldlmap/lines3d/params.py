@@ -14,7 +14,9 @@ class Lines3DParams:
     """Parameters of :func:`extract_lines` (metres and degrees)."""
 
     voxel_size: float = 0.01  # downsampling grid; 0 disables it
-    max_points: int = 400_000  # the grid grows (surfaces: ~ 1 / voxel^2) until at most this many remain
+    max_points: int = 400_000  # the grid grows (surfaces: ~ 1 / voxel^2) until at most this many remain ...
+    max_points_area_m2: float = 50.0  # ... per this much footprint (the scan's two largest extents), so that a
+    # building floor keeps a room's density (docs/measurements.md#lines3d-floor-cap)
     normal_k: int = 16  # neighbours for normals and surface variation
     graph_k: int = 10  # neighbours linked into connected plane pieces
     max_curvature: float = 0.06  # surface variation above which a point does not vote for planes

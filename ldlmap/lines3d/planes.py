@@ -113,19 +113,31 @@ def _morton_order(q: np.ndarray) -> np.ndarray:
     return np.argsort(code, kind="stable")
 
 
+def point_cap(P: np.ndarray, params: Lines3DParams) -> int:
+    """How many points the downsampling keeps at most: ``max_points`` per ``max_points_area_m2`` of
+    the scan's footprint (the product of its two largest extents), never fewer than ``max_points``:
+    a room keeps the cap, a building floor of 300 m2 six times it."""
+    if len(P) == 0:
+        return int(params.max_points)
+    e = np.sort(P.max(0) - P.min(0))
+    area = float(e[1] * e[2])
+    return int(params.max_points * max(1.0, area / max(params.max_points_area_m2, 1e-9)))
+
+
 def _downsample(P: np.ndarray, params: Lines3DParams) -> tuple[np.ndarray, float]:
-    """Voxel-grid downsampling to at most ``params.max_points`` points: the mean of each occupied
+    """Voxel-grid downsampling to at most :func:`point_cap` points: the mean of each occupied
     voxel (as open3d's ``voxel_down_sample``), in Z-order of the voxels; returns (points, voxel)."""
     if params.voxel_size <= 0:
         return P, 0.0
     v = params.voxel_size
+    cap = point_cap(P, params)
     q, key = _voxels(P, v)
     for _ in range(4):
         srt = np.sort(key)
         nv = 1 + int(np.count_nonzero(srt[1:] != srt[:-1]))  # occupied voxels
-        if nv <= params.max_points:
+        if nv <= cap:
             break
-        v *= 1.03 * np.sqrt(nv / params.max_points)
+        v *= 1.03 * np.sqrt(nv / cap)
         q, key = _voxels(P, v)
     _, inv = np.unique(key, return_inverse=True)
     inv = inv.reshape(-1)
