@@ -164,3 +164,9 @@ def test_box_with_sloped_ceiling_keeps_the_manhattan_frame():
     np.testing.assert_allclose(F @ F.T, np.eye(3), atol=1e-9)
     for true in np.eye(3):
         assert min(_angle(f, true) for f in F) < 1.0
+    # Walls at 45 degrees under a sloped ceiling keep it too (their Atlanta frames localized worse:
+    # docs/measurements.md#atlanta-frame), and without the slope get the Atlanta frame.
+    rhomb = ((0.0, 0.0), (6.0, 0.0), (8.5, 2.5), (2.5, 2.5))  # convex, as sloped ceilings need
+    for ceiling, frame in ((CeilingSpec("shed", 0.0, 30.0), "manhattan"), (CeilingSpec(), "atlanta")):
+        lines = mesh_edges(build_scene(SceneSpec("t", rhomb, 2.4, ceiling=ceiling)))
+        assert principal_frame(lines, principal_directions_3d(lines))[2] == frame

@@ -167,7 +167,9 @@ class FrameParams:
     """Parameters of :func:`principal_frame` (docs/measurements.md#atlanta-frame)."""
 
     horizontal_deg: float = 10.0  # lines this close to horizontal give the horizontal directions
-    atlanta_deg: float = 15.0  # Atlanta frame when the two main horizontals are more than this from perpendicular
+    atlanta_deg: float = 10.0  # Atlanta frame when the two main horizontals are more than this from perpendicular
+    max_inclined_share: float = 0.02  # ... and at most this share of the line length is inclined (10-80 deg
+    # from horizontal): sloped ceilings keep the Manhattan frame, their Atlanta frames localized worse
     separate_deg: float = 26.0  # the second horizontal: among lines at least this far from the first
     # (closer directions could not be told apart: the map's directions must differ by arccos 0.9)
     vote_deg: float = 2.0  # azimuth votes smoothed over +- this
@@ -257,9 +259,10 @@ def principal_frame(lines: np.ndarray, estimated: np.ndarray, up: np.ndarray = (
     The vertical is kept as :func:`manhattan_frame` keeps it; the horizontals come from the
     horizontal lines only (:func:`horizontal_directions`: sloped ceiling edges and other inclined
     lines do not compete). When the two main horizontal directions are within ``atlanta_deg`` of
-    perpendicular (boxes) the Manhattan frame is used (:func:`manhattan_frame`, unchanged);
-    otherwise the frame is (vertical, first, second horizontal): walls at 30-60 degrees keep
-    their own directions instead of being folded onto a perpendicular pair. Rows are ordered like
+    perpendicular (boxes), or more than ``max_inclined_share`` of the line length is inclined
+    (sloped ceilings), the Manhattan frame is used (:func:`manhattan_frame`, unchanged); otherwise
+    the frame is (vertical, first, second horizontal): walls at 30-75 degrees keep their own
+    directions instead of being folded onto a perpendicular pair. Rows are ordered like
     ``estimated`` and right-handed; ``deviation_deg``: each estimated direction's angle to its row.
     """
     E = np.asarray(estimated, dtype=np.float64)
@@ -268,7 +271,11 @@ def principal_frame(lines: np.ndarray, estimated: np.ndarray, up: np.ndarray = (
     u = normalize(np.asarray(up, dtype=np.float64)[None])[0]
     kv, v = _vertical(E, u)
     found = horizontal_directions(lines, v, params)
-    if found is None or 90.0 - found[1] <= params.atlanta_deg:
+    d, w = line_directions(lines)
+    elevation = np.degrees(np.arcsin(np.clip(np.abs(d @ v), 0.0, 1.0)))
+    inclined = (elevation > params.horizontal_deg) & (elevation < 90.0 - params.horizontal_deg)
+    sloped = w[inclined].sum() > params.max_inclined_share * max(w.sum(), 1e-12)
+    if found is None or 90.0 - found[1] <= params.atlanta_deg or sloped:
         F, dev = manhattan_frame(lines, E, u)
         return F, dev, "manhattan"
     F = _order_like(np.concatenate([v[None], found[0]]), E, kv)
