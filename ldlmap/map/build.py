@@ -12,8 +12,9 @@ Stages (paper section 3.1, DESIGN.md 5.1-5.4), each timed:
    ``lambda (b_x + b_y + b_z) / 3`` of the robust box, with a floor and a cap on the kept count.
 3. ``principal``: the 3 principal directions by voting, then the map's frame
    (:func:`ldlmap.lines3d.principal.principal_frame`): the nearest orthonormal (Manhattan) frame,
-   or where the main horizontal directions are far from perpendicular the vertical and those two
-   (Atlanta frame); and each kept line's group.
+   or where the main horizontal directions are far from perpendicular (and the ceiling not sloped)
+   the vertical and those two (Atlanta frame; ``build_config["principal_frame"]``); and each kept
+   line's group.
 4. ``translations``: N_t candidate camera centres in the free space of the scan.
    ``fields``: when ``distance_fields``, each translation's 3 decomposed 3D line distance
    functions sampled on a spherical grid (:mod:`ldlmap.map.fields3d`) for the fast pose search.
