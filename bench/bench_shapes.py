@@ -15,6 +15,9 @@ panorama with the defaults (``ldlloc run``'s library path):
 - ``scan``: maps from the simulated scan with the defaults of ``ldlmap prepare`` (3D line
   extraction and SIFT features).
 
+``--build atlanta_frame=false`` gives every edge map the Manhattan frame (the comparison of
+docs/measurements.md#atlanta-frame).
+
 Printed per kind and split, per map kind: search top-1 and best of the top 20 within 0.5 m / 10 deg,
 final within 0.1 m / 5 deg and 0.25 m / 5 deg, median errors, and how many final poses are upside
 down (camera up more than 90 deg from the truth's). Results go to ``bench/shapes.json``.

@@ -17,7 +17,10 @@ camera) minimising ``sum_i |R p3d_i - s_i p2d_pi(i)|^2``. Proper rotations whose
 residual is below ``residual_tol`` are kept, sorted by residual, and near-duplicates (angle
 below ``dedup_deg``) are dropped, keeping the lowest residual. For a Manhattan scene every
 physical rotation appears with its 24 relabelings: they are all kept, since the decomposed
-distance functions tell them apart.
+distance functions tell them apart. Nothing here assumes right angles: the triplet's angles are
+the map's own, so an Atlanta frame (the vertical and two horizontals at e.g. 45 degrees, issue
+23) is matched by triplets at those angles, with fewer relabelings (4 per physical rotation
+when the horizontals are not perpendicular).
 
 Upright prior (:func:`filter_by_tilt`, ``ldlloc localize/run --max-tilt DEG``): an option beyond
 the paper, whose rotation is free. The camera's up axis is camera +z, in the world

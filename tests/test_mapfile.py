@@ -150,3 +150,27 @@ def test_camera_height_band_round_trips(tmp_path):
     for bad in (None, [1.6, 1.2], [1.2], ["a", "b"], [float("nan"), 1.0], 3.0):
         m.config = {"translations": {"camera_height": bad}}
         assert m.camera_height_band is None
+
+
+@pytest.mark.parametrize("config, valid", [
+    ({"principal_frame": "atlanta", "orthonormal_directions": True}, True),
+    ({"principal_frame": "manhattan", "orthonormal_directions": True}, False),
+    ({"orthonormal_directions": True}, False),  # maps from before principal_frame: Manhattan
+    ({}, True),  # maps from before the Manhattan frame: directions as voted
+])
+def test_only_manhattan_frames_must_be_orthonormal(tmp_path, config, valid):
+    """Issue 23: an Atlanta frame (vertical and two horizontals 45 deg apart) is a valid map's
+    frame; a map that says Manhattan (or an older map that says orthonormal) must be orthonormal."""
+    from dataclasses import replace
+
+    s = np.sqrt(0.5)
+    m = replace(make_map(with_features=False), principal_directions=np.array([[0, 0, 1.0], [1.0, 0, 0], [s, s, 0]]),
+                config={"lambda": 0.1, "features": "none", **config})
+    if valid:
+        p = write_map(tmp_path / "a.h5", m)
+        np.testing.assert_allclose(read_map(p).principal_directions, m.principal_directions, atol=1e-9)
+        assert read_map_header(p)["principal_directions"].shape == (3, 3)
+    else:
+        with pytest.raises(InputError, match="orthonormal"):
+            write_map(tmp_path / "a.h5", m)
+        assert not (tmp_path / "a.h5").exists()

@@ -76,6 +76,26 @@ def test_candidate_rotations_contain_truth(seed):
     assert np.all(np.diff(cands.residuals) >= 0)
 
 
+def test_candidate_rotations_of_an_atlanta_frame_contain_truth():
+    """Issue 23: the map's directions are the vertical and two horizontals 45 deg apart (an Atlanta
+    frame); triplets of vanishing points are matched by those angles, not by right angles."""
+    rng = np.random.default_rng(11)
+    s = np.sqrt(0.5)
+    P = np.array([[0, 0, 1.0], [1.0, 0, 0], [s, s, 0]])
+    dirs = np.concatenate([P, [[0, 1.0, 0]]])  # and a weaker wall direction the frame leaves out
+    segs = []
+    for d, n in zip(dirs, (30, 30, 30, 10)):
+        a = rng.uniform([-3, -2, 0], [3, 2, 3], (n, 3))
+        segs.append(np.stack([a, a + rng.uniform(0.6, 2.0, (n, 1)) * d], 1))
+    R = rotation_from_axis_angle(rng.normal(size=3), 1.3)
+    arcs = normalize(cam_from_world(np.concatenate(segs), R, np.array([0.3, -0.2, 1.4])))
+    vps = rotation.vanishing_points(arcs, k=20)
+    cands = rotation.candidate_rotations(vps, P)
+    assert min(rotation_error_deg(Rc, R) for Rc in cands.rotations) < 1.0
+    for Rc in cands.rotations:  # every candidate maps the frame onto 3 vanishing points at its angles
+        assert np.all(np.abs(vps @ (Rc @ P.T)).max(axis=0) > np.cos(np.radians(6.0)))
+
+
 def test_candidate_rotations_exact_kabsch_and_empty():
     rng = np.random.default_rng(9)
     R = rotation_from_axis_angle(rng.normal(size=3), 0.7)

@@ -8,7 +8,8 @@ import pytest
 from ldlmap.core.errors import InputError
 from ldlmap.core.geometry import rotation_from_axis_angle
 from ldlmap.lines3d import extract_lines, filter_by_length
-from ldlmap.lines3d.principal import assign_line_groups, manhattan_frame, principal_directions_3d
+from ldlmap.lines3d.principal import (assign_line_groups, horizontal_directions, manhattan_frame,
+                                      principal_directions_3d, principal_frame)
 from tests._room_cloud import box_room
 
 
@@ -102,3 +103,70 @@ def test_manhattan_frame_is_orthonormal_and_keeps_vertical_and_main_horizontal()
     assert dev.max() < 1.0 and all(_angle(F[i], P[i]) < 1.0 for i in range(3))
     with pytest.raises(InputError):
         manhattan_frame(lines, P[:2])
+
+
+def _room_edges(footprint, height: float, yaw_deg: float) -> np.ndarray:
+    """Floor, ceiling and corner edges of a prism room over ``footprint`` (x, y), turned by ``yaw_deg``
+    about z and cut into 1 m pieces (as extracted lines come)."""
+    c, s = np.cos(np.radians(yaw_deg)), np.sin(np.radians(yaw_deg))
+    fp = np.asarray(footprint, float) @ np.array([[c, s], [-s, c]])
+    segs = []
+    for a, b in zip(fp, np.roll(fp, -1, axis=0)):
+        for z in (0.0, height):
+            segs.append([[*a, z], [*b, z]])
+        segs.append([[*a, 0.0], [*a, height]])
+    out = []
+    for p, q in np.asarray(segs):
+        n = max(1, int(np.ceil(np.linalg.norm(q - p))))
+        t = np.linspace(0, 1, n + 1)
+        out += [[p + (q - p) * t[i], p + (q - p) * t[i + 1]] for i in range(n)]
+    return np.asarray(out)
+
+
+# Walls at 0 and 45 degrees (and one short one at 90): the footprint of no box.
+ANGLED = ((0.0, 0.0), (6.0, 0.0), (8.8, 2.8), (3.5, 2.8), (3.5, 3.5))
+
+
+def test_angled_room_gets_an_atlanta_frame_with_its_wall_directions():
+    """Issue 23: walls at 45 degrees keep their own direction (the Manhattan frame would fold them
+    onto a perpendicular pair)."""
+    yaw = 17.0
+    lines = _room_edges(ANGLED, 2.6, yaw)
+    P = principal_directions_3d(lines)
+    F, dev, kind = principal_frame(lines, P)
+    walls = [np.array([np.cos(np.radians(a + yaw)), np.sin(np.radians(a + yaw)), 0.0]) for a in (0.0, 45.0)]
+    assert kind == "atlanta"
+    for true in (np.array([0, 0, 1.0]), *walls):
+        assert min(_angle(f, true) for f in F) < 2.0
+    assert np.linalg.det(F) > 0 and np.allclose(np.linalg.norm(F, axis=1), 1.0)
+    H, between = horizontal_directions(lines, np.array([0, 0, 1.0]))
+    assert between == pytest.approx(45.0, abs=1.0)
+    # Forced onto the Manhattan pair the 45-degree walls are lost: one frame axis is 45 deg off them.
+    M, _ = manhattan_frame(lines, P)
+    assert max(min(_angle(f, w) for f in M) for w in walls) > 40.0
+
+
+def test_box_with_sloped_ceiling_keeps_the_manhattan_frame():
+    """A shed ceiling's slope edges are not horizontal: they do not vote for the horizontals, and
+    the vertical stays the vertical."""
+    from ldlmap.synth.edges import mesh_edges
+    from ldlmap.synth.scene import build_scene
+    from ldlmap.synth.spec import CeilingSpec, SceneSpec
+
+    rect = ((0.0, 0.0), (5.0, 0.0), (5.0, 4.0), (0.0, 4.0))
+    lines = mesh_edges(build_scene(SceneSpec("t", rect, 2.4, ceiling=CeilingSpec("shed", 0.0, 40.0))))
+    slope = np.array([np.cos(np.radians(40.0)), 0.0, np.sin(np.radians(40.0))])
+    d = (lines[:, 1] - lines[:, 0]) / np.linalg.norm(lines[:, 1] - lines[:, 0], axis=1, keepdims=True)
+    assert (np.abs(d @ slope) > 0.99).sum() >= 2  # the slope's edges are there
+    P = principal_directions_3d(lines)
+    F, _, kind = principal_frame(lines, P)
+    assert kind == "manhattan"
+    np.testing.assert_allclose(F @ F.T, np.eye(3), atol=1e-9)
+    for true in np.eye(3):
+        assert min(_angle(f, true) for f in F) < 1.0
+    # Walls at 45 degrees under a sloped ceiling keep it too (their Atlanta frames localized worse:
+    # docs/measurements.md#atlanta-frame), and without the slope get the Atlanta frame.
+    rhomb = ((0.0, 0.0), (6.0, 0.0), (8.5, 2.5), (2.5, 2.5))  # convex, as sloped ceilings need
+    for ceiling, frame in ((CeilingSpec("shed", 0.0, 30.0), "manhattan"), (CeilingSpec(), "atlanta")):
+        lines = mesh_edges(build_scene(SceneSpec("t", rhomb, 2.4, ceiling=ceiling)))
+        assert principal_frame(lines, principal_directions_3d(lines))[2] == frame

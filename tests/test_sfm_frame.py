@@ -180,8 +180,12 @@ def test_sfm_line_file_build_frame_scale_filter(tmp_path, room_edges):
     assert not (tmp_path / "bad.h5").exists()
 
 
-def test_non_orthogonal_directions_warn(tmp_path):
-    """Issue 12: voted directions 33 deg apart; the map gets an orthonormal frame and a warning."""
+def test_non_orthogonal_directions_atlanta_frame_or_warn(tmp_path):
+    """Voted directions 33 deg apart (issue 12), the lines running in exactly those directions with no
+    perpendicular wall: the map keeps them as an Atlanta frame (issue 23), which the map file
+    accepts; forced onto the Manhattan frame (``atlanta_frame`` off) it warns how far off they are."""
+    from ldlmap.map.build import BuildParams, build_lines_map
+
     rng = np.random.default_rng(2)
     dirs = np.array([[0, 0, 1.0], [1.0, 0, 0], [np.cos(np.radians(33)), np.sin(np.radians(33)), 0]])
     segs = []
@@ -192,8 +196,15 @@ def test_non_orthogonal_directions_warn(tmp_path):
     res = runner.invoke(map_app, ["build", str(tmp_path / "wing.txt"), "-o", str(tmp_path / "w.h5"),
                                   "--trans-spacing", "1.0"])
     assert res.exit_code == 0, res.output
-    assert "off the nearest orthogonal" in res.output
+    assert "Atlanta frame" in res.output and "off the nearest orthogonal" not in res.output
     m = read_map(tmp_path / "w.h5")
+    assert m.config["principal_frame"] == "atlanta" and max(m.config["principal_deviation_deg"]) < 1.0
+    assert np.all(np.abs(dirs @ m.principal_directions.T).max(axis=1) > np.cos(np.radians(1.0)))
+    report = build_lines_map(np.concatenate(segs), tmp_path / "m.h5",
+                             BuildParams(features="none", trans_spacing=1.0, atlanta_frame=False))
+    assert any("off the nearest orthogonal" in w for w in report.warnings)
+    m = read_map(tmp_path / "m.h5")
+    assert m.config["principal_frame"] == "manhattan"
     np.testing.assert_allclose(m.principal_directions @ m.principal_directions.T, np.eye(3), atol=1e-9)
     assert max(m.config["principal_deviation_deg"]) == pytest.approx(57.0, abs=2.0)
 

@@ -8,7 +8,9 @@ is refined by the length-weighted mean of the sign-aligned directions within
 ``refine_angle_deg`` of it (``refine_steps`` times, re-centred); lines with ``|cos| > cos_thresh``
 to the refined direction are removed and the vote repeats, ``k`` times (k3D = 3). With ``k = 3``
 the triplet is made right-handed by flipping the third direction when ``det < 0``.
-:func:`manhattan_frame` then gives the nearest orthonormal frame (the paper's assumption).
+:func:`manhattan_frame` then gives the nearest orthonormal frame (the paper's assumption), and
+:func:`principal_frame` chooses between it and an Atlanta frame (the vertical and the two main
+horizontal directions, at whatever angle they meet) for rooms whose walls are not at right angles.
 """
 
 from __future__ import annotations
@@ -136,24 +138,12 @@ def manhattan_frame(lines: np.ndarray, estimated: np.ndarray, up: np.ndarray = (
         raise InputError(f"estimated principal directions must have shape (3, 3), got {E.shape}")
     u = normalize(np.asarray(up, dtype=np.float64)[None])[0]
     d, w = line_directions(lines)
-    kv = int(np.argmax(np.abs(E @ u)))
-    v = E[kv] * np.sign(E[kv] @ u)
-    if v @ u < np.cos(np.radians(20.0)):
-        v = u
+    kv, v = _vertical(E, u)
     e1 = _any_perpendicular(v)
     e2 = np.cross(v, e1)
     hz = (np.abs(d @ v) < np.sin(np.radians(horizontal_deg))) & (w > 1e-12)
-    if hz.any():
-        phi = np.degrees(np.arctan2(d[hz] @ e2, d[hz] @ e1)) % 90.0  # azimuth folded mod 90
-        bins = 0.25
-        hist = np.bincount((phi / bins).astype(np.int64) % int(90 / bins), w[hz], int(90 / bins))
-        k = int(round(vote_deg / bins))
-        smooth = sum(np.roll(hist, s) for s in range(-k, k + 1))
-        peak = (np.argmax(smooth) + 0.5) * bins
-        near = np.abs((phi - peak + 45.0) % 90.0 - 45.0) <= refine_deg
-        ang4 = np.radians(4.0 * phi[near])
-        wn = w[hz][near]
-        phi0 = np.degrees(np.arctan2(wn @ np.sin(ang4), wn @ np.cos(ang4))) / 4.0
+    if hz.any():  # azimuths folded modulo 90 degrees
+        phi0 = _azimuth_peak(np.degrees(np.arctan2(d[hz] @ e2, d[hz] @ e1)), w[hz], 90.0, vote_deg, refine_deg)
     else:  # no horizontal line: the estimated horizontal closest to the plane
         rest = [E[i] for i in range(3) if i != kv]
         h = rest[int(np.argmin([abs(r @ v) for r in rest]))]
@@ -169,5 +159,124 @@ def manhattan_frame(lines: np.ndarray, estimated: np.ndarray, up: np.ndarray = (
     if np.linalg.det(F) < 0:
         last = [i for i in range(3) if i != kv][-1]
         F[last] = -F[last]
-    dev = np.degrees(np.arccos(np.clip(np.abs(np.sum(F * normalize(E), axis=1)), -1.0, 1.0)))
-    return F, dev
+    return F, _deviation(F, E)
+
+
+@dataclass(frozen=True)
+class FrameParams:
+    """Parameters of :func:`principal_frame` (docs/measurements.md#atlanta-frame)."""
+
+    horizontal_deg: float = 10.0  # lines this close to horizontal give the horizontal directions
+    atlanta_deg: float = 10.0  # Atlanta frame when the two main horizontals are more than this from perpendicular
+    max_inclined_share: float = 0.02  # ... and at most this share of the line length is inclined (10-80 deg
+    # from horizontal): sloped ceilings keep the Manhattan frame, their Atlanta frames localized worse
+    separate_deg: float = 26.0  # the second horizontal: among lines at least this far from the first
+    # (closer directions could not be told apart: the map's directions must differ by arccos 0.9)
+    vote_deg: float = 2.0  # azimuth votes smoothed over +- this
+    refine_deg: float = 5.0  # a direction is the circular mean of the azimuths this close to its peak
+
+
+def _vertical(E: np.ndarray, u: np.ndarray) -> tuple[int, np.ndarray]:
+    """Index of the estimated row closest to ``u`` and the vertical: that row (sign towards ``u``)
+    when within 20 degrees of ``u``, else ``u``."""
+    kv = int(np.argmax(np.abs(E @ u)))
+    v = E[kv] * np.sign(E[kv] @ u)
+    return kv, (v if v @ u >= np.cos(np.radians(20.0)) else u)
+
+
+def _azimuth_peak(phi: np.ndarray, w: np.ndarray, period: float, vote_deg: float,
+                  refine_deg: float) -> float:
+    """The length-weighted mode of azimuths ``phi`` (degrees, modulo ``period``): the smoothed
+    histogram's peak refined by the circular mean within ``refine_deg``."""
+    bins = 0.25
+    n = int(round(period / bins))
+    hist = np.bincount((np.mod(phi, period) / bins).astype(np.int64) % n, w, n)
+    k = int(round(vote_deg / bins))
+    smooth = sum(np.roll(hist, s) for s in range(-k, k + 1))
+    peak = (np.argmax(smooth) + 0.5) * bins
+    near = np.abs((phi - peak + period / 2) % period - period / 2) <= refine_deg
+    turn = 360.0 / period  # the azimuths' period mapped onto a full turn for the circular mean
+    ang = np.radians(turn * phi[near])
+    mean = np.degrees(np.arctan2(w[near] @ np.sin(ang), w[near] @ np.cos(ang))) / turn
+    return float(mean % period)
+
+
+def _order_like(axes: np.ndarray, E: np.ndarray, kv: int) -> np.ndarray:
+    """``axes`` (3, 3) reordered and signed like the rows of ``E``: the vertical (``axes[0]``) in
+    row ``kv``, the others greedily by ``|cos|``; the last horizontal row flipped if needed so the
+    triplet is right-handed."""
+    F = np.zeros((3, 3))
+    free = [1, 2]
+    F[kv] = axes[0]
+    for i in [i for i in range(3) if i != kv]:
+        j = max(free, key=lambda a: abs(axes[a] @ E[i]))
+        free.remove(j)
+        F[i] = axes[j] * (1.0 if axes[j] @ E[i] >= 0 else -1.0)
+    if np.linalg.det(F) < 0:
+        last = [i for i in range(3) if i != kv][-1]
+        F[last] = -F[last]
+    return F
+
+
+def _deviation(F: np.ndarray, E: np.ndarray) -> np.ndarray:
+    return np.degrees(np.arccos(np.clip(np.abs(np.sum(F * normalize(E), axis=1)), -1.0, 1.0)))
+
+
+def horizontal_directions(lines: np.ndarray, v: np.ndarray, params: FrameParams = FrameParams()
+                          ) -> tuple[np.ndarray, float] | None:
+    """The two main horizontal line directions (2, 3) (unit, perpendicular to ``v``) and the angle
+    between them in degrees (in [0, 90]), or None when the lines hold no two.
+
+    Azimuths (modulo 180 degrees) of the lines within ``horizontal_deg`` of horizontal vote,
+    length-weighted; the second direction is the peak among the lines at least ``separate_deg``
+    from the first (so the first's noise is not taken for it)."""
+    d, w = line_directions(lines)
+    v = normalize(np.asarray(v, dtype=np.float64)[None])[0]
+    e1 = _any_perpendicular(v)
+    e2 = np.cross(v, e1)
+    hz = (np.abs(d @ v) < np.sin(np.radians(params.horizontal_deg))) & (w > 1e-12)
+    if not hz.any():
+        return None
+    phi, wh = np.degrees(np.arctan2(d[hz] @ e2, d[hz] @ e1)) % 180.0, w[hz]
+    a1 = _azimuth_peak(phi, wh, 180.0, params.vote_deg, params.refine_deg)
+    far = np.abs((phi - a1 + 90.0) % 180.0 - 90.0) >= params.separate_deg
+    if not far.any():
+        return None
+    a2 = _azimuth_peak(phi[far], wh[far], 180.0, params.vote_deg, params.refine_deg)
+    between = abs((a2 - a1 + 90.0) % 180.0 - 90.0)
+    if between < params.separate_deg:  # the refined mean slid back towards the first
+        return None
+    H = np.stack([np.cos(np.radians(a)) * e1 + np.sin(np.radians(a)) * e2 for a in (a1, a2)])
+    return H, float(between)
+
+
+def principal_frame(lines: np.ndarray, estimated: np.ndarray, up: np.ndarray = (0.0, 0.0, 1.0),
+                    params: FrameParams = FrameParams()) -> tuple[np.ndarray, np.ndarray, str]:
+    """The map's principal directions: the Manhattan frame, or an Atlanta frame where the walls
+    are not at right angles. Returns ``(frame (3, 3), deviation_deg (3,), kind)``, kind
+    ``"manhattan"`` or ``"atlanta"``.
+
+    The vertical is kept as :func:`manhattan_frame` keeps it; the horizontals come from the
+    horizontal lines only (:func:`horizontal_directions`: sloped ceiling edges and other inclined
+    lines do not compete). When the two main horizontal directions are within ``atlanta_deg`` of
+    perpendicular (boxes), or more than ``max_inclined_share`` of the line length is inclined
+    (sloped ceilings), the Manhattan frame is used (:func:`manhattan_frame`, unchanged); otherwise
+    the frame is (vertical, first, second horizontal): walls at 30-75 degrees keep their own
+    directions instead of being folded onto a perpendicular pair. Rows are ordered like
+    ``estimated`` and right-handed; ``deviation_deg``: each estimated direction's angle to its row.
+    """
+    E = np.asarray(estimated, dtype=np.float64)
+    if E.shape != (3, 3):
+        raise InputError(f"estimated principal directions must have shape (3, 3), got {E.shape}")
+    u = normalize(np.asarray(up, dtype=np.float64)[None])[0]
+    kv, v = _vertical(E, u)
+    found = horizontal_directions(lines, v, params)
+    d, w = line_directions(lines)
+    elevation = np.degrees(np.arcsin(np.clip(np.abs(d @ v), 0.0, 1.0)))
+    inclined = (elevation > params.horizontal_deg) & (elevation < 90.0 - params.horizontal_deg)
+    sloped = w[inclined].sum() > params.max_inclined_share * max(w.sum(), 1e-12)
+    if found is None or 90.0 - found[1] <= params.atlanta_deg or sloped:
+        F, dev = manhattan_frame(lines, E, u)
+        return F, dev, "manhattan"
+    F = _order_like(np.concatenate([v[None], found[0]]), E, kv)
+    return F, _deviation(F, E), "atlanta"

@@ -10,8 +10,11 @@ Stages (paper section 3.1, DESIGN.md 5.1-5.4), each timed:
    ``--scale`` first and, once the lines are known, rotated into z-up (:mod:`ldlmap.sfm.gravity`;
    the similarity is stored as ``input_to_map``, :mod:`ldlmap.core.frame`); then the length filter
    ``lambda (b_x + b_y + b_z) / 3`` of the robust box, with a floor and a cap on the kept count.
-3. ``principal``: the 3 principal directions by voting, made the nearest orthonormal (Manhattan)
-   frame, and each kept line's group.
+3. ``principal``: the 3 principal directions by voting, then the map's frame
+   (:func:`ldlmap.lines3d.principal.principal_frame`): the nearest orthonormal (Manhattan) frame,
+   or where the main horizontal directions are far from perpendicular (and the ceiling not sloped)
+   the vertical and those two (Atlanta frame; ``build_config["principal_frame"]``); and each kept
+   line's group.
 4. ``translations``: N_t candidate camera centres in the free space of the scan.
    ``fields``: when ``distance_fields``, each translation's 3 decomposed 3D line distance
    functions sampled on a spherical grid (:mod:`ldlmap.map.fields3d`) for the fast pose search.
@@ -69,6 +72,8 @@ class BuildParams:
     # (below what the paper's threshold keeps of a scan, far above an SfM map's: docs/measurements.md#length-share)
     max_kept_lines: int = 3000  # length filter cap: keep at most this many, the longest
     orthonormal_directions: bool = True  # principal directions: the nearest Manhattan frame (paper's assumption)
+    atlanta_frame: bool = True  # ... or, when the main horizontals are far from perpendicular, an Atlanta frame
+    # (the vertical and those two; ldlmap.lines3d.principal.principal_frame). False: always Manhattan
 
 
 @dataclass
@@ -295,7 +300,8 @@ def build_from_input(src: SceneInput, output: Path, params: BuildParams, name: s
     from ldlmap.lines3d import Lines3DParams, extract_lines, filter_by_length, length_threshold, robust_bounds
     from ldlmap.map.contents import LdlMap
     from ldlmap.map.mapfile import write_map
-    from ldlmap.lines3d.principal import assign_line_groups, line_directions, manhattan_frame, principal_directions_3d
+    from ldlmap.lines3d.principal import (assign_line_groups, line_directions, manhattan_frame, principal_directions_3d,
+                                          principal_frame)
 
     report = BuildReport(output)
     report.seconds["load"] = load_seconds
@@ -362,13 +368,21 @@ def build_from_input(src: SceneInput, output: Path, params: BuildParams, name: s
     stage("lines")
     start("principal")
     principal = principal_directions_3d(lines)
-    deviation = np.zeros(3)
-    if params.orthonormal_directions:
-        principal, deviation = manhattan_frame(lines, principal)
-        if deviation.max() > 5.0:
-            report.warnings.append(
-                f"the lines' principal directions are up to {deviation.max():.0f} deg off the nearest orthogonal "
-                "(Manhattan) frame, which the map uses: noisy lines or a non-rectangular building")
+    deviation, frame_kind = np.zeros(3), "voted"
+    if params.orthonormal_directions and params.atlanta_frame:
+        principal, deviation, frame_kind = principal_frame(lines, principal)
+    elif params.orthonormal_directions:
+        (principal, deviation), frame_kind = manhattan_frame(lines, principal), "manhattan"
+    if frame_kind == "atlanta":
+        pair = np.degrees(np.arccos(np.abs(principal @ principal.T)[np.triu_indices(3, 1)].max()))
+        report.notes.append(f"principal directions: an Atlanta frame (the vertical and the two main horizontal "
+                            f"directions, {pair:.0f} deg apart: walls not at right angles)")
+    if deviation.max() > 5.0:
+        frame_words = {"manhattan": "the nearest orthogonal (Manhattan) frame",
+                       "atlanta": "the frame of the vertical and the two main horizontal directions (Atlanta)"}
+        report.warnings.append(
+            f"the lines' principal directions are up to {deviation.max():.0f} deg off {frame_words[frame_kind]}, "
+            "which the map uses: noisy lines or a building of other shapes")
     groups = assign_line_groups(line_directions(lines)[0], principal)
     stage("principal")
     start("translations")
@@ -421,7 +435,7 @@ def build_from_input(src: SceneInput, output: Path, params: BuildParams, name: s
               "frame": frame_info,
               "length_filter": {"rule": rule, "threshold": float(threshold), "lambda_threshold": paper_threshold,
                                 "robust_extent": extent},
-              "principal_deviation_deg": [round(float(x), 3) for x in deviation]}
+              "principal_deviation_deg": [round(float(x), 3) for x in deviation], "principal_frame": frame_kind}
     if params.features == "none" or src.points is None:
         config["features"] = "none"
     m = LdlMap(

@@ -56,7 +56,7 @@ import numpy as np
 
 from ldlmap.core.errors import FormatVersionError, InputError, atomic_file, require_file
 from ldlmap.map.contents import LdlMap, MapFeatures
-from ldlmap.map.validate import KIND_NAMES, KINDS, check_line_header, is_int, validate_map
+from ldlmap.map.validate import KIND_NAMES, KINDS, check_line_header, is_int, manhattan_map, validate_map
 
 
 FORMAT_VERSION = 1
@@ -402,8 +402,7 @@ def read_map_header(path: str | Path) -> dict[str, Any]:
                 "checksummed": _CHECKSUMS in h5.attrs,
                 "file_size_bytes": path.stat().st_size,
             }
-            check_line_header(groups, info["length_threshold"], info["kept_ratio"], principal,
-                               config.get("orthonormal_directions") is True)
+            check_line_header(groups, info["length_threshold"], info["kept_ratio"], principal, manhattan_map(config))
         except _H5_ERRORS as exc:
             raise InputError(f"corrupt LDL map {path}: {_short(exc)}") from None
         except InputError as exc:

@@ -45,6 +45,15 @@ def check_range(name: str, value: float, lo: float, hi: float) -> None:
         raise InputError(f"map field {name} is {value}, expected a value in [{lo:g}, {hi:g}]")
 
 
+def manhattan_map(config: dict) -> bool:
+    """Whether a map's config says its principal directions are a Manhattan (orthonormal) frame:
+    ``principal_frame`` "manhattan"; maps built before that key, ``orthonormal_directions``
+    true. Atlanta frames (``principal_frame`` "atlanta") and voted directions are not."""
+    if "principal_frame" in config:
+        return config["principal_frame"] == "manhattan"
+    return config.get("orthonormal_directions") is True
+
+
 def check_principal(P: np.ndarray, orthonormal: bool) -> None:
     """Three distinct unit directions; an orthonormal right-handed frame when the map says it used
     the Manhattan frame (maps built before that option record nothing and may be a little off)."""
@@ -68,7 +77,7 @@ def validate_map(m: LdlMap) -> None:
     _check_array("lines", m.lines, (None, 2, 3))
     _check_array("line_groups", m.line_groups, (len(m.lines),), "i")
     check_line_header(m.line_groups, float(m.length_threshold), float(m.kept_ratio),
-                       np.asarray(m.principal_directions), m.config.get("orthonormal_directions") is True)
+                       np.asarray(m.principal_directions), manhattan_map(m.config))
     check_range("lambda", float(m.line_lambda), 0.0, np.inf)
     _check_array("translations", m.translations, (None, 3))
     for name, a in (("bounds_min", m.bounds_min), ("bounds_max", m.bounds_max), ("lines_raw", m.lines_raw),
