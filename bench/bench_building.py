@@ -10,11 +10,11 @@ Run: ``python bench/bench_building.py [--preset building] [--ray] [--threads 1] 
    ``--data DIR``: a building already generated).
 2. **Maps.** ``ldlmap prepare DATA --maps .../maps_plain`` (defaults: SIFT, N_t = 800, 40 views),
    one map per floor, wall and CPU seconds and peak memory from ``/usr/bin/time -v`` (kept in
-   ``prepare_plain.time`` beside the maps: a later run that reuses the maps reports the build that
-   made them; ``--rebuild`` builds again). With ``--ray``: the same with ``--ray local`` into
-   ``maps_ray`` (one task per floor, ``--threads`` each), and whether its maps equal the plain
-   ones. Map size per floor, per room (``rooms`` of the building, corridors and stairwells not
-   counted) and per stored dataset (HDF5 storage bytes).
+   ``prepare_plain.time`` beside the maps: a later run that reuses the maps reports the build
+   that made them, when it ran here; ``--rebuild`` builds again). With ``--ray``: the same with
+   ``--ray local`` into ``maps_ray`` (one task per floor, ``--threads`` each), and whether its
+   maps equal the plain ones. Map size per floor, per room (``rooms`` of the building, corridors
+   and stairwells not counted) and per stored dataset (HDF5 storage bytes).
 3. **Localization.** ``ldlloc run --images 'DATA/*_pano/**/*.jpg' --maps maps_plain`` (the floor is
    not given: every query is searched on every floor map, the best ``--top-maps`` refined, the
    most confident kept), wall seconds and peak memory of the process. ``--splits`` and
@@ -129,8 +129,8 @@ def prepare(data: Path, maps: Path, args, ray: bool) -> dict[str, Any]:
     tag = "ray" if ray else "plain"
     time_file, log = maps.parent / f"prepare_{tag}.time", maps.parent / f"prepare_{tag}.log"
     have = sorted(maps.glob("*.h5")) if maps.is_dir() else []
-    if have and time_file.exists() and not args.rebuild:
-        rec = parse_time(time_file)
+    if have and not args.rebuild:  # the record of the build that made them, when it ran here
+        rec = parse_time(time_file) if time_file.exists() else {}
         rec["reused"] = True
     else:
         maps.mkdir(parents=True, exist_ok=True)
@@ -340,8 +340,9 @@ def report(res: dict[str, Any]) -> None:
             continue
         sizes = p["maps"]
         total = sum(sizes.values())
-        c.print(f"{tag}: wall {p['wall_s']:.0f} s, CPU {p['user_s'] + p['system_s']:.0f} s, peak RSS "
-                f"{p['peak_rss_mb']:.0f} MB, threads {p['threads']}{' (reused maps: recorded build)' if p['reused'] else ''}"
+        built = (f"wall {p['wall_s']:.0f} s, CPU {p['user_s'] + p['system_s']:.0f} s, peak RSS {p['peak_rss_mb']:.0f} MB"
+                 if "wall_s" in p else "maps reused, no record of their build")
+        c.print(f"{tag}: {built}, threads {p['threads']}{' (reused maps)' if p['reused'] else ''}"
                 f"; maps {', '.join(f'{k} {v / 1e6:.1f} MB' for k, v in sizes.items())}; total {total / 1e6:.1f} MB, "
                 f"{total / 1e6 / res['rooms']:.2f} MB per room ({res['rooms']} rooms), "
                 f"{total / 1e6 / res['spaces']:.2f} MB per space ({res['spaces']} with corridors and stairwells)")
