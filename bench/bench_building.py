@@ -28,6 +28,10 @@ Run: ``python bench/bench_building.py [--preset building] [--ray] [--threads 1] 
    only the copy is wrong), and how often the result is marked ``ambiguous`` when the copy is wrong
    and when it is right. Seconds per query from the results (``seconds``: ``search`` and
    ``rotation`` summed over the floor maps, ``total``): median, mean and 90th percentile.
+``--band-above-floor MIN:MAX`` (experiment): the same run against maps whose N_t candidates lie
+only MIN-MAX metres above each floor (``maps_band_MIN_MAX``, built through the library with
+:attr:`ldlmap.map.translations.TranslationParams.band_above_floor`: no CLI option yet).
+
 5. **Search time** apart: ``--timing-queries`` queries searched on every floor map in this process
    (2D lines once, then each map's rotations and search, as the run does), wall and CPU seconds
    per query over all maps (CPU seconds of one thread: what a loaded machine inflates least), and
@@ -141,6 +145,40 @@ def prepare(data: Path, maps: Path, args, ray: bool) -> dict[str, Any]:
         rec["reused"] = False
     rec["threads"] = args.threads
     rec["maps"] = {p.stem: p.stat().st_size for p in sorted(maps.glob("*.h5"))}
+    return rec
+
+
+BAND_BUILD = """
+import functools, sys
+from ldlmap.core.cli_common import set_threads
+import ldlmap.map.translations as tr
+set_threads(int(sys.argv[5]))
+band = (float(sys.argv[3]), float(sys.argv[4]))
+tr.candidate_translations = functools.partial(tr.candidate_translations,
+                                              params=tr.TranslationParams(band_above_floor=band))
+from ldlmap.batch.prepare import prepare_dataset
+for o in prepare_dataset(sys.argv[1], None, sys.argv[2], None, overwrite=True):
+    print(o.scene, o.status, o.map_path, o.message)
+    if o.status == "failed":
+        sys.exit(1)
+"""
+
+
+def prepare_band(data: Path, maps: Path, band: tuple[float, float], args) -> dict[str, Any]:
+    """Experiment (no CLI option yet): the maps of ``prepare`` with their candidates only ``band``
+    metres above each floor (:attr:`ldlmap.map.translations.TranslationParams.band_above_floor`),
+    built through the library's ``prepare_dataset``, one floor after another."""
+    time_file = maps.parent / f"{maps.name}.time"
+    if sorted(maps.glob("*.h5")) and not args.rebuild:
+        rec = parse_time(time_file) if time_file.exists() else {}
+        rec["reused"] = True
+    else:
+        maps.mkdir(parents=True, exist_ok=True)
+        rec = timed([sys.executable, "-c", BAND_BUILD, str(data), str(maps), str(band[0]), str(band[1]),
+                     str(args.threads)], time_file, maps.parent / f"{maps.name}.log")
+        rec["reused"] = False
+    rec.update(threads=args.threads, band_above_floor=list(band),
+               maps={p.stem: p.stat().st_size for p in sorted(maps.glob("*.h5"))})
     return rec
 
 
@@ -307,7 +345,7 @@ def report(res: dict[str, Any]) -> None:
     from rich.table import Table
 
     c = console()
-    t = Table(title=f"{res['preset']}: {res['queries']} queries against {len(res['prepare_plain']['maps'])} floor maps "
+    t = Table(title=f"{res['preset']}: {res['queries']} queries against the floor maps of {res['maps']} "
                     "(floor not given)")
     for col in ("part", "n", "0.1 m/5 deg", "0.25 m/5 deg", "search top-1", "right floor", "right room",
                 "right copy + pose", "pose in some copy", "ambiguous (wrong copy)", "ambiguous (right copy)",
@@ -334,7 +372,7 @@ def report(res: dict[str, Any]) -> None:
     run = res["run"]
     c.print(f"run: wall {run['wall_s']:.0f} s, CPU {run['user_s'] + run['system_s']:.0f} s, peak RSS "
             f"{run['peak_rss_mb']:.0f} MB; load before: {run['uptime_before']}; after: {run['uptime_after']}")
-    for tag in ("prepare_plain", "prepare_ray"):
+    for tag in ("prepare_plain", "prepare_ray", "prepare_band"):
         p = res.get(tag)
         if not p:
             continue
@@ -365,6 +403,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--top-maps", type=int, default=None, help="--top-maps of the run (default: the run's)")
     ap.add_argument("--splits", default=None, help="comma-separated splits to localize (default: all)")
     ap.add_argument("--max-queries", type=int, default=None, help="localize every k-th query, this many at most")
+    ap.add_argument("--band-above-floor", default=None, metavar="MIN:MAX",
+                    help="experiment: localize against maps whose candidates lie MIN-MAX m above each floor "
+                         "(built through the library, no CLI option yet)")
     ap.add_argument("--timing-queries", type=int, default=40, help="queries of the in-process search timing (0: none)")
     ap.add_argument("--output", default=str(HERE / "building.json"))
     args = ap.parse_args(argv)
@@ -378,19 +419,26 @@ def main(argv: list[str] | None = None) -> int:
     res: dict[str, Any] = {"preset": args.preset, "data": str(data), "threads": args.threads}
     t0 = time.perf_counter()
     res["prepare_plain"] = prepare(data, work / "maps_plain", args, ray=False)
+    maps_dir = work / "maps_plain"
+    if args.band_above_floor:
+        band = tuple(float(x) for x in args.band_above_floor.split(":"))
+        maps_dir = work / f"maps_band_{band[0]:g}_{band[1]:g}"
+        res["prepare_band"] = prepare_band(data, maps_dir, band, args)
     if args.ray:
         res["prepare_ray"] = prepare(data, work / "maps_ray", args, ray=True)
         res["ray_maps_equal_plain"] = same_maps(work / "maps_plain", work / "maps_ray")
     rooms = read_building(data)
     res["rooms"] = sum(r.kind not in ("corridor", "stairwell") for r in rooms)
     res["spaces"] = len(rooms)
-    res["storage"] = {p.stem: storage(p) for p in sorted((work / "maps_plain").glob("*.h5"))}
+    res["maps"] = str(maps_dir)
+    res["storage"] = {p.stem: storage(p) for p in sorted(maps_dir.glob("*.h5"))}
     images, queries = select_images(data, args.splits.split(",") if args.splits else None, args.max_queries)
     res["queries"] = len(queries)
-    res["run"] = localize(images, work / "maps_plain", work / "run.json", args)
+    run_json = work / ("run.json" if maps_dir.name == "maps_plain" else f"run_{maps_dir.name}.json")
+    res["run"] = localize(images, maps_dir, run_json, args)
     from ldlloc.batch.results import load_results
 
-    results, _ = load_results(work / "run.json")
+    results, _ = load_results(run_json)
     rows = score(results, queries, data)
     parts: dict[str, list] = {"all": rows}
     for f in sorted({r["floor"] for r in rows}):
@@ -401,7 +449,7 @@ def main(argv: list[str] | None = None) -> int:
     res["summary"] = {k: summarize(v) for k, v in parts.items()}
     res["seconds"] = seconds(rows)
     if args.timing_queries:
-        res["search_timing"] = search_timing(work / "maps_plain", queries, args.timing_queries, args.threads)
+        res["search_timing"] = search_timing(maps_dir, queries, args.timing_queries, args.threads)
     res["rows"] = rows
     res["bench_wall_s"] = time.perf_counter() - t0
     report(res)
