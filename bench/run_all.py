@@ -28,6 +28,9 @@ Benchmarks (in this order; names for ``--only``):
   ``bench/startup.json`` (bench_startup.py)
 - ``sfm``: SfM-like Line3D++ maps (issue 12): kept lines, principal directions and up axis,
   before and after (bench_sfm.py; ``--localize ROOT`` when run alone also localizes)
+- ``building``: the 36-room building of issue 21, one map per floor, queries localized without
+  their floor; writes ``bench/building.json`` (bench_building.py; an hour and more on 2 cores the
+  first time, so only with ``--only building``)
 
 Each runs in its own Python process (so one's memory and threads do not skew the next). Data
 and maps are cached under ``bench/.cache/``; the first run generates them. ``--quick`` runs
@@ -61,10 +64,11 @@ BENCHES: dict[str, tuple[str, list[str], list[str]]] = {
     "ray": ("bench_ray.py", [], ["--quick"]),
     "startup": ("bench_startup.py", [], ["--runs", "1"]),
     "sfm": ("bench_sfm.py", [], ["--seeds", "0"]),
+    "building": ("bench_building.py", [], ["--preset", "building_small", "--width", "256", "--per-split", "1"]),
 }
-ON_REQUEST = {"ray"}  # slow: run only when named in --only
+ON_REQUEST = {"ray", "building"}  # slow: run only when named in --only
 DEVICE_AWARE = {"render", "ldf", "localize", "ablation"}
-THREAD_AWARE = {"render", "ldf", "build", "localize", "ablation", "real", "geometric", "startup", "sfm"}
+THREAD_AWARE = {"render", "ldf", "build", "localize", "ablation", "real", "geometric", "startup", "sfm", "building"}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -230,6 +230,23 @@ def test_ldf_3d_at_equals_ldf_3d_at_those_poses(room):
         ldf.ldf_3d_at(x, R, T, lines, groups, ti, ri[:-1])
 
 
+@pytest.mark.parametrize("poses_per_batch", [1, 4, 7])
+def test_ldf_3d_at_in_batches_equals_one_batch(room, monkeypatch, poses_per_batch):
+    """The poses go through batches of AT_BATCH_VALUES dot products: any batch size, same values."""
+    lines, groups, T, *_ = room
+    rng = np.random.default_rng(5)
+    R = _random_rotations(rng, 6)
+    x = ldf.query_points(1)
+    ti, ri = rng.integers(0, len(T), 30), rng.integers(0, len(R), 30)
+    vis = rng.random((len(T), len(lines))) > 0.3
+    whole = ldf.ldf_3d_at(x, R, T, lines, groups, ti, ri, visibility=vis)
+    monkeypatch.setattr(ldf, "AT_BATCH_VALUES", poses_per_batch * 5 * len(lines) * len(x))
+    got = ldf.ldf_3d_at(x, R, T, lines, groups, ti, ri, visibility=vis)
+    ref = ldf.ldf_3d(x, R, T, lines, groups, visibility=vis)[ti, ri]
+    np.testing.assert_allclose(got.numpy(), whole.numpy(), atol=1e-6)
+    np.testing.assert_allclose(got.numpy(), ref.numpy(), atol=1e-6)
+
+
 def test_search_path_selection(room):
     lines, groups, T, fields, _, _ = room
     rng = np.random.default_rng(6)

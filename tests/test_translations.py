@@ -176,3 +176,25 @@ def test_far_outliers_neither_stretch_nor_fill_the_free_space(room):
     outliers = np.stack([far, far + 0.3], axis=1)
     C = spaced_translations(np.concatenate([lines, outliers]), 0.3, z_range=(1.5, 1.5))
     assert len(C) > 50 and np.all((C[:, :2] > -0.2) & (C[:, :2] < [5.2, 4.2]))
+
+
+def test_band_above_floor_puts_the_candidates_where_cameras_stand(room):
+    """With a camera band the N_t candidates lie in it and sit closer to camera positions."""
+    from ldlmap.map.translations import TranslationParams
+
+    pts, to_room, boxes = room
+    whole = to_room(candidate_translations(pts, num=300, method="octree", clearance=0.25))
+    band = to_room(candidate_translations(pts, num=300, method="octree", clearance=0.25,
+                                          params=TranslationParams(band_above_floor=(1.0, 1.6))))
+    assert abs(len(band) - 300) <= 0.15 * 300
+    floor = np.percentile(to_room(pts)[:, 2], 0.5)
+    z = band[:, 2] - floor
+    assert z.min() >= 1.0 - 0.11 and z.max() <= 1.6 + 0.11  # voxel centres within the band (0.1 m voxels)
+    assert (whole[:, 2] - floor).min() < 0.8 and (whole[:, 2] - floor).max() > 1.8  # without: floor to ceiling
+    rng = np.random.default_rng(2)
+    cams = rng.uniform([0.6, 0.6, 1.1], [SIZE[0] - 0.6, SIZE[1] - 0.6, 1.5], size=(300, 3))
+    for lo, hi in boxes:
+        cams = cams[~np.all((cams > lo - 0.3) & (cams < hi + 0.3), axis=1)]
+    near_band = cKDTree(band).query(cams)[0]
+    near_whole = cKDTree(whole).query(cams)[0]
+    assert np.median(near_band) < 0.8 * np.median(near_whole)

@@ -222,13 +222,18 @@ def ldf_3d(x, rotations, translations, lines3d, groups, num_groups: int = 3,
     return out
 
 
+AT_BATCH_VALUES = 1 << 22  # ldf_3d_at: poses per batch so that the 5 dot products per (pose, line, point)
+# fill about 4 M float32 (16 MB); all 64 re-scored poses of a floor map at once (150 MB) took twice
+# the CPU (docs/measurements.md#rescore-batches)
+
+
 def ldf_3d_at(x, rotations, translations, lines3d, groups, translation_index, rotation_index,
               num_groups: int = 3, device=None, dtype=None, visibility=None) -> "torch.Tensor":
     """:func:`ldf_3d` at M chosen poses only: pose m is ``(rotations[rotation_index[m]],
     translations[translation_index[m]])``.
 
-    The lines are projected once per distinct translation and all M poses go through one
-    batched evaluation (each pose with its own rotated query points). Returns (M, G, Q), the
+    The lines are projected once per distinct translation and the M poses go through batched
+    evaluations (each pose with its own rotated query points; :data:`AT_BATCH_VALUES` per batch). Returns (M, G, Q), the
     values ``ldf_3d(...)[translation_index, rotation_index]`` (up to float rounding).
     """
     import torch
@@ -244,7 +249,11 @@ def ldf_3d_at(x, rotations, translations, lines3d, groups, translation_index, ro
     xr = torch.einsum("qi,mij->mqj", x, R[ri])  # (M, Q, 3): R^T q for each pose
     uniq, inv = torch.unique(ti, return_inverse=True)
     s, e = _project_lines(lines, T[uniq])  # once per distinct translation
-    return _grouped_min_distance(xr, s[inv], e[inv], bounds, None if vis is None else vis[ti])
+    vis_m = None if vis is None else vis[ti]
+    step = max(1, AT_BATCH_VALUES // (5 * lines.shape[0] * x.shape[0]))
+    return torch.cat([_grouped_min_distance(xr[a:a + step], s[inv[a:a + step]], e[inv[a:a + step]], bounds,
+                                            None if vis_m is None else vis_m[a:a + step])
+                      for a in range(0, ti.numel(), step)])
 
 
 # ------------------------------------------------------------------------------------- losses

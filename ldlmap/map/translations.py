@@ -42,6 +42,9 @@ class TranslationParams:
     footprint_close: int = 3  # closing radius (voxels) of the xy footprint
     z_percentiles: tuple[float, float] = (0.5, 99.5)  # floor / ceiling from the z distribution
     min_component: float = 0.2  # keep free components with at least this fraction of the largest
+    band_above_floor: tuple[float, float] | None = None  # keep only free space this many metres above
+    # the floor (the robust z percentile), e.g. (0.9, 1.7) where a camera stands: the N_t candidates
+    # of a floor map spread over the cameras' heights only (docs/measurements.md#building-bench)
 
 
 def _free_space(P: np.ndarray, clearance: float, params: TranslationParams):
@@ -68,6 +71,9 @@ def _free_space(P: np.ndarray, clearance: float, params: TranslationParams):
     z0, z1 = np.percentile(P[:, 2], params.z_percentiles)
     zc = lo[2] + (np.arange(dims[2]) + 0.5) * h
     zok = (zc >= z0 + clearance) & (zc <= z1 - clearance)
+    if params.band_above_floor is not None:
+        b0, b1 = params.band_above_floor
+        zok &= (zc >= z0 + b0) & (zc <= z0 + b1)
     dist = ndimage.distance_transform_edt(~occ) * h
     # The occupied voxel may hold a point anywhere inside it: subtract half a diagonal.
     free = foot[:, :, None] & zok[None, None, :] & (dist - 0.87 * h >= clearance)
