@@ -149,16 +149,7 @@ def manhattan_frame(lines: np.ndarray, estimated: np.ndarray, up: np.ndarray = (
         h = rest[int(np.argmin([abs(r @ v) for r in rest]))]
         phi0 = np.degrees(np.arctan2(h @ e2, h @ e1))
     h1 = np.cos(np.radians(phi0)) * e1 + np.sin(np.radians(phi0)) * e2
-    axes = np.stack([v, h1, np.cross(v, h1)])
-    F = np.zeros((3, 3))
-    free = [0, 1, 2]
-    for i in [kv] + [i for i in range(3) if i != kv]:  # the vertical first, then greedily
-        j = max(free, key=lambda a: abs(axes[a] @ E[i]))
-        free.remove(j)
-        F[i] = axes[j] * (1.0 if axes[j] @ E[i] >= 0 else -1.0)
-    if np.linalg.det(F) < 0:
-        last = [i for i in range(3) if i != kv][-1]
-        F[last] = -F[last]
+    F = _order_like(np.stack([v, h1, np.cross(v, h1)]), E, kv, pin_vertical=False)
     return F, _deviation(F, E)
 
 
@@ -201,14 +192,19 @@ def _azimuth_peak(phi: np.ndarray, w: np.ndarray, period: float, vote_deg: float
     return float(mean % period)
 
 
-def _order_like(axes: np.ndarray, E: np.ndarray, kv: int) -> np.ndarray:
+def _order_like(axes: np.ndarray, E: np.ndarray, kv: int, pin_vertical: bool = True) -> np.ndarray:
     """``axes`` (3, 3) reordered and signed like the rows of ``E``: the vertical (``axes[0]``) in
-    row ``kv``, the others greedily by ``|cos|``; the last horizontal row flipped if needed so the
+    row ``kv`` as it is (``pin_vertical``), or row ``kv`` first to take its closest axis, signed
+    like it; the others greedily by ``|cos|``; the last horizontal row flipped if needed so the
     triplet is right-handed."""
     F = np.zeros((3, 3))
-    free = [1, 2]
-    F[kv] = axes[0]
-    for i in [i for i in range(3) if i != kv]:
+    rows = [i for i in range(3) if i != kv]
+    if pin_vertical:
+        free = [1, 2]
+        F[kv] = axes[0]
+    else:
+        free, rows = [0, 1, 2], [kv] + rows
+    for i in rows:
         j = max(free, key=lambda a: abs(axes[a] @ E[i]))
         free.remove(j)
         F[i] = axes[j] * (1.0 if axes[j] @ E[i] >= 0 else -1.0)
