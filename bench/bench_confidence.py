@@ -161,7 +161,7 @@ def real_results(data: Path, real_maps: Path | None, rerun: bool) -> dict[str, l
 
 def rows(results: list) -> list[dict]:
     """Per query: the signals, the confidence and verdict of the current model, right or not."""
-    from ldlloc.confidence import MODEL, verdict_for
+    from ldlloc.confidence import MODEL, RIVAL_SHARE, verdict_for
 
     out = []
     for r in results:
@@ -169,7 +169,8 @@ def rows(results: list) -> list[dict]:
         sig = r.confidence_signals or {}
         conf = MODEL.confidence(sig) if ok and sig else 0.0
         out.append({"name": f"{r.scene}/{r.split}/{r.name}", "signals": sig, "confidence": conf,
-                    "verdict": verdict_for(conf, r.competitors) if ok else "failed",
+                    "verdict": verdict_for(conf, r.competitors, rival=max(
+                        sig.get("pnp_rival", 0.0), sig.get("map_rival", 0.0)) >= RIVAL_SHARE) if ok else "failed",
                     "competitors": [c["why"] for c in r.competitors],
                     "good": bool(ok and r.t_error_m < OK_T and r.r_error_deg < OK_R),
                     "tight": bool(ok and r.t_error_m < TIGHT_T and r.r_error_deg < TIGHT_R),

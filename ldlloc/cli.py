@@ -224,8 +224,8 @@ def _print_verdict(loc) -> None:
                   + (f", {len(loc.competitors)} competing pose(s):" if loc.competitors else ""), soft_wrap=True)
     for c in loc.competitors:
         t = c["t"]
-        console.print(f"  {c['why']}: t = [{t[0]:.3f}, {t[1]:.3f}, {t[2]:.3f}], search loss {c['loss']:.1f}",
-                      soft_wrap=True)
+        loss = "" if c.get("loss") is None else f", search loss {c['loss']:.1f}"
+        console.print(f"  {c['why']}: t = [{t[0]:.3f}, {t[1]:.3f}, {t[2]:.3f}]{loss}", soft_wrap=True)
 
 
 @app.command()

@@ -19,7 +19,12 @@ axis) whose loss comes close to it. The signals (:func:`confidence_signals`):
   (``Localization.selection_margin``), clipped to [-1, 0.5]; 0.5 when none came within reach, 0
   where no such selection ran (feature refinement and its fallback);
 - ``features``: 1 when the feature refinement (PnP) made the final pose; ``refined``: 1 when a
-  refinement was kept (0: the coarse pose); ``inliers``: PnP inliers (recorded, not weighted).
+  refinement was kept (0: the coarse pose); ``inliers``: PnP inliers (recorded, not weighted);
+- ``pnp_rival``: the inliers of the best PnP pose distinct from the final one over the final
+  pose's (``Localization.pnp_rival``; 0: none), and ``map_rival`` the same for the feature poses
+  of the other maps (:func:`assess_across`). A rival at :data:`RIVAL_SHARE` or more (an identical
+  room's copy explains the features as well) takes the ``features`` signal away: the features
+  then do not single one pose out (docs/measurements.md#pnp-rival).
 
 ``confidence = sigmoid(MODEL . signals)``, a logistic fitted on synthetic data and checked on the
 real ZInD home (docs/measurements.md#confidence; ``bench/bench_confidence.py --fit`` refits it).
@@ -67,12 +72,19 @@ NO_CONTENDER_MARGIN = 0.5  # ``margin`` when no distinct refined pose came withi
 # support_within, 0.25, plus a support gap); the signal is clipped to it
 
 
+RIVAL_SHARE = 0.5  # a distinct PnP pose with half the final pose's inliers or more: the features do not single it out
+
+
 def effective_signals(signals: dict[str, float]) -> dict[str, float]:
     """The signals the model weighs: with several maps (``map_margin`` present, :func:`assess_across`)
-    the selection margin is the smaller of the margin within the pose's map and across the maps."""
-    if "map_margin" not in signals:
-        return signals
-    return {**signals, "margin": min(float(signals.get("margin", 0.0)), float(signals["map_margin"]))}
+    the selection margin is the smaller of the margin within the pose's map and across the maps; a
+    PnP rival of :data:`RIVAL_SHARE` or more (``pnp_rival``, ``map_rival``) zeroes ``features``."""
+    out = dict(signals)
+    if "map_margin" in signals:
+        out["margin"] = min(float(signals.get("margin", 0.0)), float(signals["map_margin"]))
+    if max(float(signals.get("pnp_rival", 0.0)), float(signals.get("map_rival", 0.0))) >= RIVAL_SHARE:
+        out["features"] = 0.0
+    return out
 
 
 def rotation_kind(R_final: np.ndarray, R_other: np.ndarray) -> str:
@@ -169,9 +181,32 @@ def confidence_signals(loc, ldl_map, support_deg: float = 1.0) -> tuple[dict[str
                "support_gap": float(support[0] - support[1]) if len(support) > 1 else float(support[0]),
                "margin": 0.0 if m is None else float(np.clip(m, -1.0, NO_CONTENDER_MARGIN)),
                "features": float(str(loc.refine_method).startswith("features")),
-               "refined": float(bool(loc.refined)), "inliers": float(loc.num_inliers)}
+               "refined": float(bool(loc.refined)), "inliers": float(loc.num_inliers),
+               "pnp_rival": rival_share(loc)}
     signals = {k: v if np.isfinite(v) else 0.0 for k, v in signals.items()}  # a NaN loss says nothing
     return signals, others
+
+
+def rival_share(loc) -> float:
+    """The inliers of the feature refinement's best distinct PnP pose over the final pose's (0: none)."""
+    rival = getattr(loc, "pnp_rival", None)
+    if not rival or not str(loc.refine_method).startswith("features") or loc.num_inliers <= 0:
+        return 0.0
+    return float(rival["inliers"]) / float(loc.num_inliers)
+
+
+def rival_dict(loc) -> dict[str, Any] | None:
+    """The PnP rival (:func:`rival_share` at :data:`RIVAL_SHARE` or more) as a competitor, else None."""
+    if rival_share(loc) < RIVAL_SHARE:
+        return None
+    rival = loc.pnp_rival
+    R, t = np.asarray(rival["R"], float), np.asarray(rival["t"], float)
+    k = int(rival.get("candidate", -1))
+    loss = (float(loc.candidates_loss[k]) if loc.candidates_loss is not None and 0 <= k < len(loc.candidates_loss)
+            else float("nan"))
+    return {"R": np.round(R, 8).tolist(), "t": np.round(t, 6).tolist(), "loss": loss if np.isfinite(loss) else None,
+            "why": f"{why(loc.rot_cam_from_world, loc.center, R, t)}, PnP {int(rival['inliers'])} inliers "
+                   f"against {int(loc.num_inliers)}", "inliers": int(rival["inliers"])}
 
 
 def competitor_dicts(loc, others: np.ndarray, max_gap: float = COMPETITOR_GAP,
@@ -192,15 +227,17 @@ def competitor_dicts(loc, others: np.ndarray, max_gap: float = COMPETITOR_GAP,
     return out
 
 
-def verdict_for(confidence: float | None, competitors: list, model: ConfidenceModel = MODEL) -> str:
+def verdict_for(confidence: float | None, competitors: list, model: ConfidenceModel = MODEL,
+                rival: bool = False) -> str:
     """``confident`` at or above the model's threshold; else ``ambiguous`` when competitors are
-    named and the pose is still plausible (``failed_below``); else ``failed`` (no pose, a pose the
-    model gives little chance, or a doubtful one with nothing to offer beside it)."""
+    named and the pose is still plausible (``failed_below``), or when a PnP ``rival`` explains the
+    features as well (the pose is right up to which copy of an identical room); else ``failed`` (no
+    pose, a pose the model gives little chance, or a doubtful one with nothing to offer beside it)."""
     if confidence is None:
         return "failed"
     if confidence >= model.confident_at:
         return "confident"
-    return "ambiguous" if competitors and confidence >= model.failed_below else "failed"
+    return "ambiguous" if competitors and (confidence >= model.failed_below or rival) else "failed"
 
 
 def assess(loc, ldl_map, support_deg: float = 1.0, model: ConfidenceModel = MODEL) -> None:
@@ -208,8 +245,9 @@ def assess(loc, ldl_map, support_deg: float = 1.0, model: ConfidenceModel = MODE
     signals, others = confidence_signals(loc, ldl_map, support_deg)
     loc.confidence_signals = {k: round(v, 6) for k, v in signals.items()}
     loc.confidence = round(model.confidence(signals), 6)
-    loc.competitors = competitor_dicts(loc, others)
-    loc.verdict = verdict_for(loc.confidence, loc.competitors, model)
+    rival = rival_dict(loc)
+    loc.competitors = ([rival] if rival else []) + competitor_dicts(loc, others, limit=MAX_COMPETITORS - bool(rival))
+    loc.verdict = verdict_for(loc.confidence, loc.competitors, model, rival=rival is not None)
 
 
 def assess_across(locs: list, losses: list[float], names: list[str], params=None, model: ConfidenceModel = MODEL) -> None:
@@ -221,7 +259,10 @@ def assess_across(locs: list, losses: list[float], names: list[str], params=None
     (poses that agree, maps sharing a frame, confirm each other), -1 when its loss is out of the
     selection's reach, :data:`NO_CONTENDER_MARGIN` when no other map competes. The confidence then
     uses the smaller margin (:func:`effective_signals`), and the other maps' poses whose loss is
-    within :data:`COMPETITOR_GAP` are named as competitors (``map``: the map's name). Calling it
+    within :data:`COMPETITOR_GAP` are named as competitors (``map``: the map's name). A feature pose
+    also gets ``map_rival``: the PnP inliers of the other maps' distinct feature poses over its own
+    (their best; an identical room on another floor), whose maps are named when it reaches
+    :data:`RIVAL_SHARE`. Calling it
     again on a subset of the maps recomputes all of this from the in-map assessment."""
     from ldlloc.refine.geometric import GeometricParams, selection_scores
 
@@ -231,6 +272,9 @@ def assess_across(locs: list, losses: list[float], names: list[str], params=None
     score = selection_scores(losses, params, lambda idx: support[idx])
     R = np.stack([np.asarray(loc.rot_cam_from_world, float) for loc in locs])
     t = np.stack([np.asarray(loc.center, float) for loc in locs])
+    # PnP inliers of the maps' feature poses (0: not a feature pose): a copy in another map rivals them
+    inliers = np.array([float(loc.num_inliers) if str(loc.refine_method).startswith("features") else 0.0
+                        for loc in locs])
     for i, loc in enumerate(locs):
         other = distinct(R[i], t[i], R, t)
         other[i] = False
@@ -241,11 +285,16 @@ def assess_across(locs: list, losses: list[float], names: list[str], params=None
             margin = float(np.clip(score[i] - score[reach].max(), -1.0, NO_CONTENDER_MARGIN))
         else:
             margin = NO_CONTENDER_MARGIN
-        loc.confidence_signals = {**loc.confidence_signals, "map_margin": round(margin, 6)}
+        share = inliers / inliers[i] if inliers[i] > 0 else np.zeros(len(locs))
+        map_rival = float(share[other].max()) if other.any() else 0.0
+        loc.confidence_signals = {**loc.confidence_signals, "map_margin": round(margin, 6),
+                                  "map_rival": round(map_rival, 6)}
         loc.confidence = round(model.confidence(loc.confidence_signals), 6)
         own = [c for c in loc.competitors if "map" not in c]
         across = [j for j in np.flatnonzero(other)[np.argsort(losses[other], kind="stable")]
-                  if relative_gap(float(losses[j]), float(losses[i])) <= COMPETITOR_GAP][:MAX_COMPETITORS]
+                  if relative_gap(float(losses[j]), float(losses[i])) <= COMPETITOR_GAP
+                  or share[j] >= RIVAL_SHARE][:MAX_COMPETITORS]
         loc.competitors = own + [{"R": np.round(R[j], 8).tolist(), "t": np.round(t[j], 6).tolist(),
                                   "loss": float(losses[j]), "why": f"map {names[j]}", "map": names[j]} for j in across]
-        loc.verdict = verdict_for(loc.confidence, loc.competitors, model)
+        loc.verdict = verdict_for(loc.confidence, loc.competitors, model,
+                                  rival=max(rival_share(loc), map_rival) >= RIVAL_SHARE)

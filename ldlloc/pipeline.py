@@ -96,6 +96,8 @@ class Localization:
     selection_margin: float | None = None  # geometric refinement: the winner's selection score (-loss / max|loss|
     # + map-line support) over the best refined pose distinct from it (ldlloc.confidence.distinct); None: no
     # selection ran (feature refinement, or its geometric fallback)
+    pnp_rival: dict | None = None  # feature refinement: the best PnP pose distinct from the final one, {R, t,
+    # inliers, candidate} (an identical room's copy; ldlloc.refine.features.Refinement.rival_inliers)
     confidence: float | None = None  # how far to trust the pose, in [0, 1] (ldlloc.confidence)
     verdict: str | None = None  # confident | ambiguous | failed
     competitors: list = field(default_factory=list)  # distinct poses of nearly the same loss: {R, t, loss, why}
@@ -443,6 +445,7 @@ class Localizer:
             ref = refine_candidates(feats, (W, H), res.rotations[idx], res.centers[idx], res.translation_index[idx],
                                     m.features, self.backend, p.refine)
             ref.candidate = int(idx[ref.candidate])
+            ref.rival_candidate = int(idx[ref.rival_candidate]) if ref.rival_candidate >= 0 else -1
             key = (ref.refined, ref.num_inliers)
             if best_key is None or key > best_key:  # ties: the frame of the better-ranked candidates
                 best, best_key = (ref, len(feats)), key
@@ -552,6 +555,9 @@ class Localizer:
             out.refined, out.num_matches, out.num_inliers, out.message = (
                 ref.refined, ref.num_matches, ref.num_inliers, ref.message)
             out.refine_method = "features" if out.refined else "none"
+            if out.refined and ref.rival_inliers:
+                out.pnp_rival = {"R": ref.rival_rot, "t": ref.rival_center, "inliers": ref.rival_inliers,
+                                 "candidate": ref.rival_candidate}
             if self.refine_mode == "both" or (self.fallback_geometric and not out.refined):
                 self._polish_geometric(out, arcs, res.translation_index[ref.candidate])
         elif self.refine_mode == "geometric":

@@ -126,6 +126,44 @@ def test_maps_judged_together():
     assert a.verdict == "confident" and a.competitors == []
 
 
+def _feature_pose(m, R0, t, inliers: int, rival: tuple[np.ndarray, int] | None = None) -> Localization:
+    """A PnP pose at (R0, t) with ``inliers``; ``rival``: a distinct PnP pose (centre, inliers)."""
+    loc = _localization(m, R0, [(R0, t), (R0, t + [0, 1.5, 0])], [-100.0, -95.0], margin=0.0)
+    loc.refine_method, loc.selection_margin, loc.num_inliers = "features", None, inliers
+    if rival is not None:
+        loc.pnp_rival = {"R": R0, "t": rival[0], "inliers": rival[1], "candidate": 1}
+    return loc
+
+
+def test_identical_copy_takes_the_feature_confidence_away():
+    """A PnP pose is confident when no distinct PnP pose comes near its inliers; a copy of the room
+    (in its map or another map) that explains as many features makes it ambiguous and is named."""
+    m = _box_map()
+    R0 = _rz(30)
+    alone = _feature_pose(m, R0, CENTRE, 120, (CENTRE + [0, 2.0, 0], 20))  # a stray PnP pose of 20 inliers
+    assess(alone, m)
+    assert alone.verdict == "confident" and alone.confidence_signals["pnp_rival"] == pytest.approx(20 / 120, abs=1e-6)
+
+    copy = _feature_pose(m, R0, CENTRE, 120, (CENTRE + [6.0, 0, 0], 118))
+    assess(copy, m)
+    assert copy.verdict == "ambiguous" and copy.confidence < MODEL.confident_at
+    assert copy.competitors[0]["why"] == "other position (6.0 m), PnP 118 inliers against 120"
+    assert np.allclose(copy.competitors[0]["t"], CENTRE + [6.0, 0, 0])
+
+    a, b = _feature_pose(m, R0, CENTRE, 120), _feature_pose(m, R0, CENTRE + [0, 0, 3.0], 115)  # the floor above
+    for loc in (a, b):
+        assess(loc, m)
+        assert loc.verdict == "confident"
+    assess_across([a, b], [-100.0, -100.0], ["floor_0", "floor_1"])
+    assert a.confidence_signals["map_rival"] == pytest.approx(115 / 120, abs=1e-6)
+    assert a.verdict == b.verdict == "ambiguous"  # b is judged unlikely on its lines, but a copy explains its features
+    assert [c["map"] for c in a.competitors if "map" in c] == ["floor_1"]
+    c = _feature_pose(m, R0, CENTRE + [0, 0, 3.0], 30)  # another floor's pose, far fewer inliers: no rival
+    assess(c, m)
+    assess_across([a, c], [-100.0, -100.0], ["floor_0", "floor_1"])
+    assert a.verdict == "confident"
+
+
 def test_no_pose_is_failed():
     from ldlloc.batch.run import failed_result
     from ldlloc.pipeline import LocalizeParams
@@ -140,6 +178,9 @@ def test_no_pose_is_failed():
     assert verdict_for(doubtful, [], model) == "failed"
     assert verdict_for(0.0, [{"why": "other position"}], model) == "failed"
     assert verdict_for(doubtful, [{"why": "other position"}], model) == "ambiguous"
+    # a pose the model gives little chance, but whose PnP rival (a copy) explains the features as well
+    assert verdict_for(0.0, [{"why": "other position (6.0 m), PnP 90 inliers against 100"}], model,
+                       rival=True) == "ambiguous"
 
 
 def test_competitor_reasons():

@@ -163,3 +163,54 @@ def test_sift_view_features_lie_on_scanned_surfaces():
     dist3 = np.linalg.norm(vf.xyz[m[:, 0]] - vf2.xyz[m[:, 1]], axis=1)
     # (the blocky random texture repeats a little, so a few matches land on look-alike cells)
     assert len(m) > 100 and np.mean(dist3 < 0.05) > 0.85 and np.median(dist3) < 0.02
+
+
+class _SameIndexMatcher:
+    """Matches query feature i with view feature i (the views hold the query's points in order)."""
+
+    def match_views(self, query, query_size, views, view_size, ratio=0.8):
+        return [np.stack([np.arange(len(v)), np.arange(len(v))], 1) for v in views]
+
+
+def _copies_map(points: np.ndarray, second: np.ndarray):
+    """Feature table of two views: view 0 holds ``points``, view 1 ``second`` (same descriptors)."""
+    from ldlmap.map.contents import MapFeatures
+
+    n = len(points)
+    return MapFeatures(backend="sift", view_centers=np.zeros((2, 3)), offsets=np.array([0, n, 2 * n]),
+                       xyz=np.concatenate([points, second]).astype(np.float32),
+                       keypoints=np.zeros((2 * n, 2), np.float32), scores=np.ones(2 * n, np.float32),
+                       descriptors=np.zeros((2 * n, 8), np.uint8), translation_view=np.array([0, 1]))
+
+
+@pytest.mark.parametrize("pnp_views", [5, 1])
+def test_identical_copy_is_the_pnp_rival(pnp_views):
+    """Two identical rooms 6 m apart: PnP on either copy's view explains all the query's features, so
+    the kept pose has a rival with as many inliers (also when only one view is tried by default: one
+    more view of a distinct candidate is tried); a second view of unrelated points gives no rival."""
+    from ldlmap.features import Features
+    from ldlloc.refine.features import RefineParams, refine_candidates
+
+    P, _ = _room(300, seed=3)
+    R0 = geo.rotation_from_axis_angle(np.array([0.0, 0.0, 1.0]), 0.7)
+    c0 = np.array([2.0, 1.5, 1.4])
+    W, H = 1024, 512
+    query = Features(geo.project_to_pixels(P, R0, c0, W, H).astype(np.float32), np.ones(len(P), np.float32),
+                     np.zeros((len(P), 8), np.uint8))
+    shift = np.array([6.0, 0.0, 0.0])
+    rotations = np.stack([R0, R0])
+    centers = np.stack([c0 + [0.1, 0.0, 0.0], c0 + shift])
+    params = RefineParams(pnp_views=pnp_views)
+    ref = refine_candidates(query, (W, H), rotations, centers, np.array([0, 1]), _copies_map(P, P + shift),
+                            _SameIndexMatcher(), params)
+    assert ref.refined and ref.num_inliers >= 290
+    assert ref.rival_inliers >= 0.95 * ref.num_inliers
+    # the kept pose is one copy's, the rival the other's
+    pair = sorted([ref.center[0], ref.rival_center[0]])
+    assert np.allclose(pair, [c0[0], c0[0] + 6.0], atol=0.01)
+
+    rng = np.random.default_rng(5)
+    ref = refine_candidates(query, (W, H), rotations, centers, np.array([0, 1]),
+                            _copies_map(P, rng.random(P.shape) * [5, 4, 2.6]), _SameIndexMatcher(), params)
+    assert ref.refined and np.allclose(ref.center, c0, atol=0.01)
+    assert ref.rival_inliers < 0.2 * ref.num_inliers

@@ -8,7 +8,10 @@ the most supporting matches wins (ties: more raw matches, then the better search
 matches of the best-supported distinct views (``pnp_views``) go to spherical PnP-RANSAC (pycolmap
 ``EQUIRECTANGULAR``) and the pose with the most inliers is kept. When PnP fails, or its pose is
 far (``max_shift_m`` / ``max_turn_deg``) from every one of the K candidates without strong
-support (``strong_inliers``, ``strong_ratio``), the coarse pose is kept and flagged.
+support (``strong_inliers``, ``strong_ratio``), the coarse pose is kept and flagged. The best PnP
+pose distinct from the kept one (another copy of an identical room explains the features as well)
+is kept as its ``rival``: PnP is tried on one more view, of a candidate distinct from the kept pose,
+when none of the tried views gave a distinct pose (:mod:`ldlloc.confidence` weighs it).
 """
 
 from __future__ import annotations
@@ -18,6 +21,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ldlmap.core.geometry import bearing_from_pixel, cam_from_world, normalize, rotation_error_deg
+from ldlloc.confidence import distinct
 from ldlloc.refine.pnp import PnPParams, estimate_pose_spherical
 
 
@@ -47,6 +51,10 @@ class Refinement:
     num_matches: int
     num_inliers: int
     message: str = ""
+    rival_rot: np.ndarray | None = None  # the best PnP pose distinct from this one (ldlloc.confidence.distinct)
+    rival_center: np.ndarray | None = None
+    rival_inliers: int = 0  # its inliers (0: no distinct PnP pose)
+    rival_candidate: int = -1  # the top-K candidate whose view gave it
 
 
 def keep_near_lines(keypoints_uv: np.ndarray, arcs: np.ndarray, width: int, height: int,
@@ -112,20 +120,28 @@ def refine_candidates(query_feats, query_size: tuple[int, int], rotations: np.nd
     out = Refinement(rotations[best], centers[best], False, best, int(raw[best]), 0)
     # PnP on the matches of the best-supported distinct views; keep the pose with most inliers.
     tried, results = set(), []
-    for k in order:
+
+    def pnp(k: int) -> None:
         v = int(views[k])
-        if v in tried or len(tried) >= params.pnp_views:
-            continue
         tried.add(v)
         m = matches_by_view[v]
-        if len(m) < params.pnp.min_inliers:
-            continue
-        res = estimate_pose_spherical(query_feats.keypoints[m[:, 0]], map_features.xyz[m[:, 1]], W, H, params.pnp)
-        if res is not None:
-            results.append((int(res.inliers.sum()), int(k), len(m), res))
+        if len(m) >= params.pnp.min_inliers:
+            res = estimate_pose_spherical(query_feats.keypoints[m[:, 0]], map_features.xyz[m[:, 1]], W, H, params.pnp)
+            if res is not None:
+                results.append((int(res.inliers.sum()), int(k), len(m), res))
+
+    for k in order:
+        if int(views[k]) not in tried and len(tried) < params.pnp_views:
+            pnp(int(k))
     if not results:
         out.message = f"too few matches ({raw[best]})" if raw[best] < params.pnp.min_inliers else "PnP-RANSAC failed"
         return out
+    top = max(results, key=lambda r: (r[0], -r[1]))[3]
+    if not any(distinct(top.rot_cam_from_world, top.center, r[3].rot_cam_from_world, r[3].center)[0] for r in results):
+        other = [int(k) for k in order if int(views[k]) not in tried
+                 and distinct(top.rot_cam_from_world, top.center, rotations[k], centers[k])[0]]
+        if other:  # one view of another place (an identical room's copy) tells whether the features single one out
+            pnp(other[0])
     inliers, k, n_matches, res = max(results, key=lambda r: (r[0], -r[1]))
     out.num_inliers, out.num_matches = inliers, n_matches
     # Plausible: close to one of the search's K poses, or so strongly supported that the search
@@ -140,4 +156,10 @@ def refine_candidates(query_feats, query_size: tuple[int, int], rotations: np.nd
         return out
     out.candidate = int(np.argmax(near)) if near.any() else k
     out.rot_cam_from_world, out.center, out.refined = res.rot_cam_from_world, res.center, True
+    rivals = [r for r in results if distinct(res.rot_cam_from_world, res.center, r[3].rot_cam_from_world,
+                                             r[3].center)[0]]
+    if rivals:
+        n, k_rival, _, rival = max(rivals, key=lambda r: (r[0], -r[1]))
+        out.rival_rot, out.rival_center, out.rival_inliers, out.rival_candidate = (
+            rival.rot_cam_from_world, rival.center, n, k_rival)
     return out
