@@ -25,7 +25,10 @@ when the horizontals are not perpendicular).
 More than three map directions (an Atlanta frame of the vertical and 3-6 horizontals, issue 23):
 every triplet of map directions that is not coplanar (the vertical and two horizontals; three
 horizontals fix no tilt from angles alone) is matched as above, the rotations of all are pooled
-and de-duplicated, and each candidate then pairs every map direction ``j`` with the vanishing
+and de-duplicated together with the rotations of pairs (any two non-parallel matched directions fix
+a rotation; the perpendicular pairs, i.e. the vertical and each horizontal, are matched to pairs of
+vanishing points at 90 deg, so a view of the vertical and one wall direction, where no triplet
+matches, still gets its rotation), and each candidate then pairs every map direction ``j`` with the vanishing
 point nearest ``R p_j`` (within ``ortho_tol_deg``; -1 when none), so arcs are grouped for all K
 directions (:func:`rotation_labels`: through that vanishing point, or through ``R p_j`` itself
 where none was voted).
@@ -264,6 +267,29 @@ def _distinct(R: np.ndarray, dedup_deg: float) -> np.ndarray:
     return keep
 
 
+def _pair_rotations(vp: np.ndarray, P: np.ndarray, ortho: float, rtol: float) -> tuple[np.ndarray, np.ndarray]:
+    """Rotations (M, 3, 3) and residuals (M,) from pairs: every perpendicular pair of map
+    directions (the vertical and each horizontal) matched to every pair of vanishing points at 90
+    deg (within ``ortho``), both orders and all signs; the third vector of each side is the cross
+    product of the two. Where a view shows the vertical and one wall direction only, no triplet
+    of vanishing points matches, but a pair does."""
+    sin_tol = np.sin(np.radians(ortho))
+    pa, pb = np.nonzero(np.triu(np.abs(P @ P.T) < sin_tol, 1))
+    va, vb = np.nonzero(np.abs(vp @ vp.T) < sin_tol)  # both orders (the matrix is symmetric)
+    if not len(pa) or not len(va):
+        return np.zeros((0, 3, 3)), np.zeros(0)
+    A = np.stack([P[pa], P[pb], np.cross(P[pa], P[pb])], 1)  # (Pm, 3, 3)
+    signs = np.array(list(product((1.0, -1.0), repeat=2)))  # (4, 2)
+    a = vp[va][None] * signs[:, None, :1]  # (4, Vm, 3)
+    b = vp[vb][None] * signs[:, None, 1:]
+    B = np.stack([a, b, np.cross(a, b)], 2).reshape(-1, 3, 3)  # (4 Vm, 3, 3)
+    AA = np.repeat(A, len(B), 0)
+    BB = np.tile(B, (len(A), 1, 1))
+    R, res = _kabsch(AA, BB)
+    keep = res < rtol
+    return R[keep], res[keep]
+
+
 def _candidates_of_many(vp: np.ndarray, P: np.ndarray, ortho_tol_deg: float | None, residual_tol: float | None,
                         params: PrincipalParams) -> RotationCandidates:
     """:func:`candidate_rotations` for K > 3 map directions: every non-coplanar map triplet
@@ -279,7 +305,10 @@ def _candidates_of_many(vp: np.ndarray, P: np.ndarray, ortho_tol_deg: float | No
         c = candidate_rotations(vp, P[list(trip)], ortho_tol_deg, residual_tol, params)
         rots.append(c.rotations)
         res.append(c.residuals)
-    if not rots or not sum(len(r) for r in rots):
+    pair_rots, pair_res = _pair_rotations(vp, P, ortho, params.residual_tol if residual_tol is None else residual_tol)
+    rots.append(pair_rots)
+    res.append(pair_res)
+    if not sum(len(r) for r in rots):
         return _empty(len(P))
     R, res = np.concatenate(rots), np.concatenate(res)
     order = np.argsort(res, kind="stable")

@@ -125,6 +125,12 @@ def test_candidate_rotations_and_labels_for_five_directions():
     assert min(rotation_error_deg(Rc, R) for Rc in upright.rotations) < 1.0
     with pytest.raises(InputError):
         rotation.candidate_rotations(vps, P[:2])
+    # a view of the vertical and one wall direction only: no triplet matches, a pair does
+    few = _room_arcs(P[:2], R, rng)
+    vps = rotation.vanishing_points(few, k=20)
+    assert len(rotation.candidate_rotations(vps, P[:3])) == 0  # 3 directions: triplets only
+    cands = rotation.candidate_rotations(vps, P)
+    assert min(rotation_error_deg(Rc, R) for Rc in cands.rotations) < 1.0
 
 
 def test_map_file_versions_by_direction_count(tmp_path):
