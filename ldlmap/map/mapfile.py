@@ -342,7 +342,9 @@ def _check_version(h5, path: Path) -> int:
         raise FormatVersionError(
             f"map {path} has format version {v}, this ldl-toolkit reads versions 1 to {FORMAT_VERSION} "
             f"({newer} version wrote it): rebuild it with `ldlmap build`")
-    k = h5["principal/directions"].shape[0] if isinstance(h5.get("principal/directions"), _dataset_type()) else 3
+    ds = h5.get("principal/directions")
+    shape = ds.shape if isinstance(ds, _dataset_type()) else None
+    k = shape[0] if shape is not None and len(shape) == 2 and shape[1] == 3 else 3  # other shapes: _check_schema
     if (k == 3) != (v == _VERSION_3_DIRECTIONS):
         raise InputError(f"corrupt LDL map {path}: format version {v} with {k} principal directions "
                          f"(version 1 has 3, version 2 more)")
