@@ -56,7 +56,7 @@ def rank_queries(dataset: Path, top_k: int = 20, device: str = "cpu"
     the line counts behind the search (``arcs_2d`` kept per query, ``lines_3d`` per map)."""
     from ldlloc.lines2d import detect_lines, filter_by_length
     from ldlloc.pipeline import LocalizeParams, load_image
-    from ldlloc.rotation import candidate_rotations, labels_for_rotations, vanishing_points
+    from ldlloc.rotation import candidate_rotations, rotation_labels, vanishing_points
     from ldlloc.search.pose_search import SearchParams, search_poses
     from ldlmap.datasets import open_dataset
     from ldlmap.core.errors import InputError
@@ -88,7 +88,7 @@ def rank_queries(dataset: Path, top_k: int = 20, device: str = "cpu"
                 rots = candidate_rotations(vps, m.principal_directions, params=p.principal)
                 if len(rots) == 0:
                     raise InputError("no candidate rotation")
-                labels = labels_for_rotations(arcs, vps, rots.triplets, p.principal.group_tol)
+                labels = rotation_labels(arcs, vps, rots, m.principal_directions, p.principal.group_tol)
             except InputError:
                 best_rot.append(np.inf)
                 for label, _, _ in VARIANTS:  # a failed query counts as not localized
@@ -98,7 +98,8 @@ def rank_queries(dataset: Path, top_k: int = 20, device: str = "cpu"
             best_rot.append(min(rotation_error_deg(R, q.rot_cam_from_world) for R in rots.rotations))
             for label, decompose, loss in VARIANTS:
                 res = search_poses(arcs, labels, rots.rotations, m.lines, m.line_groups, m.translations,
-                                   SearchParams(top_k=top_k, loss=loss, decompose=decompose), device)
+                                   SearchParams(top_k=top_k, loss=loss, decompose=decompose), device,
+                                   num_groups=len(m.principal_directions))
                 t = np.full(top_k, np.inf)
                 r = np.full(top_k, np.inf)
                 k = len(res.centers)

@@ -100,7 +100,7 @@ def main() -> None:
     from ldlloc.search.fields import DistanceFields
     from ldlloc.lines2d import detect_lines, filter_by_length
     from ldlloc.pipeline import load_image
-    from ldlloc.rotation import PrincipalParams, candidate_rotations, labels_for_rotations, vanishing_points
+    from ldlloc.rotation import PrincipalParams, candidate_rotations, rotation_labels, vanishing_points
     from ldlloc.search.pose_search import SearchParams, search_poses
 
     if args.threads > 0:
@@ -130,12 +130,12 @@ def main() -> None:
                 b = time.perf_counter()
                 vps = vanishing_points(arcs, pp.k_2d, pp)
                 rots = candidate_rotations(vps, m.principal_directions, params=pp)
-                labels = labels_for_rotations(arcs, vps, rots.triplets, pp.group_tol)
+                labels = rotation_labels(arcs, vps, rots, m.principal_directions, pp.group_tol)
                 c = time.perf_counter()
                 if len(rots) == 0:
                     continue
                 exact = search_poses(arcs, labels, rots.rotations, m.lines, m.line_groups, m.translations,
-                                     SearchParams(use_fields=False))
+                                     SearchParams(use_fields=False), num_groups=len(m.principal_directions))
                 d = time.perf_counter()
 
                 def fast_search(params: SearchParams):  # best of 3 calls
@@ -143,7 +143,7 @@ def main() -> None:
                     for _ in range(3):
                         a0 = time.perf_counter()
                         res = search_poses(arcs, labels, rots.rotations, m.lines, m.line_groups, m.translations,
-                                           params, fields=F)
+                                           params, fields=F, num_groups=len(m.principal_directions))
                         secs.append(time.perf_counter() - a0)
                     return res, min(secs)
 

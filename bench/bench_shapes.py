@@ -16,7 +16,8 @@ panorama with the defaults (``ldlloc run``'s library path):
   extraction and SIFT features).
 
 ``--build atlanta_frame=false`` gives every edge map the Manhattan frame (the comparison of
-docs/measurements.md#atlanta-frame).
+docs/measurements.md#atlanta-frame), ``--build max_horizontals=2`` Atlanta frames of the vertical
+and the main two horizontals only (docs/measurements.md#atlanta-many).
 
 Printed per kind and split, per map kind: search top-1 and best of the top 20 within 0.5 m / 10 deg,
 final within 0.1 m / 5 deg and 0.25 m / 5 deg, median errors, and how many final poses are upside

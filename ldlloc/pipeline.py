@@ -482,7 +482,7 @@ class Localizer:
         :class:`Localization` and what refinement needs. ``lines``: the panorama's 2D lines from
         :meth:`detect_lines` (shared with other maps; their seconds are counted as ``lines2d``)."""
         from ldlloc.lines2d import filter_by_length, query_keep_ratio
-        from ldlloc.rotation import candidate_rotations, filter_by_tilt, labels_for_rotations
+        from ldlloc.rotation import candidate_rotations, filter_by_tilt, rotation_labels
         from ldlloc.search.pose_search import search_poses
         from ldlmap.core.frame import is_identity
 
@@ -516,11 +516,11 @@ class Localizer:
                              f"({found} found; raise --max-tilt, or 180 for free rotation)")
         if len(rots) == 0:
             raise InputError("no candidate rotation: the panorama's vanishing points do not match the map's")
-        labels = labels_for_rotations(arcs, vps, rots.triplets, p.principal.group_tol)
+        labels = rotation_labels(arcs, vps, rots, m.principal_directions, p.principal.group_tol)
         lap("rotation")
         res = search_poses(arcs, labels, rots.rotations, m.lines, m.line_groups, m.translations,
                            p.search, self.device, fields=self.fields, visibility=m.visibility,
-                           coverage=m.coverage)
+                           coverage=m.coverage, num_groups=len(m.principal_directions))
         lap("search")
         best_r, best_t = res.rotations[0], res.centers[0]
         out = Localization(best_r, best_t, best_r, best_t, res.rotations, res.centers, secs,

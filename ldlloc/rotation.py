@@ -22,6 +22,17 @@ the map's own, so an Atlanta frame (the vertical and two horizontals at e.g. 45 
 23) is matched by triplets at those angles, with fewer relabelings (4 per physical rotation
 when the horizontals are not perpendicular).
 
+More than three map directions (an Atlanta frame of the vertical and 3-6 horizontals, issue 23):
+every triplet of map directions that is not coplanar (the vertical and two horizontals; three
+horizontals fix no tilt from angles alone) is matched as above, the rotations of all are pooled
+and de-duplicated together with the rotations of pairs (any two non-parallel matched directions fix
+a rotation; the perpendicular pairs, i.e. the vertical and each horizontal, are matched to pairs of
+vanishing points at 90 deg, so a view of the vertical and one wall direction, where no triplet
+matches, still gets its rotation), and each candidate then pairs every map direction ``j`` with the vanishing
+point nearest ``R p_j`` (within ``ortho_tol_deg``; -1 when none), so arcs are grouped for all K
+directions (:func:`rotation_labels`: through that vanishing point, or through ``R p_j`` itself
+where none was voted).
+
 Upright prior (:func:`filter_by_tilt`, ``ldlloc localize/run --max-tilt DEG``): an option beyond
 the paper, whose rotation is free. The camera's up axis is camera +z, in the world
 ``R.T @ e_z`` (the last row of ``R``); its tilt is the angle to the world's up ``e_z``,
@@ -57,16 +68,21 @@ class PrincipalParams:
 class RotationCandidates:
     """Candidate rotations (world to camera) and how each was obtained.
 
-    ``R @ principal3d[j] ~ signs[j] * vp2d[triplets[j]]`` for each candidate.
+    ``R @ principal3d[j] ~ signs[j] * vp2d[triplets[j]]`` for each candidate and each map
+    direction j that a vanishing point matches (``triplets[j] >= 0``; always, with 3 directions).
     """
 
     rotations: np.ndarray  # (N_r, 3, 3)
-    triplets: np.ndarray  # (N_r, 3) int: index into vp2d matched to 3D direction j = 0, 1, 2
-    signs: np.ndarray  # (N_r, 3) +-1
+    triplets: np.ndarray  # (N_r, K) int: index into vp2d matched to 3D direction j (-1: none, K > 3 only)
+    signs: np.ndarray  # (N_r, K) +-1
     residuals: np.ndarray  # (N_r,) mean squared residual of the alignment
 
     def __len__(self) -> int:
         return int(len(self.rotations))
+
+    def subset(self, keep: np.ndarray) -> "RotationCandidates":
+        """The candidates selected by ``keep`` (a mask or indices), in that order."""
+        return RotationCandidates(self.rotations[keep], self.triplets[keep], self.signs[keep], self.residuals[keep])
 
 
 # ------------------------------------------------------------------------------------- helpers
@@ -170,14 +186,17 @@ def _kabsch(A: np.ndarray, B: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return R, res
 
 
+MIN_TRIPLET_DET = 0.2  # map triplets with |det| below this are (near) coplanar: not matched (K > 3)
+
+
 def candidate_rotations(vp2d: np.ndarray, principal3d: np.ndarray,
                         ortho_tol_deg: float | None = None, residual_tol: float | None = None,
                         params: PrincipalParams = PrincipalParams()) -> RotationCandidates:
-    """Candidate rotations from 2D vanishing points and the map's 3 principal directions.
+    """Candidate rotations from 2D vanishing points and the map's K >= 3 principal directions.
 
     Args:
         vp2d: (k, 3) unit 2D principal directions (camera frame), e.g. :func:`vanishing_points`.
-        principal3d: (3, 3) unit 3D principal directions (world frame), one per row.
+        principal3d: (K, 3) unit 3D principal directions (world frame), one per row.
         ortho_tol_deg, residual_tol: override ``params`` (see :class:`PrincipalParams`).
 
     Returns:
@@ -187,15 +206,17 @@ def candidate_rotations(vp2d: np.ndarray, principal3d: np.ndarray,
     P = np.asarray(principal3d, dtype=np.float64)
     if vp.ndim != 2 or vp.shape[1] != 3:
         raise InputError(f"2D principal directions must have shape (k, 3), got {vp.shape}")
-    if P.shape != (3, 3):
-        raise InputError(f"3D principal directions must have shape (3, 3), got {P.shape}")
+    if P.ndim != 2 or P.shape[1] != 3 or len(P) < 3:
+        raise InputError(f"3D principal directions must have shape (K, 3) with K >= 3, got {P.shape}")
     if not (np.isfinite(vp).all() and np.isfinite(P).all()):
         raise InputError("principal directions contain NaN or infinite values")
+    if len(P) > 3:
+        return _candidates_of_many(vp, P, ortho_tol_deg, residual_tol, params)
     ortho = params.ortho_tol_deg if ortho_tol_deg is None else ortho_tol_deg
     rtol = params.residual_tol if residual_tol is None else residual_tol
     vp = vp / np.maximum(np.linalg.norm(vp, axis=1, keepdims=True), 1e-12)
     P = P / np.maximum(np.linalg.norm(P, axis=1, keepdims=True), 1e-12)
-    empty = RotationCandidates(np.zeros((0, 3, 3)), np.zeros((0, 3), np.int64), np.zeros((0, 3)), np.zeros(0))
+    empty = _empty(3)
     if len(vp) < 3:
         return empty
     tri = np.array(list(combinations(range(len(vp)), 3)), dtype=np.int64)  # (T, 3), T <= 1140
@@ -223,18 +244,85 @@ def candidate_rotations(vp2d: np.ndarray, principal3d: np.ndarray,
     R, res = R[keep], res[keep]
     order = np.argsort(res, kind="stable")
     R, res, triplets, signs = R[order], res[order], triplets[order], signs[order]
-    # Greedy de-duplication in residual order (vectorized over all pairs).
+    keep = _distinct(R, params.dedup_deg)
+    return RotationCandidates(R[keep], triplets[keep].astype(np.int64), signs[keep], res[keep])
+
+
+def _empty(k: int) -> RotationCandidates:
+    return RotationCandidates(np.zeros((0, 3, 3)), np.zeros((0, k), np.int64), np.zeros((0, k)), np.zeros(0))
+
+
+def _distinct(R: np.ndarray, dedup_deg: float) -> np.ndarray:
+    """Mask of the rotations (N, 3, 3), in their order, that are not within ``dedup_deg`` of an
+    earlier kept one (greedy, vectorized over all pairs)."""
+    keep = np.ones(len(R), dtype=bool)
     if len(R):
         tr = np.einsum("aij,bij->ab", R, R)  # trace(R_a^T R_b)
-        close = np.degrees(np.arccos(np.clip((tr - 1.0) / 2.0, -1.0, 1.0))) < params.dedup_deg
-        keep = np.ones(len(R), dtype=bool)
+        close = np.degrees(np.arccos(np.clip((tr - 1.0) / 2.0, -1.0, 1.0))) < dedup_deg
         for i in range(len(R)):  # N_r ~ 10-1000 candidates, a cheap loop over candidates
             if keep[i]:
                 dup = close[i].copy()
                 dup[: i + 1] = False
                 keep &= ~dup
-        R, res, triplets, signs = R[keep], res[keep], triplets[keep], signs[keep]
-    return RotationCandidates(R, triplets.astype(np.int64), signs, res)
+    return keep
+
+
+def _pair_rotations(vp: np.ndarray, P: np.ndarray, ortho: float, rtol: float) -> tuple[np.ndarray, np.ndarray]:
+    """Rotations (M, 3, 3) and residuals (M,) from pairs: every perpendicular pair of map
+    directions (the vertical and each horizontal) matched to every pair of vanishing points at 90
+    deg (within ``ortho``), both orders and all signs; the third vector of each side is the cross
+    product of the two. Where a view shows the vertical and one wall direction only, no triplet
+    of vanishing points matches, but a pair does."""
+    sin_tol = np.sin(np.radians(ortho))
+    pa, pb = np.nonzero(np.triu(np.abs(P @ P.T) < sin_tol, 1))
+    va, vb = np.nonzero(np.abs(vp @ vp.T) < sin_tol)  # both orders (the matrix is symmetric)
+    if not len(pa) or not len(va):
+        return np.zeros((0, 3, 3)), np.zeros(0)
+    A = np.stack([P[pa], P[pb], np.cross(P[pa], P[pb])], 1)  # (Pm, 3, 3)
+    signs = np.array(list(product((1.0, -1.0), repeat=2)))  # (4, 2)
+    a = vp[va][None] * signs[:, None, :1]  # (4, Vm, 3)
+    b = vp[vb][None] * signs[:, None, 1:]
+    B = np.stack([a, b, np.cross(a, b)], 2).reshape(-1, 3, 3)  # (4 Vm, 3, 3)
+    AA = np.repeat(A, len(B), 0)
+    BB = np.tile(B, (len(A), 1, 1))
+    R, res = _kabsch(AA, BB)
+    keep = res < rtol
+    return R[keep], res[keep]
+
+
+def _candidates_of_many(vp: np.ndarray, P: np.ndarray, ortho_tol_deg: float | None, residual_tol: float | None,
+                        params: PrincipalParams) -> RotationCandidates:
+    """:func:`candidate_rotations` for K > 3 map directions: every non-coplanar map triplet
+    matched, the rotations pooled in residual order and de-duplicated, then every map direction
+    paired with the vanishing point nearest its image (see the module docstring)."""
+    P = P / np.maximum(np.linalg.norm(P, axis=1, keepdims=True), 1e-12)
+    vp = vp / np.maximum(np.linalg.norm(vp, axis=1, keepdims=True), 1e-12)
+    ortho = params.ortho_tol_deg if ortho_tol_deg is None else ortho_tol_deg
+    rots, res = [], []
+    for trip in combinations(range(len(P)), 3):
+        if abs(np.linalg.det(P[list(trip)])) < MIN_TRIPLET_DET:
+            continue
+        c = candidate_rotations(vp, P[list(trip)], ortho_tol_deg, residual_tol, params)
+        rots.append(c.rotations)
+        res.append(c.residuals)
+    pair_rots, pair_res = _pair_rotations(vp, P, ortho, params.residual_tol if residual_tol is None else residual_tol)
+    rots.append(pair_rots)
+    res.append(pair_res)
+    if not sum(len(r) for r in rots):
+        return _empty(len(P))
+    R, res = np.concatenate(rots), np.concatenate(res)
+    order = np.argsort(res, kind="stable")
+    R, res = R[order], res[order]
+    keep = _distinct(R, params.dedup_deg)
+    R, res = R[keep], res[keep]
+    img = np.einsum("rab,kb->rka", R, P)  # (N_r, K, 3): R p_j
+    dots = np.einsum("rka,va->rkv", img, vp)  # (N_r, K, V)
+    best = np.abs(dots).argmax(-1)
+    cos = np.take_along_axis(dots, best[..., None], -1)[..., 0]
+    matched = np.abs(cos) >= np.cos(np.radians(ortho))
+    triplets = np.where(matched, best, -1).astype(np.int64)
+    signs = np.where(cos < 0, -1.0, 1.0)
+    return RotationCandidates(R, triplets, signs, res)
 
 
 # ------------------------------------------------------------------------------------- grouping
@@ -253,6 +341,27 @@ def assign_arcs_to_principal(arcs: np.ndarray, dirs: np.ndarray, tol: float = 0.
     c = np.abs(normals @ D.T)
     g = np.argmin(c, axis=1) if len(D) else np.zeros(len(normals), np.int64)
     ok = (np.take_along_axis(c, g[:, None], 1)[:, 0] < tol) & (np.linalg.norm(normals, axis=1) > 0)
+    return np.where(ok, g, -1).astype(np.int64)
+
+
+def rotation_labels(arcs: np.ndarray, vp2d: np.ndarray, rots: RotationCandidates, principal3d: np.ndarray,
+                    tol: float = 0.05) -> np.ndarray:
+    """2D group labels per rotation candidate, (N_r, N) int, for the map's K principal directions:
+    :func:`labels_for_rotations` with 3; with more, arc ``l`` joins group ``j`` when its great
+    circle passes (the smallest of the K ``|n . p|``, below ``tol``) through the vanishing point
+    matched to direction ``j``, or through ``R p_j`` where none was matched; -1 otherwise."""
+    P = np.asarray(principal3d, dtype=np.float64)
+    if len(P) == 3:
+        return labels_for_rotations(arcs, vp2d, rots.triplets, tol)
+    normals, _ = arc_normals(arcs)
+    vp = np.asarray(vp2d, dtype=np.float64).reshape(-1, 3)
+    img = np.einsum("rab,kb->rka", rots.rotations, P)  # (N_r, K, 3)
+    trip = np.asarray(rots.triplets, dtype=np.int64)
+    if len(vp):
+        img = np.where((trip >= 0)[..., None], vp[np.clip(trip, 0, None)], img)
+    c = np.abs(np.einsum("na,rka->rnk", normals, img))  # (N_r, N, K)
+    g = np.argmin(c, axis=2)
+    ok = (np.min(c, axis=2) < tol) & (np.linalg.norm(normals, axis=1) > 0)[None, :]
     return np.where(ok, g, -1).astype(np.int64)
 
 
@@ -301,5 +410,4 @@ def filter_by_tilt(rots: RotationCandidates, max_tilt_deg: float) -> RotationCan
         raise InputError(f"the tilt bound must be a finite angle >= 0 degrees, got {max_tilt_deg}")
     if tilt >= 180.0 or len(rots) == 0:
         return rots
-    keep = camera_tilt_deg(rots.rotations) <= tilt + 1e-9
-    return RotationCandidates(rots.rotations[keep], rots.triplets[keep], rots.signs[keep], rots.residuals[keep])
+    return rots.subset(camera_tilt_deg(rots.rotations) <= tilt + 1e-9)

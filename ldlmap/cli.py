@@ -87,13 +87,13 @@ def info(map_path: Path = typer.Argument(..., metavar="MAP", help="An LDL map (.
 
 
 def _principal_rows(header: dict) -> list[tuple[str, str]]:
-    """Table rows: the 3 principal directions (unit vectors, world frame) with their line counts,
-    the angles between them, and the lines in no group."""
+    """Table rows: the K principal directions (unit vectors, world frame) with their line counts,
+    the angles between them (of the first 3: more are horizontals), and the lines in no group."""
     import numpy as np
 
     P, counts = np.asarray(header["principal_directions"], dtype=np.float64), header["line_group_counts"]
     vecs = "\n".join(f"d{i} = [{P[i, 0]: .4f}, {P[i, 1]: .4f}, {P[i, 2]: .4f}]"
-                     + (f"  {counts[i]} lines" if counts else "") for i in range(3))
+                     + (f"  {counts[i]} lines" if counts else "") for i in range(len(P)))
     ang = {f"d{i}-d{j}": np.degrees(np.arccos(np.clip(P[i] @ P[j], -1.0, 1.0))) for i, j in ((0, 1), (0, 2), (1, 2))}
     rows = [("principal directions", vecs),
             ("angles between them", ", ".join(f"{k} {v:.2f} deg" for k, v in ang.items()))]

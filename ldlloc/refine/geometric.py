@@ -253,27 +253,27 @@ def _associate(R, t, X, arc_of, n2, L, G3, P3, group_tol, margin, thr):
     import torch
 
     f = torch.float32
-    K, nx = len(R), len(X)
+    K, nx, ng = len(R), len(X), len(P3)
     # Group of each arc under each pose: the principal direction its great circle passes through.
-    d = torch.einsum("kij,gj->kgi", R, P3)  # (K, 3, 3) R p_g
-    c = torch.einsum("ni,kgi->kng", n2, d).abs()  # (K, N, 3)
+    d = torch.einsum("kij,gj->kgi", R, P3)  # (K, G, 3) R p_g
+    c = torch.einsum("ni,kgi->kng", n2, d).abs()  # (K, N, G)
     cmin, g2 = c.min(-1)
     g2 = torch.where(cmin < group_tol, g2, torch.full_like(g2, -1))
     gx = torch.gather(g2, 1, arc_of[None].expand(K, -1))  # (K, X)
-    groups = torch.arange(3, device=X.device)
-    pts, pts_ok = _padded_members((gx[:, None, :] == groups[None, :, None]).reshape(K * 3, nx))  # (3K, P)
-    lns, lns_ok = _padded_members((G3[:, None, :] == groups[None, :, None]).reshape(K * 3, -1))
+    groups = torch.arange(ng, device=X.device)
+    pts, pts_ok = _padded_members((gx[:, None, :] == groups[None, :, None]).reshape(K * ng, nx))  # (GK, P)
+    lns, lns_ok = _padded_members((G3[:, None, :] == groups[None, :, None]).reshape(K * ng, -1))
     n, s, e = _line_geometry(R, t, L)  # (K, L, 3)
     V = torch.stack([n, torch.linalg.cross(n, s, dim=-1), torch.linalg.cross(e, n, dim=-1)], 2).to(f)  # (K, L, 3, 3)
-    pose = torch.arange(K, device=X.device).repeat_interleave(3)[:, None]  # (3K, 1)
+    pose = torch.arange(K, device=X.device).repeat_interleave(ng)[:, None]  # (GK, 1)
     Vb = V[pose, lns]  # (3K, Lb, 3, 3)
     offset = torch.where(lns_ok, float(margin), -10.0).to(f)  # (3K, Lb): padding lines fail the extent
     Vb = torch.cat([Vb, torch.stack([torch.zeros_like(offset), offset, offset], -1)[..., None]], -1)  # (3K, Lb, 3, 4)
     Xh = torch.cat([X.to(f), torch.ones((nx, 1), dtype=f, device=X.device)], 1)[pts]  # (3K, P, 4)
-    dots = torch.matmul(Vb.reshape(K * 3, -1, 4), Xh.transpose(1, 2)).reshape(K * 3, lns.shape[1], 3, -1)
+    dots = torch.matmul(Vb.reshape(K * ng, -1, 4), Xh.transpose(1, 2)).reshape(K * ng, lns.shape[1], 3, -1)
     inside = torch.minimum(dots[:, :, 1], dots[:, :, 2]) > 0
     best, idx = torch.where(inside, dots[:, :, 0].abs(), 2.0).min(1)  # (3K, P)
-    line = torch.where(best < thr.repeat_interleave(3)[:, None], torch.gather(lns, 1, idx), torch.full_like(idx, -1))
+    line = torch.where(best < thr.repeat_interleave(ng)[:, None], torch.gather(lns, 1, idx), torch.full_like(idx, -1))
     match = torch.full((K, nx + 1), -1, dtype=torch.long, device=X.device)  # column nx: the padding
     match[pose.expand_as(pts), torch.where(pts_ok, pts, torch.full_like(pts, nx))] = line
     return match[:, :nx], g2

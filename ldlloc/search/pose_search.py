@@ -72,7 +72,7 @@ class SearchResult:
 def search_poses(arcs2d: np.ndarray, labels2d: np.ndarray, rotations: np.ndarray, lines3d: np.ndarray,
                  line_groups: np.ndarray, translations: np.ndarray, params: SearchParams = SearchParams(),
                  device: str = "cpu", fields=None, visibility: np.ndarray | None = None,
-                 coverage: np.ndarray | None = None) -> SearchResult:
+                 coverage: np.ndarray | None = None, num_groups: int = 3) -> SearchResult:
     """Rank every (translation, rotation) pair and return the ``top_k`` poses, best first.
 
     ``arcs2d`` (N, 2, 3) are the query's (length-filtered) arcs in the camera frame and
@@ -84,6 +84,8 @@ def search_poses(arcs2d: np.ndarray, labels2d: np.ndarray, rotations: np.ndarray
     (maps with walls; the fields were computed with it), None: all. ``coverage`` (N_t, G + 1, 2G)
     bool: the directions that meet a mapped surface from each translation
     (:func:`ldlmap.map.visibility.coverage_fields`), used by the re-scoring (``coverage_cap``).
+    ``num_groups``: the map's principal directions K (3; more for an Atlanta frame of several
+    horizontals): one decomposed function per direction.
     """
     import torch
 
@@ -98,9 +100,8 @@ def search_poses(arcs2d: np.ndarray, labels2d: np.ndarray, rotations: np.ndarray
     Q = ldf.query_points(params.query_level, device=device, dtype=dt)
     arcs_t = torch.as_tensor(np.asarray(arcs2d), dtype=dt, device=device)
     if params.decompose:
-        f2d = ldf.decomposed_distance_2d(Q, arcs_t, torch.as_tensor(np.asarray(labels2d), device=device), 3)
+        f2d = ldf.decomposed_distance_2d(Q, arcs_t, torch.as_tensor(np.asarray(labels2d), device=device), num_groups)
         groups3d = np.asarray(line_groups)
-        num_groups = 3
     else:  # eq. 4: one distance function over all lines
         f2d = ldf.decomposed_distance_2d(Q, arcs_t, torch.zeros(len(arcs2d), dtype=torch.long, device=device), 1)
         groups3d = np.zeros(len(lines3d), dtype=np.int64)
@@ -135,11 +136,11 @@ def search_poses(arcs2d: np.ndarray, labels2d: np.ndarray, rotations: np.ndarray
             Q = ldf.query_points(level, device=device, dtype=dt)
             uniq, inv = torch.unique(ri, return_inverse=True)
             lab = torch.as_tensor(np.asarray(labels2d), device=device)[uniq]
-            f2d_at = ldf.decomposed_distance_2d(Q, arcs_t, lab, 3)[inv]
+            f2d_at = ldf.decomposed_distance_2d(Q, arcs_t, lab, num_groups)[inv]
         else:
             f2d_at = f2d[ri] if f2d.dim() == 3 else f2d
-        f3d = ldf.ldf_3d_at(Q, rotations, translations, lines3d, groups3d, ti, ri, device=device, dtype=dt,
-                            visibility=visibility)
+        f3d = ldf.ldf_3d_at(Q, rotations, translations, lines3d, groups3d, ti, ri, num_groups=num_groups,
+                            device=device, dtype=dt, visibility=visibility)
         lv = _rescored_loss(f2d_at, f3d, Q, np.asarray(rotations)[ri.cpu().numpy()], ti.cpu().numpy(), coverage, params)
         order = torch.sort(lv, stable=True).indices[:params.top_k]
         ti, ri, lv = ti[order], ri[order], lv[order]
@@ -173,10 +174,11 @@ def score_poses(arcs2d: np.ndarray, rotations: np.ndarray, centers: np.ndarray, 
     dt = torch.float32
     Q = ldf.query_points(params.rescore_query_level or params.query_level, device=device, dtype=dt)
     arcs_t = torch.as_tensor(np.asarray(arcs2d), dtype=dt, device=device)
-    f2d = ldf.decomposed_distance_2d(Q, arcs_t, torch.as_tensor(labels, device=device), 3)  # (M, G, Q)
+    ng = len(np.asarray(principal3d))
+    f2d = ldf.decomposed_distance_2d(Q, arcs_t, torch.as_tensor(labels, device=device), ng)  # (M, G, Q)
     vis = None if visibility is None else np.asarray(visibility)[ti]
-    f3d = ldf.ldf_3d_at(Q, R, C, lines3d, line_groups, np.arange(len(R)), np.arange(len(R)), device=device,
-                        dtype=dt, visibility=vis)
+    f3d = ldf.ldf_3d_at(Q, R, C, lines3d, line_groups, np.arange(len(R)), np.arange(len(R)), num_groups=ng,
+                        device=device, dtype=dt, visibility=vis)
     return _rescored_loss(f2d, f3d, Q, R, ti, coverage, replace(params, loss="inlier")).cpu().numpy().astype(np.float64)
 
 

@@ -12,18 +12,20 @@ import numpy as np
 from ldlmap.core.errors import InputError, atomic_file
 from ldlmap.core.geometry import cam_from_world, normalize, pixel_from_bearing
 
-GROUP_COLORS_BGR = {0: (40, 40, 230), 1: (40, 180, 40), 2: (230, 90, 40), -1: (150, 150, 150)}
+GROUP_COLORS_BGR = {0: (40, 40, 230), 1: (40, 180, 40), 2: (230, 90, 40), -1: (150, 150, 150),
+                    # Atlanta frames of more than 3 directions (issue 23): further horizontals
+                    3: (30, 200, 230), 4: (200, 60, 200), 5: (200, 200, 40), 6: (20, 110, 240)}
 
 
-GROUP_NAMES = {0: "d0", 1: "d1", 2: "d2", -1: "no group"}
+GROUP_NAMES = {**{g: f"d{g}" for g in range(7)}, -1: "no group"}
 BAND_BGR = (30, 30, 30)  # the caption band under a picture: white text on dark grey
 
 
 def group_legend(principal: np.ndarray | None = None) -> list[tuple[tuple[int, int, int], str]]:
     """Legend entries (BGR colour, label) of the principal groups; given the map's principal
-    directions (3, 3), each label says whether its direction is the vertical one."""
+    directions (K, 3), each label says whether its direction is the vertical one."""
     items = []
-    for g in (0, 1, 2):
+    for g in range(3 if principal is None else len(principal)):
         label = GROUP_NAMES[g]
         if principal is not None:
             label += " vertical" if abs(float(np.asarray(principal)[g][2])) > 0.9 else " horizontal"

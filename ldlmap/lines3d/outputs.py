@@ -52,7 +52,8 @@ def top_view_image(lines: np.ndarray, size: int = 1000, principal: np.ndarray | 
 
             v = L[:, 1] - L[:, 0]
             groups = assign_line_groups(v, principal)
-        colors = {0: (40, 40, 220), 1: (40, 170, 40), 2: (220, 80, 40), -1: (90, 90, 90)}  # BGR
+        colors = {0: (40, 40, 220), 1: (40, 170, 40), 2: (220, 80, 40), 3: (30, 200, 230), 4: (200, 60, 200),
+                  5: (200, 200, 40), 6: (20, 110, 240), -1: (90, 90, 90)}  # BGR; 3-6: Atlanta frames of more
         for (a, b), g in zip(px(L), groups):
             cv2.line(img, tuple(map(int, a)), tuple(map(int, b)), colors.get(int(g), (90, 90, 90)), 2, cv2.LINE_AA)
     return img

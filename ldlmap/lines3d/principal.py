@@ -10,12 +10,13 @@ to the refined direction are removed and the vote repeats, ``k`` times (k3D = 3)
 the triplet is made right-handed by flipping the third direction when ``det < 0``.
 :func:`manhattan_frame` then gives the nearest orthonormal frame (the paper's assumption), and
 :func:`principal_frame` chooses between it and an Atlanta frame (the vertical and the two main
-horizontal directions, at whatever angle they meet) for rooms whose walls are not at right angles.
+horizontal directions, at whatever angle they meet, and any further horizontal direction that holds
+a stated share of the line length) for rooms whose walls are not at right angles.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -165,6 +166,12 @@ class FrameParams:
     # (closer directions could not be told apart: the map's directions must differ by arccos 0.9)
     vote_deg: float = 2.0  # azimuth votes smoothed over +- this
     refine_deg: float = 5.0  # a direction is the circular mean of the azimuths this close to its peak
+    max_horizontals: int = 4  # Atlanta frames: at most this many horizontal directions (the map then has
+    # 1 + this many principal directions; docs/measurements.md#atlanta-many)
+    min_share: float = 0.08  # ... each beyond the first holding at least this share of the horizontal line
+    # length (within refine_deg of it), so clutter (a table at an angle) adds no direction
+    extra_share: float = 0.1  # a room whose two main horizontals are perpendicular keeps the Manhattan
+    # frame unless its other horizontal directions hold at least this share of the horizontal length
 
 
 def _vertical(E: np.ndarray, u: np.ndarray) -> tuple[int, np.ndarray]:
@@ -218,14 +225,10 @@ def _deviation(F: np.ndarray, E: np.ndarray) -> np.ndarray:
     return np.degrees(np.arccos(np.clip(np.abs(np.sum(F * normalize(E), axis=1)), -1.0, 1.0)))
 
 
-def horizontal_directions(lines: np.ndarray, v: np.ndarray, params: FrameParams = FrameParams()
-                          ) -> tuple[np.ndarray, float] | None:
-    """The two main horizontal line directions (2, 3) (unit, perpendicular to ``v``) and the angle
-    between them in degrees (in [0, 90]), or None when the lines hold no two.
-
-    Azimuths (modulo 180 degrees) of the lines within ``horizontal_deg`` of horizontal vote,
-    length-weighted; the second direction is the peak among the lines at least ``separate_deg``
-    from the first (so the first's noise is not taken for it)."""
+def _horizontal_azimuths(lines: np.ndarray, v: np.ndarray, params: FrameParams
+                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+    """Azimuths (degrees modulo 180) and lengths of the lines within ``horizontal_deg`` of
+    horizontal, and the horizontal basis ``e1``, ``e2`` they are measured in; None without any."""
     d, w = line_directions(lines)
     v = normalize(np.asarray(v, dtype=np.float64)[None])[0]
     e1 = _any_perpendicular(v)
@@ -233,24 +236,66 @@ def horizontal_directions(lines: np.ndarray, v: np.ndarray, params: FrameParams 
     hz = (np.abs(d @ v) < np.sin(np.radians(params.horizontal_deg))) & (w > 1e-12)
     if not hz.any():
         return None
-    phi, wh = np.degrees(np.arctan2(d[hz] @ e2, d[hz] @ e1)) % 180.0, w[hz]
-    a1 = _azimuth_peak(phi, wh, 180.0, params.vote_deg, params.refine_deg)
-    far = np.abs((phi - a1 + 90.0) % 180.0 - 90.0) >= params.separate_deg
-    if not far.any():
+    return np.degrees(np.arctan2(d[hz] @ e2, d[hz] @ e1)) % 180.0, w[hz], e1, e2
+
+
+def _apart(a: np.ndarray | float, b: float) -> np.ndarray | float:
+    """Angle between azimuths modulo 180 degrees, in [0, 90]."""
+    return np.abs((np.asarray(a) - b + 90.0) % 180.0 - 90.0)
+
+
+def horizontal_peaks(lines: np.ndarray, v: np.ndarray, params: FrameParams = FrameParams()
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """The main horizontal line directions (n, 3) (unit, perpendicular to ``v``; n in 2 ..
+    ``max_horizontals``), the share of the horizontal line length within ``refine_deg`` of each
+    (n,) and their azimuths (n,) in degrees, strongest first; None when the lines hold no two.
+
+    Azimuths (modulo 180 degrees) of the lines within ``horizontal_deg`` of horizontal vote,
+    length-weighted; each next direction is the peak among the lines at least ``separate_deg`` from
+    every direction found (so a found direction's noise is not taken for another). The first two
+    are found whatever their share (:func:`horizontal_directions`); a third and later one only with
+    at least ``min_share`` of the length."""
+    hz = _horizontal_azimuths(lines, v, params)
+    if hz is None:
         return None
-    a2 = _azimuth_peak(phi[far], wh[far], 180.0, params.vote_deg, params.refine_deg)
-    between = abs((a2 - a1 + 90.0) % 180.0 - 90.0)
-    if between < params.separate_deg:  # the refined mean slid back towards the first
+    phi, wh, e1, e2 = hz
+    total = max(float(wh.sum()), 1e-12)
+    found: list[float] = []
+    shares: list[float] = []
+    far = np.ones(len(phi), bool)
+    while len(found) < max(2, params.max_horizontals) and far.any():
+        a = _azimuth_peak(phi[far], wh[far], 180.0, params.vote_deg, params.refine_deg)
+        if any(_apart(a, b) < params.separate_deg for b in found):  # the refined mean slid back towards one
+            break
+        share = float(wh[_apart(phi, a) <= params.refine_deg].sum()) / total
+        if len(found) >= 2 and share < params.min_share:
+            break
+        found.append(a)
+        shares.append(share)
+        far &= _apart(phi, a) >= params.separate_deg
+    if len(found) < 2:
         return None
-    H = np.stack([np.cos(np.radians(a)) * e1 + np.sin(np.radians(a)) * e2 for a in (a1, a2)])
-    return H, float(between)
+    H = np.stack([np.cos(np.radians(a)) * e1 + np.sin(np.radians(a)) * e2 for a in found])
+    return H, np.asarray(shares), np.asarray(found)
+
+
+def horizontal_directions(lines: np.ndarray, v: np.ndarray, params: FrameParams = FrameParams()
+                          ) -> tuple[np.ndarray, float] | None:
+    """The two main horizontal line directions (2, 3) (unit, perpendicular to ``v``) and the angle
+    between them in degrees (in [0, 90]), or None when the lines hold no two
+    (:func:`horizontal_peaks`' first two)."""
+    found = horizontal_peaks(lines, v, replace(params, max_horizontals=2))
+    if found is None:
+        return None
+    H, _, azimuth = found
+    return H, float(_apart(azimuth[1], azimuth[0]))
 
 
 def principal_frame(lines: np.ndarray, estimated: np.ndarray, up: np.ndarray = (0.0, 0.0, 1.0),
                     params: FrameParams = FrameParams()) -> tuple[np.ndarray, np.ndarray, str]:
     """The map's principal directions: the Manhattan frame, or an Atlanta frame where the walls
-    are not at right angles. Returns ``(frame (3, 3), deviation_deg (3,), kind)``, kind
-    ``"manhattan"`` or ``"atlanta"``.
+    are not at right angles. Returns ``(frame (K, 3), deviation_deg (3,), kind)``, kind
+    ``"manhattan"`` (K = 3) or ``"atlanta"`` (K = 3 .. 1 + ``max_horizontals``).
 
     The vertical is kept as :func:`manhattan_frame` keeps it; the horizontals come from the
     horizontal lines only (:func:`horizontal_directions`: sloped ceiling edges and other inclined
@@ -258,21 +303,28 @@ def principal_frame(lines: np.ndarray, estimated: np.ndarray, up: np.ndarray = (
     perpendicular (boxes), or more than ``max_inclined_share`` of the line length is inclined
     (sloped ceilings), the Manhattan frame is used (:func:`manhattan_frame`, unchanged); otherwise
     the frame is (vertical, first, second horizontal): walls at 30-75 degrees keep their own
-    directions instead of being folded onto a perpendicular pair. Rows are ordered like
-    ``estimated`` and right-handed; ``deviation_deg``: each estimated direction's angle to its row.
+    directions instead of being folded onto a perpendicular pair. Rooms whose walls run in more
+    than two horizontal directions (:func:`horizontal_peaks`: each further one holding at least
+    ``min_share`` of the horizontal line length) keep them all, as rows 3 and on, whether or not
+    the main two are perpendicular, once those further ones hold ``extra_share`` of the length
+    together (below that, with a perpendicular main pair: the Manhattan frame, as for boxes). The
+    first three rows are ordered like ``estimated`` and right-handed; ``deviation_deg``: each
+    estimated direction's angle to its row.
     """
     E = np.asarray(estimated, dtype=np.float64)
     if E.shape != (3, 3):
         raise InputError(f"estimated principal directions must have shape (3, 3), got {E.shape}")
     u = normalize(np.asarray(up, dtype=np.float64)[None])[0]
     kv, v = _vertical(E, u)
-    found = horizontal_directions(lines, v, params)
+    found = horizontal_peaks(lines, v, params)
     d, w = line_directions(lines)
     elevation = np.degrees(np.arcsin(np.clip(np.abs(d @ v), 0.0, 1.0)))
     inclined = (elevation > params.horizontal_deg) & (elevation < 90.0 - params.horizontal_deg)
     sloped = w[inclined].sum() > params.max_inclined_share * max(w.sum(), 1e-12)
-    if found is None or 90.0 - found[1] <= params.atlanta_deg or sloped:
+    perpendicular = found is not None and 90.0 - float(_apart(found[2][1], found[2][0])) <= params.atlanta_deg
+    if found is None or sloped or (perpendicular and found[1][2:].sum() < params.extra_share):
         F, dev = manhattan_frame(lines, E, u)
         return F, dev, "manhattan"
-    F = _order_like(np.concatenate([v[None], found[0]]), E, kv)
-    return F, _deviation(F, E), "atlanta"
+    H = found[0]
+    F = _order_like(np.concatenate([v[None], H[:2]]), E, kv)
+    return np.concatenate([F, H[2:]]), _deviation(F, E), "atlanta"

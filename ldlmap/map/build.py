@@ -13,10 +13,11 @@ Stages (paper section 3.1, DESIGN.md 5.1-5.4), each timed:
 3. ``principal``: the 3 principal directions by voting, then the map's frame
    (:func:`ldlmap.lines3d.principal.principal_frame`): the nearest orthonormal (Manhattan) frame,
    or where the main horizontal directions are far from perpendicular (and the ceiling not sloped)
-   the vertical and those two (Atlanta frame; ``build_config["principal_frame"]``); and each kept
-   line's group.
+   the vertical and those two (Atlanta frame; ``build_config["principal_frame"]``), and the
+   further horizontal directions of rooms whose walls run in more than two (up to
+   ``max_horizontals``: the map then has K > 3 directions); and each kept line's group.
 4. ``translations``: N_t candidate camera centres in the free space of the scan.
-   ``fields``: when ``distance_fields``, each translation's 3 decomposed 3D line distance
+   ``fields``: when ``distance_fields``, each translation's K decomposed 3D line distance
    functions sampled on a spherical grid (:mod:`ldlmap.map.fields3d`) for the fast pose search.
 5. ``features``: views rendered at ``num_views`` of the candidate translations (farthest-point
    sampled), local features extracted and lifted to 3D; every candidate translation is served
@@ -74,6 +75,8 @@ class BuildParams:
     orthonormal_directions: bool = True  # principal directions: the nearest Manhattan frame (paper's assumption)
     atlanta_frame: bool = True  # ... or, when the main horizontals are far from perpendicular, an Atlanta frame
     # (the vertical and those two; ldlmap.lines3d.principal.principal_frame). False: always Manhattan
+    max_horizontals: int = 4  # Atlanta frames: at most this many horizontal directions, where the walls run
+    # in more than two (FrameParams.max_horizontals; 2: the vertical and the main two only)
 
 
 @dataclass
@@ -300,8 +303,8 @@ def build_from_input(src: SceneInput, output: Path, params: BuildParams, name: s
     from ldlmap.lines3d import Lines3DParams, extract_lines, filter_by_length, length_threshold, robust_bounds
     from ldlmap.map.contents import LdlMap
     from ldlmap.map.mapfile import write_map
-    from ldlmap.lines3d.principal import (assign_line_groups, line_directions, manhattan_frame, principal_directions_3d,
-                                          principal_frame)
+    from ldlmap.lines3d.principal import (FrameParams, assign_line_groups, line_directions, manhattan_frame,
+                                          principal_directions_3d, principal_frame)
 
     report = BuildReport(output)
     report.seconds["load"] = load_seconds
@@ -370,13 +373,20 @@ def build_from_input(src: SceneInput, output: Path, params: BuildParams, name: s
     principal = principal_directions_3d(lines)
     deviation, frame_kind = np.zeros(3), "voted"
     if params.orthonormal_directions and params.atlanta_frame:
-        principal, deviation, frame_kind = principal_frame(lines, principal)
+        principal, deviation, frame_kind = principal_frame(lines, principal,
+                                                           params=FrameParams(max_horizontals=params.max_horizontals))
     elif params.orthonormal_directions:
         (principal, deviation), frame_kind = manhattan_frame(lines, principal), "manhattan"
-    if frame_kind == "atlanta":
+    if frame_kind == "atlanta" and len(principal) == 3:
         pair = np.degrees(np.arccos(np.abs(principal @ principal.T)[np.triu_indices(3, 1)].max()))
         report.notes.append(f"principal directions: an Atlanta frame (the vertical and the two main horizontal "
                             f"directions, {pair:.0f} deg apart: walls not at right angles)")
+    elif frame_kind == "atlanta":
+        azimuths = sorted(round(float(np.degrees(np.arctan2(h[1], h[0]))) % 180.0) for h in principal
+                          if abs(h[2]) < 0.5)
+        report.notes.append(f"principal directions: an Atlanta frame of {len(principal)} (the vertical and "
+                            f"{len(principal) - 1} horizontal directions, at azimuths "
+                            f"{', '.join(f'{a:.0f}' for a in azimuths)} deg: walls in more than two directions)")
     if deviation.max() > 5.0:
         frame_words = {"manhattan": "the nearest orthogonal (Manhattan) frame",
                        "atlanta": "the frame of the vertical and the two main horizontal directions (Atlanta)"}
@@ -407,10 +417,11 @@ def build_from_input(src: SceneInput, output: Path, params: BuildParams, name: s
     n_t = len(translations) if params.distance_fields else 1
     start("fields", n_t)
     if params.distance_fields:
-        from ldlmap.map.fields3d import compute_fields
+        from ldlmap.map.fields3d import FieldParams, compute_fields
 
         cb = (lambda d, t: progress("fields", d, t)) if progress else None  # per chunk of translations
-        dist, fields_attrs = compute_fields(lines, groups, translations, device=params.device, visibility=visibility,
+        dist, fields_attrs = compute_fields(lines, groups, translations, FieldParams(num_groups=len(principal)),
+                                            device=params.device, visibility=visibility,
                                             progress=cb)
         fields = {"distances": dist}
     stage("fields", n_t)

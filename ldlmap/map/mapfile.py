@@ -1,6 +1,8 @@
 """The LDL map file: one HDF5 file per scene, versioned. This module is the only one that opens it.
 
-Schema (``FORMAT_VERSION`` 1). World frame metric, z up (DESIGN.md section 2). All groups and
+Schema (``FORMAT_VERSION`` 2; a map with 3 principal directions is written as version 1, the
+layout every reader since version 1 knows; one with more, an Atlanta frame of several horizontal
+directions, as version 2, which older readers refuse as newer). World frame metric, z up (DESIGN.md section 2). All groups and
 datasets are readable with plain h5py::
 
     /                       attrs: format_version (int), name (str), created_with (str),
@@ -12,9 +14,11 @@ datasets are readable with plain h5py::
     /cloud/colors           (P, 3) uint8   RGB
     /lines/raw              (L0, 2, 3) float32  3D segments (start, end) before the length filter
     /lines/segments         (L, 2, 3) float32   after the length filter (used for localization)
-    /lines/groups           (L,) int8   principal direction index 0..2 of each kept line, -1 none
+    /lines/groups           (L,) int8   principal direction index 0..K-1 of each kept line, -1 none
                             attrs: length_threshold (m), kept_ratio (L / L0), lambda
-    /principal/directions   (3, 3) float64  rows: the 3 principal 3D directions (right-handed)
+    /principal/directions   (K, 3) float64  rows: the K principal 3D directions; K = 3 (version 1: the
+                            first three right-handed) or, version 2, 4 .. MAX_PRINCIPAL (an Atlanta
+                            frame: the vertical, two horizontals as rows 0-2, more horizontals after)
     /translations/centers   (N_t, 3) float32  candidate camera centres
     /lines/visibility       (N_t, L) uint8  optional: 1 where kept line l is seen from translation i
                             (maps with walls, e.g. room layouts: walls hide the other lines)
@@ -35,7 +39,7 @@ datasets are readable with plain h5py::
     /features/keypoints     (K, 2) float32  pixel coordinates in the rendered view
     /features/scores        (K,) float16
     /features/descriptors   (K, D) uint8 (SIFT) or float16 (the learned backends)
-    /fields/distances       (N_t, 3, G + 1, 2G) float16  optional precomputed 3D distance fields:
+    /fields/distances       (N_t, K, G + 1, 2G) float16  optional precomputed 3D distance fields:
                             f3D_g (radians) of each translation on an equirectangular node grid
                             (theta_i = i pi / G from +z, phi_j = -pi + j pi / G), world-aligned
                             attrs: kind ('equirect_nodes'), rows (G), num_groups, version
@@ -59,7 +63,8 @@ from ldlmap.map.contents import LdlMap, MapFeatures
 from ldlmap.map.validate import KIND_NAMES, KINDS, check_line_header, is_int, manhattan_map, validate_map
 
 
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2  # the newest version this code reads and writes (it reads every version from 1)
+_VERSION_3_DIRECTIONS = 1  # what maps of 3 principal directions are written as (unchanged since version 1)
 _COMPRESS = dict(compression="gzip", compression_opts=4, shuffle=True)
 
 def _library_versions() -> dict[str, str]:
@@ -74,6 +79,12 @@ def _library_versions() -> dict[str, str]:
     return out
 
 
+def map_format_version(m: LdlMap) -> int:
+    """The format version ``m`` is written as: 1 with 3 principal directions (readable by every
+    version), 2 with more."""
+    return _VERSION_3_DIRECTIONS if len(m.principal_directions) == 3 else FORMAT_VERSION
+
+
 def write_map(path: str | Path, m: LdlMap) -> Path:
     """Validate ``m`` and write it to ``path`` atomically (temporary file, then rename)."""
     import h5py
@@ -85,7 +96,7 @@ def write_map(path: str | Path, m: LdlMap) -> Path:
         # limit) is then an OSError of a plain write, not an HDF5 driver failure that leaves the
         # library in a state that crashes the interpreter at exit (exit 139).
         with h5py.File(tmp, "w", driver="core", backing_store=False) as h5:
-            h5.attrs["format_version"] = FORMAT_VERSION
+            h5.attrs["format_version"] = map_format_version(m)
             h5.attrs["name"] = m.name
             h5.attrs["created_with"] = "ldl-toolkit"
             h5.attrs["build_config"] = json.dumps(m.config, sort_keys=True, default=str)
@@ -164,7 +175,7 @@ _SCHEMA: dict[str, tuple[str, tuple]] = {
     "lines/groups": ("i", ("L",)),
     "lines/visibility": ("b", ("N", "L")),
     "coverage/mapped": ("b", ("N", "C1", "C2")),
-    "principal/directions": ("f", (3, 3)),
+    "principal/directions": ("f", ("NP", 3)),
     "frame/input_to_map": ("f", (4, 4)),
     "translations/centers": ("f", ("N", 3)),
     "translations/view_index": ("i", ("N",)),
@@ -318,18 +329,32 @@ def _open(path: Path):
         raise InputError(f"not a readable HDF5 map (corrupt or another format): {path}") from None
 
 
-def _check_version(h5, path: Path) -> None:
+def _check_version(h5, path: Path) -> int:
+    """The map's format version; FormatVersionError for one this code cannot read."""
     if "format_version" not in h5.attrs:
         raise InputError(f"not an LDL map (no format_version attribute): {path}")
     v = h5.attrs["format_version"]
     if not is_int(v):
         raise InputError(f"corrupt LDL map {path}: format_version must be an integer, got {str(v)[:40]!r}")
     v = int(v)
-    if v != FORMAT_VERSION:
+    if not 1 <= v <= FORMAT_VERSION:
         newer = "a newer" if v > FORMAT_VERSION else "an older"
         raise FormatVersionError(
-            f"map {path} has format version {v}, this ldl-toolkit reads version {FORMAT_VERSION} "
+            f"map {path} has format version {v}, this ldl-toolkit reads versions 1 to {FORMAT_VERSION} "
             f"({newer} version wrote it): rebuild it with `ldlmap build`")
+    ds = h5.get("principal/directions")
+    shape = ds.shape if isinstance(ds, _dataset_type()) else None
+    k = shape[0] if shape is not None and len(shape) == 2 and shape[1] == 3 else 3  # other shapes: _check_schema
+    if (k == 3) != (v == _VERSION_3_DIRECTIONS):
+        raise InputError(f"corrupt LDL map {path}: format version {v} with {k} principal directions "
+                         f"(version 1 has 3, version 2 more)")
+    return v
+
+
+def _dataset_type():
+    import h5py
+
+    return h5py.Dataset
 
 
 def _check_schema(h5, path: Path) -> None:
@@ -358,14 +383,14 @@ def _check_schema(h5, path: Path) -> None:
             raise InputError(f"corrupt LDL map {path}: dataset /{name} has shape {ds.shape}, expected {expected}")
 
 
-def _group_counts(groups: np.ndarray) -> dict[int, int]:
-    """Lines per principal group: ``{0: n0, 1: n1, 2: n2, -1: unassigned}`` (zeros kept)."""
+def _group_counts(groups: np.ndarray, num_groups: int = 3) -> dict[int, int]:
+    """Lines per principal group: ``{0: n0, .., K-1: n_K-1, -1: unassigned}`` (zeros kept)."""
     g = np.asarray(groups, dtype=np.int64)
-    return {k: int(np.sum(g == k)) for k in (0, 1, 2, -1)}
+    return {k: int(np.sum(g == k)) for k in (*range(num_groups), -1)}
 
 
 def read_map_header(path: str | Path) -> dict[str, Any]:
-    """Format version, name, build config and sizes of a map, its principal directions (3, 3) and
+    """Format version, name, build config and sizes of a map, its principal directions (K, 3) and
     kept lines per principal group (``line_group_counts``: group -> count, -1 = none), without
     loading the large arrays. The layout (datasets, dtypes, shapes, attributes), the principal
     directions and group labels are validated; the values of the large arrays and the checksums
@@ -373,13 +398,13 @@ def read_map_header(path: str | Path) -> dict[str, Any]:
     path = require_file(path, "map")
     with _open(path) as h5:
         try:
-            _check_version(h5, path)
+            version = _check_version(h5, path)
             _check_schema(h5, path)
             config = _attr_value(h5, "build_config", "json", path, "{}")
             principal = np.asarray(h5["principal/directions"][()], dtype=np.float64)
             groups = h5["lines/groups"][()]
             info = {
-                "format_version": FORMAT_VERSION,
+                "format_version": version,
                 "name": _attr_value(h5, "name", "str", path, path.stem),
                 "build_config": config,
                 "library_versions": _attr_value(h5, "library_versions", "json", path, "{}"),
@@ -398,7 +423,7 @@ def read_map_header(path: str | Path) -> dict[str, Any]:
                 "line_visibility": "lines/visibility" in h5,
                 "input_to_map": h5["frame/input_to_map"][()].tolist() if "frame/input_to_map" in h5 else None,
                 "principal_directions": principal,
-                "line_group_counts": _group_counts(groups),
+                "line_group_counts": _group_counts(groups, len(principal)),
                 "checksummed": _CHECKSUMS in h5.attrs,
                 "file_size_bytes": path.stat().st_size,
             }

@@ -54,16 +54,22 @@ def manhattan_map(config: dict) -> bool:
     return config.get("orthonormal_directions") is True
 
 
+MAX_PRINCIPAL = 7  # at most this many principal directions (an Atlanta frame: the vertical and 6 horizontals)
+
+
 def check_principal(P: np.ndarray, orthonormal: bool) -> None:
-    """Three distinct unit directions; an orthonormal right-handed frame when the map says it used
-    the Manhattan frame (maps built before that option record nothing and may be a little off)."""
-    _check_array("principal_directions", P, (3, 3))
+    """3 to :data:`MAX_PRINCIPAL` distinct unit directions; an orthonormal right-handed frame of 3
+    when the map says it used the Manhattan frame (maps built before that option record nothing
+    and may be a little off)."""
+    _check_array("principal_directions", P, (None, 3))
+    if not 3 <= len(P) <= MAX_PRINCIPAL:
+        raise InputError(f"map has {len(P)} principal directions, expected 3 to {MAX_PRINCIPAL}")
     if not np.allclose(np.linalg.norm(P, axis=1), 1.0, atol=1e-4):
         raise InputError("map principal directions are not unit vectors")
-    cos = np.abs(P @ P.T)[np.triu_indices(3, 1)]
+    cos = np.abs(P @ P.T)[np.triu_indices(len(P), 1)]
     if np.any(cos > 0.9):
-        raise InputError("map principal directions are not three distinct directions")
-    if orthonormal and not (np.allclose(P @ P.T, np.eye(3), atol=1e-4) and np.linalg.det(P) > 0):
+        raise InputError("map principal directions are not distinct directions")
+    if orthonormal and not (len(P) == 3 and np.allclose(P @ P.T, np.eye(3), atol=1e-4) and np.linalg.det(P) > 0):
         raise InputError("map principal directions are not an orthonormal right-handed frame")
 
 
@@ -113,8 +119,8 @@ def _validate_fields(m: LdlMap) -> None:
     if d is None:
         return
     _check_array("fields.distances", d, (len(m.translations), None, None, None), finite=False)
-    if d.shape[1] < 1 or d.shape[2] < 2 or d.shape[3] != 2 * (d.shape[2] - 1):
-        raise InputError(f"map field fields.distances has shape {d.shape}, expected (N_t, groups, G + 1, 2G)")
+    if d.shape[1] != len(m.principal_directions) or d.shape[2] < 2 or d.shape[3] != 2 * (d.shape[2] - 1):
+        raise InputError(f"map field fields.distances has shape {d.shape}, expected (N_t, K, G + 1, 2G) for K principal directions")
     if not _angles_in_range(d, np.pi + 0.01):
         raise InputError("map field fields.distances holds NaN or angles outside [0, pi]")
     rows = m.fields_attrs.get("rows")
@@ -173,8 +179,8 @@ def check_line_header(groups: np.ndarray, length_threshold: float, kept_ratio: f
                        orthonormal: bool) -> None:
     """What both a full read and a header read check of the lines: group labels, length filter and
     principal directions."""
-    if len(groups) and (np.min(groups) < -1 or np.max(groups) > 2):
-        raise InputError("map field line_groups holds labels outside -1..2")
+    if len(groups) and (np.min(groups) < -1 or np.max(groups) > len(principal) - 1):
+        raise InputError(f"map field line_groups holds labels outside -1..{len(principal) - 1}")
     check_range("length_threshold", length_threshold, 0.0, np.inf)
     check_range("kept_ratio", kept_ratio, 0.0, 1.0)
     check_principal(principal, orthonormal)
