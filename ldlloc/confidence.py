@@ -201,10 +201,10 @@ def rival_dict(loc) -> dict[str, Any] | None:
         return None
     rival = loc.pnp_rival
     R, t = np.asarray(rival["R"], float), np.asarray(rival["t"], float)
-    k = int(rival.get("candidate", -1))
-    loss = (float(loc.candidates_loss[k]) if loc.candidates_loss is not None and 0 <= k < len(loc.candidates_loss)
-            else float("nan"))
-    return {"R": np.round(R, 8).tolist(), "t": np.round(t, 6).tolist(), "loss": loss if np.isfinite(loss) else None,
+    k, losses = int(rival.get("candidate", -1)), loc.candidates_loss
+    loss = float(losses[k]) if losses is not None and 0 <= k < len(losses) else None  # its view's search loss
+    return {"R": np.round(R, 8).tolist(), "t": np.round(t, 6).tolist(),
+            "loss": loss if loss is not None and np.isfinite(loss) else None,
             "why": f"{why(loc.rot_cam_from_world, loc.center, R, t)}, PnP {int(rival['inliers'])} inliers "
                    f"against {int(loc.num_inliers)}", "inliers": int(rival["inliers"])}
 

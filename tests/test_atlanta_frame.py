@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ldlmap.core.geometry import rotation_error_deg, rotation_from_axis_angle
 from ldlmap.synth.spec import ObjectSpec, OpeningSpec, SceneSpec
+from tests._localize import localize_rendered
 
 # Walls at 0 and 45 degrees (one short one at 90), furnished: no 180-degree symmetry.
 ROOM = SceneSpec(
@@ -20,7 +20,6 @@ def test_atlanta_map_of_an_angled_room_localizes_its_panoramas(tmp_path):
     from ldlmap.map.build import BuildParams, build_lines_map
     from ldlmap.map.mapfile import read_map
     from ldlmap.synth.edges import mesh_edges
-    from ldlmap.synth.render import Renderer
     from ldlmap.synth.scene import build_scene
 
     mesh = build_scene(ROOM)
@@ -31,10 +30,4 @@ def test_atlanta_map_of_an_angled_room_localizes_its_panoramas(tmp_path):
     assert m.config["principal_frame"] == "atlanta"
     walls = np.array([[1.0, 0, 0], [np.sqrt(0.5), np.sqrt(0.5), 0], [0, 0, 1.0]])
     assert np.all(np.abs(walls @ m.principal_directions.T).max(axis=1) > np.cos(np.radians(2.0)))
-    loc, render = Localizer(m, LocalizeParams()), Renderer(mesh)
-    for center, yaw, tilt in (((4.0, 1.6, 1.5), 30.0, 3.0), ((6.3, 1.7, 1.4), 200.0, 5.0)):
-        R = rotation_from_axis_angle(np.array([1.0, 0, 0]), np.radians(tilt)) @ \
-            rotation_from_axis_angle(np.array([0, 0, 1.0]), np.radians(yaw))
-        r = loc.localize(render.render(R, np.array(center), 512).rgb)
-        t_err, r_err = np.linalg.norm(r.center - center), rotation_error_deg(r.rot_cam_from_world, R)
-        assert t_err < 0.1 and r_err < 5.0, (center, t_err, r_err, r.message)
+    localize_rendered(Localizer(m, LocalizeParams()), mesh, (((4.0, 1.6, 1.5), 30.0, 3.0), ((6.3, 1.7, 1.4), 200.0, 5.0)))

@@ -342,19 +342,15 @@ def _check_version(h5, path: Path) -> int:
         raise FormatVersionError(
             f"map {path} has format version {v}, this ldl-toolkit reads versions 1 to {FORMAT_VERSION} "
             f"({newer} version wrote it): rebuild it with `ldlmap build`")
+    import h5py
+
     ds = h5.get("principal/directions")
-    shape = ds.shape if isinstance(ds, _dataset_type()) else None
+    shape = ds.shape if isinstance(ds, h5py.Dataset) else None
     k = shape[0] if shape is not None and len(shape) == 2 and shape[1] == 3 else 3  # other shapes: _check_schema
     if (k == 3) != (v == _VERSION_3_DIRECTIONS):
         raise InputError(f"corrupt LDL map {path}: format version {v} with {k} principal directions "
                          f"(version 1 has 3, version 2 more)")
     return v
-
-
-def _dataset_type():
-    import h5py
-
-    return h5py.Dataset
 
 
 def _check_schema(h5, path: Path) -> None:
