@@ -30,7 +30,10 @@ cloud") on numpy / scipy / OpenCV:
 6. merge of collinear overlapping pieces (intersection lines, being more accurate, fix the
    position of the merged segment), then a final join of the pieces of one line across gaps up
    to ``join_gap`` and removal of short noise pieces (:func:`join_lines`), so that long edges
-   come out whole and the raw output holds what a line detector reports.
+   come out whole and the raw output holds what a line detector reports;
+7. lines across which the scanned surface goes on without a crease or a step (the facets of a
+   vault or a curved wall, bending less than ``smooth_crease_deg``) are dropped
+   (:func:`ldlmap.lines3d.smooth.smooth_lines`).
 
 Then the paper's length filter (:func:`filter_by_length`) drops segments shorter than
 ``lambda (b_x + b_y + b_z) / 3`` of the scene's robust box (:func:`robust_bounds`), optionally
@@ -52,6 +55,7 @@ from ldlmap.lines3d.intersections import _intersection_segments, _linear_segment
 from ldlmap.lines3d.merge import join_lines, merge_collinear
 from ldlmap.lines3d.params import Lines3DParams, _check_points
 from ldlmap.lines3d.planes import segment_planes
+from ldlmap.lines3d.smooth import smooth_lines
 
 
 class _Laps:
@@ -111,6 +115,10 @@ def extract_lines_with_stats(points: np.ndarray, params: Lines3DParams = Lines3D
     stats["merged_pieces"] = len(out)
     out = join_lines(out, params)
     lap("merge")
+    smooth = smooth_lines(out, reg.points, params)
+    stats["smooth_lines"] = int(smooth.sum())
+    out = out[~smooth]
+    lap("smooth")
     stats["lines"] = len(out)
     return out, stats
 
