@@ -337,29 +337,22 @@ def test_join_lines_bridges_small_gaps_and_drops_noise():
 
 def test_facets_of_a_curved_surface_meet_at_no_line_across_a_gap():
     """Two facets of a vault 9 deg apart, with a 4 cm strip of unassigned points (mixed normals)
-    between them: the side of a facet along the strip is a smooth continuation, not an edge; at a
-    real crease (the same facets 40 deg apart) it is not."""
-    from ldlmap.lines3d.boundaries import _smooth_continuation
-    from ldlmap.lines3d.params import Lines3DParams
-    from ldlmap.lines3d.planes import PlaneRegions
+    between them: a line along the side of a facet at the strip lies on a smooth surface, not an
+    edge (:func:`smooth_lines`); at a real crease (the same facets 40 deg apart) it is an edge."""
+    from ldlmap.lines3d.smooth import smooth_lines
 
-    def regions(bend_deg: float) -> PlaneRegions:
+    def points(bend_deg: float) -> np.ndarray:
         g = np.stack(np.meshgrid(np.arange(0.0, 1.0, 0.01), np.arange(0.0, 1.0, 0.01)), -1).reshape(-1, 2)
         a = np.column_stack([-g[:, 0] - 0.02, g[:, 1], np.zeros(len(g))])  # facet A: x <= -0.02, z = 0
         b_dir = np.array([np.cos(np.radians(bend_deg)), 0.0, np.sin(np.radians(bend_deg))])
         b = 0.02 * b_dir + g[:, :1] * b_dir + np.column_stack([np.zeros(len(g)), g[:, 1], np.zeros(len(g))])
         strip = np.stack(np.meshgrid(np.arange(-0.02, 0.02, 0.01), np.arange(0.0, 1.0, 0.01)), -1).reshape(-1, 2)
-        gap = np.column_stack([strip[:, 0], strip[:, 1], np.zeros(len(strip))])
-        pts = np.concatenate([a, b, gap])
-        labels = np.concatenate([np.zeros(len(a), int), np.ones(len(b), int), -np.ones(len(gap), int)])
-        nb = np.array([-np.sin(np.radians(bend_deg)), 0.0, np.cos(np.radians(bend_deg))])
-        return PlaneRegions(points=pts, labels=labels, centroids=np.array([a.mean(0), b.mean(0)]),
-                            normals=np.array([[0.0, 0.0, 1.0], nb]), neighbours=np.zeros((len(pts), 1), int))
+        return np.concatenate([a, b, np.column_stack([strip[:, 0], strip[:, 1], np.zeros(len(strip))])])
 
     side = np.array([[[-0.02, 0.1, 0.0], [-0.02, 0.9, 0.0]]])  # facet A's side along the strip
     params = Lines3DParams()
-    assert _smooth_continuation(side, np.array([0]), regions(9.0), params)[0]
-    assert not _smooth_continuation(side, np.array([0]), regions(40.0), params)[0]
+    assert smooth_lines(side, points(9.0), params)[0]
+    assert not smooth_lines(side, points(40.0), params)[0]
 
 
 # ------------------------------------------------------------------------------------ plane finding

@@ -34,7 +34,7 @@ def _scene(rng: np.random.Generator, density: float = 8000.0) -> np.ndarray:
         parts.append(_sample_face(rng, np.array([top[0], 0.0, 0.0]), np.array([0, 0, top[2]]), y, density))
     parts.append(_sample_face(rng, np.array([-R, 0.0, 0.0]), np.array([4.0 + R, 0, 0]), y, density))  # floor
     parts.append(_sample_face(rng, np.array([4.0, 0.0, 0.0]), np.array([0, 0, 0.8]), y, density))  # wall x = 4 ...
-    parts.append(_sample_face(rng, np.array([4.0, 0.0, 1.4]), np.array([0, 0, 0.1]), y, density))  # ... around the board
+    parts.append(_sample_face(rng, np.array([4.0, 0.0, 1.4]), np.array([0, 0, 0.1]), y, density))  # ... round the board
     parts.append(_sample_face(rng, np.array([3.98, 0.0, 0.8]), np.array([0, 0, 0.6]), y, density))  # board front
     parts.append(_sample_face(rng, np.array([3.98, 0.0, 0.8]), np.array([0.02, 0, 0]), y, density))  # board sides
     parts.append(_sample_face(rng, np.array([3.98, 0.0, 1.4]), np.array([0.02, 0, 0]), y, density))

@@ -109,16 +109,13 @@ def _across(segs: np.ndarray, normals: np.ndarray) -> np.ndarray:
     return w / np.maximum(np.linalg.norm(w, axis=1, keepdims=True), 1e-12)
 
 
-SMOOTH_GAP_PROBES_M = (0.05, 0.08)  # where the surface 2 cm beyond a side is unassigned (the strip of
-# mixed normals between two facets of a curved surface), it is looked for this far beyond too
-
-
 def _smooth_continuation(segs: np.ndarray, owner: np.ndarray, reg: PlaneRegions, params: Lines3DParams) -> np.ndarray:
     """Mask of segments on plane ``owner`` across which the surface goes on in nearly the same
-    plane: along most of the segment, 2 cm beyond it on either side within the owner's plane (or
-    5 or 8 cm beyond, past unassigned points found at 2 cm), a point of another plane lies within
-    1.5 cm of the owner's plane and that plane's normal is within ``min_plane_angle_deg`` (the
-    facets of a curved wall or vault, which meet at no edge).
+    plane: along most of the segment, 2 cm beyond it on either side within the owner's plane, a
+    point of another plane lies within 1.5 cm of the owner's plane and that plane's normal is
+    within ``min_plane_angle_deg`` (the facets of a curved wall, which meet at no edge). Facets
+    with a strip of unassigned points between them are left to the final check of the lines
+    (:func:`ldlmap.lines3d.smooth.smooth_lines`).
     """
     if len(segs) == 0:
         return np.zeros(0, bool)
@@ -126,23 +123,15 @@ def _smooth_continuation(segs: np.ndarray, owner: np.ndarray, reg: PlaneRegions,
     w = _across(segs, n)
     x, seg = _sample_segments(segs, 0.05)
     cos_t = np.cos(np.radians(params.min_plane_angle_deg))
-
-    def probe(step: float, sgn: float) -> tuple[np.ndarray, np.ndarray]:
-        """(smooth, gap) at the samples: another near-parallel plane's point / an unassigned point."""
-        dist, idx = reg.tree.query(x + sgn * step * w[seg], distance_upper_bound=0.015, workers=-1)
+    smooth = np.zeros(len(x), bool)
+    for sgn in (-1.0, 1.0):
+        dist, idx = reg.tree.query(x + sgn * 0.02 * w[seg], distance_upper_bound=0.015, workers=-1)
         hit = np.isfinite(dist)
         j = np.minimum(idx, len(reg.points) - 1)
         lab = np.where(hit, reg.labels[j], -1)
         on_plane = hit & (np.abs(np.einsum("ij,ij->i", reg.points[j] - x, n[seg])) <= 0.015)
         same = np.abs(np.einsum("ij,ij->i", reg.normals[np.maximum(lab, 0)], n[seg])) > cos_t
-        return (lab >= 0) & (lab != owner[seg]) & on_plane & same, on_plane & (lab < 0)
-
-    smooth = np.zeros(len(x), bool)
-    for sgn in (-1.0, 1.0):
-        near, gap = probe(0.02, sgn)
-        smooth |= near
-        for step in SMOOTH_GAP_PROBES_M:
-            smooth |= gap & probe(step, sgn)[0]
+        smooth |= (lab >= 0) & (lab != owner[seg]) & on_plane & same
     return np.bincount(seg, smooth, len(segs)) / np.bincount(seg, minlength=len(segs)) >= 0.5
 
 

@@ -59,8 +59,9 @@ class Lines3DParams:
     join_gap: float = 0.25  # ... and largest gap along the line bridged
     min_line: float = 0.1  # joined lines shorter than this are dropped (noise pieces)
     lam: float = 0.1  # lambda: length filter ratio of the paper (sec. 3.1)
-    smooth_crease_deg: float = 20.0  # lines across which the surface goes on bending less than this (no step) are
-    # dropped: facets of vaults and curved walls, not edges (the generator's crease angle); 0 keeps them
+    smooth_crease_deg: float = 15.0  # lines across which the surface goes on bending less than this (no step) are
+    # dropped: facets of vaults and curved walls (5-10 deg), not edges; below the generator's 20 deg crease angle
+    # because a line a few cm off a crease sees both faces on one side (a 23 deg crease measured 10-20); 0 keeps all
     smooth_step: float = 0.01  # ... no step: the two sides' surfaces meet this closely at the line (a frame: 4 cm) ...
     smooth_rms: float = 0.0075  # ... each side one surface this flat (scan noise; two surfaces 2 cm apart are not) ...
     smooth_on: float = 0.025  # ... passing this close to the line (lines lie up to ``plane_tol`` off a facet)
@@ -69,6 +70,7 @@ class Lines3DParams:
     smooth_grid: float = 0.02  # ... thinned to one point per cell of this grid
     smooth_neighbours: int = 160  # ... of which at most this many nearest per sample
     smooth_min_points: int = 5  # ... and at least this many on each side
+    smooth_share: float = 0.5  # lines with this share of their samples smooth are dropped
 
 
 def _check_points(points: np.ndarray) -> np.ndarray:

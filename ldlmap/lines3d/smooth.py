@@ -8,16 +8,12 @@ import numpy as np
 
 from ldlmap.lines3d.metrics import _sample_segments
 from ldlmap.lines3d.params import Lines3DParams
+from ldlmap.lines3d.planes import _voxels
 
 
 def _thin(P: np.ndarray, v: float) -> np.ndarray:
-    """One point per occupied ``v`` grid cell (the mean of its points): an even, sparser surface."""
-    q = np.floor((P - P.min(0)) / v).astype(np.int64)
-    dims = q.max(0) + 1
-    _, inv = np.unique((q[:, 0] * dims[1] + q[:, 1]) * dims[2] + q[:, 2], return_inverse=True)
-    inv = inv.reshape(-1)
-    cnt = np.bincount(inv)
-    return np.stack([np.bincount(inv, P[:, i]) for i in range(3)], 1) / cnt[:, None]
+    """Indices of one point per occupied ``v`` grid cell (the first): an even, sparser surface."""
+    return np.unique(_voxels(P, v)[1], return_index=True)[1]
 
 
 def _moments(a: np.ndarray, b: np.ndarray, m: np.ndarray) -> tuple[np.ndarray, ...]:
@@ -48,20 +44,21 @@ def _line_fit(caa: np.ndarray, cbb: np.ndarray, cab: np.ndarray) -> tuple[np.nda
 def smooth_lines(lines: np.ndarray, points: np.ndarray, params: Lines3DParams) -> np.ndarray:
     """Mask of ``lines`` (N, 2, 3) that lie on a smooth stretch of the surface in ``points``.
 
-    Every 5 cm along a line, the points (thinned to a 2 cm grid) within ``smooth_slab`` along it
+    Every 5 cm along a line, the points (one per ``smooth_grid`` cell) within ``smooth_slab`` along it
     and ``smooth_reach`` across it are seen in the line's cross-section, split into two sides by
     their main direction through the line, and a straight line is fitted to each side. The sample
     is smooth when each side holds one surface (RMS under ``smooth_rms``) that passes within
     ``smooth_on`` of the line, the two meet within ``smooth_step`` of each other at the line and
     bend by less than ``smooth_crease_deg``: the surface goes on across the line without a crease
     or a step. A side with no points (a free or occluding edge), a second surface, a corner or a
-    step (a frame standing out of a wall) keeps the sample an edge. Lines with at least half of their samples smooth are on a smooth surface.
+    step (a frame standing out of a wall) keeps the sample an edge. Lines with at least half of
+    their samples smooth are on a smooth surface.
     """
     from scipy.spatial import cKDTree
 
     if len(lines) == 0 or params.smooth_crease_deg <= 0:
         return np.zeros(len(lines), bool)
-    Q = _thin(points, params.smooth_grid)
+    Q = points[_thin(points, params.smooth_grid)]
     r0, r1 = params.smooth_reach
     x, seg = _sample_segments(lines, 0.05)
     u = lines[:, 1] - lines[:, 0]
@@ -93,4 +90,4 @@ def smooth_lines(lines: np.ndarray, points: np.ndarray, params: Lines3DParams) -
     bend_cos = np.einsum("ij,ij->i", nrm[0], nrm[1])
     step = np.abs(off[0] - np.sign(bend_cos) * off[1])  # the two surfaces' offsets, with their normals aligned
     smooth = ok & (np.abs(bend_cos) >= np.cos(np.radians(params.smooth_crease_deg))) & (step <= params.smooth_step)
-    return np.bincount(seg, smooth, len(lines)) / np.bincount(seg, minlength=len(lines)) >= 0.5
+    return np.bincount(seg, smooth, len(lines)) / np.bincount(seg, minlength=len(lines)) >= params.smooth_share
