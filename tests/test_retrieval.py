@@ -86,3 +86,41 @@ def test_retrieval_finds_the_room_when_every_candidate_view_sees_another(demo_da
         r_err = rotation_error_deg(r.rot_cam_from_world, q.rot_cam_from_world)
         assert r.refine_method == "features" and r.retrieval is not None, r.message
         assert r.retrieval["view"] < fa.num_views and t_err < 0.1 and r_err < 5.0, (q.name, t_err, r_err, r.message)
+
+
+class _SameIndexMatcher:
+    """Matches query feature i with view feature i (each view holds the query's points in order)."""
+
+    def match_views(self, query, query_size, views, view_size, ratio=0.8):
+        return [np.stack([np.arange(len(v)), np.arange(len(v))], 1) for v in views]
+
+
+def test_retrieved_pose_in_one_of_two_identical_rooms_has_the_other_as_rival():
+    """Two copies of a room 6 m apart, one view each: retrieval finds both, PnP puts the camera in
+    each, the one kept has the other as its rival with as many inliers (the confidence's
+    ``pnp_rival``: the features do not single one copy out)."""
+    from ldlmap.core import geometry as geo
+    from ldlmap.features import Features
+    from ldlmap.map.contents import MapFeatures
+    from ldlloc.refine.features import RefineParams, refine_by_retrieval
+    from ldlloc.refine.retrieval import RetrievalContext
+
+    rng = np.random.default_rng(3)
+    P = rng.random((300, 3)) * [5.0, 4.0, 2.6]
+    c0, shift, W, H = np.array([2.0, 1.5, 1.4]), np.array([6.0, 0.0, 0.0]), 1024, 512
+    R0 = geo.rotation_from_axis_angle(np.array([0.0, 0.0, 1.0]), 0.7)
+    desc = rng.integers(0, 255, (300, 16)).astype(np.uint8)
+    query = Features(geo.project_to_pixels(P, R0, c0, W, H).astype(np.float32), np.ones(300, np.float32), desc)
+    mf = MapFeatures(backend="sift", view_centers=np.stack([c0, c0 + shift]), offsets=np.array([0, 300, 600]),
+                     xyz=np.concatenate([P, P + shift]).astype(np.float32), keypoints=np.zeros((600, 2), np.float32),
+                     scores=np.ones(600, np.float32), descriptors=np.concatenate([desc, desc]),
+                     translation_view=np.array([0]))
+    params = RefineParams()
+    ctx = RetrievalContext(ViewIndex(mf, RetrievalParams(words=32)), lambda R, t: np.full(len(R), -100.0), -100.0)
+    ref = refine_by_retrieval(query, (W, H), mf, _SameIndexMatcher(), params, ctx)
+    assert ref is not None and ref.refined and ref.num_inliers >= 290 and ref.retrieved["feature_share"] == 1.0
+    assert ref.rival_inliers >= 0.95 * ref.num_inliers
+    assert np.allclose(sorted([ref.center[0], ref.rival_center[0]]), [c0[0], c0[0] + 6.0], atol=0.01)
+    # a line loss far below the search's best (the wrong room) keeps nothing
+    ctx = RetrievalContext(ctx.index, lambda R, t: np.full(len(R), -20.0), -100.0)
+    assert refine_by_retrieval(query, (W, H), mf, _SameIndexMatcher(), params, ctx) is None

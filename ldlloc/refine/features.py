@@ -177,7 +177,8 @@ def refine_by_retrieval(query_feats, query_size: tuple[int, int], map_features, 
     """The retrieval fallback (module docstring): PnP on the matches of the ``params.retrieval.views``
     views most like the query (:meth:`ldlloc.refine.retrieval.ViewIndex.rank`); of the poses that
     :func:`ldlloc.refine.retrieval.accept_retrieved` accepts, the one with the best line loss (ties:
-    more inliers). None when none is accepted. ``candidate`` of the result is 0 (the search's best);
+    more inliers), its ``rival`` the retrieved pose distinct from it with the most inliers (accepted
+    or not). None when none is accepted. ``candidate`` of the result is 0 (the search's best);
     ``retrieved["feature_share"]``: its inliers over ``strong_inliers`` and its inlier ratio over
     ``strong_ratio``, the smaller, at most 1 (the confidence's ``features`` signal for it,
     :mod:`ldlloc.confidence`)."""
@@ -205,8 +206,14 @@ def refine_by_retrieval(query_feats, query_size: tuple[int, int], map_features, 
     # how near its support comes to the strong support that the plausibility guard asks of a PnP pose
     # far from every candidate (1: as strong)
     share = min(1.0, inliers / max(params.strong_inliers, 1), inliers / max(n_matches, 1) / max(params.strong_ratio, 1e-9))
-    return Refinement(res.rot_cam_from_world, res.center, True, 0, n_matches, inliers,
-                      f"retrieval: view {v} (rank {rank + 1}), {inliers} inliers of {n_matches} matches, line loss "
-                      f"{loss:.0f} against the search's {ctx.search_loss:.0f}",
-                      retrieved={"view": v, "rank": rank, "inliers": inliers, "loss": loss,
-                                 "search_loss": float(ctx.search_loss), "feature_share": round(share, 6)})
+    out = Refinement(res.rot_cam_from_world, res.center, True, 0, n_matches, inliers,
+                     f"retrieval: view {v} (rank {rank + 1}), {inliers} inliers of {n_matches} matches, line loss "
+                     f"{loss:.0f} against the search's {ctx.search_loss:.0f}",
+                     retrieved={"view": v, "rank": rank, "inliers": inliers, "loss": loss,
+                                "search_loss": float(ctx.search_loss), "feature_share": round(share, 6)})
+    # the retrieved views of an identical room's copies give their own poses: the best distinct one is the rival
+    rivals = [f for f in found if distinct(res.rot_cam_from_world, res.center, f[4].rot_cam_from_world, f[4].center)[0]]
+    if rivals:
+        rival = max(rivals, key=lambda f: (f[3], -f[1]))
+        out.rival_rot, out.rival_center, out.rival_inliers = rival[4].rot_cam_from_world, rival[4].center, rival[3]
+    return out
