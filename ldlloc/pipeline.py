@@ -98,8 +98,8 @@ class Localization:
     # selection ran (feature refinement, or its geometric fallback)
     pnp_rival: dict | None = None  # feature refinement: the best PnP pose distinct from the final one, {R, t,
     # inliers, candidate} (an identical room's copy; ldlloc.refine.features.Refinement.rival_inliers)
-    retrieval: dict | None = None  # the feature pose came from view retrieval (ldlloc.refine.features.refine_by_retrieval):
-    # {view, rank, inliers, loss, search_loss, feature_share}
+    retrieval: dict | None = None  # the feature pose came from view retrieval, {view, rank, inliers, loss,
+    # search_loss, feature_share} (ldlloc.refine.features.refine_by_retrieval)
     confidence: float | None = None  # how far to trust the pose, in [0, 1] (ldlloc.confidence)
     verdict: str | None = None  # confident | ambiguous | failed
     competitors: list = field(default_factory=list)  # distinct poses of nearly the same loss: {R, t, loss, why}
@@ -585,8 +585,8 @@ class Localizer:
             if ref.retrieved:  # no candidate of the search is near the pose: its own arc groups and translation
                 from ldlloc.rotation import assign_arcs_to_principal
 
-                out.arc_groups = assign_arcs_to_principal(arcs, (ref.rot_cam_from_world @ self.map.principal_directions.T).T,
-                                                          self.params.principal.group_tol)
+                dirs = (ref.rot_cam_from_world @ self.map.principal_directions.T).T
+                out.arc_groups = assign_arcs_to_principal(arcs, dirs, self.params.principal.group_tol)
                 translation = int(self.map.nearest_translation(ref.center[None])[0])
             out.refined, out.num_matches, out.num_inliers, out.message = (
                 ref.refined, ref.num_matches, ref.num_inliers, ref.message)

@@ -43,7 +43,8 @@ class RefineParams:
     pnp_views: int = 5  # PnP is tried on the matches of this many best-supported distinct views
     privacy_radius: float = 0.05  # privacy mode: keep features within this (rad) of principal lines
     pnp: PnPParams = field(default_factory=PnPParams)
-    retrieval: RetrievalParams = field(default_factory=RetrievalParams)  # fallback: PnP on the views most like the query
+    retrieval: RetrievalParams = field(default_factory=RetrievalParams)  # fallback: PnP on the views most like
+    # the query, where the candidates' views give no plausible pose (ldlloc.refine.retrieval)
 
 
 @dataclass
@@ -61,7 +62,8 @@ class Refinement:
     rival_center: np.ndarray | None = None
     rival_inliers: int = 0  # its inliers (0: no distinct PnP pose)
     rival_candidate: int = -1  # the top-K candidate whose view gave it
-    retrieved: dict | None = None  # the pose came from view retrieval: {view, rank, inliers, loss, search_loss}
+    retrieved: dict | None = None  # the pose came from view retrieval: {view, rank, inliers, loss, search_loss,
+    # feature_share} (refine_by_retrieval)
 
 
 def keep_near_lines(keypoints_uv: np.ndarray, arcs: np.ndarray, width: int, height: int,
@@ -199,13 +201,15 @@ def refine_by_retrieval(query_feats, query_size: tuple[int, int], map_features, 
     if not found:
         return None
     losses = ctx.loss(np.stack([f[4].rot_cam_from_world for f in found]), np.stack([f[4].center for f in found]))
-    ok = [(float(loss), f) for loss, f in zip(losses, found) if accept_retrieved(f[3], float(loss), ctx.search_loss, rp)]
+    ok = [(float(loss), f) for loss, f in zip(losses, found)
+          if accept_retrieved(f[3], float(loss), ctx.search_loss, rp)]
     if not ok:
         return None
     loss, (v, rank, n_matches, inliers, res) = min(ok, key=lambda x: (x[0], -x[1][3]))
     # how near its support comes to the strong support that the plausibility guard asks of a PnP pose
     # far from every candidate (1: as strong)
-    share = min(1.0, inliers / max(params.strong_inliers, 1), inliers / max(n_matches, 1) / max(params.strong_ratio, 1e-9))
+    share = min(1.0, inliers / max(params.strong_inliers, 1),
+                inliers / max(n_matches, 1) / max(params.strong_ratio, 1e-9))
     out = Refinement(res.rot_cam_from_world, res.center, True, 0, n_matches, inliers,
                      f"retrieval: view {v} (rank {rank + 1}), {inliers} inliers of {n_matches} matches, line loss "
                      f"{loss:.0f} against the search's {ctx.search_loss:.0f}",
