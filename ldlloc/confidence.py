@@ -20,6 +20,12 @@ axis) whose loss comes close to it. The signals (:func:`confidence_signals`):
   where no such selection ran (feature refinement and its fallback);
 - ``features``: 1 when the feature refinement (PnP) made the final pose; ``refined``: 1 when a
   refinement was kept (0: the coarse pose); ``inliers``: PnP inliers (recorded, not weighted);
+- a pose of the retrieval fallback (``Localization.retrieval``: PnP on views far from every
+  candidate) started from no candidate: its ``gap`` is the best distinct candidate's loss over
+  its own exact loss, every candidate distinct from it counts (the search's best too), and
+  ``features`` is its ``feature_share`` (:func:`ldlloc.refine.features.refine_by_retrieval`): 1
+  only when its PnP is as strongly supported as the refinement's plausibility guard asks of a pose
+  far from every candidate, less in proportion below (``retrieved``: 1, recorded);
 - ``pnp_rival``: the inliers of the best PnP pose distinct from the final one over the final
   pose's (``Localization.pnp_rival``; 0: none), and ``map_rival`` the same for the feature poses
   of the other maps (:func:`assess_across`). A rival at :data:`RIVAL_SHARE` or more (an identical
@@ -140,11 +146,24 @@ def distinct_candidates(loc) -> np.ndarray:
     Rs, ts = np.asarray(loc.candidates_rot, float), np.asarray(loc.candidates_center, float)
     if len(Rs) == 0:
         return np.zeros(0, dtype=int)
-    other = distinct(loc.rot_cam_from_world, loc.center, Rs, ts) & distinct(loc.coarse_rot, loc.coarse_center, Rs, ts)
+    other = distinct(loc.rot_cam_from_world, loc.center, Rs, ts)
+    if not getattr(loc, "retrieval", None):  # a retrieved pose did not start from a candidate
+        other &= distinct(loc.coarse_rot, loc.coarse_center, Rs, ts)
     idx = np.flatnonzero(other)
     if loc.candidates_loss is None:
         return idx
     return idx[np.argsort(np.asarray(loc.candidates_loss, float)[idx], kind="stable")]
+
+
+def own_loss(loc) -> float:
+    """The loss of the final pose's start: its candidate's search loss, or the retrieved pose's own
+    exact loss (``Localization.retrieval``); NaN when unknown."""
+    ret = getattr(loc, "retrieval", None)
+    if ret:
+        return float(ret["loss"])
+    if loc.candidates_loss is None or len(loc.candidates_loss) == 0:
+        return float("nan")
+    return float(np.asarray(loc.candidates_loss, float)[own_candidate(loc)])
 
 
 def relative_gap(loss_other: float, loss_own: float) -> float:
@@ -161,10 +180,10 @@ def confidence_signals(loc, ldl_map, support_deg: float = 1.0) -> tuple[dict[str
 
     others = distinct_candidates(loc)
     losses = None if loc.candidates_loss is None else np.asarray(loc.candidates_loss, float)
-    own = own_candidate(loc)
+    own = own_loss(loc)
     gap = 1.0
-    if len(others) and losses is not None and np.isfinite(losses[own]):
-        gap = relative_gap(float(losses[others[0]]), float(losses[own]))
+    if len(others) and losses is not None and np.isfinite(own):
+        gap = relative_gap(float(losses[others[0]]), own)
     R = [np.asarray(loc.rot_cam_from_world, float)]
     t = [np.asarray(loc.center, float)]
     if len(others):
@@ -180,11 +199,19 @@ def confidence_signals(loc, ldl_map, support_deg: float = 1.0) -> tuple[dict[str
     signals = {"gap": gap, "support": float(support[0]),
                "support_gap": float(support[0] - support[1]) if len(support) > 1 else float(support[0]),
                "margin": 0.0 if m is None else float(np.clip(m, -1.0, NO_CONTENDER_MARGIN)),
-               "features": float(str(loc.refine_method).startswith("features")),
+               "features": feature_signal(loc),
                "refined": float(bool(loc.refined)), "inliers": float(loc.num_inliers),
-               "pnp_rival": rival_share(loc)}
+               "pnp_rival": rival_share(loc), "retrieved": float(bool(getattr(loc, "retrieval", None)))}
     signals = {k: v if np.isfinite(v) else 0.0 for k, v in signals.items()}  # a NaN loss says nothing
     return signals, others
+
+
+def feature_signal(loc) -> float:
+    """``features``: 1 for a PnP pose, a retrieved one's ``feature_share`` (module docstring), else 0."""
+    if not str(loc.refine_method).startswith("features"):
+        return 0.0
+    ret = getattr(loc, "retrieval", None)
+    return float(ret["feature_share"]) if ret else 1.0
 
 
 def rival_share(loc) -> float:
@@ -216,7 +243,7 @@ def competitor_dicts(loc, others: np.ndarray, max_gap: float = COMPETITOR_GAP,
     if loc.candidates_loss is None or len(others) == 0:
         return []
     losses = np.asarray(loc.candidates_loss, float)
-    own = float(losses[own_candidate(loc)])
+    own = own_loss(loc)
     out = []
     for i in others[:limit]:
         if relative_gap(float(losses[i]), own) > max_gap:

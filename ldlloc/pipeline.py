@@ -98,6 +98,8 @@ class Localization:
     # selection ran (feature refinement, or its geometric fallback)
     pnp_rival: dict | None = None  # feature refinement: the best PnP pose distinct from the final one, {R, t,
     # inliers, candidate} (an identical room's copy; ldlloc.refine.features.Refinement.rival_inliers)
+    retrieval: dict | None = None  # the feature pose came from view retrieval, {view, rank, inliers, loss,
+    # search_loss, feature_share} (ldlloc.refine.features.refine_by_retrieval)
     confidence: float | None = None  # how far to trust the pose, in [0, 1] (ldlloc.confidence)
     verdict: str | None = None  # confident | ambiguous | failed
     competitors: list = field(default_factory=list)  # distinct poses of nearly the same loss: {R, t, loss, why}
@@ -297,6 +299,7 @@ class Localizer:
             raise InputError(f"map {ldl_map.name} was built with {map_backend} features, "
                              f"not {params.features}: rebuild it or drop --features")
         self.fields = None  # the map's distance fields, prepared once for the fast pose search
+        self.view_index = None  # the map's view retrieval index (ldlloc.refine.retrieval), built when first needed
         if params.search.use_fields is not False:
             from ldlloc.search.fields import DistanceFields
 
@@ -417,7 +420,24 @@ class Localizer:
                        f"candidate {c + 1}: coarse pose kept (its geometric refinement diverged, matched too few line "
                        "points or explained less of the image)")
 
-    def _refine_features(self, img: np.ndarray, grouped_arcs: np.ndarray, res):
+    def _retrieval_context(self, arcs: np.ndarray, res):
+        """The retrieval fallback's context (:class:`ldlloc.refine.retrieval.RetrievalContext`): the map's
+        view index (built on first use), the exact line loss of poses, each seen from the candidate
+        translation nearest to it, and that loss of the search's best pose."""
+        from ldlloc.refine.retrieval import RetrievalContext, ViewIndex
+        from ldlloc.search.pose_search import score_poses
+
+        m, p = self.map, self.params
+        if self.view_index is None:
+            self.view_index = ViewIndex(m.features, p.refine.retrieval)
+
+        def loss(R: np.ndarray, t: np.ndarray) -> np.ndarray:
+            return score_poses(arcs, R, t, m.lines, m.line_groups, m.principal_directions, m.nearest_translation(t),
+                               p.search, m.visibility, m.coverage, self.device, p.principal.group_tol)
+
+        return RetrievalContext(self.view_index, loss, float(loss(res.rotations[:1], res.centers[:1])[0]))
+
+    def _refine_features(self, img: np.ndarray, grouped_arcs: np.ndarray, res, arcs: np.ndarray):
         """Feature refinement of the top-K poses (:func:`ldlloc.refine.features.refine_candidates`); returns
         the refinement and the number of query features it used.
 
@@ -426,9 +446,11 @@ class Localizer:
         ``frame_split_deg`` from every frame's so far (a flipped Manhattan twin of a free-rotation
         query), in theirs, at most ``max_query_frames``: each candidate is matched with the features
         of the frame nearest its up axis, frame after frame until one's candidates refine (the
-        first frame's, usually: no extra cost), else the most PnP inliers win. ``grouped_arcs``:
-        the arcs of principal lines (the privacy filter's)."""
-        from ldlloc.refine.features import keep_near_lines, refine_candidates
+        first frame's, usually: no extra cost), else the most PnP inliers win. When none refines, the
+        retrieval fallback (:func:`ldlloc.refine.features.refine_by_retrieval`) matches the first
+        frame's features with the map's views most like them. ``grouped_arcs``: the arcs of principal
+        lines (the privacy filter's); ``arcs``: all the search's arcs (the retrieved poses' line loss)."""
+        from ldlloc.refine.features import keep_near_lines, refine_by_retrieval, refine_candidates
         from ldlmap.features.sphere import extract_in_map_frame
 
         p, m = self.params, self.map
@@ -436,7 +458,7 @@ class Localizer:
         k = self.backend.query_keypoints if p.max_keypoints is None else p.max_keypoints
         groups = (query_frame_groups(res.rotations, p.max_query_frames, p.frame_split_deg) if p.query_frame == "map"
                   else [(None, np.arange(len(res.rotations)))])
-        best, best_key = None, None
+        best, best_key, first = None, None, None
         for R, idx in groups:
             feats = (self.backend.extract(img, max_keypoints=k) if R is None
                      else extract_in_map_frame(self.backend, img, R, max_keypoints=k))
@@ -446,11 +468,17 @@ class Localizer:
                                     m.features, self.backend, p.refine)
             ref.candidate = int(idx[ref.candidate])
             ref.rival_candidate = int(idx[ref.rival_candidate]) if ref.rival_candidate >= 0 else -1
+            first = feats if first is None else first
             key = (ref.refined, ref.num_inliers)
             if best_key is None or key > best_key:  # ties: the frame of the better-ranked candidates
                 best, best_key = (ref, len(feats)), key
             if ref.refined:  # the next frames are tried only where this one's candidates failed
                 break
+        if not best[0].refined and p.refine.retrieval.views > 0 and len(first):
+            found = refine_by_retrieval(first, (W, H), m.features, self.backend, p.refine,
+                                        self._retrieval_context(arcs, res))
+            if found is not None:
+                best = (found, len(first))
         return best
 
     def _polish_geometric(self, out: "Localization", arcs: np.ndarray, translation_index: int) -> None:
@@ -548,10 +576,18 @@ class Localizer:
         lap = _StageLaps(out.seconds)
 
         if self.refine_enabled:
-            ref, out.num_query_features = self._refine_features(img, arcs[out.arc_groups >= 0], res)
+            ref, out.num_query_features = self._refine_features(img, arcs[out.arc_groups >= 0], res, arcs)
             out.rot_cam_from_world, out.center = ref.rot_cam_from_world, ref.center
             out.coarse_rot, out.coarse_center = res.rotations[ref.candidate], res.centers[ref.candidate]
             out.arc_groups = labels[res.rotation_index[ref.candidate]]
+            translation = res.translation_index[ref.candidate]
+            out.retrieval = ref.retrieved
+            if ref.retrieved:  # no candidate of the search is near the pose: its own arc groups and translation
+                from ldlloc.rotation import assign_arcs_to_principal
+
+                dirs = (ref.rot_cam_from_world @ self.map.principal_directions.T).T
+                out.arc_groups = assign_arcs_to_principal(arcs, dirs, self.params.principal.group_tol)
+                translation = int(self.map.nearest_translation(ref.center[None])[0])
             out.refined, out.num_matches, out.num_inliers, out.message = (
                 ref.refined, ref.num_matches, ref.num_inliers, ref.message)
             out.refine_method = "features" if out.refined else "none"
@@ -559,7 +595,7 @@ class Localizer:
                 out.pnp_rival = {"R": ref.rival_rot, "t": ref.rival_center, "inliers": ref.rival_inliers,
                                  "candidate": ref.rival_candidate}
             if self.refine_mode == "both" or (self.fallback_geometric and not out.refined):
-                self._polish_geometric(out, arcs, res.translation_index[ref.candidate])
+                self._polish_geometric(out, arcs, translation)
         elif self.refine_mode == "geometric":
             self._refine_geometric(out, arcs, res)
         else:

@@ -12,6 +12,10 @@ support (``strong_inliers``, ``strong_ratio``), the coarse pose is kept and flag
 pose distinct from the kept one (another copy of an identical room explains the features as well)
 is kept as its ``rival``: PnP is tried on one more view, of a candidate distinct from the kept pose,
 when none of the tried views gave a distinct pose (:mod:`ldlloc.confidence` weighs it).
+
+When no plausible PnP pose comes out, :func:`refine_by_retrieval` is the fallback: the map's views
+most like the query by a bag of visual words (:mod:`ldlloc.refine.retrieval`), wherever they stand,
+give PnP poses that are kept only when their line loss is about as good as the search's best.
 """
 
 from __future__ import annotations
@@ -23,6 +27,7 @@ import numpy as np
 from ldlmap.core.geometry import bearing_from_pixel, cam_from_world, normalize, rotation_error_deg
 from ldlloc.confidence import distinct
 from ldlloc.refine.pnp import PnPParams, estimate_pose_spherical
+from ldlloc.refine.retrieval import RetrievalContext, RetrievalParams, accept_retrieved
 
 
 @dataclass(frozen=True)
@@ -38,6 +43,8 @@ class RefineParams:
     pnp_views: int = 5  # PnP is tried on the matches of this many best-supported distinct views
     privacy_radius: float = 0.05  # privacy mode: keep features within this (rad) of principal lines
     pnp: PnPParams = field(default_factory=PnPParams)
+    retrieval: RetrievalParams = field(default_factory=RetrievalParams)  # fallback: PnP on the views most like
+    # the query, where the candidates' views give no plausible pose (ldlloc.refine.retrieval)
 
 
 @dataclass
@@ -55,6 +62,8 @@ class Refinement:
     rival_center: np.ndarray | None = None
     rival_inliers: int = 0  # its inliers (0: no distinct PnP pose)
     rival_candidate: int = -1  # the top-K candidate whose view gave it
+    retrieved: dict | None = None  # the pose came from view retrieval: {view, rank, inliers, loss, search_loss,
+    # feature_share} (refine_by_retrieval)
 
 
 def keep_near_lines(keypoints_uv: np.ndarray, arcs: np.ndarray, width: int, height: int,
@@ -162,4 +171,53 @@ def refine_candidates(query_feats, query_size: tuple[int, int], rotations: np.nd
         n, k_rival, _, rival = max(rivals, key=lambda r: (r[0], -r[1]))
         out.rival_rot, out.rival_center, out.rival_inliers, out.rival_candidate = (
             rival.rot_cam_from_world, rival.center, n, k_rival)
+    return out
+
+
+def refine_by_retrieval(query_feats, query_size: tuple[int, int], map_features, backend, params: RefineParams,
+                        ctx: RetrievalContext) -> Refinement | None:
+    """The retrieval fallback (module docstring): PnP on the matches of the ``params.retrieval.views``
+    views most like the query (:meth:`ldlloc.refine.retrieval.ViewIndex.rank`); of the poses that
+    :func:`ldlloc.refine.retrieval.accept_retrieved` accepts, the one with the best line loss (ties:
+    more inliers), its ``rival`` the retrieved pose distinct from it with the most inliers (accepted
+    or not). None when none is accepted. ``candidate`` of the result is 0 (the search's best);
+    ``retrieved["feature_share"]``: its inliers over ``strong_inliers`` and its inlier ratio over
+    ``strong_ratio``, the smaller, at most 1 (the confidence's ``features`` signal for it,
+    :mod:`ldlloc.confidence`)."""
+    W, H = query_size
+    rp = params.retrieval
+    if rp.views <= 0 or len(query_feats) == 0:
+        return None
+    views = ctx.index.rank(query_feats.descriptors)[:rp.views]
+    matches = _match_distinct_views(query_feats, (W, H), views, map_features, backend, params.ratio)
+    found = []
+    for rank, v in enumerate(views):
+        m = matches[int(v)]
+        if len(m) < max(params.pnp.min_inliers, rp.min_inliers):
+            continue
+        res = estimate_pose_spherical(query_feats.keypoints[m[:, 0]], map_features.xyz[m[:, 1]], W, H, params.pnp)
+        if res is not None:
+            found.append((int(v), rank, len(m), int(res.inliers.sum()), res))
+    if not found:
+        return None
+    losses = ctx.loss(np.stack([f[4].rot_cam_from_world for f in found]), np.stack([f[4].center for f in found]))
+    ok = [(float(loss), f) for loss, f in zip(losses, found)
+          if accept_retrieved(f[3], float(loss), ctx.search_loss, rp)]
+    if not ok:
+        return None
+    loss, (v, rank, n_matches, inliers, res) = min(ok, key=lambda x: (x[0], -x[1][3]))
+    # how near its support comes to the strong support that the plausibility guard asks of a PnP pose
+    # far from every candidate (1: as strong)
+    share = min(1.0, inliers / max(params.strong_inliers, 1),
+                inliers / max(n_matches, 1) / max(params.strong_ratio, 1e-9))
+    out = Refinement(res.rot_cam_from_world, res.center, True, 0, n_matches, inliers,
+                     f"retrieval: view {v} (rank {rank + 1}), {inliers} inliers of {n_matches} matches, line loss "
+                     f"{loss:.0f} against the search's {ctx.search_loss:.0f}",
+                     retrieved={"view": v, "rank": rank, "inliers": inliers, "loss": loss,
+                                "search_loss": float(ctx.search_loss), "feature_share": round(share, 6)})
+    # the retrieved views of an identical room's copies give their own poses: the best distinct one is the rival
+    rivals = [f for f in found if distinct(res.rot_cam_from_world, res.center, f[4].rot_cam_from_world, f[4].center)[0]]
+    if rivals:
+        rival = max(rivals, key=lambda f: (f[3], -f[1]))
+        out.rival_rot, out.rival_center, out.rival_inliers = rival[4].rot_cam_from_world, rival[4].center, rival[3]
     return out
