@@ -56,7 +56,7 @@ def rank_queries(dataset: Path, top_k: int = 20, device: str = "cpu"
     the line counts behind the search (``arcs_2d`` kept per query, ``lines_3d`` per map)."""
     from ldlloc.lines2d import detect_lines, filter_by_length
     from ldlloc.pipeline import LocalizeParams, load_image
-    from ldlloc.rotation import candidate_rotations, rotation_labels, vanishing_points
+    from ldlloc.rotation import candidate_rotations, frame_rows, rotation_labels, vanishing_points
     from ldlloc.search.pose_search import SearchParams, search_poses
     from ldlmap.datasets import open_dataset
     from ldlmap.core.errors import InputError
@@ -85,7 +85,8 @@ def rank_queries(dataset: Path, top_k: int = 20, device: str = "cpu"
                 arcs = filter_by_length(detect_lines(img, p.lines2d), m.kept_ratio)
                 counts["arcs_2d"].append(int(len(arcs)))
                 vps = vanishing_points(arcs, p.principal.k_2d, p.principal)
-                rots = candidate_rotations(vps, m.principal_directions, params=p.principal)
+                rots = candidate_rotations(vps, m.principal_directions, params=p.principal,
+                                           seed=frame_rows(m.principal_directions))
                 if len(rots) == 0:
                     raise InputError("no candidate rotation")
                 labels = rotation_labels(arcs, vps, rots, m.principal_directions, p.principal.group_tol)

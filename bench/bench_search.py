@@ -100,7 +100,7 @@ def main() -> None:
     from ldlloc.search.fields import DistanceFields
     from ldlloc.lines2d import detect_lines, filter_by_length
     from ldlloc.pipeline import load_image
-    from ldlloc.rotation import PrincipalParams, candidate_rotations, rotation_labels, vanishing_points
+    from ldlloc.rotation import PrincipalParams, candidate_rotations, frame_rows, rotation_labels, vanishing_points
     from ldlloc.search.pose_search import SearchParams, search_poses
 
     if args.threads > 0:
@@ -129,7 +129,8 @@ def main() -> None:
                 arcs = filter_by_length(detect_lines(img), m.kept_ratio)
                 b = time.perf_counter()
                 vps = vanishing_points(arcs, pp.k_2d, pp)
-                rots = candidate_rotations(vps, m.principal_directions, params=pp)
+                rots = candidate_rotations(vps, m.principal_directions, params=pp,
+                                           seed=frame_rows(m.principal_directions))
                 labels = rotation_labels(arcs, vps, rots, m.principal_directions, pp.group_tol)
                 c = time.perf_counter()
                 if len(rots) == 0:

@@ -510,7 +510,7 @@ class Localizer:
         :class:`Localization` and what refinement needs. ``lines``: the panorama's 2D lines from
         :meth:`detect_lines` (shared with other maps; their seconds are counted as ``lines2d``)."""
         from ldlloc.lines2d import filter_by_length, query_keep_ratio
-        from ldlloc.rotation import candidate_rotations, filter_by_tilt, rotation_labels
+        from ldlloc.rotation import candidate_rotations, filter_by_tilt, frame_rows, rotation_labels
         from ldlloc.search.pose_search import search_poses
         from ldlmap.core.frame import is_identity
 
@@ -533,7 +533,8 @@ class Localizer:
         found = 0
         for ratio in sorted({max(keep, p.vp_keep_ratio), 0.5, 1.0}):
             vps = lines.vanishing_points(ratio, p.principal)
-            rots = candidate_rotations(vps, m.principal_directions, params=p.principal)
+            rots = candidate_rotations(vps, m.principal_directions, params=p.principal,
+                                       seed=frame_rows(m.principal_directions))
             found = max(found, len(rots))
             if tilt is not None:
                 rots = filter_by_tilt(rots, tilt)

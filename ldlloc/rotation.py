@@ -31,7 +31,10 @@ vanishing points at 90 deg, so a view of the vertical and one wall direction, wh
 matches, still gets its rotation), and each candidate then pairs every map direction ``j`` with the vanishing
 point nearest ``R p_j`` (within ``ortho_tol_deg``; -1 when none), so arcs are grouped for all K
 directions (:func:`rotation_labels`: through that vanishing point, or through ``R p_j`` itself
-where none was voted).
+where none was voted). A sloped ceiling's inclined directions (maps of kind "sloped") take part in
+that pairing only: the rotations come from the vertical and the horizontals (:func:`frame_rows`),
+which every such room has, as they would without the slope (a Manhattan frame's triplets alone),
+so the inclined rows group the slope's arcs without multiplying the candidates.
 
 Upright prior (:func:`filter_by_tilt`, ``ldlloc localize/run --max-tilt DEG``): an option beyond
 the paper, whose rotation is free. The camera's up axis is camera +z, in the world
@@ -191,13 +194,17 @@ MIN_TRIPLET_DET = 0.2  # map triplets with |det| below this are (near) coplanar:
 
 def candidate_rotations(vp2d: np.ndarray, principal3d: np.ndarray,
                         ortho_tol_deg: float | None = None, residual_tol: float | None = None,
-                        params: PrincipalParams = PrincipalParams()) -> RotationCandidates:
+                        params: PrincipalParams = PrincipalParams(), seed: np.ndarray | None = None
+                        ) -> RotationCandidates:
     """Candidate rotations from 2D vanishing points and the map's K >= 3 principal directions.
 
     Args:
         vp2d: (k, 3) unit 2D principal directions (camera frame), e.g. :func:`vanishing_points`.
         principal3d: (K, 3) unit 3D principal directions (world frame), one per row.
         ortho_tol_deg, residual_tol: override ``params`` (see :class:`PrincipalParams`).
+        seed: (K,) bool, K > 3 only: the map directions whose triplets and pairs give rotations
+            (:func:`frame_rows`: the vertical and the horizontals); the others (a sloped ceiling's
+            inclined directions) are only paired with vanishing points. None: all.
 
     Returns:
         :class:`RotationCandidates` sorted by residual (possibly empty).
@@ -211,7 +218,7 @@ def candidate_rotations(vp2d: np.ndarray, principal3d: np.ndarray,
     if not (np.isfinite(vp).all() and np.isfinite(P).all()):
         raise InputError("principal directions contain NaN or infinite values")
     if len(P) > 3:
-        return _candidates_of_many(vp, P, ortho_tol_deg, residual_tol, params)
+        return _candidates_of_many(vp, P, ortho_tol_deg, residual_tol, params, seed)
     ortho = params.ortho_tol_deg if ortho_tol_deg is None else ortho_tol_deg
     rtol = params.residual_tol if residual_tol is None else residual_tol
     vp = vp / np.maximum(np.linalg.norm(vp, axis=1, keepdims=True), 1e-12)
@@ -246,6 +253,15 @@ def candidate_rotations(vp2d: np.ndarray, principal3d: np.ndarray,
     R, res, triplets, signs = R[order], res[order], triplets[order], signs[order]
     keep = _distinct(R, params.dedup_deg)
     return RotationCandidates(R[keep], triplets[keep].astype(np.int64), signs[keep], res[keep])
+
+
+def frame_rows(principal3d: np.ndarray, up: np.ndarray = (0.0, 0.0, 1.0), tol_deg: float = 10.0) -> np.ndarray:
+    """(K,) bool: the map directions within ``tol_deg`` of ``up`` or of horizontal (the map
+    frame's up is z): the vertical and the horizontals, not a sloped ceiling's inclined directions."""
+    P = np.asarray(principal3d, dtype=np.float64)
+    u = np.asarray(up, dtype=np.float64) / np.linalg.norm(up)
+    c = np.abs(P @ u) / np.maximum(np.linalg.norm(P, axis=1), 1e-12)
+    return (c < np.sin(np.radians(tol_deg))) | (c > np.cos(np.radians(tol_deg)))
 
 
 def _empty(k: int) -> RotationCandidates:
@@ -291,23 +307,29 @@ def _pair_rotations(vp: np.ndarray, P: np.ndarray, ortho: float, rtol: float) ->
 
 
 def _candidates_of_many(vp: np.ndarray, P: np.ndarray, ortho_tol_deg: float | None, residual_tol: float | None,
-                        params: PrincipalParams) -> RotationCandidates:
-    """:func:`candidate_rotations` for K > 3 map directions: every non-coplanar map triplet
-    matched, the rotations pooled in residual order and de-duplicated, then every map direction
-    paired with the vanishing point nearest its image (see the module docstring)."""
+                        params: PrincipalParams, seed: np.ndarray | None = None) -> RotationCandidates:
+    """:func:`candidate_rotations` for K > 3 map directions: every non-coplanar triplet of the
+    ``seed`` map directions matched, the rotations pooled in residual order and de-duplicated, then
+    every map direction paired with the vanishing point nearest its image (see the module docstring)."""
     P = P / np.maximum(np.linalg.norm(P, axis=1, keepdims=True), 1e-12)
     vp = vp / np.maximum(np.linalg.norm(vp, axis=1, keepdims=True), 1e-12)
     ortho = params.ortho_tol_deg if ortho_tol_deg is None else ortho_tol_deg
-    rots, res = [], []
-    for trip in combinations(range(len(P)), 3):
-        if abs(np.linalg.det(P[list(trip)])) < MIN_TRIPLET_DET:
-            continue
-        c = candidate_rotations(vp, P[list(trip)], ortho_tol_deg, residual_tol, params)
-        rots.append(c.rotations)
-        res.append(c.residuals)
-    pair_rots, pair_res = _pair_rotations(vp, P, ortho, params.residual_tol if residual_tol is None else residual_tol)
-    rots.append(pair_rots)
-    res.append(pair_res)
+    rows = np.arange(len(P)) if seed is None or np.count_nonzero(seed) < 3 else np.flatnonzero(seed)
+    if len(rows) == 3:  # a Manhattan (or 3-direction Atlanta) frame and inclined rows: its own triplets only
+        c = candidate_rotations(vp, P[rows], ortho_tol_deg, residual_tol, params)
+        rots, res = [c.rotations], [c.residuals]
+    else:
+        rots, res = [], []
+        for trip in combinations(rows.tolist(), 3):
+            if abs(np.linalg.det(P[list(trip)])) < MIN_TRIPLET_DET:
+                continue
+            c = candidate_rotations(vp, P[list(trip)], ortho_tol_deg, residual_tol, params)
+            rots.append(c.rotations)
+            res.append(c.residuals)
+        rtol = params.residual_tol if residual_tol is None else residual_tol
+        pair_rots, pair_res = _pair_rotations(vp, P[rows], ortho, rtol)
+        rots.append(pair_rots)
+        res.append(pair_res)
     if not sum(len(r) for r in rots):
         return _empty(len(P))
     R, res = np.concatenate(rots), np.concatenate(res)

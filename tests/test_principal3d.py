@@ -8,8 +8,9 @@ import pytest
 from ldlmap.core.errors import InputError
 from ldlmap.core.geometry import rotation_from_axis_angle
 from ldlmap.lines3d import extract_lines, filter_by_length
-from ldlmap.lines3d.principal import (assign_line_groups, horizontal_directions, manhattan_frame,
+from ldlmap.lines3d.principal import (FrameParams, assign_line_groups, horizontal_directions, manhattan_frame,
                                       principal_directions_3d, principal_frame)
+from ldlmap.map.validate import check_principal
 from tests._room_cloud import box_room
 
 
@@ -146,27 +147,43 @@ def test_angled_room_gets_an_atlanta_frame_with_its_wall_directions():
     assert max(min(_angle(f, w) for f in M) for w in walls) > 40.0
 
 
-def test_box_with_sloped_ceiling_keeps_the_manhattan_frame():
-    """A shed ceiling's slope edges are not horizontal: they do not vote for the horizontals, and
-    the vertical stays the vertical."""
+def test_sloped_ceilings_add_their_inclined_directions():
+    """A shed ceiling's slope edges are not horizontal: they do not vote for the horizontals, the
+    vertical stays the vertical, and the slope becomes a direction of its own (a gable: two)."""
     from ldlmap.synth.edges import mesh_edges
     from ldlmap.synth.scene import build_scene
     from ldlmap.synth.spec import CeilingSpec, SceneSpec
 
     rect = ((0.0, 0.0), (5.0, 0.0), (5.0, 4.0), (0.0, 4.0))
-    lines = mesh_edges(build_scene(SceneSpec("t", rect, 2.4, ceiling=CeilingSpec("shed", 0.0, 40.0))))
-    slope = np.array([np.cos(np.radians(40.0)), 0.0, np.sin(np.radians(40.0))])
-    d = (lines[:, 1] - lines[:, 0]) / np.linalg.norm(lines[:, 1] - lines[:, 0], axis=1, keepdims=True)
-    assert (np.abs(d @ slope) > 0.99).sum() >= 2  # the slope's edges are there
-    P = principal_directions_3d(lines)
-    F, _, kind = principal_frame(lines, P)
-    assert kind == "manhattan"
-    np.testing.assert_allclose(F @ F.T, np.eye(3), atol=1e-9)
-    for true in np.eye(3):
-        assert min(_angle(f, true) for f in F) < 1.0
-    # Walls at 45 degrees under a sloped ceiling keep it too (their Atlanta frames localized worse:
-    # docs/measurements.md#atlanta-frame), and without the slope get the Atlanta frame.
+    for ceiling, slopes in ((CeilingSpec("shed", 0.0, 40.0), [40.0]), (CeilingSpec("shed", 0.0, 15.0), [15.0]),
+                            (CeilingSpec("gable", 0.0, 30.0), [30.0, 30.0])):
+        lines = mesh_edges(build_scene(SceneSpec("t", rect, 2.4, ceiling=ceiling)))
+        F, _, kind = principal_frame(lines, principal_directions_3d(lines))
+        assert kind == "sloped" and len(F) == 3 + len(slopes)
+        np.testing.assert_allclose(F[:3] @ F[:3].T, np.eye(3), atol=1e-9)  # the box's Manhattan frame first
+        for true in np.eye(3):
+            assert min(_angle(f, true) for f in F[:3]) < 1.0
+        rise = np.degrees(np.arcsin(np.abs(F[3:, 2])))
+        np.testing.assert_allclose(np.sort(rise), slopes, atol=0.5)
+        assert np.all(np.abs(F[3:, 1]) < 1e-3)  # slopes run along x (direction_deg 0)
+        check_principal(F, orthonormal=False)  # a 15-deg slope is still a distinct map direction
+    # Walls at 45 degrees under a sloped ceiling keep their Atlanta frame, and the slope is added.
     rhomb = ((0.0, 0.0), (6.0, 0.0), (8.5, 2.5), (2.5, 2.5))  # convex, as sloped ceilings need
-    for ceiling, frame in ((CeilingSpec("shed", 0.0, 30.0), "manhattan"), (CeilingSpec(), "atlanta")):
+    for ceiling, frame in ((CeilingSpec("shed", 0.0, 30.0), "sloped"), (CeilingSpec(), "atlanta")):
         lines = mesh_edges(build_scene(SceneSpec("t", rhomb, 2.4, ceiling=ceiling)))
-        assert principal_frame(lines, principal_directions_3d(lines))[2] == frame
+        F, _, kind = principal_frame(lines, principal_directions_3d(lines))
+        assert kind == frame
+        horizontal = F[np.abs(F[:, 2]) < 1e-3]
+        assert min(_angle(h, np.array([0.7071, 0.7071, 0.0])) for h in horizontal) < 1.0
+    assert principal_frame(lines, principal_directions_3d(lines), params=FrameParams(max_inclined=0))[2] == "atlanta"
+
+
+def test_line_groups_keep_to_their_elevation():
+    """With the up axis, a sloped edge 15 deg off a wall direction joins no horizontal group (its
+    arc misses that direction's vanishing point in a panorama), while level lines do."""
+    P = np.array([[0, 0, 1.0], [1, 0, 0], [0, 1, 0]])
+    s15 = [np.cos(np.radians(15)), 0, np.sin(np.radians(15))]
+    d = np.array([[1, 0.02, 0], s15, [0.05, 0, 1], [0.2, 1, 0.02]])
+    assert assign_line_groups(d, P).tolist() == [1, 1, 0, 2]
+    assert assign_line_groups(d, P, up=(0, 0, 1)).tolist() == [1, -1, 0, 2]
+    assert assign_line_groups(d, np.vstack([P, s15]), up=(0, 0, 1)).tolist() == [1, 3, 0, 2]

@@ -103,9 +103,16 @@ def principal_directions_3d(lines: np.ndarray, k: int = 3,
 
 
 def assign_line_groups(directions_of_lines: np.ndarray, principal: np.ndarray,
-                       cos_thresh: float = 0.95) -> np.ndarray:
+                       cos_thresh: float = 0.95, up: np.ndarray | None = None,
+                       elevation_deg: float = 10.0) -> np.ndarray:
     """Group index (N,) of each line: the principal direction with the largest ``|cos|`` when it
-    exceeds ``cos_thresh`` (a line joins group j when ``|d . p_j| > 0.95``), else -1."""
+    exceeds ``cos_thresh`` (a line joins group j when ``|d . p_j| > 0.95``), else -1.
+
+    With ``up``, a line joins only the directions whose elevation (angle above the horizontal
+    plane of ``up``) is within ``elevation_deg`` of its own: a sloped ceiling's edge 15 deg off a
+    wall direction stays out of that horizontal's group (in a panorama its arc does not pass
+    through the wall direction's vanishing point, so the query would not put it there either).
+    """
     D = normalize(np.asarray(directions_of_lines, dtype=np.float64))
     Pd = normalize(np.asarray(principal, dtype=np.float64))
     if D.ndim != 2 or D.shape[1] != 3 or Pd.ndim != 2 or Pd.shape[1] != 3:
@@ -113,6 +120,11 @@ def assign_line_groups(directions_of_lines: np.ndarray, principal: np.ndarray,
     if len(D) == 0:
         return np.zeros(0, np.int64)
     c = np.abs(D @ Pd.T)
+    if up is not None:
+        u = normalize(np.asarray(up, dtype=np.float64)[None])[0]
+        elevation = np.degrees(np.arcsin(np.clip(np.abs(np.concatenate([D, Pd]) @ u), 0.0, 1.0)))
+        far = np.abs(elevation[:len(D), None] - elevation[None, len(D):]) > elevation_deg
+        c = np.where(far, 0.0, c)
     best = np.argmax(c, axis=1)
     return np.where(c[np.arange(len(D)), best] > cos_thresh, best, -1).astype(np.int64)
 
@@ -160,8 +172,8 @@ class FrameParams:
 
     horizontal_deg: float = 10.0  # lines this close to horizontal give the horizontal directions
     atlanta_deg: float = 10.0  # Atlanta frame when the two main horizontals are more than this from perpendicular
-    max_inclined_share: float = 0.02  # ... and at most this share of the line length is inclined (10-80 deg
-    # from horizontal): sloped ceilings keep the Manhattan frame, their Atlanta frames localized worse
+    sloped_share: float = 0.02  # a room is sloped (its ceiling) when more than this share of the line length
+    # is inclined (10-80 deg from horizontal); its frame then gets inclined directions
     separate_deg: float = 26.0  # the second horizontal: among lines at least this far from the first
     # (closer directions could not be told apart: the map's directions must differ by arccos 0.9)
     vote_deg: float = 2.0  # azimuth votes smoothed over +- this
@@ -172,6 +184,11 @@ class FrameParams:
     # length (within refine_deg of it), so clutter (a table at an angle) adds no direction
     extra_share: float = 0.1  # a room whose two main horizontals are perpendicular keeps the Manhattan
     # frame unless its other horizontal directions hold at least this share of the horizontal length
+    max_inclined: int = 2  # sloped ceilings: at most this many inclined directions added to the frame (a
+    # gable's two slopes; docs/measurements.md#inclined-directions)
+    inclined_share: float = 0.02  # ... each holding at least this share of all the line length
+    inclined_apart_deg: float = 12.0  # ... and at least this far from every other direction (a 15-deg slope
+    # is 15 deg from its horizontal; ldlmap.map.validate.MAX_PRINCIPAL_COS)
 
 
 def _vertical(E: np.ndarray, u: np.ndarray) -> tuple[int, np.ndarray]:
@@ -291,25 +308,55 @@ def horizontal_directions(lines: np.ndarray, v: np.ndarray, params: FrameParams 
     return H, float(_apart(azimuth[1], azimuth[0]))
 
 
+def inclined_peaks(lines: np.ndarray, frame: np.ndarray, v: np.ndarray, params: FrameParams = FrameParams()
+                   ) -> np.ndarray:
+    """Inclined line directions (n, 3), n <= ``max_inclined``, to add to ``frame`` (K, 3): the
+    length-weighted 3D vote (:func:`principal_directions_3d`) among the lines 10-80 degrees from
+    horizontal (``horizontal_deg``) and at least ``inclined_apart_deg`` from every frame direction, each
+    peak kept while it holds ``inclined_share`` of all the line length (within ``refine_deg``). A
+    sloped ceiling's edges (the gable walls' tops, the slope's own creases) then form groups of
+    their own instead of being left out of the loss."""
+    d, w = line_directions(lines)
+    v = normalize(np.asarray(v, dtype=np.float64)[None])[0]
+    total = max(float(w.sum()), 1e-12)
+    elevation = np.degrees(np.arcsin(np.clip(np.abs(d @ v), 0.0, 1.0)))
+    cos_sep = np.cos(np.radians(params.inclined_apart_deg))
+    alive = ((elevation > params.horizontal_deg) & (elevation < 90.0 - params.horizontal_deg) & (w > 1e-12)
+             & np.all(np.abs(d @ np.asarray(frame).T) < cos_sep, axis=1))
+    found: list[np.ndarray] = []
+    L = np.asarray(lines, dtype=np.float64)
+    while len(found) < params.max_inclined and alive.any():
+        p = principal_directions_3d(L[alive], k=1)[0]
+        near = np.abs(d @ p) >= np.cos(np.radians(params.refine_deg))
+        if float(w[near & alive].sum()) < params.inclined_share * total:
+            break
+        found.append(p * (1.0 if p @ v >= 0 else -1.0))
+        alive &= np.abs(d @ p) < cos_sep
+    return np.asarray(found, dtype=np.float64).reshape(-1, 3)
+
+
 def principal_frame(lines: np.ndarray, estimated: np.ndarray, up: np.ndarray = (0.0, 0.0, 1.0),
                     params: FrameParams = FrameParams()) -> tuple[np.ndarray, np.ndarray, str]:
     """The map's principal directions: the Manhattan frame, or an Atlanta frame where the walls
-    are not at right angles. Returns ``(frame (K, 3), deviation_deg (3,), kind)``, kind
-    ``"manhattan"`` (K = 3) or ``"atlanta"`` (K = 3 .. 1 + ``max_horizontals``).
+    are not at right angles, and inclined directions where the ceiling slopes. Returns ``(frame
+    (K, 3), deviation_deg (3,), kind)``, kind ``"manhattan"`` (K = 3), ``"atlanta"`` (K = 3 .. 1 +
+    ``max_horizontals``) or ``"sloped"`` (either of those and 1 .. ``max_inclined`` inclined rows).
 
     The vertical is kept as :func:`manhattan_frame` keeps it; the horizontals come from the
-    horizontal lines only (:func:`horizontal_directions`: sloped ceiling edges and other inclined
-    lines do not compete). When the two main horizontal directions are within ``atlanta_deg`` of
-    perpendicular (boxes), or more than ``max_inclined_share`` of the line length is inclined
-    (sloped ceilings), the Manhattan frame is used (:func:`manhattan_frame`, unchanged); otherwise
-    the frame is (vertical, first, second horizontal): walls at 30-75 degrees keep their own
-    directions instead of being folded onto a perpendicular pair. Rooms whose walls run in more
-    than two horizontal directions (:func:`horizontal_peaks`: each further one holding at least
-    ``min_share`` of the horizontal line length) keep them all, as rows 3 and on, whether or not
-    the main two are perpendicular, once those further ones hold ``extra_share`` of the length
-    together (below that, with a perpendicular main pair: the Manhattan frame, as for boxes). The
-    first three rows are ordered like ``estimated`` and right-handed; ``deviation_deg``: each
-    estimated direction's angle to its row.
+    horizontal lines only (:func:`horizontal_peaks`: sloped ceiling edges and other inclined lines
+    do not compete). When the two main horizontal directions are within ``atlanta_deg`` of
+    perpendicular (boxes), the Manhattan frame is used (:func:`manhattan_frame`, unchanged);
+    otherwise the frame is (vertical, first, second horizontal): walls at 30-75 degrees keep their
+    own directions instead of being folded onto a perpendicular pair. Rooms whose walls run in more
+    than two horizontal directions (each further one holding at least ``min_share`` of the
+    horizontal line length) keep them all, as rows 3 and on, whether or not the main two are
+    perpendicular, once those further ones hold ``extra_share`` of the length together (below that,
+    with a perpendicular main pair: the Manhattan frame, as for boxes). Where more than
+    ``sloped_share`` of the line length is inclined (a sloped ceiling), the main inclined directions
+    (:func:`inclined_peaks`) follow as the last rows, so the slope's edges form groups of their own
+    in the map and in the query instead of joining a horizontal's group in the map only. The first
+    three rows are ordered like ``estimated`` and right-handed; ``deviation_deg``: each estimated
+    direction's angle to its row.
     """
     E = np.asarray(estimated, dtype=np.float64)
     if E.shape != (3, 3):
@@ -320,11 +367,17 @@ def principal_frame(lines: np.ndarray, estimated: np.ndarray, up: np.ndarray = (
     d, w = line_directions(lines)
     elevation = np.degrees(np.arcsin(np.clip(np.abs(d @ v), 0.0, 1.0)))
     inclined = (elevation > params.horizontal_deg) & (elevation < 90.0 - params.horizontal_deg)
-    sloped = w[inclined].sum() > params.max_inclined_share * max(w.sum(), 1e-12)
+    sloped = w[inclined].sum() > params.sloped_share * max(w.sum(), 1e-12)
     perpendicular = found is not None and 90.0 - float(_apart(found[2][1], found[2][0])) <= params.atlanta_deg
-    if found is None or sloped or (perpendicular and found[1][2:].sum() < params.extra_share):
+    if found is None or (perpendicular and found[1][2:].sum() < params.extra_share):
         F, dev = manhattan_frame(lines, E, u)
-        return F, dev, "manhattan"
-    H = found[0]
-    F = _order_like(np.concatenate([v[None], H[:2]]), E, kv)
-    return np.concatenate([F, H[2:]]), _deviation(F, E), "atlanta"
+        F_all, kind = F, "manhattan"
+    else:
+        H = found[0]
+        F = _order_like(np.concatenate([v[None], H[:2]]), E, kv)
+        dev = _deviation(F, E)
+        F_all, kind = np.concatenate([F, H[2:]]), "atlanta"
+    tilted = inclined_peaks(lines, F_all, v, params) if sloped and params.max_inclined > 0 else np.zeros((0, 3))
+    if len(tilted):
+        return np.concatenate([F_all, tilted]), dev, "sloped"
+    return F_all, dev, kind

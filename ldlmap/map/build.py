@@ -12,10 +12,12 @@ Stages (paper section 3.1, DESIGN.md 5.1-5.4), each timed:
    ``lambda (b_x + b_y + b_z) / 3`` of the robust box, with a floor and a cap on the kept count.
 3. ``principal``: the 3 principal directions by voting, then the map's frame
    (:func:`ldlmap.lines3d.principal.principal_frame`): the nearest orthonormal (Manhattan) frame,
-   or where the main horizontal directions are far from perpendicular (and the ceiling not sloped)
+   or where the main horizontal directions are far from perpendicular
    the vertical and those two (Atlanta frame; ``build_config["principal_frame"]``), and the
    further horizontal directions of rooms whose walls run in more than two (up to
-   ``max_horizontals``: the map then has K > 3 directions); and each kept line's group.
+   ``max_horizontals``: the map then has K > 3 directions); in rooms with a sloped ceiling, the
+   slopes' inclined directions too (up to ``max_inclined``); and each kept line's group (lines
+   join only directions of about their own elevation).
 4. ``translations``: N_t candidate camera centres in the free space of the scan.
    ``fields``: when ``distance_fields``, each translation's K decomposed 3D line distance
    functions sampled on a spherical grid (:mod:`ldlmap.map.fields3d`) for the fast pose search.
@@ -77,6 +79,8 @@ class BuildParams:
     # (the vertical and those two; ldlmap.lines3d.principal.principal_frame). False: always Manhattan
     max_horizontals: int = 4  # Atlanta frames: at most this many horizontal directions, where the walls run
     # in more than two (FrameParams.max_horizontals; 2: the vertical and the main two only)
+    max_inclined: int = 2  # sloped ceilings: at most this many inclined directions added to the frame
+    # (FrameParams.max_inclined; 0: none)
 
 
 @dataclass
@@ -374,7 +378,8 @@ def build_from_input(src: SceneInput, output: Path, params: BuildParams, name: s
     deviation, frame_kind = np.zeros(3), "voted"
     if params.orthonormal_directions and params.atlanta_frame:
         principal, deviation, frame_kind = principal_frame(lines, principal,
-                                                           params=FrameParams(max_horizontals=params.max_horizontals))
+                                                           params=FrameParams(max_horizontals=params.max_horizontals,
+                                                                              max_inclined=params.max_inclined))
     elif params.orthonormal_directions:
         (principal, deviation), frame_kind = manhattan_frame(lines, principal), "manhattan"
     if frame_kind == "atlanta" and len(principal) == 3:
@@ -387,13 +392,23 @@ def build_from_input(src: SceneInput, output: Path, params: BuildParams, name: s
         report.notes.append(f"principal directions: an Atlanta frame of {len(principal)} (the vertical and "
                             f"{len(principal) - 1} horizontal directions, at azimuths "
                             f"{', '.join(f'{a:.0f}' for a in azimuths)} deg: walls in more than two directions)")
+    elif frame_kind == "sloped":
+        rise = np.degrees(np.arcsin(np.minimum(np.abs(principal[:, 2]), 1.0)))  # each row's elevation
+        tilted = [f"{a:.0f}" for a in rise if 10.0 < a < 80.0]
+        horizontal = sorted(f"{float(np.degrees(np.arctan2(h[1], h[0]))) % 180.0:.0f}" for h, a in zip(principal, rise)
+                            if a <= 10.0)
+        report.notes.append(f"principal directions: {len(principal)} (the vertical, {len(horizontal)} horizontal "
+                            f"at azimuths {', '.join(horizontal)} deg and {len(tilted)} inclined at "
+                            f"{', '.join(tilted)} deg: a sloped ceiling)")
     if deviation.max() > 5.0:
         frame_words = {"manhattan": "the nearest orthogonal (Manhattan) frame",
+                       "sloped": "the frame of the vertical and the main horizontal directions",
                        "atlanta": "the frame of the vertical and the two main horizontal directions (Atlanta)"}
         report.warnings.append(
             f"the lines' principal directions are up to {deviation.max():.0f} deg off {frame_words[frame_kind]}, "
             "which the map uses: noisy lines or a building of other shapes")
-    groups = assign_line_groups(line_directions(lines)[0], principal)
+    framed = params.orthonormal_directions and params.atlanta_frame  # the map frame's up is z
+    groups = assign_line_groups(line_directions(lines)[0], principal, up=(0.0, 0.0, 1.0) if framed else None)
     stage("principal")
     start("translations")
     translations, trans_info = scene_translations(src, lines, lines_raw, params)

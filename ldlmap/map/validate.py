@@ -55,6 +55,8 @@ def manhattan_map(config: dict) -> bool:
 
 
 MAX_PRINCIPAL = 7  # at most this many principal directions (an Atlanta frame: the vertical and 6 horizontals)
+MAX_PRINCIPAL_COS = 0.98  # distinct directions: |cos| at most this (11.5 deg; a 15-deg ceiling slope's
+# direction beside its horizontal, ldlmap.lines3d.principal.FrameParams.inclined_apart_deg)
 
 
 def check_principal(P: np.ndarray, orthonormal: bool) -> None:
@@ -67,7 +69,7 @@ def check_principal(P: np.ndarray, orthonormal: bool) -> None:
     if not np.allclose(np.linalg.norm(P, axis=1), 1.0, atol=1e-4):
         raise InputError("map principal directions are not unit vectors")
     cos = np.abs(P @ P.T)[np.triu_indices(len(P), 1)]
-    if np.any(cos > 0.9):
+    if np.any(cos > MAX_PRINCIPAL_COS):
         raise InputError("map principal directions are not distinct directions")
     if orthonormal and not (len(P) == 3 and np.allclose(P @ P.T, np.eye(3), atol=1e-4) and np.linalg.det(P) > 0):
         raise InputError("map principal directions are not an orthonormal right-handed frame")
