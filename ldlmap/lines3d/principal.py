@@ -340,7 +340,7 @@ def principal_frame(lines: np.ndarray, estimated: np.ndarray, up: np.ndarray = (
     """The map's principal directions: the Manhattan frame, or an Atlanta frame where the walls
     are not at right angles, and inclined directions where the ceiling slopes. Returns ``(frame
     (K, 3), deviation_deg (3,), kind)``, kind ``"manhattan"`` (K = 3), ``"atlanta"`` (K = 3 .. 1 +
-    ``max_horizontals``) or ``"sloped"`` (either of those and 1 .. ``max_inclined`` inclined rows).
+    ``max_horizontals``) or ``"sloped"`` (either of those and 0 .. ``max_inclined`` inclined rows).
 
     The vertical is kept as :func:`manhattan_frame` keeps it; the horizontals come from the
     horizontal lines only (:func:`horizontal_peaks`: sloped ceiling edges and other inclined lines
@@ -352,9 +352,11 @@ def principal_frame(lines: np.ndarray, estimated: np.ndarray, up: np.ndarray = (
     horizontal line length) keep them all, as rows 3 and on, whether or not the main two are
     perpendicular, once those further ones hold ``extra_share`` of the length together (below that,
     with a perpendicular main pair: the Manhattan frame, as for boxes). Where more than
-    ``sloped_share`` of the line length is inclined (a sloped ceiling), the main inclined directions
-    (:func:`inclined_peaks`) follow as the last rows, so the slope's edges form groups of their own
-    in the map and in the query instead of joining a horizontal's group in the map only. The first
+    ``sloped_share`` of the line length is inclined (a sloped ceiling), the frame is ``"sloped"``:
+    the main inclined directions (:func:`inclined_peaks`, none where none holds ``inclined_share``)
+    follow as the last rows, so the slope's edges form groups of their own in the map and in the
+    query instead of joining a horizontal's group in the map only (the map build then groups lines
+    by elevation, :func:`assign_line_groups` with ``up``). The first
     three rows are ordered like ``estimated`` and right-handed; ``deviation_deg``: each estimated
     direction's angle to its row.
     """
@@ -377,7 +379,7 @@ def principal_frame(lines: np.ndarray, estimated: np.ndarray, up: np.ndarray = (
         F = _order_like(np.concatenate([v[None], H[:2]]), E, kv)
         dev = _deviation(F, E)
         F_all, kind = np.concatenate([F, H[2:]]), "atlanta"
-    tilted = inclined_peaks(lines, F_all, v, params) if sloped and params.max_inclined > 0 else np.zeros((0, 3))
-    if len(tilted):
-        return np.concatenate([F_all, tilted]), dev, "sloped"
-    return F_all, dev, kind
+    if not sloped:
+        return F_all, dev, kind
+    tilted = inclined_peaks(lines, F_all, v, params) if params.max_inclined > 0 else np.zeros((0, 3))
+    return np.concatenate([F_all, tilted]), dev, "sloped"

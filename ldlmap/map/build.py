@@ -397,9 +397,9 @@ def build_from_input(src: SceneInput, output: Path, params: BuildParams, name: s
         tilted = [f"{a:.0f}" for a in rise if 10.0 < a < 80.0]
         horizontal = sorted(f"{float(np.degrees(np.arctan2(h[1], h[0]))) % 180.0:.0f}" for h, a in zip(principal, rise)
                             if a <= 10.0)
+        slopes = f"{len(tilted)} inclined at {', '.join(tilted)} deg" if tilted else "no inclined direction"
         report.notes.append(f"principal directions: {len(principal)} (the vertical, {len(horizontal)} horizontal "
-                            f"at azimuths {', '.join(horizontal)} deg and {len(tilted)} inclined at "
-                            f"{', '.join(tilted)} deg: a sloped ceiling)")
+                            f"at azimuths {', '.join(horizontal)} deg and {slopes}: a sloped ceiling)")
     if deviation.max() > 5.0:
         frame_words = {"manhattan": "the nearest orthogonal (Manhattan) frame",
                        "sloped": "the frame of the vertical and the main horizontal directions",
@@ -407,8 +407,9 @@ def build_from_input(src: SceneInput, output: Path, params: BuildParams, name: s
         report.warnings.append(
             f"the lines' principal directions are up to {deviation.max():.0f} deg off {frame_words[frame_kind]}, "
             "which the map uses: noisy lines or a building of other shapes")
-    framed = params.orthonormal_directions and params.atlanta_frame  # the map frame's up is z
-    groups = assign_line_groups(line_directions(lines)[0], principal, up=(0.0, 0.0, 1.0) if framed else None)
+    # under a sloped ceiling, lines join only directions of about their own elevation (the map frame's up is z)
+    groups = assign_line_groups(line_directions(lines)[0], principal,
+                                up=(0.0, 0.0, 1.0) if frame_kind == "sloped" else None)
     stage("principal")
     start("translations")
     translations, trans_info = scene_translations(src, lines, lines_raw, params)
