@@ -1,5 +1,6 @@
-"""Lines cut to where the planes along them run with them (issue 23): a floor meeting a curved
-wall (a fine polygon) gives no straight chord or tangent of the arc; straight creases stay whole."""
+"""Lines cut to where the planes beside them hold their direction (issue 23): on a floor meeting a
+curved wall (a fine polygon), chords and tangents of the arc are cut down; straight creases stay
+whole."""
 
 from __future__ import annotations
 
@@ -59,6 +60,11 @@ def test_chord_and_tangent_of_a_curved_crease_are_cut_straight_crease_stays(curv
     straight = np.array([[0.1, 0.0, 0.0], [0.9, 0.0, 0.0]])
     lines = np.stack([straight, chord, tangent])
     assert len(cut_to_edges(lines, reg, replace(params, along_min_run=0))) == 3
+    # A chord across three facets, 5 cm off the arc in its middle: the local plane fits cut it
+    # (the floor's plane piece and the wall's, fitted across the facets, both hold it).
+    chord3 = np.stack([V[2], V[5]])
+    left = cut_to_edges(chord3[None], reg, params)
+    assert np.linalg.norm(left[:, 1] - left[:, 0], axis=1).sum() < 0.75 * np.linalg.norm(chord3[1] - chord3[0])
     got = cut_to_edges(lines, reg, params)
     length = np.linalg.norm(got[:, 1] - got[:, 0], axis=1)
     assert np.isclose(length, 0.8, atol=0.01).sum() == 1  # the straight crease, whole
