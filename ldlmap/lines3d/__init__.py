@@ -2,7 +2,7 @@
 
 ``params`` (parameters, input checks) -> ``planes`` (planar regions) -> ``boundaries`` (plane
 outlines) and ``intersections`` (plane-plane creases) -> ``merge`` (collinear pieces) ->
-``smooth`` (lines on smooth surfaces) -> ``extract`` (the whole extractor) -> ``filter`` (the paper's length filter); ``principal``
+``smooth`` (lines on smooth surfaces) -> ``along`` (lines cut to where planes run with them) -> ``extract`` (the whole extractor) -> ``filter`` (the paper's length filter); ``principal``
 (principal 3D directions), ``metrics`` (precision / recall against true edges) and ``outputs``
 (line files, top-view pictures) beside them. The names below are the public API.
 """

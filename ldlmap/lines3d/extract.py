@@ -33,7 +33,10 @@ cloud") on numpy / scipy / OpenCV:
    come out whole and the raw output holds what a line detector reports;
 7. lines across which the scanned surface goes on without a crease or a step (the facets of a
    vault or a curved wall, bending less than ``smooth_crease_deg``) are dropped
-   (:func:`ldlmap.lines3d.smooth.smooth_lines`).
+   (:func:`ldlmap.lines3d.smooth.smooth_lines`);
+8. lines are cut to where the planes near them run with them (:func:`ldlmap.lines3d.along.cut_to_edges`):
+   a straight chord or tangent of a curved crease (a floor meeting a curved wall) keeps only the
+   stretches where the arc's facets hold its direction, pieces shorter than ``min_line`` dropped.
 
 Then the paper's length filter (:func:`filter_by_length`) drops segments shorter than
 ``lambda (b_x + b_y + b_z) / 3`` of the scene's robust box (:func:`robust_bounds`), optionally
@@ -49,6 +52,7 @@ import time
 import numpy as np
 
 from ldlmap.core.errors import InputError
+from ldlmap.lines3d.along import cut_to_edges
 from ldlmap.lines3d.boundaries import (_boundary_segments, _edge_supported, _extend_sides, _inside_strips, _seen_past,
                                        _smooth_continuation, _strip_sides, _strips)
 from ldlmap.lines3d.intersections import _intersection_segments, _linear_segments
@@ -119,6 +123,10 @@ def extract_lines_with_stats(points: np.ndarray, params: Lines3DParams = Lines3D
     stats["smooth_lines"] = int(smooth.sum())
     out = out[~smooth]
     lap("smooth")
+    n_before = len(out)
+    out = cut_to_edges(out, reg, params)
+    stats["along_cut"] = n_before - len(out)
+    lap("along")
     stats["lines"] = len(out)
     return out, stats
 
