@@ -216,6 +216,20 @@ def test_verified_pnp_pose_is_not_outvoted_by_lines_alone_on_another_map():
     chosen = choose_map(_options([("floor_2", a, -98.0), ("floor_1", b, -125.0)]))
     assert chosen.loc is b and a.confidence_signals["map_margin"] < 0
 
+    # two verified PnP poses in different places, as good on the lines (twins: neither confident); the one of
+    # most inliers is kept even where the other's search gap makes it the more confident (a wrong floor's
+    # retrieved pose of 16 inliers beside the right floor's 44, issue 21)
+    a = _feature_pose(m, R0, CENTRE, 44)
+    b = _feature_pose(m2, R0, CENTRE + shift, 16)
+    b.candidates_loss = np.array([-100.0, -80.0])
+    b.arcs = a.arcs
+    assess(a, m)
+    assess(b, m2)
+    chosen = choose_map(_options([("floor_0", a, -98.0), ("floor_1", b, -95.0)]))
+    assert a.confidence_signals["map_twin"] == b.confidence_signals["map_twin"] == 1.0
+    assert b.confidence > a.confidence and a.verdict == b.verdict == "ambiguous"
+    assert chosen.loc is a
+
 
 def test_no_pose_is_failed():
     from ldlloc.batch.run import failed_result
