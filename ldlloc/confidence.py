@@ -79,16 +79,21 @@ NO_CONTENDER_MARGIN = 0.5  # ``margin`` when no distinct refined pose came withi
 
 
 RIVAL_SHARE = 0.5  # a distinct PnP pose with half the final pose's inliers or more: the features do not single it out
+VERIFIED_INLIERS = 15  # a feature pose of this many PnP inliers and a line loss at least VERIFIED_LINE_SHARE of its
+VERIFIED_LINE_SHARE = 0.7  # search's best is verified: the retrieval's acceptance (RetrievalParams); across maps only
+# verified poses compete with it (docs/measurements.md#verified-across-maps)
 
 
 def effective_signals(signals: dict[str, float]) -> dict[str, float]:
     """The signals the model weighs: with several maps (``map_margin`` present, :func:`assess_across`)
     the selection margin is the smaller of the margin within the pose's map and across the maps; a
-    PnP rival of :data:`RIVAL_SHARE` or more (``pnp_rival``, ``map_rival``) zeroes ``features``."""
+    PnP rival of :data:`RIVAL_SHARE` or more (``pnp_rival``, ``map_rival``), or another map's verified
+    twin (``map_twin``, :func:`assess_across`), zeroes ``features``."""
     out = dict(signals)
     if "map_margin" in signals:
         out["margin"] = min(float(signals.get("margin", 0.0)), float(signals["map_margin"]))
-    if max(float(signals.get("pnp_rival", 0.0)), float(signals.get("map_rival", 0.0))) >= RIVAL_SHARE:
+    if (max(float(signals.get("pnp_rival", 0.0)), float(signals.get("map_rival", 0.0))) >= RIVAL_SHARE
+            or float(signals.get("map_twin", 0.0)) > 0):
         out["features"] = 0.0
     return out
 
@@ -277,6 +282,18 @@ def assess(loc, ldl_map, support_deg: float = 1.0, model: ConfidenceModel = MODE
     loc.verdict = verdict_for(loc.confidence, loc.competitors, model, rival=rival is not None)
 
 
+def verified(loc, loss: float) -> bool:
+    """Whether ``loc`` is a PnP pose the features and the lines both back: :data:`VERIFIED_INLIERS`
+    inliers or more and an exact line loss ``loss`` of at least :data:`VERIFIED_LINE_SHARE` of its
+    map's search best (losses are negative inlier counts)."""
+    if not str(loc.refine_method).startswith("features") or loc.num_inliers < VERIFIED_INLIERS:
+        return False
+    ret = getattr(loc, "retrieval", None)
+    best = float(ret["search_loss"]) if ret else (
+        float(np.min(loc.candidates_loss)) if loc.candidates_loss is not None and len(loc.candidates_loss) else np.nan)
+    return bool(np.isfinite(loss) and np.isfinite(best) and loss <= VERIFIED_LINE_SHARE * best)
+
+
 def assess_across(locs: list, losses: list[float], names: list[str], params=None, model: ConfidenceModel = MODEL) -> None:
     """Judge one panorama's refined localizations on several maps together (``ldlloc run --images
     --maps DIR``), after :func:`assess` judged each within its map: the maps' final poses compete
@@ -289,7 +306,13 @@ def assess_across(locs: list, losses: list[float], names: list[str], params=None
     within :data:`COMPETITOR_GAP` are named as competitors (``map``: the map's name). A feature pose
     also gets ``map_rival``: the PnP inliers of the other maps' distinct feature poses over its own
     (their best; an identical room on another floor), whose maps are named when it reaches
-    :data:`RIVAL_SHARE`. Calling it
+    :data:`RIVAL_SHARE`. A :func:`verified` feature pose competes only with the other maps' verified
+    poses, and a pose that is not verified cannot win against a distinct verified one (its
+    ``map_margin`` is -1, the verified pose its competitor): as within a map, where the geometric
+    refinement runs only where the features fail, lines alone do not outvote PnP. A verified pose
+    with a distinct verified pose on another map whose loss is within :data:`COMPETITOR_GAP`
+    (``map_twin`` 1: an identical room's copy, whatever their inliers) loses its ``features``
+    signal and is named with it. Calling it
     again on a subset of the maps recomputes all of this from the in-map assessment."""
     from ldlloc.refine.geometric import GeometricParams, selection_scores
 
@@ -297,6 +320,10 @@ def assess_across(locs: list, losses: list[float], names: list[str], params=None
     support = np.array([float(loc.confidence_signals.get("support", 0.0)) for loc in locs])
     losses = np.asarray(losses, dtype=np.float64)
     score = selection_scores(losses, params, lambda idx: support[idx])
+    sure = np.array([verified(loc, loss) for loc, loss in zip(locs, losses)])
+    score_sure = np.full(len(locs), -np.inf)  # the verified poses' scores among themselves
+    if sure.any():
+        score_sure[sure] = selection_scores(losses[sure], params, lambda idx: support[np.flatnonzero(sure)[idx]])
     R = np.stack([np.asarray(loc.rot_cam_from_world, float) for loc in locs])
     t = np.stack([np.asarray(loc.center, float) for loc in locs])
     # PnP inliers of the maps' feature poses (0: not a feature pose): a copy in another map rivals them
@@ -305,23 +332,27 @@ def assess_across(locs: list, losses: list[float], names: list[str], params=None
     for i, loc in enumerate(locs):
         other = distinct(R[i], t[i], R, t)
         other[i] = False
-        reach = other & np.isfinite(score)
-        if not np.isfinite(score[i]):
+        pool, sc = (sure, score_sure) if sure[i] else (np.ones(len(locs), bool), score)
+        reach = other & pool & np.isfinite(sc)
+        if not np.isfinite(sc[i]) or (not sure[i] and (other & sure).any()):  # out of reach, or PnP outvotes it
             margin = -1.0
         elif reach.any():
-            margin = float(np.clip(score[i] - score[reach].max(), -1.0, NO_CONTENDER_MARGIN))
+            margin = float(np.clip(sc[i] - sc[reach].max(), -1.0, NO_CONTENDER_MARGIN))
         else:
             margin = NO_CONTENDER_MARGIN
         share = inliers / inliers[i] if inliers[i] > 0 else np.zeros(len(locs))
         map_rival = float(share[other].max()) if other.any() else 0.0
+        # a verified pose of another map, elsewhere, that explains the lines as well: an identical room's copy
+        twin = sure[i] and bool(np.any([relative_gap(float(losses[j]), float(losses[i])) <= COMPETITOR_GAP
+                                        for j in np.flatnonzero(other & sure)]))
         loc.confidence_signals = {**loc.confidence_signals, "map_margin": round(margin, 6),
-                                  "map_rival": round(map_rival, 6)}
+                                  "map_rival": round(map_rival, 6), "map_twin": float(twin)}
         loc.confidence = round(model.confidence(loc.confidence_signals), 6)
         own = [c for c in loc.competitors if "map" not in c]
         across = [j for j in np.flatnonzero(other)[np.argsort(losses[other], kind="stable")]
-                  if relative_gap(float(losses[j]), float(losses[i])) <= COMPETITOR_GAP
-                  or share[j] >= RIVAL_SHARE][:MAX_COMPETITORS]
+                  if (pool[j] and relative_gap(float(losses[j]), float(losses[i])) <= COMPETITOR_GAP)
+                  or share[j] >= RIVAL_SHARE or (sure[j] and not sure[i])][:MAX_COMPETITORS]
         loc.competitors = own + [{"R": np.round(R[j], 8).tolist(), "t": np.round(t[j], 6).tolist(),
                                   "loss": float(losses[j]), "why": f"map {names[j]}", "map": names[j]} for j in across]
         loc.verdict = verdict_for(loc.confidence, loc.competitors, model,
-                                  rival=max(rival_share(loc), map_rival) >= RIVAL_SHARE)
+                                  rival=max(rival_share(loc), map_rival) >= RIVAL_SHARE or twin)

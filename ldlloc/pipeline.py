@@ -420,21 +420,28 @@ class Localizer:
                        f"candidate {c + 1}: coarse pose kept (its geometric refinement diverged, matched too few line "
                        "points or explained less of the image)")
 
-    def _retrieval_context(self, arcs: np.ndarray, res):
-        """The retrieval fallback's context (:class:`ldlloc.refine.retrieval.RetrievalContext`): the map's
-        view index (built on first use), the exact line loss of poses, each seen from the candidate
-        translation nearest to it, and that loss of the search's best pose."""
-        from ldlloc.refine.retrieval import RetrievalContext, ViewIndex
+    def _line_loss(self, arcs: np.ndarray):
+        """``loss(R (M, 3, 3), t (M, 3)) -> (M,)``: the exact line loss of poses, each seen from the
+        candidate translation nearest to it (:func:`ldlloc.search.pose_search.score_poses`)."""
         from ldlloc.search.pose_search import score_poses
 
         m, p = self.map, self.params
-        if self.view_index is None:
-            self.view_index = ViewIndex(m.features, p.refine.retrieval)
 
         def loss(R: np.ndarray, t: np.ndarray) -> np.ndarray:
             return score_poses(arcs, R, t, m.lines, m.line_groups, m.principal_directions, m.nearest_translation(t),
                                p.search, m.visibility, m.coverage, self.device, p.principal.group_tol)
 
+        return loss
+
+    def _retrieval_context(self, arcs: np.ndarray, res):
+        """The retrieval fallback's context (:class:`ldlloc.refine.retrieval.RetrievalContext`): the map's
+        view index (built on first use), the exact line loss of poses (:meth:`_line_loss`) and that loss
+        of the search's best pose."""
+        from ldlloc.refine.retrieval import RetrievalContext, ViewIndex
+
+        if self.view_index is None:
+            self.view_index = ViewIndex(self.map.features, self.params.refine.retrieval)
+        loss = self._line_loss(arcs)
         return RetrievalContext(self.view_index, loss, float(loss(res.rotations[:1], res.centers[:1])[0]))
 
     def _refine_features(self, img: np.ndarray, grouped_arcs: np.ndarray, res, arcs: np.ndarray):
@@ -446,9 +453,10 @@ class Localizer:
         ``frame_split_deg`` from every frame's so far (a flipped Manhattan twin of a free-rotation
         query), in theirs, at most ``max_query_frames``: each candidate is matched with the features
         of the frame nearest its up axis, frame after frame until one's candidates refine (the
-        first frame's, usually: no extra cost), else the most PnP inliers win. When none refines, the
-        retrieval fallback (:func:`ldlloc.refine.features.refine_by_retrieval`) matches the first
-        frame's features with the map's views most like them. ``grouped_arcs``: the arcs of principal
+        first frame's, usually: no extra cost), else the most PnP inliers win. When none refines, or
+        the pose would not pass the retrieval's acceptance (:meth:`_accepted`), the retrieval
+        fallback (:func:`ldlloc.refine.features.refine_by_retrieval`) matches the first frame's
+        features with the map's views most like them (its accepted pose replaces a weak one). ``grouped_arcs``: the arcs of principal
         lines (the privacy filter's); ``arcs``: all the search's arcs (the retrieved poses' line loss)."""
         from ldlloc.refine.features import keep_near_lines, refine_by_retrieval, refine_candidates
         from ldlmap.features.sphere import extract_in_map_frame
@@ -474,12 +482,25 @@ class Localizer:
                 best, best_key = (ref, len(feats)), key
             if ref.refined:  # the next frames are tried only where this one's candidates failed
                 break
-        if not best[0].refined and p.refine.retrieval.views > 0 and len(first):
+        if (p.refine.retrieval.views > 0 and len(first)
+                and (not best[0].refined or not self._accepted(best[0], arcs, res))):
             found = refine_by_retrieval(first, (W, H), m.features, self.backend, p.refine,
                                         self._retrieval_context(arcs, res))
             if found is not None:
                 best = (found, len(first))
         return best
+
+    def _accepted(self, ref, arcs: np.ndarray, res) -> bool:
+        """Whether a candidate's PnP pose passes the retrieval's own acceptance (inliers, and a line loss
+        near the search's best: :func:`ldlloc.refine.retrieval.accept_retrieved`); a weaker one (a few
+        inliers in another room of the floor, a pose that explains few of the image's lines) gives way
+        to a retrieved pose when there is one (docs/measurements.md#retrieval)."""
+        from ldlloc.refine.retrieval import accept_retrieved
+
+        loss = self._line_loss(arcs)
+        R = np.stack([np.asarray(ref.rot_cam_from_world), res.rotations[0]])
+        own, search = (float(v) for v in loss(R, np.stack([np.asarray(ref.center), res.centers[0]])))
+        return accept_retrieved(ref.num_inliers, own, search, self.params.refine.retrieval)
 
     def _polish_geometric(self, out: "Localization", arcs: np.ndarray, translation_index: int) -> None:
         """``--refine both`` (and ``auto``'s fallback): refine the feature-refined (or coarse) pose from

@@ -158,10 +158,77 @@ def test_identical_copy_takes_the_feature_confidence_away():
     assert a.confidence_signals["map_rival"] == pytest.approx(115 / 120, abs=1e-6)
     assert a.verdict == b.verdict == "ambiguous"  # b is judged unlikely on its lines, but a copy explains its features
     assert [c["map"] for c in a.competitors if "map" in c] == ["floor_1"]
-    c = _feature_pose(m, R0, CENTRE + [0, 0, 3.0], 30)  # another floor's pose, far fewer inliers: no rival
+    c = _feature_pose(m, R0, CENTRE + [0, 0, 3.0], 10)  # another floor's pose, few inliers (not verified): no rival
     assess(c, m)
     assess_across([a, c], [-100.0, -100.0], ["floor_0", "floor_1"])
+    assert a.verdict == "confident" and a.confidence_signals["map_twin"] == 0.0
+    # 30 inliers: far fewer, but verified (PnP and lines back it) and as good on the lines: the copy on the floor
+    # above in poor light (the building's extreme_intensity office query was confident in a wrong copy, issue 21)
+    c = _feature_pose(m, R0, CENTRE + [0, 0, 3.0], 30)
+    assess(c, m)
+    assess_across([a, c], [-100.0, -100.0], ["floor_0", "floor_1"])
+    assert a.confidence_signals["map_twin"] == 1.0 and a.verdict == "ambiguous"
+    assert [x["map"] for x in a.competitors if "map" in x] == ["floor_1"]
+    assess_across([a, c], [-100.0, -80.0], ["floor_0", "floor_1"])  # the copy explains 20 % fewer lines: no twin
     assert a.verdict == "confident"
+
+
+def _options(pairs):
+    """``choose_map``'s options of (map name, localization, exact loss of its final pose)."""
+    from ldlloc.batch.which_map import MapEntry, MapOption
+
+    return [MapOption(MapEntry(Path(f"{name}.h5"), name, None), loss, loc, loss) for name, loc, loss in pairs]
+
+
+def test_verified_pnp_pose_is_not_outvoted_by_lines_alone_on_another_map():
+    """Two floor maps: on the query's floor the features give a PnP pose (35 inliers, its lines near
+    its search's best: verified); on the other floor they give none, and the geometric pose there
+    explains 28 % more of the image's lines in a room that looks alike (the building's missed
+    handheld query, issue 21). The lines-only pose used to win the choice; now the verified PnP pose
+    is kept, confident, and the other cannot win (margin -1, the PnP pose named). A PnP pose of 12
+    inliers is not verified: the lines judge it as before."""
+    from ldlloc.batch.which_map import choose_map
+    from ldlloc.confidence import verified
+
+    m = _box_map()
+    R0 = _rz(30)
+    shift = np.array([5.0, 0.0, 0.0])
+    m2 = SimpleNamespace(lines=m.lines + shift, line_groups=m.line_groups, visibility=None)  # a room alike, 5 m on
+
+    def pair(inliers: int):
+        a = _feature_pose(m, R0, CENTRE, inliers)  # its search's best loss -100
+        assess(a, m)
+        b = _localization(m2, R0, [(R0, CENTRE + shift), (R0, CENTRE + shift + [0, 1.5, 0])], [-100.0, -80.0], 0.4)
+        b.arcs = a.arcs  # the same panorama
+        assess(b, m2)
+        assert a.verdict == b.verdict == "confident"  # each within its own map
+        return a, b
+
+    a, b = pair(35)
+    assert verified(a, -98.0) and not verified(b, -125.0) and not verified(a, -60.0)
+    chosen = choose_map(_options([("floor_2", a, -98.0), ("floor_1", b, -125.0)]))
+    assert chosen.loc is a and a.verdict == "confident" and a.confidence_signals["map_margin"] == 0.5
+    assert b.confidence_signals["map_margin"] == -1.0 and b.verdict != "confident"
+    assert [c["map"] for c in b.competitors if "map" in c] == ["floor_2"]
+
+    a, b = pair(12)
+    assert not verified(a, -98.0)
+    chosen = choose_map(_options([("floor_2", a, -98.0), ("floor_1", b, -125.0)]))
+    assert chosen.loc is b and a.confidence_signals["map_margin"] < 0
+
+    # two verified PnP poses in different places, as good on the lines (twins: neither confident); the one of
+    # most inliers is kept even where the other's search gap makes it the more confident (a wrong floor's
+    # retrieved pose of 16 inliers beside the right floor's 44, issue 21)
+    a = _feature_pose(m, R0, CENTRE, 44)
+    b = _feature_pose(m2, R0, CENTRE + shift, 16)
+    b.candidates_loss = np.array([-100.0, -80.0])
+    b.arcs = a.arcs
+    assess(a, m)
+    assess(b, m2)
+    chosen = choose_map(_options([("floor_0", a, -98.0), ("floor_1", b, -95.0)]))
+    assert a.confidence_signals["map_twin"] == b.confidence_signals["map_twin"] == 1.0
+    assert b.confidence > a.confidence and a.verdict == b.verdict == "ambiguous"
+    assert chosen.loc is a
 
 
 def test_no_pose_is_failed():

@@ -124,3 +124,43 @@ def test_retrieved_pose_in_one_of_two_identical_rooms_has_the_other_as_rival():
     # a line loss far below the search's best (the wrong room) keeps nothing
     ctx = RetrievalContext(ctx.index, lambda R, t: np.full(len(R), -20.0), -100.0)
     assert refine_by_retrieval(query, (W, H), mf, _SameIndexMatcher(), params, ctx) is None
+
+
+def test_retrieval_runs_pnp_on_the_views_with_most_matches_not_the_words_best(monkeypatch):
+    """The words rank a room's own view below other rooms' views (a floor of rooms alike, issue 21:
+    own views 8th-25th); PnP on the best word-ranked views alone then finds no pose. With the
+    shortlist matched, the view with the most matches gives the pose."""
+    from types import SimpleNamespace
+
+    from ldlmap.core import geometry as geo
+    from ldlmap.features import Features
+    from ldlmap.map.contents import MapFeatures
+    from ldlloc.refine import features as feat
+    from ldlloc.refine.features import RefineParams, refine_by_retrieval
+    from ldlloc.refine.retrieval import RetrievalContext
+
+    rng = np.random.default_rng(5)
+    P = rng.random((200, 3)) * [5.0, 4.0, 2.6]
+    c0, W, H = np.array([2.0, 1.5, 1.4]), 1024, 512
+    R0 = geo.rotation_from_axis_angle(np.array([0.0, 0.0, 1.0]), 0.4)
+    desc = rng.integers(0, 255, (200, 16)).astype(np.uint8)
+    query = Features(geo.project_to_pixels(P, R0, c0, W, H).astype(np.float32), np.ones(200, np.float32), desc)
+    V = 8  # view 7 sees the room (its points are the query's); views 0-6 see elsewhere (random points)
+    xyz = np.concatenate([rng.random((200, 3)) * 20 for _ in range(V - 1)] + [P]).astype(np.float32)
+    mf = MapFeatures(backend="sift", view_centers=np.zeros((V, 3)), offsets=np.arange(V + 1) * 200, xyz=xyz,
+                     keypoints=np.zeros((V * 200, 2), np.float32), scores=np.ones(V * 200, np.float32),
+                     descriptors=np.tile(desc, (V, 1)), translation_view=np.array([0]))
+    counts = {v: 20 for v in range(V - 1)} | {V - 1: 150}  # few matches elsewhere (their PnP fails), many here
+
+    def match_views(query_feats, size, views, map_features, backend, ratio):  # the counts above, per view
+        return {int(v): np.stack([np.arange(counts[int(v)]), np.arange(counts[int(v)]) + int(v) * 200], 1)
+                for v in views}
+
+    index = SimpleNamespace(rank=lambda d: np.arange(V))  # the words put the room's own view last
+    ctx = RetrievalContext(index, lambda R, t: np.full(len(R), -100.0), -100.0)
+    monkeypatch.setattr(feat, "_match_distinct_views", match_views)
+    few = RefineParams(retrieval=RetrievalParams(views=5, shortlist=5))  # the words' best 5 only
+    assert refine_by_retrieval(query, (W, H), mf, None, few, ctx) is None
+    ref = refine_by_retrieval(query, (W, H), mf, None, RefineParams(), ctx)  # shortlist 20: all 8 matched
+    assert ref is not None and ref.retrieved["view"] == V - 1 and ref.retrieved["rank"] == V - 1
+    assert ref.num_inliers >= 140 and np.linalg.norm(ref.center - c0) < 0.01

@@ -28,7 +28,7 @@ from typing import Callable
 import numpy as np
 
 from ldlmap.core.errors import InputError, LdlError
-from ldlloc.confidence import assess_across
+from ldlloc.confidence import assess_across, verified
 from ldlloc.pipeline import Localization, LocalizeParams, Localizer, Searched
 from ldlloc.refine.geometric import GeometricParams
 
@@ -134,19 +134,25 @@ def option_score(o: MapOption) -> float:
     return float(o.loss) if o.loss is not None else float(o.search_loss)
 
 
-def choice_key(o: MapOption) -> tuple[float, float, float]:
-    """How :func:`choose_map` orders options (smallest first): the refined ones by confidence
-    (:mod:`ldlloc.confidence`, highest first), then by :func:`option_score`, then by search loss."""
+def choice_key(o: MapOption) -> tuple[float, float, float, float]:
+    """How :func:`choose_map` orders options (smallest first): first the verified PnP poses
+    (:func:`ldlloc.confidence.verified`: features and lines back them), most inliers first, as the
+    feature refinement keeps the PnP pose of most inliers (two of them within 10 % on the lines are
+    twins, neither confident: docs/measurements.md#verified-across-maps); then the refined ones by
+    confidence (:mod:`ldlloc.confidence`, highest first), then by :func:`option_score`, then by
+    search loss."""
     conf = o.loc.confidence if o.loc is not None and o.loc.confidence is not None else -1.0
-    return (-conf, option_score(o), o.search_loss)
+    if o.loc is not None and verified(o.loc, option_score(o)):
+        return (0.0, -float(o.loc.num_inliers), -conf, option_score(o))
+    return (1.0, -conf, option_score(o), o.search_loss)
 
 
 def choose_map(options: list[MapOption], params: GeometricParams | None = None) -> MapOption:
     """The map kept among the refined ``options`` (the top of the ranking). With several, their
     poses are first judged together (:func:`ldlloc.confidence.assess_across`: a pose that another
     map's distinct pose matches on loss and map-line support is not confident, and that pose is
-    named as its competitor); then the most confident is kept, ties to the lowest loss of the final
-    pose (:func:`final_pose_loss`). Nothing comes from ground truth (docs/measurements.md#which-map)."""
+    named as its competitor); then the verified PnP pose of most inliers is kept, else the most
+    confident, ties to the lowest loss of the final pose (:func:`final_pose_loss`) (:func:`choice_key`). Nothing comes from ground truth (docs/measurements.md#which-map)."""
     if len(options) > 1:
         assess_across([o.loc for o in options], [option_score(o) for o in options],
                       [o.entry.scene for o in options], params)

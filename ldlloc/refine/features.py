@@ -176,8 +176,9 @@ def refine_candidates(query_feats, query_size: tuple[int, int], rotations: np.nd
 
 def refine_by_retrieval(query_feats, query_size: tuple[int, int], map_features, backend, params: RefineParams,
                         ctx: RetrievalContext) -> Refinement | None:
-    """The retrieval fallback (module docstring): PnP on the matches of the ``params.retrieval.views``
-    views most like the query (:meth:`ldlloc.refine.retrieval.ViewIndex.rank`); of the poses that
+    """The retrieval fallback (module docstring): the ``params.retrieval.shortlist`` views most like the
+    query (:meth:`ldlloc.refine.retrieval.ViewIndex.rank`) are matched with it and PnP runs on the
+    matches of the ``params.retrieval.views`` of them with the most matches; of the poses that
     :func:`ldlloc.refine.retrieval.accept_retrieved` accepts, the one with the best line loss (ties:
     more inliers), its ``rival`` the retrieved pose distinct from it with the most inliers (accepted
     or not). None when none is accepted. ``candidate`` of the result is 0 (the search's best);
@@ -188,16 +189,19 @@ def refine_by_retrieval(query_feats, query_size: tuple[int, int], map_features, 
     rp = params.retrieval
     if rp.views <= 0 or len(query_feats) == 0:
         return None
-    views = ctx.index.rank(query_feats.descriptors)[:rp.views]
-    matches = _match_distinct_views(query_feats, (W, H), views, map_features, backend, params.ratio)
+    shortlist = ctx.index.rank(query_feats.descriptors)[:max(rp.views, rp.shortlist)]
+    matches = _match_distinct_views(query_feats, (W, H), shortlist, map_features, backend, params.ratio)
+    # the match counts single out the room's own views where the words alone often do not
+    by_matches = np.argsort([-len(matches[int(v)]) for v in shortlist], kind="stable")[:rp.views]
     found = []
-    for rank, v in enumerate(views):
-        m = matches[int(v)]
+    for rank in by_matches:
+        v = int(shortlist[rank])
+        m = matches[v]
         if len(m) < max(params.pnp.min_inliers, rp.min_inliers):
             continue
         res = estimate_pose_spherical(query_feats.keypoints[m[:, 0]], map_features.xyz[m[:, 1]], W, H, params.pnp)
         if res is not None:
-            found.append((int(v), rank, len(m), int(res.inliers.sum()), res))
+            found.append((v, int(rank), len(m), int(res.inliers.sum()), res))
     if not found:
         return None
     losses = ctx.loss(np.stack([f[4].rot_cam_from_world for f in found]), np.stack([f[4].center for f in found]))

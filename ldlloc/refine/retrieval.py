@@ -7,8 +7,10 @@ every view of the map by a bag of visual words: a vocabulary of ``words`` centre
 spherical k-means (:func:`spherical_kmeans`) on a sample of the map's own descriptors, each view a tf-idf
 histogram of its descriptors' nearest words (unit length), the query's likewise; views are ranked
 by cosine similarity. Built once per map, the first time it is needed (no map format change).
-:func:`ldlloc.refine.features.refine_by_retrieval` matches the query with the best-ranked views,
-runs spherical PnP on each and keeps a pose :func:`accept_retrieved` accepts.
+:func:`ldlloc.refine.features.refine_by_retrieval` matches the query with the ``shortlist``
+best-ranked views, runs spherical PnP on the ``views`` of them with the most matches and keeps a
+pose :func:`accept_retrieved` accepts (which also judges the feature refinement's own poses:
+:meth:`ldlloc.pipeline.Localizer.localize` falls back to retrieval when it would not accept them).
 """
 
 from __future__ import annotations
@@ -23,7 +25,9 @@ import numpy as np
 class RetrievalParams:
     """Retrieval fallback of the feature refinement (:func:`ldlloc.refine.features.refine_candidates`)."""
 
-    views: int = 5  # PnP on the matches of this many best-ranked views (0: no retrieval)
+    views: int = 5  # PnP on the matches of this many views with the most matches (0: no retrieval)
+    shortlist: int = 20  # ... among this many views most like the query by the words, all matched: the words
+    # rank a room's own views 8th-25th where the match counts rank them first (docs/measurements.md#retrieval)
     words: int = 1024  # visual words of the map's vocabulary (k-means on its own descriptors)
     train_descriptors: int = 20000  # k-means runs on at most this many of the map's descriptors (a fixed sample)
     iterations: int = 10  # k-means iterations
