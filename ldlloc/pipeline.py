@@ -531,7 +531,8 @@ class Localizer:
         :class:`Localization` and what refinement needs. ``lines``: the panorama's 2D lines from
         :meth:`detect_lines` (shared with other maps; their seconds are counted as ``lines2d``)."""
         from ldlloc.lines2d import filter_by_length, query_keep_ratio
-        from ldlloc.rotation import candidate_rotations, filter_by_tilt, frame_rows, rotation_labels
+        from ldlloc.rotation import (candidate_rotations, filter_by_tilt, frame_rows, pair_candidates,
+                                     rotation_labels)
         from ldlloc.search.pose_search import search_poses
         from ldlmap.core.frame import is_identity
 
@@ -561,6 +562,16 @@ class Localizer:
                 rots = filter_by_tilt(rots, tilt)
             if len(rots):
                 break
+        if not found and len(m.principal_directions) == 3:
+            # No triplet at any line ratio: perpendicular pairs (the vertical and one horizontal) as well.
+            for ratio in sorted({max(keep, p.vp_keep_ratio), 0.5, 1.0}):
+                vps = lines.vanishing_points(ratio, p.principal)
+                rots = pair_candidates(vps, m.principal_directions, p.principal)
+                found = max(found, len(rots))
+                if tilt is not None:
+                    rots = filter_by_tilt(rots, tilt)
+                if len(rots):
+                    break
         if len(rots) == 0 and found:
             raise InputError(f"no candidate rotation is within the tilt bound of {tilt:g} deg "
                              f"({found} found; raise --max-tilt, or 180 for free rotation)")

@@ -34,7 +34,9 @@ directions (:func:`rotation_labels`: through that vanishing point, or through ``
 where none was voted). A sloped ceiling's inclined directions (maps of kind "sloped") take part in
 that pairing only: the rotations come from the vertical and the horizontals (:func:`frame_rows`),
 which every such room has, as they would without the slope (a Manhattan frame's triplets alone),
-so the inclined rows group the slope's arcs without multiplying the candidates.
+so the inclined rows group the slope's arcs without multiplying the candidates. A 3-direction map
+uses triplets only; where they match nothing (:func:`pair_candidates`, the pipeline's fallback)
+its perpendicular pairs give the rotations, the unseen direction unpaired.
 
 Upright prior (:func:`filter_by_tilt`, ``ldlloc localize/run --max-tilt DEG``): an option beyond
 the paper, whose rotation is free. The camera's up axis is camera +z, in the world
@@ -330,12 +332,32 @@ def _candidates_of_many(vp: np.ndarray, P: np.ndarray, ortho_tol_deg: float | No
         pair_rots, pair_res = _pair_rotations(vp, P[rows], ortho, rtol)
         rots.append(pair_rots)
         res.append(pair_res)
-    if not sum(len(r) for r in rots):
+    return _matched(np.concatenate(rots), np.concatenate(res), vp, P, ortho, params.dedup_deg)
+
+
+def pair_candidates(vp2d: np.ndarray, principal3d: np.ndarray, params: PrincipalParams = PrincipalParams()
+                    ) -> RotationCandidates:
+    """Candidate rotations from perpendicular pairs alone (:func:`_pair_rotations`), each map
+    direction paired with its nearest vanishing point (-1 when none): the fallback of a 3-direction
+    map whose triplets match nothing (a corridor seen along its length: the vertical and the
+    corridor's direction as vanishing points, the cross direction's lines too short to vote)."""
+    P = np.asarray(principal3d, dtype=np.float64)
+    P = P / np.maximum(np.linalg.norm(P, axis=1, keepdims=True), 1e-12)
+    vp = np.asarray(vp2d, dtype=np.float64).reshape(-1, 3)
+    vp = vp / np.maximum(np.linalg.norm(vp, axis=1, keepdims=True), 1e-12)
+    R, res = _pair_rotations(vp, P, params.ortho_tol_deg, params.residual_tol)
+    return _matched(R, res, vp, P, params.ortho_tol_deg, params.dedup_deg)
+
+
+def _matched(R: np.ndarray, res: np.ndarray, vp: np.ndarray, P: np.ndarray, ortho: float,
+             dedup_deg: float) -> RotationCandidates:
+    """Rotations (M, 3, 3) sorted by residual and de-duplicated, each map direction paired with the
+    vanishing point nearest its image (within ``ortho`` deg; -1 when none)."""
+    if not len(R):
         return _empty(len(P))
-    R, res = np.concatenate(rots), np.concatenate(res)
     order = np.argsort(res, kind="stable")
     R, res = R[order], res[order]
-    keep = _distinct(R, params.dedup_deg)
+    keep = _distinct(R, dedup_deg)
     R, res = R[keep], res[keep]
     img = np.einsum("rab,kb->rka", R, P)  # (N_r, K, 3): R p_j
     dots = np.einsum("rka,va->rkv", img, vp)  # (N_r, K, V)
@@ -369,11 +391,11 @@ def assign_arcs_to_principal(arcs: np.ndarray, dirs: np.ndarray, tol: float = 0.
 def rotation_labels(arcs: np.ndarray, vp2d: np.ndarray, rots: RotationCandidates, principal3d: np.ndarray,
                     tol: float = 0.05) -> np.ndarray:
     """2D group labels per rotation candidate, (N_r, N) int, for the map's K principal directions:
-    :func:`labels_for_rotations` with 3; with more, arc ``l`` joins group ``j`` when its great
+    :func:`labels_for_rotations` with 3 all matched; otherwise arc ``l`` joins group ``j`` when its great
     circle passes (the smallest of the K ``|n . p|``, below ``tol``) through the vanishing point
     matched to direction ``j``, or through ``R p_j`` where none was matched; -1 otherwise."""
     P = np.asarray(principal3d, dtype=np.float64)
-    if len(P) == 3:
+    if len(P) == 3 and np.all(rots.triplets >= 0):
         return labels_for_rotations(arcs, vp2d, rots.triplets, tol)
     normals, _ = arc_normals(arcs)
     vp = np.asarray(vp2d, dtype=np.float64).reshape(-1, 3)

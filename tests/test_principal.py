@@ -129,3 +129,24 @@ def test_assign_groups_and_labels_for_rotations():
     assert np.mean(labels[best] == axis) > 0.9  # group j pairs with 3D direction j
     with pytest.raises(InputError):
         rotation.vanishing_points(np.zeros((3, 3)))
+
+
+def test_pairs_are_the_fallback_of_a_three_direction_map():
+    """A view of the vertical and one horizontal only (a corridor seen along its length): no
+    triplet matches a Manhattan map, the perpendicular pairs give the rotation, and the arcs of
+    the two seen directions are grouped (the unseen one has no vanishing point: -1)."""
+    from ldlmap.core.geometry import rotation_error_deg, rotation_from_axis_angle
+    from tests.test_atlanta_many import _room_arcs
+
+    P = np.eye(3)
+    R = rotation_from_axis_angle(np.array([0.1, 0.2, 1.0]), 0.7)
+    arcs = _room_arcs(P[[2, 0]], R, np.random.default_rng(4))
+    vps = rotation.vanishing_points(arcs, k=20)
+    assert len(rotation.candidate_rotations(vps, P)) == 0
+    pairs = rotation.pair_candidates(vps, P)
+    best = int(np.argmin([rotation_error_deg(Rc, R) for Rc in pairs.rotations]))
+    assert rotation_error_deg(pairs.rotations[best], R) < 1.0
+    assert pairs.triplets[best, 1] == -1 and np.all(pairs.triplets[best, [0, 2]] >= 0)
+    labels = rotation.rotation_labels(arcs, vps, pairs, P)
+    truth = np.repeat([2, 0], 25)
+    assert np.mean(labels[best] == truth) > 0.9
