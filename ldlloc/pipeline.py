@@ -552,26 +552,22 @@ class Localizer:
         arcs = filter_by_length(arcs_all, keep)
         # Vanishing points from the longest lines first; more (shorter) lines only when those
         # do not give 3 directions that match the map's (within the tilt bound, if any).
+        P = m.principal_directions
+        makers = [lambda v: candidate_rotations(v, P, params=p.principal, seed=frame_rows(P))]
+        if len(P) == 3:  # no triplet at any line ratio: perpendicular pairs (the vertical and one horizontal)
+            makers.append(lambda v: pair_candidates(v, P, p.principal))
         found = 0
-        for ratio in sorted({max(keep, p.vp_keep_ratio), 0.5, 1.0}):
-            vps = lines.vanishing_points(ratio, p.principal)
-            rots = candidate_rotations(vps, m.principal_directions, params=p.principal,
-                                       seed=frame_rows(m.principal_directions))
-            found = max(found, len(rots))
-            if tilt is not None:
-                rots = filter_by_tilt(rots, tilt)
-            if len(rots):
-                break
-        if not found and len(m.principal_directions) == 3:
-            # No triplet at any line ratio: perpendicular pairs (the vertical and one horizontal) as well.
+        for make in makers:
             for ratio in sorted({max(keep, p.vp_keep_ratio), 0.5, 1.0}):
                 vps = lines.vanishing_points(ratio, p.principal)
-                rots = pair_candidates(vps, m.principal_directions, p.principal)
+                rots = make(vps)
                 found = max(found, len(rots))
                 if tilt is not None:
                     rots = filter_by_tilt(rots, tilt)
                 if len(rots):
                     break
+            if found:
+                break
         if len(rots) == 0 and found:
             raise InputError(f"no candidate rotation is within the tilt bound of {tilt:g} deg "
                              f"({found} found; raise --max-tilt, or 180 for free rotation)")

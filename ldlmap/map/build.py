@@ -299,6 +299,13 @@ def map_frame(src: SceneInput, lines_raw: np.ndarray, params: BuildParams) -> tu
     return R, info, note, est.weak
 
 
+def _azimuths(principal: np.ndarray) -> str:
+    """The azimuths (degrees modulo 180, ascending) of the horizontal rows of a z-up frame, for notes."""
+    horizontal = principal[np.abs(principal[:, 2]) < np.sin(np.radians(10.0))]
+    return ", ".join(f"{a:.0f}" for a in sorted(round(float(np.degrees(np.arctan2(h[1], h[0]))) % 180.0)
+                                               for h in horizontal))
+
+
 def build_from_input(src: SceneInput, output: Path, params: BuildParams, name: str,
                      progress: Callable[[str, int, int], None] | None = None, config: dict | None = None,
                      load_seconds: float = 0.0) -> BuildReport:
@@ -387,19 +394,15 @@ def build_from_input(src: SceneInput, output: Path, params: BuildParams, name: s
         report.notes.append(f"principal directions: an Atlanta frame (the vertical and the two main horizontal "
                             f"directions, {pair:.0f} deg apart: walls not at right angles)")
     elif frame_kind == "atlanta":
-        azimuths = sorted(round(float(np.degrees(np.arctan2(h[1], h[0]))) % 180.0) for h in principal
-                          if abs(h[2]) < 0.5)
         report.notes.append(f"principal directions: an Atlanta frame of {len(principal)} (the vertical and "
                             f"{len(principal) - 1} horizontal directions, at azimuths "
-                            f"{', '.join(f'{a:.0f}' for a in azimuths)} deg: walls in more than two directions)")
+                            f"{_azimuths(principal)} deg: walls in more than two directions)")
     elif frame_kind == "sloped":
         rise = np.degrees(np.arcsin(np.minimum(np.abs(principal[:, 2]), 1.0)))  # each row's elevation
         tilted = [f"{a:.0f}" for a in rise if 10.0 < a < 80.0]
-        horizontal = sorted(f"{float(np.degrees(np.arctan2(h[1], h[0]))) % 180.0:.0f}" for h, a in zip(principal, rise)
-                            if a <= 10.0)
         slopes = f"{len(tilted)} inclined at {', '.join(tilted)} deg" if tilted else "no inclined direction"
-        report.notes.append(f"principal directions: {len(principal)} (the vertical, {len(horizontal)} horizontal "
-                            f"at azimuths {', '.join(horizontal)} deg and {slopes}: a sloped ceiling)")
+        report.notes.append(f"principal directions: {len(principal)} (the vertical, {int((rise <= 10.0).sum())} "
+                            f"horizontal at azimuths {_azimuths(principal)} deg and {slopes}: a sloped ceiling)")
     if deviation.max() > 5.0:
         frame_words = {"manhattan": "the nearest orthogonal (Manhattan) frame",
                        "sloped": "the frame of the vertical and the main horizontal directions",
