@@ -221,7 +221,7 @@ def test_verified_pnp_pose_is_not_outvoted_by_lines_alone_on_another_map():
     # retrieved pose of 16 inliers beside the right floor's 44, issue 21)
     a = _feature_pose(m, R0, CENTRE, 44)
     b = _feature_pose(m2, R0, CENTRE + shift, 16)
-    b.candidates_loss = np.array([-100.0, -80.0])
+    b.candidates_loss = np.array([-100.0, -40.0])
     b.arcs = a.arcs
     assess(a, m)
     assess(b, m2)
