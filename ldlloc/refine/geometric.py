@@ -70,7 +70,7 @@ class GeometricParams:
     # on support (the others cannot win; docs/measurements.md#geometric-support-within)
     merge_m: float = 0.01  # poses that come within this (and merge_deg) of a better-ranked one during
     merge_deg: float = 0.2  # refinement share its result from then on (0: never; docs/measurements.md#geometric-merge)
-    height_margin_m: float = 0.05  # with a known camera-height band (the map's, e.g. a ZInD layout's
+    height_margin_m: float = 0.0  # with a known camera-height band (the map's, e.g. a ZInD layout's
     # annotated height), each step keeps the camera within this of it, so the height cannot drift to a
     # twin's pose (docs/measurements.md#geometric-height-margin)
     keep_within: float = 0.05  # the caller keeps a refined pose when its exact loss is at most this
