@@ -448,6 +448,8 @@ def main(argv: list[str] | None = None) -> int:
     for f in sorted({r["floor"] for r in rows}):
         parts[f"floor {f}"] = [r for r in rows if r["floor"] == f]
     parts["own rooms (room, corridor)"] = [r for r in rows if r["group"] is None]
+    for kind in ("room", "corridor"):  # the corridors share their floor's plan: only posters and 1-2 cabinets differ
+        parts[f"own rooms: {kind}"] = [r for r in rows if r["group"] is None and r["kind"] == kind]
     for g in sorted({r["group"] for r in rows if r["group"]}):
         parts[f"identical: {g}"] = [r for r in rows if r["group"] == g]
     res["summary"] = {k: summarize(v) for k, v in parts.items()}
