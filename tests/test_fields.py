@@ -19,7 +19,7 @@ from ldlmap.map.mapfile import read_map, write_map
 from ldlloc.search import ldf
 from ldlloc.search.fields import DistanceFields, inlier_loss_from_fields
 from ldlloc.rotation import assign_arcs_to_principal
-from ldlloc.search.pose_search import SearchParams, search_poses
+from ldlloc.search.pose_search import SearchParams, rescored_poses, search_poses
 
 LO, HI = np.array([-3.0, -2.0, 0.0]), np.array([3.0, 2.0, 3.0])
 
@@ -195,6 +195,22 @@ def test_fast_search_with_rescoring_returns_the_exact_ranking(room):
         plain = search_poses(*args, SearchParams(rescore=0, **LEVEL1), fields=fields)
         assert _pairs(exact)[0] in _pairs(plain)[:2]
         assert abs(plain.losses[0] - exact.losses[0]) <= 3  # inlier counts of 126 terms
+
+
+def test_maps_of_many_lines_rescore_fewer_poses(room):
+    """The exact re-scoring costs poses x lines: a map of more than ``rescore_lines`` lines
+    re-scores proportionally fewer poses, never fewer than top_k; the ranking's best stays exact."""
+    p = SearchParams()
+    assert rescored_poses(p, 300) == rescored_poses(p, p.rescore_lines) == 64
+    assert rescored_poses(p, 1573) == 64 * 700 // 1573 == 28  # a building floor's map
+    assert rescored_poses(p, 100_000) == p.top_k
+    assert rescored_poses(SearchParams(rescore_lines=0), 100_000) == 64
+    lines, fields = room[0], room[3]
+    half = SearchParams(rescore_lines=len(lines) // 2, **LEVEL1)  # 32 poses re-scored on this room
+    assert rescored_poses(half, len(lines)) == 32
+    for args, exact in _query_searches(room):
+        fast = search_poses(*args, half, fields=fields)
+        assert _pairs(fast)[0] == _pairs(exact)[0] and fast.losses[0] == exact.losses[0]
 
 
 @pytest.mark.parametrize("loss", ["inlier", "l1"])

@@ -47,6 +47,9 @@ class SearchParams:
     # the map has them (and decompose is on), False: always the exact path
     rescore: int = 64  # fast path: the best `rescore` poses by field loss (at least top_k) are
     # re-scored with the exact functions and the top_k by exact loss returned (0: field losses)
+    rescore_lines: int = 700  # a map of more lines re-scores proportionally fewer poses (at least top_k):
+    # the exact cost is poses x lines, and a building floor's 1600 lines made it most of the search
+    # (docs/measurements.md#rescore-lines)
     rescore_query_level: int | None = 2  # query points of the exact re-scoring (None: query_level;
     # 2 = 162 points sees small structure such as door frames that tell a room from its twin)
     coverage_cap: float = 2.0  # maps with coverage (room layouts): the re-scored inlier count is
@@ -121,7 +124,7 @@ def search_poses(arcs2d: np.ndarray, labels2d: np.ndarray, rotations: np.ndarray
                          chunk=params.chunk_translations, device=device, dtype=dt, visibility=visibility)
         loss = ldf.pose_loss(f2d, f3d, kind=params.loss, tau=params.tau, decompose=True)
     rescore = fast and params.rescore > 0
-    want = max(params.top_k, params.rescore) if rescore else params.top_k
+    want = max(params.top_k, rescored_poses(params, len(lines3d))) if rescore else params.top_k
     diverse = params.diverse_translation > 0 and params.diverse_rotation_deg > 0
     ti, ri, lv = ldf.top_k_poses(loss, 8 * want if diverse else want)
     if diverse:
@@ -210,6 +213,15 @@ def covered_inlier_loss(f2d, f3d, Q, rotations: np.ndarray, translation_index: n
     inl = ((f2d - f3d).abs() < tau) & covered[:, None, :]
     share = covered.to(f3d.dtype).mean(1).clamp(min=1.0 / cap)
     return -inl.sum((1, 2)).to(f3d.dtype) / share
+
+
+def rescored_poses(params: SearchParams, num_lines: int) -> int:
+    """Poses the fast path re-scores exactly: ``params.rescore``, scaled down by
+    ``rescore_lines / num_lines`` for maps of more lines, never below ``top_k``."""
+    n = int(params.rescore)
+    if params.rescore_lines > 0 and num_lines > params.rescore_lines:
+        n = n * int(params.rescore_lines) // int(num_lines)
+    return max(int(params.top_k), n)
 
 
 def diverse_subset(centers: np.ndarray, rotations: np.ndarray, k: int, min_distance: float,
