@@ -247,14 +247,16 @@ def test_ldf_3d_at_equals_ldf_3d_at_those_poses(room):
 
 
 @pytest.mark.parametrize("poses_per_batch", [1, 4, 7])
-def test_ldf_3d_at_in_batches_equals_one_batch(room, monkeypatch, poses_per_batch):
-    """The poses go through batches of AT_BATCH_VALUES dot products: any batch size, same values."""
+@pytest.mark.parametrize("seen", [0.7, 0.05])
+def test_ldf_3d_at_in_batches_equals_one_batch(room, monkeypatch, poses_per_batch, seen):
+    """The poses go through batches of AT_BATCH_VALUES dot products, each on the lines its poses see:
+    any batch size, same values; a group all of whose lines are hidden is pi away (5 % seen: a floor)."""
     lines, groups, T, *_ = room
     rng = np.random.default_rng(5)
     R = _random_rotations(rng, 6)
     x = ldf.query_points(1)
     ti, ri = rng.integers(0, len(T), 30), rng.integers(0, len(R), 30)
-    vis = rng.random((len(T), len(lines))) > 0.3
+    vis = rng.random((len(T), len(lines))) < seen
     whole = ldf.ldf_3d_at(x, R, T, lines, groups, ti, ri, visibility=vis)
     monkeypatch.setattr(ldf, "AT_BATCH_VALUES", poses_per_batch * 5 * len(lines) * len(x))
     got = ldf.ldf_3d_at(x, R, T, lines, groups, ti, ri, visibility=vis)
