@@ -124,7 +124,7 @@ def search_poses(arcs2d: np.ndarray, labels2d: np.ndarray, rotations: np.ndarray
                          chunk=params.chunk_translations, device=device, dtype=dt, visibility=visibility)
         loss = ldf.pose_loss(f2d, f3d, kind=params.loss, tau=params.tau, decompose=True)
     rescore = fast and params.rescore > 0
-    want = max(params.top_k, rescored_poses(params, len(lines3d))) if rescore else params.top_k
+    want = rescored_poses(params, len(lines3d)) if rescore else params.top_k  # at least top_k
     diverse = params.diverse_translation > 0 and params.diverse_rotation_deg > 0
     ti, ri, lv = ldf.top_k_poses(loss, 8 * want if diverse else want)
     if diverse:
