@@ -10,7 +10,7 @@ Run: ``python bench/bench_building.py [--preset building] [--ray] [--threads 1] 
    ``--data DIR``: a building already generated).
 2. **Maps.** ``ldlmap prepare DATA --maps .../maps_plain`` (defaults: SIFT, N_t = 800, 40 views),
    one map per floor, wall and CPU seconds and peak memory from ``/usr/bin/time -v`` (kept in
-   ``prepare_plain.time`` beside the maps: a later run that reuses the maps reports the build
+   ``prepare_<tag>.time`` beside the maps: a later run that reuses the maps reports the build
    that made them, when it ran here; ``--rebuild`` builds again). With ``--ray``: the same with
    ``--ray local`` into ``maps_ray`` (one task per floor, ``--threads`` each), and whether its
    maps equal the plain ones. Map size per floor, per room (``rooms`` of the building, corridors
@@ -28,9 +28,9 @@ Run: ``python bench/bench_building.py [--preset building] [--ray] [--threads 1] 
    only the copy is wrong), and how often the result is marked ``ambiguous`` when the copy is wrong
    and when it is right. Seconds per query from the results (``seconds``: ``search`` and
    ``rotation`` summed over the floor maps, ``total``): median, mean and 90th percentile.
-``--band-above-floor MIN:MAX`` (experiment): the same run against maps whose N_t candidates lie
-only MIN-MAX metres above each floor (``maps_band_MIN_MAX``, built through the library with
-:attr:`ldlmap.map.translations.TranslationParams.band_above_floor`: no CLI option yet).
+``--camera-height MIN:MAX`` and ``--num-trans N``: the maps built by ``prepare`` with those options
+(candidates only MIN-MAX metres above each floor; N_t per floor) into ``maps_<tag>`` beside
+``maps_plain``, and the same run against them.
 
 5. **Search time** apart: ``--timing-queries`` queries searched on every floor map in this process
    (2D lines once, then each map's rotations and search, as the run does), wall and CPU seconds
@@ -128,9 +128,23 @@ def dataset(args) -> Path:
     return out
 
 
+def map_options(args) -> list[str]:
+    """The ``prepare`` options of the maps under test (``--camera-height``, ``--num-trans``)."""
+    return ((["--camera-height", args.camera_height] if args.camera_height else [])
+            + (["--num-trans", str(args.num_trans)] if args.num_trans else []))
+
+
+def maps_tag(args) -> str:
+    """``plain`` for the defaults, else e.g. ``h0.9-1.7_n1600``."""
+    parts = ([f"h{args.camera_height.replace(':', '-')}"] if args.camera_height else []) + (
+        [f"n{args.num_trans}"] if args.num_trans else [])
+    return "_".join(parts) or "plain"
+
+
 def prepare(data: Path, maps: Path, args, ray: bool) -> dict[str, Any]:
-    """``ldlmap prepare`` into ``maps`` (built, or reused with the record of the build that made them)."""
-    tag = "ray" if ray else "plain"
+    """``ldlmap prepare`` (with :func:`map_options`) into ``maps`` (built, or reused with the record of
+    the build that made them)."""
+    tag = maps.name.removeprefix("maps_")
     time_file, log = maps.parent / f"prepare_{tag}.time", maps.parent / f"prepare_{tag}.log"
     have = sorted(maps.glob("*.h5")) if maps.is_dir() else []
     if have and not args.rebuild:  # the record of the build that made them, when it ran here
@@ -138,47 +152,14 @@ def prepare(data: Path, maps: Path, args, ray: bool) -> dict[str, Any]:
         rec["reused"] = True
     else:
         maps.mkdir(parents=True, exist_ok=True)
-        cmd = cli("ldlmap.cli", "prepare", str(data), "--maps", str(maps), "--threads", str(args.threads), "--overwrite")
+        cmd = cli("ldlmap.cli", "prepare", str(data), "--maps", str(maps), "--threads", str(args.threads), "--overwrite",
+                  *map_options(args))
         if ray:
             cmd += ["--ray", "local"]
         rec = timed(cmd, time_file, log)
         rec["reused"] = False
-    rec["threads"] = args.threads
+    rec["threads"], rec["options"] = args.threads, map_options(args)
     rec["maps"] = {p.stem: p.stat().st_size for p in sorted(maps.glob("*.h5"))}
-    return rec
-
-
-BAND_BUILD = """
-import functools, sys
-from ldlmap.core.cli_common import set_threads
-import ldlmap.map.translations as tr
-set_threads(int(sys.argv[5]))
-band = (float(sys.argv[3]), float(sys.argv[4]))
-tr.candidate_translations = functools.partial(tr.candidate_translations,
-                                              params=tr.TranslationParams(band_above_floor=band))
-from ldlmap.batch.prepare import prepare_dataset
-for o in prepare_dataset(sys.argv[1], None, sys.argv[2], None, overwrite=True):
-    print(o.scene, o.status, o.map_path, o.message)
-    if o.status == "failed":
-        sys.exit(1)
-"""
-
-
-def prepare_band(data: Path, maps: Path, band: tuple[float, float], args) -> dict[str, Any]:
-    """Experiment (no CLI option yet): the maps of ``prepare`` with their candidates only ``band``
-    metres above each floor (:attr:`ldlmap.map.translations.TranslationParams.band_above_floor`),
-    built through the library's ``prepare_dataset``, one floor after another."""
-    time_file = maps.parent / f"{maps.name}.time"
-    if sorted(maps.glob("*.h5")) and not args.rebuild:
-        rec = parse_time(time_file) if time_file.exists() else {}
-        rec["reused"] = True
-    else:
-        maps.mkdir(parents=True, exist_ok=True)
-        rec = timed([sys.executable, "-c", BAND_BUILD, str(data), str(maps), str(band[0]), str(band[1]),
-                     str(args.threads)], time_file, maps.parent / f"{maps.name}.log")
-        rec["reused"] = False
-    rec.update(threads=args.threads, band_above_floor=list(band),
-               maps={p.stem: p.stat().st_size for p in sorted(maps.glob("*.h5"))})
     return rec
 
 
@@ -376,7 +357,7 @@ def report(res: dict[str, Any]) -> None:
     run = res["run"]
     c.print(f"run: wall {run['wall_s']:.0f} s, CPU {run['user_s'] + run['system_s']:.0f} s, peak RSS "
             f"{run['peak_rss_mb']:.0f} MB; load before: {run['uptime_before']}; after: {run['uptime_after']}")
-    for tag in ("prepare_plain", "prepare_ray", "prepare_band"):
+    for tag in ("prepare", "prepare_ray"):
         p = res.get(tag)
         if not p:
             continue
@@ -407,9 +388,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--top-maps", type=int, default=None, help="--top-maps of the run (default: the run's)")
     ap.add_argument("--splits", default=None, help="comma-separated splits to localize (default: all)")
     ap.add_argument("--max-queries", type=int, default=None, help="localize every k-th query, this many at most")
-    ap.add_argument("--band-above-floor", default=None, metavar="MIN:MAX",
-                    help="experiment: localize against maps whose candidates lie MIN-MAX m above each floor "
-                         "(built through the library, no CLI option yet)")
+    ap.add_argument("--camera-height", default=None, metavar="MIN:MAX",
+                    help="prepare's --camera-height: candidates only MIN-MAX m above each floor (maps_<tag>)")
+    ap.add_argument("--num-trans", type=int, default=None, help="prepare's --num-trans: N_t per floor map (maps_<tag>)")
     ap.add_argument("--timing-queries", type=int, default=40, help="queries of the in-process search timing (0: none)")
     ap.add_argument("--output", default=str(HERE / "building.json"))
     args = ap.parse_args(argv)
@@ -422,15 +403,11 @@ def main(argv: list[str] | None = None) -> int:
     work = data.parent
     res: dict[str, Any] = {"preset": args.preset, "data": str(data), "threads": args.threads}
     t0 = time.perf_counter()
-    res["prepare_plain"] = prepare(data, work / "maps_plain", args, ray=False)
-    maps_dir = work / "maps_plain"
-    if args.band_above_floor:
-        band = tuple(float(x) for x in args.band_above_floor.split(":"))
-        maps_dir = work / f"maps_band_{band[0]:g}_{band[1]:g}"
-        res["prepare_band"] = prepare_band(data, maps_dir, band, args)
+    maps_dir = work / f"maps_{maps_tag(args)}"
+    res["prepare"] = prepare(data, maps_dir, args, ray=False)
     if args.ray:
-        res["prepare_ray"] = prepare(data, work / "maps_ray", args, ray=True)
-        res["ray_maps_equal_plain"] = same_maps(work / "maps_plain", work / "maps_ray")
+        res["prepare_ray"] = prepare(data, work / f"maps_ray_{maps_tag(args)}", args, ray=True)
+        res["ray_maps_equal_plain"] = same_maps(maps_dir, work / f"maps_ray_{maps_tag(args)}")
     rooms = read_building(data)
     res["rooms"] = sum(r.kind not in ("corridor", "stairwell") for r in rooms)
     res["spaces"] = len(rooms)

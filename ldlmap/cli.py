@@ -23,8 +23,10 @@ app = make_app("ldlmap", "Build LDL maps (3D lines, principal directions, featur
 # Options shared by `build` and `prepare` (maps without a scan: line files, ZInD layouts).
 TRANS_SPACING = typer.Option(None, "--trans-spacing", help="Maps without a scan (line files, ZInD layouts): "
                              "candidate translations this many metres apart (default 0.3).")
-CAMERA_HEIGHT = typer.Option(None, "--camera-height", metavar="MIN:MAX", help="Maps without a scan: camera-height "
-                             "band in metres (e.g. 1.2:1.7; default: ZInD's camera height, else floor to ceiling).")
+CAMERA_HEIGHT = typer.Option(None, "--camera-height", metavar="MIN:MAX", help="Camera-height band in metres "
+                             "above the floor where the candidate translations go (e.g. 0.9:1.7; a scan's floor is its "
+                             "lowest surface, a map without a scan's is z = 0); default: ZInD's camera height, else floor "
+                             "to ceiling.")
 UP = typer.Option(None, "--up", help="The input's up axis: x, y, z, -x, -y, -z, or auto (default: the COLMAP cameras' "
                   "down axes, else the lines' vertical structure); the map is rotated into z-up once.")
 EXTRACTION = typer.Option(None, "--feature-extraction", help="Where features of the panoramas are extracted: equirect "
@@ -111,7 +113,9 @@ def _translations_summary(header: dict) -> str:
         z = f", camera height {band[0]:.2f}-{band[1]:.2f} m" if band else ""
         return f"{n}, spaced {how['spacing']:.2f} m over the {how.get('region', 'free space')}{z}"
     method = how.get("method") or cfg.get("translation_method")
-    return f"{n}" + (f" ({method}, N_t = {cfg.get('num_translations')})" if method else "")
+    band = how.get("camera_height_above_floor")
+    z = f", {band[0]:.2f}-{band[1]:.2f} m above the floor" if band else ""
+    return f"{n}" + (f" ({method}, N_t = {cfg.get('num_translations')}{z})" if method else "")
 
 
 def parse_band(text: Optional[str], option: str) -> Optional[tuple[float, float]]:

@@ -226,6 +226,26 @@ def test_a_camera_height_band_must_meet_the_room(small, tmp_path, band, words):
     assert words in assert_clean_failure(res, tmp_path, before)
 
 
+def test_a_scan_map_keeps_its_candidates_in_the_camera_height_band(small, tmp_path):
+    """``--camera-height`` on a scan: the N_t candidates stand MIN-MAX m above the scan's floor (its
+    lowest surface), as ``map info`` says; a band above the ceiling is one line, no file."""
+    from ldlmap.map.mapfile import read_map
+
+    scan, out = small / "pcd" / f"{SCENE}.ply", tmp_path / "band.h5"
+    _ok(runner.invoke(map_app, ["build", str(scan), "-o", str(out), "--features", "none", "--num-trans", "60",
+                                "--camera-height", "1.0:1.4"]))
+    m = read_map(out, load_cloud=False)
+    floor = float(np.percentile(m.lines[..., 2], 0.5))
+    z = m.translations[:, 2] - floor
+    assert len(z) >= 40 and z.min() >= 1.0 - 0.15 and z.max() <= 1.4 + 0.15, (z.min(), z.max())
+    info = runner.invoke(map_app, ["info", str(out)])
+    assert "1.00-1.40 m above the floor" in info.output
+    before = snapshot(tmp_path)
+    res = runner.invoke(map_app, ["build", str(scan), "-o", str(tmp_path / "high.h5"), "--features", "none",
+                                  "--num-trans", "60", "--camera-height", "8:9"])
+    assert "within 8-9 m above the floor" in assert_clean_failure(res, tmp_path, before)
+
+
 def test_prepare_zind_checks_the_camera_height_band(tmp_path):
     from tests.test_zind import write_tiny_home
 

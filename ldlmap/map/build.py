@@ -66,8 +66,9 @@ class BuildParams:
     distance_fields: bool = True  # precompute 3D distance fields (fast pose search, ldlmap.map.fields3d)
     trans_spacing: float = 0.3  # maps without a scan (layouts, line files): candidate translations on a
     # lattice this many metres apart (a true camera is then within spacing / sqrt(2) in xy)
-    camera_height: tuple[float, float] | None = None  # maps without a scan: camera-height band (world z,
-    # metres) for candidate translations; None: the layout's when known, else floor to ceiling
+    camera_height: tuple[float, float] | None = None  # camera-height band (metres above the floor) for candidate
+    # translations: a scan's N_t go to its free space in the band (its floor: the robust lowest z); maps without a
+    # scan: world z. None: a scan's free space from floor to ceiling; the layout's band when known
     up: str = "auto"  # the input's up axis: auto (cameras, else the lines; ldlmap.sfm.gravity) | x | y | z | -x | -y | -z
     scale: float = 1.0  # input coordinates are multiplied by this first (SfM frames: metres per unit)
     min_kept_lines: int = 100  # length filter floor: keep at least min(this, half the lines), the longest ...
@@ -218,15 +219,19 @@ def scene_translations(src: SceneInput, lines: np.ndarray, lines_raw: np.ndarray
                        params: BuildParams) -> tuple[np.ndarray, dict]:
     """Candidate translations of a scene and how they were chosen (stored in the map's config).
 
-    With a scan: N_t in its free space (octree or grid, the paper's). Without one: a lattice of
-    ``trans_spacing`` over where cameras stand (:func:`ldlmap.map.translations.spaced_translations`).
+    With a scan: N_t in its free space (octree or grid, the paper's), within ``camera_height`` above
+    its floor when given. Without one: a lattice of ``trans_spacing`` over where cameras stand
+    (:func:`ldlmap.map.translations.spaced_translations`).
     """
-    from ldlmap.map.translations import candidate_translations, spaced_translations
+    from ldlmap.map.translations import TranslationParams, candidate_translations, spaced_translations
 
     if src.points is not None:
+        band = params.camera_height
         T = candidate_translations(src.points, params.num_translations, params.translation_method,
-                                   params.clearance, prior_centers=src.prior_centers)
-        return T, {"method": params.translation_method, "num": int(params.num_translations)}
+                                   params.clearance, prior_centers=src.prior_centers,
+                                   params=TranslationParams(band_above_floor=band))
+        return T, {"method": params.translation_method, "num": int(params.num_translations),
+                   "camera_height_above_floor": [float(z) for z in band] if band is not None else None}
     _check_band_meets_scene(params.camera_height, lines_raw)
     T = spaced_translations(lines_raw, params.trans_spacing, src.walkable, params.camera_height)
     if src.prior_centers is not None:

@@ -241,7 +241,9 @@ def candidate_translations(points: np.ndarray, num: int = 800, method: Literal["
             raise InputError("prior camera centres contain NaN or infinite values")
         C = np.concatenate([C, pc])
     if len(C) == 0:
-        raise InputError(f"no free space found for candidate translations (clearance {clearance} m)")
+        band = params.band_above_floor
+        within = f" within {band[0]:g}-{band[1]:g} m above the floor" if band is not None else ""
+        raise InputError(f"no free space found for candidate translations{within} (clearance {clearance} m)")
     return C
 
 
