@@ -124,7 +124,8 @@ def grouped_min_distance(x: "torch.Tensor", s: "torch.Tensor", e: "torch.Tensor"
     ``min_l D_l = min(min over inside l of asin|x.n_l|, min over all endpoints acos(x.p))``: the
     endpoint term needs no masking; (2) ``x`` is inside the lune of ``(s, e)`` iff
     ``x . (n x s) > 0`` and ``x . (e x n) > 0`` (the same conditions as eq. 2 up to positive
-    factors), so all five dot products come from one batched matmul. Returns (c, G, P).
+    factors), so all five dot products come from one batched matmul per group (a group's
+    products stay in cache: docs/measurements.md#grouped-products). Returns (c, G, P).
 
     ``visible`` (c, L) bool, optional: lines that are not visible from the arc set's centre (hidden
     behind walls) are left out of the minimum.
@@ -136,27 +137,27 @@ def grouped_min_distance(x: "torch.Tensor", s: "torch.Tensor", e: "torch.Tensor"
     n = torch.where(nn > DEGENERATE_EPS, n / nn.clamp_min(DEGENERATE_EPS), torch.zeros_like(n))
     a_side = torch.linalg.cross(n, s, dim=-1)  # x . (n x s) > 0: x on e's side of the s-plane
     b_side = torch.linalg.cross(e, n, dim=-1)  # x . (e x n) > 0: x on s's side of the e-plane
-    c, L = s.shape[0], s.shape[1]
-    V = torch.cat([s, e, n, a_side, b_side], dim=1)  # (c, 5L, 3)
-    dots = torch.matmul(V, x.transpose(-1, -2))  # (c, 5L, P): one matmul for all dot products
-    xs, xe, xn, xa, xb = dots.split(L, dim=1)
-    inside = torch.minimum(xa, xb) > 0
-    if visible is not None:
-        inside &= visible.unsqueeze(-1)
-    circ = xn.abs_().masked_fill_(~inside, 2.0)  # sin of the great-circle distance, or 2 (none)
-    end = torch.maximum(xs, xe)  # cos of the nearest endpoint distance
-    if visible is not None:
-        end.masked_fill_(~visible.unsqueeze(-1), -1.0)  # a hidden line is pi away
+    c = s.shape[0]
+    xt = x.transpose(-1, -2).contiguous()  # (3, P) or (c, 3, P): bmm on a contiguous operand is the fast path
     outs = []
     for g in range(len(bounds) - 1):  # G = 3 groups: contiguous slices of the sorted lines
         lo, hi = bounds[g], bounds[g + 1]
         if hi == lo:
             outs.append(torch.full((c, x.shape[-2]), EMPTY_DISTANCE, dtype=x.dtype, device=x.device))
             continue
-        c_min = circ[:, lo:hi].amin(1)
+        V = torch.cat([s[:, lo:hi], e[:, lo:hi], n[:, lo:hi], a_side[:, lo:hi], b_side[:, lo:hi]], dim=1)  # (c, 5k, 3)
+        dots = torch.bmm(V, xt) if xt.dim() == 3 else torch.matmul(V, xt)  # (c, 5k, P): all dot products
+        xs, xe, xn, xa, xb = dots.split(hi - lo, dim=1)
+        inside = (xa > 0) & (xb > 0)
+        end = torch.maximum(xs, xe)  # cos of the nearest endpoint distance
+        if visible is not None:
+            seen = visible[:, lo:hi].unsqueeze(-1)
+            inside &= seen
+            end.masked_fill_(~seen, -1.0)  # a hidden line is pi away
+        c_min = torch.where(inside, xn.abs(), 2.0).amin(1)  # sin of the great-circle distance, or 2 (none)
         d_circ = torch.where(c_min <= 1.0, torch.asin(c_min.clamp(max=1.0)),
                              torch.full_like(c_min, EMPTY_DISTANCE))  # 2 (no lune) -> ignored
-        d_end = torch.acos(end[:, lo:hi].amax(1).clamp(-1.0, 1.0))
+        d_end = torch.acos(end.amax(1).clamp(-1.0, 1.0))
         outs.append(torch.minimum(d_circ, d_end))
     return torch.stack(outs, dim=1)
 
