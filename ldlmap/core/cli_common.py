@@ -297,14 +297,17 @@ def check_threads(threads: int) -> int:
 
 
 def set_threads(threads: int) -> None:
-    """Use ``threads`` CPU threads in torch and OpenCV (0: their defaults, one per core)."""
+    """Use ``threads`` CPU threads in torch, OpenCV and the BLAS and OpenMP pools that numpy and
+    scipy use (0: their defaults, one per core)."""
     if check_threads(threads):
         import_heavy("torch", "cv2")
         import cv2
         import torch
+        from threadpoolctl import threadpool_limits
 
         torch.set_num_threads(threads)
         cv2.setNumThreads(threads)
+        threadpool_limits(threads)  # numpy's OpenBLAS kept a second thread busy beside one torch thread
 
 
 # What the screen says while a build stage runs (stages of ldlmap.map.build), and what its steps count.
