@@ -98,12 +98,13 @@ def test_threads_is_checked_before_any_work(tmp_path, args):
     assert list(tmp_path.iterdir()) == []
 
 
-def test_set_threads_sets_torch_and_opencv():
-    code = ("from ldlmap.core.cli_common import set_threads; set_threads(3); import torch, cv2; "
-            "print(torch.get_num_threads(), cv2.getNumThreads())")
+def test_set_threads_sets_torch_opencv_and_numpys_blas():
+    code = ("import numpy; from ldlmap.core.cli_common import set_threads; set_threads(3); import torch, cv2; "
+            "from threadpoolctl import threadpool_info; "
+            "print(torch.get_num_threads(), cv2.getNumThreads(), *sorted({p['num_threads'] for p in threadpool_info()}))")
     out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, check=True,
                          env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin"})
-    assert out.stdout.split() == ["3", "3"]
+    assert out.stdout.split() == ["3", "3", "3"]  # every BLAS / OpenMP pool numpy loaded: 3 threads
 
 
 # --------------------------------------------------------------------------- 2: progress

@@ -307,7 +307,7 @@ def set_threads(threads: int) -> None:
 
         torch.set_num_threads(threads)
         cv2.setNumThreads(threads)
-        threadpool_limits(threads)  # numpy's OpenBLAS kept a second thread busy beside one torch thread
+        threadpool_limits(threads)  # numpy's and scipy's BLAS and OpenMP pools (else one thread per core)
 
 
 # What the screen says while a build stage runs (stages of ldlmap.map.build), and what its steps count.
