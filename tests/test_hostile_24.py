@@ -246,6 +246,21 @@ def test_a_scan_map_keeps_its_candidates_in_the_camera_height_band(small, tmp_pa
     assert "within 8-9 m above the floor" in assert_clean_failure(res, tmp_path, before)
 
 
+def test_a_scan_map_of_sparse_candidates_warns(small, tmp_path):
+    """A scan whose N_t candidates stand far apart (a whole floor at one room's N_t; here 10 in a room)
+    says so, with the options that help; a room at its usual density does not."""
+    scan = small / "pcd" / f"{SCENE}.ply"
+    sparse = runner.invoke(map_app, ["build", str(scan), "-o", str(tmp_path / "sparse.h5"), "--features", "none",
+                                     "--num-trans", "10"])
+    _ok(sparse)
+    text = " ".join(sparse.output.split())
+    assert "candidate translations stand a median" in text and "--num-trans" in text and "--camera-height" in text
+    dense = runner.invoke(map_app, ["build", str(scan), "-o", str(tmp_path / "dense.h5"), "--features", "none",
+                                    "--num-trans", "400"])
+    _ok(dense)
+    assert "stand a median" not in " ".join(dense.output.split())
+
+
 def test_prepare_zind_checks_the_camera_height_band(tmp_path):
     from tests.test_zind import write_tiny_home
 

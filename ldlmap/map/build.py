@@ -423,6 +423,15 @@ def build_from_input(src: SceneInput, output: Path, params: BuildParams, name: s
     translations, trans_info = scene_translations(src, lines, lines_raw, params)
     if len(translations) == 0:
         raise InputError("no candidate translation found in the free space of the scan")
+    if src.points is not None:
+        from ldlmap.map.translations import SPARSE_SPACING_M, candidate_spacing
+
+        spacing = candidate_spacing(translations)
+        if spacing > SPARSE_SPACING_M:
+            report.warnings.append(
+                f"the {len(translations)} candidate translations stand a median {spacing:.2f} m apart, so cameras "
+                "between them may be missed (a scan of a whole floor?): more with --num-trans, nearer the cameras "
+                "with --camera-height MIN:MAX (e.g. 0.9:1.7)")
     stage("translations")
     visibility = coverage = None
     walls = getattr(src.walkable, "walls", None)
