@@ -12,8 +12,8 @@ Run: ``python bench/bench_building.py [--preset building] [--ray] [--threads 1] 
    one map per floor, wall and CPU seconds and peak memory from ``/usr/bin/time -v`` (kept in
    ``prepare_<tag>.time`` beside the maps: a later run that reuses the maps reports the build
    that made them, when it ran here; ``--rebuild`` builds again). With ``--ray``: the same with
-   ``--ray local`` into ``maps_ray`` (one task per floor, ``--threads`` each), and whether its
-   maps equal the plain ones. Map size per floor, per room (``rooms`` of the building, corridors
+   ``--ray local`` into ``maps_ray_<tag>`` (one task per floor, ``--threads`` each), and whether
+   its maps equal those of the plain build. Map size per floor, per room (``rooms`` of the building, corridors
    and stairwells not counted) and per stored dataset (HDF5 storage bytes).
 3. **Localization.** ``ldlloc run --images 'DATA/*_pano/**/*.jpg' --maps maps_plain`` (the floor is
    not given: every query is searched on every floor map, the best ``--top-maps`` refined, the
