@@ -174,3 +174,53 @@ def test_per_pose_association_angles_batch_like_one_at_a_time():
                                      params=GeometricParams(assoc_deg=float(angles[k])))
         np.testing.assert_allclose(batch.centers[k], one.centers[0], atol=1e-5)
         np.testing.assert_allclose(batch.rotations[k], one.rotations[0], atol=1e-5)
+
+
+def _door_coverage(t, door_y, door_z, G=32):
+    """Coverage fields (1, G + 1, 2G) of the box room seen from ``t``: every direction meets a mapped
+    surface except those through a door in the wall x = HI (``door_y``, ``door_z``: its extent)."""
+    theta = np.arange(G + 1) * np.pi / G
+    phi = np.arange(2 * G) * np.pi / G - np.pi
+    d = np.stack(np.broadcast_arrays(np.sin(theta)[:, None] * np.cos(phi), np.sin(theta)[:, None] * np.sin(phi),
+                                     np.cos(theta)[:, None]), -1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = (HI[0] - t[0]) / d[..., 0]
+        hit = t + np.where(s[..., None] > 0, s[..., None], np.inf) * d
+    door = (d[..., 0] > 0) & (np.abs(hit[..., 1] - np.mean(door_y)) <= np.ptp(door_y) / 2) \
+        & (np.abs(hit[..., 2] - np.mean(door_z)) <= np.ptp(door_z) / 2)
+    return ~door[None]
+
+
+def test_points_seen_through_a_door_are_left_out():
+    """The next room seen through a door (lines the map does not hold, in directions its coverage
+    marks unmapped) is not associated with the map's lines: with the coverage its points stay
+    unmatched and the pose is recovered; every direction covered changes nothing; nothing covered
+    leaves nothing to match."""
+    lines, groups = _room_lines()
+    door_y, door_z = (-0.6, 0.6), (0.0, 2.2)
+    far = HI[0] + 1.5  # the next room's wall, behind the door
+    nxt = np.array([[[far, y, 0.0], [far, y, 2.2]] for y in (-0.45, -0.15, 0.2, 0.5)]
+                   + [[[far, -0.6, z], [far, 0.6, z]] for z in (0.3, 0.9, 1.6)]
+                   + [[[HI[0] + 0.3, y, 0.0], [far, y, 0.0]] for y in (-0.5, 0.5)])
+    rng = np.random.default_rng(4)
+    params = GeometricParams(covered_only=True)
+    for _ in range(3):
+        t = np.array([HI[0] - 2.2, rng.uniform(-0.5, 0.5), 1.4])
+        R = rotation_from_axis_angle(np.array([0.0, 0.0, 1.0]), rng.uniform(0, 2 * np.pi))
+        arcs = normalize(cam_from_world(np.concatenate([lines, nxt]), R, t))
+        R0 = rotation_from_axis_angle(rng.normal(size=3), np.radians(2.0)) @ R
+        t0 = t + np.array([0.25, -0.2, 0.1])
+        cov = _door_coverage(t, door_y, door_z)
+        ti = np.zeros(1, int)
+        with_cov = refine_poses_geometric(arcs, R0[None], t0[None], lines, groups, np.eye(3), params=params,
+                                          coverage=cov, translation_index=ti)
+        assert with_cov.accepted[0] and np.linalg.norm(with_cov.centers[0] - t) < 0.02
+        assert rotation_error_deg(with_cov.rotations[0], R) < 0.3
+        plain = refine_poses_geometric(arcs, R0[None], t0[None], lines, groups, np.eye(3))
+        full = refine_poses_geometric(arcs, R0[None], t0[None], lines, groups, np.eye(3), params=params,
+                                      coverage=np.ones_like(cov), translation_index=ti)
+        np.testing.assert_array_equal(full.centers, plain.centers)
+        none = refine_poses_geometric(arcs, R0[None], t0[None], lines, groups, np.eye(3), params=params,
+                                      coverage=np.zeros_like(cov), translation_index=ti)
+        assert none.matched[0] == 0 and not none.accepted[0]
+        assert with_cov.matched[0] < plain.matched[0], "the points seen through the door are left out"
