@@ -11,7 +11,9 @@ re-score), each of the K poses is optimized continuously:
 2. Association: each point takes the nearest projected 3D line of its group (among the lines seen
    from the pose's candidate translation), measured as ``|x . n_l|`` (the sine of the angle to
    the line's great circle, ``n_l ~ R ((P1 - t) x (P2 - t))``) and only where the point lies
-   within the line's extent; points farther than the association angle stay unmatched.
+   within the line's extent; points farther than the association angle stay unmatched, and so do,
+   on maps with coverage (room layouts), the points that look at no mapped surface (through a
+   door: the next room, which the map does not hold).
 3. Gauss-Newton on the point-to-great-circle residuals ``x . n_l`` with Huber weights
    (iteratively re-weighted), all K poses batched, over the 6 pose parameters (rotation vector
    applied in the world frame, and the camera centre), with exact Jacobians. A point's Jacobian is
@@ -74,7 +76,8 @@ class GeometricParams:
     # annotated height), each step keeps the camera within this of it, so the height cannot drift to a
     # twin's pose (docs/measurements.md#geometric-height-margin)
     covered_only: bool = True  # maps with coverage (room layouts): a 2D point whose direction meets no mapped
-    # surface from the pose's candidate (a door, an opening: the next room) is not associated with map lines
+    # surface from the pose's candidate (a door: the next room) is not associated with map lines
+    # (docs/measurements.md#geometric-covered-only)
     keep_within: float = 0.05  # the caller keeps a refined pose when its exact loss is at most this
     # fraction worse than its coarse pose's: the inlier loss (tau = 0.1 rad) cannot see a few cm
     # (docs/measurements.md#geometric-keep-within)
