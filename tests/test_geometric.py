@@ -3,9 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
-import pytest
 
-from ldlmap.core.errors import InputError
 from ldlmap.core.geometry import cam_from_world, normalize, rotation_error_deg, rotation_from_axis_angle
 from ldlloc.refine.geometric import GeometricParams, refine_poses_geometric
 from tests.test_fields import HI, LO, _room_lines
@@ -226,5 +224,3 @@ def test_points_seen_through_a_door_are_left_out():
                                       coverage=np.zeros_like(cov), translation_index=ti)
         assert none.matched[0] == 0 and not none.accepted[0]
         assert with_cov.matched[0] < plain.matched[0], "the points seen through the door are left out"
-    with pytest.raises(InputError, match="translation_index"):
-        refine_poses_geometric(arcs, R0[None], t0[None], lines, groups, np.eye(3), coverage=cov)

@@ -178,8 +178,6 @@ def refine_poses_geometric(arcs: np.ndarray, rotations: np.ndarray, centers: np.
     XX = (X[:, :, None] * X[:, None, :]).reshape(-1, 9)
     covered = None
     if coverage is not None and params.covered_only:
-        if translation_index is None or np.shape(translation_index) != (K,):
-            raise InputError(f"coverage needs each of the {K} poses' candidate translation (translation_index)")
         covered = torch.as_tensor(_covered_points(X.double().numpy(), np.asarray(rotations, dtype=np.float64).reshape(-1, 3, 3),
                                                   coverage, translation_index))
     n2 = torch.linalg.cross(arcs_t[:, 0], arcs_t[:, 1], dim=-1)
