@@ -236,12 +236,11 @@ def _covered_points(X: np.ndarray, R: np.ndarray, coverage: np.ndarray, translat
     points on a door's frame, at the border of what is mapped, stay in."""
     from ldlmap.map.visibility import coverage_at
 
-    uniq, back = np.unique(np.asarray(translation_index), return_inverse=True)
-    C = np.asarray(coverage[uniq], dtype=bool)  # the poses' candidates only (a floor map has thousands)
+    C = np.asarray(coverage, dtype=bool)
     grown = C | np.roll(C, 1, axis=2) | np.roll(C, -1, axis=2)
     grown[:, 1:] |= C[:, :-1]
     grown[:, :-1] |= C[:, 1:]
-    return coverage_at(grown, back.reshape(-1), np.einsum("xi,kij->kxj", X, R))
+    return coverage_at(grown, np.asarray(translation_index), np.einsum("xi,kij->kxj", X, R))
 
 
 def _merge_twins(R, t, merge_m: float, merge_deg: float):
