@@ -353,7 +353,7 @@ class Localizer:
         ti = np.asarray(translation_index)
         vis = m.visibility[ti[:n]] if m.visibility is not None else None
         g = refine_poses_geometric(arcs, rotations[:n], centers[:n], m.lines, m.line_groups, m.principal_directions,
-                                   vis, p.geometric, m.camera_height_band, assoc_deg, m.coverage, ti[:n])
+                                   vis, p.geometric, m.camera_height_band, assoc_deg)
         # a refined pose is scored with what is seen from the candidate translation nearest to it
         # (lines behind walls, mapped directions), not from its start's
         ti_ref = m.nearest_translation(g.centers)

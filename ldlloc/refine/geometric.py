@@ -11,9 +11,7 @@ re-score), each of the K poses is optimized continuously:
 2. Association: each point takes the nearest projected 3D line of its group (among the lines seen
    from the pose's candidate translation), measured as ``|x . n_l|`` (the sine of the angle to
    the line's great circle, ``n_l ~ R ((P1 - t) x (P2 - t))``) and only where the point lies
-   within the line's extent; points farther than the association angle stay unmatched, and so do,
-   on maps with coverage (room layouts), the points that look at no mapped surface (through a
-   door: the next room, which the map does not hold).
+   within the line's extent; points farther than the association angle stay unmatched.
 3. Gauss-Newton on the point-to-great-circle residuals ``x . n_l`` with Huber weights
    (iteratively re-weighted), all K poses batched, over the 6 pose parameters (rotation vector
    applied in the world frame, and the camera centre), with exact Jacobians. A point's Jacobian is
@@ -75,9 +73,6 @@ class GeometricParams:
     height_margin_m: float = 0.0  # with a known camera-height band (the map's, e.g. a ZInD layout's
     # annotated height), each step keeps the camera within this of it, so the height cannot drift to a
     # twin's pose (docs/measurements.md#geometric-height-margin)
-    covered_only: bool = True  # maps with coverage (room layouts): a 2D point whose direction meets no mapped
-    # surface from the pose's candidate (a door: the next room) is not associated with map lines
-    # (docs/measurements.md#geometric-covered-only)
     keep_within: float = 0.05  # the caller keeps a refined pose when its exact loss is at most this
     # fraction worse than its coarse pose's: the inlier loss (tau = 0.1 rad) cannot see a few cm
     # (docs/measurements.md#geometric-keep-within)
@@ -139,18 +134,14 @@ def refine_poses_geometric(arcs: np.ndarray, rotations: np.ndarray, centers: np.
                            line_groups: np.ndarray, principal: np.ndarray, visible: np.ndarray | None = None,
                            params: GeometricParams = GeometricParams(),
                            height_band: tuple[float, float] | None = None,
-                           assoc_deg: np.ndarray | None = None, coverage: np.ndarray | None = None,
-                           translation_index: np.ndarray | None = None) -> GeometricResult:
+                           assoc_deg: np.ndarray | None = None) -> GeometricResult:
     """Refine K poses (world -> camera ``rotations`` (K, 3, 3), camera ``centers`` (K, 3)) against
     the map's lines (L, 2, 3) with their principal groups (L,) and the map's principal directions
     (3, 3), from the query's 2D arcs (N, 2, 3; camera frame). ``visible`` (K, L) bool: the lines
     seen from each pose's candidate translation (None: all). ``height_band``: (min, max) world z of
     the camera when known (:attr:`ldlmap.map.contents.LdlMap.camera_height_band`); every step keeps the
     centres within ``params.height_margin_m`` of it. ``assoc_deg`` (K,): each pose's first-round
-    association angle (None: ``params.assoc_deg`` for all). ``coverage`` (N_t, G + 1, 2G) with
-    ``translation_index`` (K,): the map's coverage fields and each pose's candidate translation; with
-    ``params.covered_only`` the points that look at no mapped surface from it (under the starting
-    pose) stay unmatched. See the module docstring.
+    association angle (None: ``params.assoc_deg`` for all). See the module docstring.
     """
     import torch
 
@@ -176,10 +167,6 @@ def refine_poses_geometric(arcs: np.ndarray, rotations: np.ndarray, centers: np.
     arcs_t = torch.as_tensor(A, dtype=dt)
     X, arc_of = _sample_arcs(arcs_t, max(1, int(params.samples)))
     XX = (X[:, :, None] * X[:, None, :]).reshape(-1, 9)
-    covered = None
-    if coverage is not None and params.covered_only:
-        covered = torch.as_tensor(_covered_points(X.double().numpy(), np.asarray(rotations, dtype=np.float64).reshape(-1, 3, 3),
-                                                  coverage, translation_index))
     n2 = torch.linalg.cross(arcs_t[:, 0], arcs_t[:, 1], dim=-1)
     n2 = n2 / torch.linalg.vector_norm(n2, dim=-1, keepdim=True).clamp_min(1e-12)
     margin = np.sin(np.radians(params.extent_margin_deg))
@@ -202,8 +189,6 @@ def refine_poses_geometric(arcs: np.ndarray, rotations: np.ndarray, centers: np.
         a = assoc0[active]
         thr = torch.sin(torch.deg2rad(a + (params.final_assoc_deg - a) * k / max(rounds - 1, 1)))  # (A,)
         match, arc_group = _associate(R, t, X, arc_of, n2, L, G3, P3, params.group_tol, margin, thr)
-        if covered is not None:
-            match = torch.where(covered[active], match, torch.full_like(match, -1))
         vp = (n2, P3, arc_group, params.vp_weight) if params.vp_weight > 0 else None
         for _ in range(max(1, int(params.steps))):
             R, t = _gauss_newton_step(R, t, X, XX, L, match, (thr / 3).clamp_min(huber)[:, None], params.damping,
@@ -228,19 +213,6 @@ def refine_poses_geometric(arcs: np.ndarray, rotations: np.ndarray, centers: np.
     rots = np.where(keep[:, None, None], U @ Vt, np.asarray(rotations, dtype=np.float64).reshape(-1, 3, 3))
     cens = np.where(keep[:, None], t.double().numpy() + origin, C0)
     return GeometricResult(rots, cens, keep, matched.numpy(), np.degrees(np.arcsin(med.clamp(max=1.0).double().numpy())))
-
-
-def _covered_points(X: np.ndarray, R: np.ndarray, coverage: np.ndarray, translation_index: np.ndarray) -> np.ndarray:
-    """(K, X) whether each camera-frame point ``X`` (X, 3) looks at a mapped surface from pose ``k``'s
-    candidate translation (its world direction ``R_k^T x``), the coverage grown by one node so that
-    points on a door's frame, at the border of what is mapped, stay in."""
-    from ldlmap.map.visibility import coverage_at
-
-    C = np.asarray(coverage, dtype=bool)
-    grown = C | np.roll(C, 1, axis=2) | np.roll(C, -1, axis=2)
-    grown[:, 1:] |= C[:, :-1]
-    grown[:, :-1] |= C[:, 1:]
-    return coverage_at(grown, np.asarray(translation_index), np.einsum("xi,kij->kxj", X, R))
 
 
 def _merge_twins(R, t, merge_m: float, merge_deg: float):
