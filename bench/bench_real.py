@@ -97,13 +97,13 @@ def run_level(zind_root: Path, level: str, args) -> dict:
         search.update(diverse_translation=d_t, diverse_rotation_deg=d_r)
     for kv in args.search or []:  # --search name=value: any SearchParams field (experiments)
         key, value = kv.split("=", 1)
-        search[key] = type(getattr(params.search, key))(value) if getattr(params.search, key) is not None else int(value)
+        search[key] = parse_field(getattr(params.search, key), value) if getattr(params.search, key) is not None else int(value)
     if search:
         params = replace(params, search=replace(params.search, **search))
     geo = {}
     for kv in args.geometric or []:  # --geometric name=value: any GeometricParams field (experiments)
         key, value = kv.split("=", 1)
-        geo[key] = type(getattr(params.geometric, key))(value)
+        geo[key] = parse_field(getattr(params.geometric, key), value)
     if geo:
         params = replace(params, geometric=replace(params.geometric, **geo))
     if args.keep_ratio is not None:
@@ -204,12 +204,47 @@ def print_summary(results: list[dict]) -> None:
     console().print(t)
 
 
+def print_sweep(sweep: list[dict]) -> None:
+    """Per level and spacing: queries within 0.1 m and 0.25 m / 5 deg, the search's top-1 and top 20
+    (counts of 19), the median error; and each level's sums over the spacings."""
+    from rich.table import Table
+
+    t = Table(title="ZInD over candidate spacings (counts of queries)")
+    for col in ("level", "spacing m", "N_t median", "top-1", "top 20", "0.1 m / 5 deg", "0.25 m / 5 deg", "median m"):
+        t.add_column(col, justify="right")
+    sums: dict[str, list[int]] = {}
+    for r in sweep:
+        s, n = r["summary"], r["summary"]["count"]
+        row = [round(s["top1_0.5m_10deg"] * n), round(s["top20_0.5m_10deg"] * n), round(s["acc_0.1m_5deg"] * n),
+               round(s["acc_0.25m_5deg"] * n)]
+        acc = sums.setdefault(r["level"], [0, 0, 0, 0])
+        sums[r["level"]] = [a + b for a, b in zip(acc, row)]
+        t.add_row(r["level"], f"{r['spacing']:.2f}", f"{s['median_num_translations']:.0f}", *map(str, row),
+                  f"{s['median_t_error_m']:.3f}")
+    for level, acc in sums.items():
+        t.add_row(level, "sum", "", *map(str, acc), "")
+    console().print(t)
+
+
+def parse_field(template, value: str):
+    """``value`` as the type of ``template`` (a dataclass field's default); booleans from
+    true/false/1/0/yes/no."""
+    if isinstance(template, bool):
+        if value.lower() not in ("true", "false", "1", "0", "yes", "no"):
+            raise SystemExit(f"not a boolean: {value!r} (true or false)")
+        return value.lower() in ("true", "1", "yes")
+    return type(template)(value)
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", default=None, help="real data folder (default $LDL_REAL_DATA or ../shared/data)")
     ap.add_argument("--levels", default="room,floor", help="map levels, comma-separated: room, floor (default both)")
     ap.add_argument("--threads", type=int, default=1, help="torch intra-op threads (default 1)")
-    ap.add_argument("--spacing", type=float, default=None, help="candidate translation spacing (default: the map's)")
+    ap.add_argument("--spacing", default=None,
+                    help="candidate translation spacing in metres (default: the map's); several, comma-separated "
+                         "(e.g. 0.2,0.25,0.3,0.35,0.4): one run per spacing and a table of them, to tell a change "
+                         "from the spread of 19 queries")
     ap.add_argument("--refine", default="auto", help="auto (geometric for these lines-only maps) | geometric | none")
     ap.add_argument("--max-tilt", type=float, default=None, help="upright prior in degrees (default: the reader's)")
     ap.add_argument("--rescore-level", type=int, default=None, help="query-point level of the exact re-scoring")
@@ -230,8 +265,21 @@ def main(argv: list[str] | None = None) -> int:
     import cv2
 
     cv2.setNumThreads(args.threads)
+    levels = [x.strip() for x in args.levels.split(",") if x.strip()]
+    spacings = [float(x) for x in args.spacing.split(",")] if args.spacing else [None]
+    if len(spacings) > 1:
+        sweep = []
+        for spacing in spacings:
+            for level in levels:
+                res = run_level(zind_root, level, argparse.Namespace(**{**vars(args), "spacing": spacing}))
+                sweep.append({"spacing": spacing, **res})
+        print_sweep(sweep)
+        Path(args.output).write_text(json.dumps({"data": str(data), "threads": args.threads, "sweep": sweep}, indent=1))
+        print(f"wrote {args.output}")
+        return 0
+    args.spacing = spacings[0]
     results = []
-    for level in [x.strip() for x in args.levels.split(",") if x.strip()]:
+    for level in levels:
         res = run_level(zind_root, level, args)
         print_level(res)
         results.append(res)
