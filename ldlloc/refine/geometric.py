@@ -73,7 +73,7 @@ class GeometricParams:
     height_margin_m: float = 0.0  # with a known camera-height band (the map's, e.g. a ZInD layout's
     # annotated height), each step keeps the camera within this of it, so the height cannot drift to a
     # twin's pose (docs/measurements.md#geometric-height-margin)
-    keep_within: float = 0.05  # the caller keeps a refined pose when its exact loss is at most this
+    keep_within: float = 0.15  # the caller keeps a refined pose when its exact loss is at most this
     # fraction worse than its coarse pose's: the inlier loss (tau = 0.1 rad) cannot see a few cm
     # (docs/measurements.md#geometric-keep-within)
 
