@@ -38,7 +38,7 @@ ROOT = HERE.parent
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from bench.common import CACHE, console, source_hash  # noqa: E402
+from bench.common import CACHE, console, parse_field, source_hash  # noqa: E402
 
 GOOD_T, GOOD_R = 0.5, 10.0  # "right pose" for the search: within 0.5 m and 10 deg
 
@@ -97,7 +97,8 @@ def run_level(zind_root: Path, level: str, args) -> dict:
         search.update(diverse_translation=d_t, diverse_rotation_deg=d_r)
     for kv in args.search or []:  # --search name=value: any SearchParams field (experiments)
         key, value = kv.split("=", 1)
-        search[key] = parse_field(getattr(params.search, key), value) if getattr(params.search, key) is not None else int(value)
+        default = getattr(params.search, key)
+        search[key] = parse_field(default, value) if default is not None else int(value)
     if search:
         params = replace(params, search=replace(params.search, **search))
     geo = {}
@@ -224,16 +225,6 @@ def print_sweep(sweep: list[dict]) -> None:
     for level, acc in sums.items():
         t.add_row(level, "sum", "", *map(str, acc), "")
     console().print(t)
-
-
-def parse_field(template, value: str):
-    """``value`` as the type of ``template`` (a dataclass field's default); booleans from
-    true/false/1/0/yes/no."""
-    if isinstance(template, bool):
-        if value.lower() not in ("true", "false", "1", "0", "yes", "no"):
-            raise SystemExit(f"not a boolean: {value!r} (true or false)")
-        return value.lower() in ("true", "1", "yes")
-    return type(template)(value)
 
 
 def main(argv: list[str] | None = None) -> int:

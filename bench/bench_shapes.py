@@ -39,8 +39,8 @@ ROOT = HERE.parent
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from bench.common import (CACHE, console, machine_info, map_tag, preset_rooms_dataset, set_threads, synth_tag,  # noqa: E402
-                          write_json)
+from bench.common import (CACHE, console, machine_info, map_tag, parse_field,  # noqa: E402
+                          preset_rooms_dataset, set_threads, synth_tag, write_json)
 
 SPLITS = ("robot", "handheld", "extreme")
 
@@ -152,8 +152,7 @@ def main() -> None:
     overrides = {}
     for kv in args.build:
         key, value = kv.split("=", 1)
-        kind = type(getattr(BuildParams(), key))
-        overrides[key] = (value.lower() in ("1", "true", "yes")) if kind is bool else kind(value)
+        overrides[key] = parse_field(getattr(BuildParams(), key), value)
     report = {"machine": machine_info(), "args": {k: str(v) for k, v in vars(args).items()}, "maps": {}}
     for source in args.maps.split(","):
         table, all_rows = {}, []

@@ -302,6 +302,16 @@ def load_line(info: dict[str, Any]) -> str:
             f"load average {' / '.join(f'{x:.2f}' for x in la)} (1/5/15 min), device {info.get('device')}")
 
 
+def parse_field(template: Any, value: str) -> Any:
+    """A ``field=value`` experiment option's ``value`` as the type of ``template`` (the dataclass
+    field's default); booleans from true/false/1/0/yes/no."""
+    if isinstance(template, bool):
+        if value.lower() not in ("true", "false", "1", "0", "yes", "no"):
+            raise SystemExit(f"not a boolean: {value!r} (true or false)")
+        return value.lower() in ("true", "1", "yes")
+    return type(template)(value)
+
+
 def write_json(path: Path, data: dict[str, Any]) -> None:
     """Write ``data`` to ``path`` atomically (through ``ldlmap.core.errors.atomic_file``)."""
     from ldlmap.core.errors import atomic_file
