@@ -223,7 +223,8 @@ def scene_translations(src: SceneInput, lines: np.ndarray, lines_raw: np.ndarray
     its floor when given. Without one: a lattice of ``trans_spacing`` over where cameras stand
     (:func:`ldlmap.map.translations.spaced_translations`).
     """
-    from ldlmap.map.translations import TranslationParams, candidate_translations, spaced_translations
+    from ldlmap.map.translations import (TranslationParams, candidate_spacing, candidate_translations,
+                                         spaced_translations)
 
     if src.points is not None:
         band = params.camera_height
@@ -231,7 +232,8 @@ def scene_translations(src: SceneInput, lines: np.ndarray, lines_raw: np.ndarray
                                    params.clearance, prior_centers=src.prior_centers,
                                    params=TranslationParams(band_above_floor=band))
         return T, {"method": params.translation_method, "num": int(params.num_translations),
-                   "camera_height_above_floor": [float(z) for z in band] if band is not None else None}
+                   "camera_height_above_floor": [float(z) for z in band] if band is not None else None,
+                   "median_spacing_m": candidate_spacing(T)}
     _check_band_meets_scene(params.camera_height, lines_raw)
     T = spaced_translations(lines_raw, params.trans_spacing, src.walkable, params.camera_height)
     if src.prior_centers is not None:
@@ -423,15 +425,14 @@ def build_from_input(src: SceneInput, output: Path, params: BuildParams, name: s
     translations, trans_info = scene_translations(src, lines, lines_raw, params)
     if len(translations) == 0:
         raise InputError("no candidate translation found in the free space of the scan")
-    if src.points is not None:
-        from ldlmap.map.translations import SPARSE_SPACING_M, candidate_spacing
+    from ldlmap.map.translations import SPARSE_SPACING_M
 
-        spacing = candidate_spacing(translations)
-        if spacing > SPARSE_SPACING_M:
-            report.warnings.append(
-                f"the {len(translations)} candidate translations stand a median {spacing:.2f} m apart, so cameras "
-                "between them may be missed (a scan of a whole floor?): more with --num-trans, nearer the cameras "
-                "with --camera-height MIN:MAX (e.g. 0.9:1.7)")
+    spacing = trans_info.get("median_spacing_m", 0.0)  # a scan's candidates only (a lattice has its own spacing)
+    if spacing > SPARSE_SPACING_M:
+        report.warnings.append(
+            f"the {len(translations)} candidate translations stand a median {spacing:.2f} m apart, so cameras "
+            "between them may be missed (a scan of a whole floor?): more with --num-trans, nearer the cameras "
+            "with --camera-height MIN:MAX (e.g. 0.9:1.7)")
     stage("translations")
     visibility = coverage = None
     walls = getattr(src.walkable, "walls", None)
