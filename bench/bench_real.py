@@ -1,16 +1,19 @@
 """Real panoramas: ZInD homes against lines-only maps of their room layouts (issues 9, 10).
 
-Run: ``python bench/bench_real.py [--data ../shared/data] [--levels room,floor] [--threads 1]``.
+Run: ``python bench/bench_real.py [--data ../shared/data] [--levels room,floor,rooms] [--threads 1]``.
 
 For every home under ``<data>/zind`` (the project's shared copy holds one, ``000``: 19 real
-panoramas, 15 rooms), at each map level (``room``: one map per complete room; ``floor``: one
-map for all rooms of a floor, the paper's large-scale setting), the maps are built from the
+panoramas, 15 rooms), at each level (``room``: one map per complete room, the room given;
+``floor``: one map for all rooms of a floor, the paper's large-scale setting, the room not given;
+``rooms``: the room maps, the room not given, ``ldlloc run --scene-unknown``: each panorama
+against all room maps of its floor, judged together), the maps are built from the
 layouts (``ldlmap prepare --dataset zind``, cached under ``bench/.cache/real/``) and every
 panorama is localized with ``ldlloc run``'s library path (layout maps carry no features: the
 pose search, then the geometric refinement unless ``--refine none``). Printed per query and
 summarized:
 
-- top-1 within 0.5 m / 10 deg (the search's best pose), best of the top 20 within 0.5 m / 10 deg;
+- top-1 within 0.5 m / 10 deg (the search's best pose), best of the top 20 within 0.5 m / 10 deg
+  (``rooms``: of the chosen room map's search);
 - the final pose within 0.5 m / 10 deg, its accuracy at 0.1 m / 5 deg and 0.25 m / 5 deg, median
   errors, the share of queries whose refinement was kept;
 - the share of queries whose nearest candidate translation is within 0.25 m of the camera;
@@ -81,8 +84,11 @@ def run_level(zind_root: Path, level: str, args) -> dict:
     from ldlloc.pipeline import LocalizeParams
     from ldlloc.batch.run import run_queries
 
-    maps = build_maps(zind_root, level, args.spacing)
-    ds = open_dataset(zind_root, "zind", map_level=level)
+    from ldlloc.batch.which_map import TOP_MAPS
+
+    map_level = "room" if level == "rooms" else level  # rooms: the room maps, the room not given
+    maps = build_maps(zind_root, map_level, args.spacing)
+    ds = open_dataset(zind_root, "zind", map_level=map_level)
     queries = ds.queries()
     from dataclasses import replace
 
@@ -113,7 +119,8 @@ def run_level(zind_root: Path, level: str, args) -> dict:
     out = CACHE / "real" / f"results_{level}.json"
     if out.exists():
         out.unlink()
-    results = run_queries(queries, maps, out, params, "cpu", meta={"dataset": "zind", "map_level": level})
+    results = run_queries(queries, maps, out, params, "cpu", meta={"dataset": "zind", "map_level": map_level},
+                          top_maps=TOP_MAPS if level == "rooms" else None)
     gt = {q.name: q for q in queries}
     translations: dict[str, np.ndarray] = {}
     rows = []
@@ -127,6 +134,7 @@ def run_level(zind_root: Path, level: str, args) -> dict:
         ok = r.status != "failed"
         rows.append({
             "name": r.name, "scene": r.scene, "status": r.status, "message": r.message,
+            "chosen_map": None if r.map is None else Path(r.map).stem,
             "t_error_m": r.t_error_m if ok else None, "r_error_deg": r.r_error_deg if ok else None,
             "top1_good": bool(ok and getattr(r, "first_good_rank", None) == 1),
             "final_good": bool(ok and r.t_error_m < GOOD_T and r.r_error_deg < GOOD_R),
@@ -173,7 +181,8 @@ def print_level(res: dict) -> None:
         t.add_column(col)
     for r in res["queries"]:
         f = lambda x, s: "-" if x is None else format(x, s)  # noqa: E731
-        t.add_row(r["name"], r["scene"].split("/")[-1], r["status"], f(r["t_error_m"], ".3f"), f(r["r_error_deg"], ".1f"),
+        own, chosen = r["scene"].split("/")[-1], r.get("chosen_map")
+        t.add_row(r["name"], own if chosen in (None, own) else f"{own} -> {chosen}", r["status"], f(r["t_error_m"], ".3f"), f(r["r_error_deg"], ".1f"),
                   "yes" if r["top1_good"] else "no", f(r["first_good_rank"], "d"), f(r["nearest_candidate_m"], ".3f"),
                   str(r["num_translations"]), str(r["num_rotations"]),
                   f(r["seconds"].get("rotation", 0) + r["seconds"].get("search", 0) if r["seconds"] else None, ".3f"))
@@ -230,7 +239,8 @@ def print_sweep(sweep: list[dict]) -> None:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", default=None, help="real data folder (default $LDL_REAL_DATA or ../shared/data)")
-    ap.add_argument("--levels", default="room,floor", help="map levels, comma-separated: room, floor (default both)")
+    ap.add_argument("--levels", default="room,floor,rooms",
+                    help="levels, comma-separated: room, floor, rooms (room maps, the room not given; default all)")
     ap.add_argument("--threads", type=int, default=1, help="torch intra-op threads (default 1)")
     ap.add_argument("--spacing", default=None,
                     help="candidate translation spacing in metres (default: the map's); several, comma-separated "

@@ -234,9 +234,13 @@ def run(
                                          "a dataset (no ground truth): an image, a folder (searched recursively for "
                                          ".jpg .jpeg .png .bmp .tif .tiff .webp) or a quoted glob ('shots/*.jpg'); "
                                          "needs --maps FILE|DIR."),
-    top_maps: Optional[int] = typer.Option(None, "--top-maps", metavar="N", help="--images with several maps: refine "
-                                           "the panorama on the N maps whose pose search scores best and keep the "
-                                           "most confident of them (default 5)."),
+    top_maps: Optional[int] = typer.Option(None, "--top-maps", metavar="N", help="--images with several maps, or "
+                                           "--scene-unknown: refine the panorama on the N maps whose pose search "
+                                           "scores best and keep the most confident of them (default 5)."),
+    scene_unknown: bool = typer.Option(False, "--scene-unknown", help="Do not tell a query its scene: localize it "
+                                       "against every map in its scene map's folder, judged together as --images "
+                                       "judges a folder (ZInD room maps: the rooms of its floor). The maps of a "
+                                       "folder must share a frame (a ZInD floor's rooms do)."),
     root: Optional[Path] = typer.Option(None, "--root", help="Dataset root (default ./data/<dataset>)."),
     dataset: Optional[str] = typer.Option(None, "--dataset", help=DATASET_HELP),
     map_level: Optional[str] = typer.Option(None, "--map-level",
@@ -278,6 +282,7 @@ def run(
     with --images, one actor per Ray CPU slot holds all the maps."""
     from ldlloc.batch.results import check_results_path, refuse_replacing_results
     from ldlloc.batch.run import default_results_path, missing_maps_message, run_queries, scenes_without_maps
+    from ldlloc.batch.which_map import TOP_MAPS
     from ldlmap.core.errors import InputError
 
     params = _params(top_k, loss, no_decompose, no_refine, privacy, features, weights, max_tilt, refine, query_frame)
@@ -288,12 +293,18 @@ def run(
         raise InputError("--resume-any-options goes with --resume")
     if images is not None:
         given = [o for o, v in (("--root", root), ("--dataset", dataset), ("--split", split), ("--scene", scene),
-                                ("--map-level", map_level)) if v]
+                                ("--map-level", map_level), ("--scene-unknown", scene_unknown)) if v]
         if given:
             raise InputError(f"--images runs without a dataset: drop {', '.join(given)}")
         return _run_images(images, maps, output, params, top_maps, device, resume, resume_any_options, save_vis,
                            weights, threads, ray, overwrite)
     from ldlmap.datasets import MAP_LEVELS
+
+    if top_maps is not None and not scene_unknown:
+        raise InputError("--top-maps goes with --images or --scene-unknown")
+    if scene_unknown:
+        top_maps = TOP_MAPS if top_maps is None else top_maps
+        check_range(top_maps, "--top-maps", 1, 1000, integer=True)
 
     if map_level is not None and map_level not in MAP_LEVELS:
         raise InputError(f"--map-level must be {' or '.join(MAP_LEVELS)}, got {map_level!r}")
@@ -308,7 +319,7 @@ def run(
     maps_given, maps = maps is not None, maps or Path(root) / "maps"
     _refuse_replacing_run_inputs(queries, maps, output, save_vis, weights, root)
     refuse_replacing_results(output, overwrite, resume)
-    missing = scenes_without_maps(queries, maps)
+    missing = scenes_without_maps(queries, maps, scene_unknown)
     if len(missing) == len({q.scene for q in queries}):  # nothing could run: say how to build the maps
         extra = (f" --dataset {dataset}" if dataset else "") + (f" --map-level {map_level}" if map_level else "")
         raise InputError(missing_maps_message(missing, maps, root, maps_given, extra))
@@ -317,9 +328,10 @@ def run(
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
     args = (queries, maps, output, params, device, resume, save_vis)
-    meta = {"dataset": label, "root": str(root), "splits": split or "all", "maps": str(maps), **level}
+    meta = {"dataset": label, "root": str(root), "splits": split or "all", "maps": str(maps), **level,
+            "scene_unknown": scene_unknown, **({"top_maps": top_maps} if scene_unknown else {})}
     say = lambda message: console.print(message, soft_wrap=True, highlight=False)  # noqa: E731
-    opts = {"meta": meta, "any_options": resume_any_options, "say": say}
+    opts = {"meta": meta, "any_options": resume_any_options, "say": say, "top_maps": top_maps}
     if missing:
         console.print(f"[yellow]warning:[/] no map for {len(missing)} scene(s) in {maps} ({', '.join(missing[:5])}"
                       f"{', ...' if len(missing) > 5 else ''}): their queries fail; `ldlmap prepare` builds them",
@@ -414,6 +426,7 @@ def _print_run(results: list, label: str, output: Path, max_tilt: Optional[float
         console.print(summary_table(results, "split", f"{label} by split"))
         console.print(timing_table(results))
         _print_priors_and_search(results, max_tilt)
+        _print_own_maps(results)
     _print_verdicts(results)
     for r in failed[:10]:
         console.print(f"[yellow]failed[/] {r.name}: {r.message}", soft_wrap=True)
@@ -428,6 +441,15 @@ def _print_run(results: list, label: str, output: Path, max_tilt: Optional[float
                   soft_wrap=True)
     if results and len(failed) == len(results):
         raise InputError(f"none of the {len(results)} queries could be localized (reasons above, and in {output})")
+
+
+def _print_own_maps(results: list) -> None:
+    """--scene-unknown: how often the chosen map is the query's own scene's."""
+    chosen = [r for r in results if r.status != "failed" and r.map is not None]
+    if chosen:
+        own = sum(Path(r.map).stem == Path(r.scene).name for r in chosen)
+        console.print(f"scene unknown: the chosen map is the query's own for {own} / {len(chosen)} "
+                      "(maps of one folder share a frame: another map's pose can be right)", soft_wrap=True)
 
 
 def _print_priors_and_search(results: list, max_tilt: Optional[float]) -> None:

@@ -277,3 +277,17 @@ def test_image_run_on_ray_equals_the_plain_one(cluster, demo_dataset, tmp_path):
     assert strip(plain) == strip(on_ray)
     assert [r["scene"] for r in on_ray] == ["(none)", "synthroom_1", "synthroom_2"]
     assert on_ray[0]["status"] == "failed" and "image" in on_ray[0]["message"]
+
+
+def test_scene_unknown_run_on_ray_equals_the_plain_one(cluster, demo_dataset, tmp_path):
+    """`run --scene-unknown --ray`: one actor per scene folder, holding its maps, gives the plain
+    run's records but for the timings (the chosen map included)."""
+    base = ["run", "--root", str(demo_dataset), "--split", "robot", "--scene", "synthroom_2", "--scene-unknown",
+            "--top-maps", "2"]
+    for out, extra in ((tmp_path / "plain.json", []), (tmp_path / "ray.json", ["--ray", "local"])):
+        res = runner.invoke(loc_app, [*base, *extra, "--output", str(out)])
+        assert res.exit_code == 0, res.output
+    plain, on_ray = (json.loads((tmp_path / f"{k}.json").read_text())["queries"] for k in ("plain", "ray"))
+    strip = lambda rs: [{k: v for k, v in r.items() if k not in ("seconds", "message")} for r in rs]  # noqa: E731
+    assert strip(plain) == strip(on_ray) and len(on_ray) == 5
+    assert all(r["map"] == str(demo_dataset / "maps" / "synthroom_2.h5") for r in on_ray)

@@ -112,9 +112,7 @@ def image_result(q: ImageQuery, loc: Localization, choice: MapChoice) -> QueryRe
         refined=bool(loc.refined), status=loc.status, message=loc.message, rotation_prior=loc.rotation_prior,
         candidates=loc.candidate_dicts(), refine_method=loc.refine_method,
         refine_residual_deg=loc.refine_residual_deg, input_frame=input_frame,
-        map=str(entry.path), map_runner_up=choice.runner_up(),
-        map_scores=choice.scores() if len(choice.ranked) > 1 else None,
-        confidence=loc.confidence, verdict=loc.verdict, competitors=list(loc.competitors),
+        **choice.record(), confidence=loc.confidence, verdict=loc.verdict, competitors=list(loc.competitors),
         confidence_signals=dict(loc.confidence_signals) or None,
     )
 

@@ -1,6 +1,7 @@
 """``ldlloc run --ray``: one Ray actor per scene map serves its queries (:func:`run_queries_ray`).
 
-Each :class:`SceneLocalizer` actor reads its scene's map once, where it runs (a shared
+Each :class:`SceneLocalizer` actor reads its scene's map once (the scene not given,
+``--scene-unknown``: one actor per scene folder, holding that folder's maps), where it runs (a shared
 filesystem on a multi-node cluster), keeps a :class:`~ldlloc.pipeline.Localizer` (on its own GPU
 with ``--device cuda``) and localizes the queries sent to it with the plain path's
 :func:`ldlloc.batch.run.localize_query`; the driver sends only the query (paths and ground truth).
@@ -29,23 +30,24 @@ from typing import Callable
 from ldlloc.batch.accuracy import QueryResult
 from ldlloc.batch.results import ResultsWriter
 from ldlloc.pipeline import LocalizeParams
-from ldlloc.batch.run import MapCache, failed_result, localize_query, open_results, query_key
+from ldlloc.batch.run import failed_result, localize_query, open_results, query_key, scene_maps
 from ldlmap.batch.ray_cluster import RETRIES, TaskDone, WorkerInfo, as_completed, check_resources, current_worker, \
     enter_folder, failure_reason, ray_session, stop
 
 
 class SceneLocalizer:
-    """Ray actor: one scene's map, loaded once, and the queries of that scene."""
+    """Ray actor: one scene's map, loaded once, and the queries of that scene (``top_maps`` given:
+    the maps of the scene's folder and the queries of its scenes, :class:`ldlloc.batch.run.FolderMaps`)."""
 
     def __init__(self, cwd: str, maps_dir: str, scene: str, params: LocalizeParams, device: str,
-                 save_vis: str | None = None, threads: int = 1):
+                 save_vis: str | None = None, threads: int = 1, top_maps: int | None = None):
         from ldlmap.core.cli_common import set_threads
         from ldlmap.core.errors import LdlError
 
         enter_folder(cwd)  # relative paths (maps, images, pictures) as on the driver
         set_threads(threads)
         self.params, self.save_vis = params, save_vis
-        self.cache = MapCache(Path(maps_dir), params, device)
+        self.cache = scene_maps(Path(maps_dir), params, device, top_maps)
         try:
             self.cache.get(scene)  # load now; a map that fails is remembered and fails each query
         except LdlError:
@@ -64,24 +66,27 @@ def run_queries_ray(queries: list, maps_dir: str | Path, output: str | Path, par
                     device: str = "cpu", resume: bool = False, save_vis: str | Path | None = None,
                     meta: dict | None = None, progress: Callable[[TaskDone], None] | None = None,
                     address: str = "local", threads: int = 1, any_options: bool = False,
-                    say: Callable[[str], None] | None = None) -> list[QueryResult]:
+                    say: Callable[[str], None] | None = None, top_maps: int | None = None) -> list[QueryResult]:
     """:func:`ldlloc.batch.run.run_queries` on a Ray cluster (``address``: see
     :data:`ldlmap.batch.ray_cluster.ADDRESS_HELP`); ``threads``: CPU threads (and Ray CPUs) per actor, as
-    ``--threads`` (0: one per core, one Ray CPU)."""
+    ``--threads`` (0: one per core, one Ray CPU); ``top_maps``: the scene not given (as
+    :func:`ldlloc.batch.run.run_queries`)."""
     with open_results(output, params, device, meta, resume, any_options, queries, say) as writer:
-        return _run_on_ray(writer, queries, maps_dir, params, device, save_vis, progress, address, threads)
+        return _run_on_ray(writer, queries, maps_dir, params, device, save_vis, progress, address, threads, top_maps)
 
 
 def _run_on_ray(writer: ResultsWriter, queries: list, maps_dir: str | Path, params: LocalizeParams, device: str,
                 save_vis: str | Path | None, progress: Callable[[TaskDone], None] | None, address: str,
-                threads: int) -> list[QueryResult]:
+                threads: int, top_maps: int | None = None) -> list[QueryResult]:
     """The body of :func:`run_queries_ray`, writing through the open (locked) ``writer``."""
+    group = (lambda q: q.scene) if top_maps is None else (lambda q: Path(q.scene).parent.as_posix())  # noqa: E731
     done = writer.done()
     todo = [q for q in sorted(queries, key=query_key) if q.name not in done]
     if not todo:  # everything is in the results file already: nothing to start
         writer.finish()
         return writer.results
-    remaining = Counter(q.scene for q in todo)
+    remaining = Counter(group(q) for q in todo)
+    first = {group(q): q.scene for q in reversed(todo)}  # a scene of each actor's group, to load its maps
     with ray_session(address) as ray:
         actor_cls = ray.remote(SceneLocalizer).options(**check_resources(ray, device, max(1, threads)),
                                                        max_restarts=RETRIES, max_task_retries=RETRIES)
@@ -92,18 +97,19 @@ def _run_on_ray(writer: ResultsWriter, queries: list, maps_dir: str | Path, para
         arrived: list[QueryResult] = []  # results not yet in the file
         try:
             for s in remaining:
-                actors[s] = actor_cls.remote(os.getcwd(), str(maps_dir), s, params, device, vis, threads)
+                actors[s] = actor_cls.remote(os.getcwd(), str(maps_dir), first[s], params, device, vis, threads,
+                                             top_maps)
             for q in todo:
-                refs[actors[q.scene].localize.remote(q)] = q
+                refs[actors[group(q)].localize.remote(q)] = q
             for batch in as_completed(list(refs)):
                 for ref, value, exc in batch:
                     q = refs[ref]
                     r, worker = value if exc is None else (failed_result(q, params, failure_reason(exc)), None)
                     finished.add(ref)
                     arrived.append(r)
-                    remaining[q.scene] -= 1
-                    if remaining[q.scene] == 0:  # scene done: free its slot for the next scene's actor
-                        ray.kill(actors.pop(q.scene))
+                    remaining[group(q)] -= 1
+                    if remaining[group(q)] == 0:  # scene done: free its slot for the next scene's actor
+                        ray.kill(actors.pop(group(q)))
                     if progress:
                         progress(TaskDone(_label(r), worker, len(finished), len(todo)))
                 writer.extend(arrived)

@@ -44,7 +44,8 @@ from ldlmap.core.errors import (FormatVersionError, InputError, LdlError, atomic
 
 RESULTS_FORMAT_VERSION = 1  # top-level "format_version" of a results file (absent: written before it, read as 1)
 STATUSES = ("ok", "coarse", "failed")
-OPTION_KEYS = ("dataset", "root", "splits", "map_level", "device", "params", "max_tilt_deg", "maps", "top_maps")  # meta compared by --resume
+OPTION_KEYS = ("dataset", "root", "splits", "map_level", "device", "params", "max_tilt_deg", "maps", "top_maps",
+               "scene_unknown")  # meta compared by --resume
 MAX_RESULTS_BYTES = 2 << 30  # a results file larger than this is not one of ours (2 GiB: ~1 million queries)
 
 

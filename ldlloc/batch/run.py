@@ -77,30 +77,62 @@ def result_from_localization(q, loc: Localization) -> QueryResult:
 
 
 class MapCache:
-    """Loads each scene's map (and its Localizer) once; remembers maps that failed to load."""
+    """Loads each scene's map (and its Localizer) once, one scene in memory at a time (queries are
+    sorted by scene); remembers maps that failed to load."""
 
     def __init__(self, maps_dir: Path, params: LocalizeParams, device: str):
         self.maps_dir, self.params, self.device = Path(maps_dir), params, device
-        self._loaded: dict[str, Localizer | LdlError] = {}
+        self._loaded: dict = {}
 
-    def get(self, scene: str) -> Localizer:
+    def key(self, scene: str):
+        """What a query of ``scene`` is localized against (loaded once per key)."""
+        return scene
+
+    def load(self, key):
+        """The :class:`Localizer` of scene ``key``'s map."""
         from ldlmap.map.mapfile import read_map
 
-        if scene not in self._loaded:
-            path = self.maps_dir / f"{scene}.h5"
+        path = self.maps_dir / f"{key}.h5"
+        if not path.exists():
+            raise InputError(f"map not found: {path} (build it with `ldlmap prepare ROOT --maps {self.maps_dir}`)")
+        return Localizer(read_map(path, load_cloud=False), self.params, self.device)
+
+    def get(self, scene: str):
+        """:meth:`load` of ``scene``'s key, loaded once (raises its load error each time)."""
+        key = self.key(scene)
+        if key not in self._loaded:
+            self._loaded = {k: v for k, v in self._loaded.items() if isinstance(v, LdlError)}
             try:
-                if not path.exists():
-                    raise InputError(f"map not found: {path} (build it with `ldlmap prepare ROOT --maps "
-                                     f"{self.maps_dir}`)")
-                # Keep one scene in memory at a time: queries are sorted by scene.
-                self._loaded = {k: v for k, v in self._loaded.items() if isinstance(v, LdlError)}
-                self._loaded[scene] = Localizer(read_map(path, load_cloud=False), self.params, self.device)
+                self._loaded[key] = self.load(key)
             except LdlError as exc:
-                self._loaded[scene] = exc
-        got = self._loaded[scene]
+                self._loaded[key] = exc
+        got = self._loaded[key]
         if isinstance(got, LdlError):
             raise got
         return got
+
+
+class FolderMaps(MapCache):
+    """Scene not given (``run --scene-unknown``): each query is localized against every map of its
+    scene map's folder (``<maps>/<scene's parent>/*.h5``: for ZInD room maps, the rooms of its
+    floor; for floor maps, the floors of its home), judged together as ``run --images`` judges a
+    folder of maps (:func:`ldlloc.batch.which_map.localize_on_maps`, ``top_maps`` refined). The
+    maps of one folder must share a frame for the errors against the dataset's ground truth to
+    mean anything (a ZInD floor's rooms do). A folder whose maps fail to load fails each of its
+    queries."""
+
+    def __init__(self, maps_dir: Path, params: LocalizeParams, device: str, top_maps: int):
+        super().__init__(maps_dir, params, device)
+        self.top_maps = int(top_maps)
+
+    def key(self, scene: str) -> Path:
+        return self.maps_dir / Path(scene).parent
+
+    def load(self, key: Path):
+        """The :class:`ldlloc.batch.which_map.MapSet` of the maps in folder ``key``."""
+        from ldlloc.batch.which_map import MapSet
+
+        return MapSet.load(key, self.params, self.device, recursive=False)
 
 
 def default_results_path(label: str, kind: str, root: Path, splits: list[str] | None, scene: str | None = None,
@@ -118,9 +150,12 @@ def default_results_path(label: str, kind: str, root: Path, splits: list[str] | 
     return Path("results") / f"{'_'.join(parts)}.json"
 
 
-def scenes_without_maps(queries: list, maps_dir: Path) -> list[str]:
-    """The scenes of ``queries`` whose map ``<maps_dir>/<scene>.h5`` is not there, in query order."""
+def scenes_without_maps(queries: list, maps_dir: Path, scene_unknown: bool = False) -> list[str]:
+    """The scenes of ``queries`` whose map ``<maps_dir>/<scene>.h5`` is not there (``scene_unknown``:
+    whose folder holds no map, :class:`FolderMaps`), in query order."""
     scenes = dict.fromkeys(q.scene for q in sorted(queries, key=query_key))
+    if scene_unknown:
+        return [s for s in scenes if not any((Path(maps_dir) / s).parent.glob("*.h5"))]
     return [s for s in scenes if not (Path(maps_dir) / f"{s}.h5").is_file()]
 
 
@@ -156,17 +191,31 @@ def failed_result(q, params: LocalizeParams, message: str, seconds: float | None
                        rotation_prior=rotation_prior_name(max_tilt_for(q, params)), confidence=0.0, verdict="failed")
 
 
-def localize_query(cache: MapCache, q, params: LocalizeParams, save_vis: str | Path | None = None) -> QueryResult:
-    """Localize one dataset query against its scene's map. Any error (a toolkit error, or anything
+def localize_query(cache: MapCache, q, params: LocalizeParams,
+                   save_vis: str | Path | None = None) -> QueryResult:
+    """Localize one dataset query against its scene's map (``cache`` a :class:`MapCache`), or, the
+    scene not given, against the maps of its scene's folder (a :class:`FolderMaps`: the record
+    names the chosen map, ``map``, and the runner-up). Any error (a toolkit error, or anything
     else a bad panorama or map provokes) becomes this query's ``failed`` record, never the run's
     end; a picture that cannot be written is recorded (``picture_error``) beside the result."""
     t0 = time.perf_counter()
-    tilt = max_tilt_for(q, params)
+    tilt = 180.0 if max_tilt_for(q, params) is None else max_tilt_for(q, params)
     try:
-        loc = cache.get(q.scene)
-        img = load_image(q.image)
-        res = loc.localize(img, max_tilt_deg=180.0 if tilt is None else tilt)
-        r = result_from_localization(q, res)
+        if isinstance(cache, FolderMaps):
+            from ldlloc.batch.which_map import localize_on_maps
+
+            maps = cache.get(q.scene)
+            img = load_image(q.image)
+            res, choice = localize_on_maps(img, maps, tilt, cache.top_maps)
+            r = result_from_localization(q, res)
+            for key, value in choice.record().items():
+                setattr(r, key, value)
+            loc = choice.chosen.entry.localizer
+        else:
+            loc = cache.get(q.scene)
+            img = load_image(q.image)
+            res = loc.localize(img, max_tilt_deg=tilt)
+            r = result_from_localization(q, res)
     except LdlError as exc:
         return failed_result(q, params, str(exc), time.perf_counter() - t0)
     except Exception as exc:  # noqa: BLE001 - e.g. cv2.error, MemoryError: one query's failure, not the run's
@@ -175,8 +224,18 @@ def localize_query(cache: MapCache, q, params: LocalizeParams, save_vis: str | P
         from ldlloc.visualize import localization_caption
 
         caption = localization_caption(f"{q.name}{Path(q.image).suffix}", res, (r.t_error_m, r.r_error_deg))
+        if r.map is not None:
+            caption += f" | map {Path(r.map).stem}"
         r.picture_error = write_query_picture(img, res, loc.map, picture_path(save_vis, q), caption)
     return r
+
+
+def scene_maps(maps_dir: str | Path, params: LocalizeParams, device: str, top_maps: int | None) -> MapCache:
+    """Where a run's queries find their maps: their scene's (``top_maps`` None) or their scene
+    folder's, judged together with ``top_maps`` refined (:class:`FolderMaps`)."""
+    if top_maps is None:
+        return MapCache(Path(maps_dir), params, device)
+    return FolderMaps(Path(maps_dir), params, device, top_maps)
 
 
 def picture_path(save_vis: str | Path, q) -> Path:
@@ -198,16 +257,18 @@ def write_query_picture(img: np.ndarray, res: Localization, ldl_map, path: Path,
 def run_queries(queries: list, maps_dir: str | Path, output: str | Path, params: LocalizeParams = LocalizeParams(),
                 device: str = "cpu", resume: bool = False, save_vis: str | Path | None = None,
                 meta: dict | None = None, progress: Callable[[QueryResult], None] | None = None,
-                any_options: bool = False, say: Callable[[str], None] | None = None) -> list[QueryResult]:
+                any_options: bool = False, say: Callable[[str], None] | None = None,
+                top_maps: int | None = None) -> list[QueryResult]:
     """Localize ``queries`` (from :mod:`ldlmap.datasets`) and write results as they finish.
 
     ``resume``: skip the queries the results file holds, except failed ones (retried); refuses
     other options than the file's unless ``any_options``. ``say``: where warnings and the resume
-    summary go (one line each). :func:`ldlloc.batch.ray_run.run_queries_ray` does the same on a Ray
-    cluster."""
+    summary go (one line each). ``top_maps``: the scene not given, each query against the maps of
+    its scene's folder, this many refined (:class:`FolderMaps`); None: against its scene's map.
+    :func:`ldlloc.batch.ray_run.run_queries_ray` does the same on a Ray cluster."""
     with open_results(output, params, device, meta, resume, any_options, queries, say) as writer:
         done = writer.done()
-        cache = MapCache(Path(maps_dir), params, device)
+        cache = scene_maps(maps_dir, params, device, top_maps)
         for q in sorted(queries, key=query_key):
             if q.name in done:
                 continue

@@ -52,11 +52,11 @@ class MapSet:
 
     @classmethod
     def load(cls, maps: str | Path, params: LocalizeParams, device: str = "cpu",
-             progress: Callable[[Path], None] | None = None) -> "MapSet":
+             progress: Callable[[Path], None] | None = None, recursive: bool = True) -> "MapSet":
         """The maps of ``maps`` (:func:`map_files`); one-line error when none of them loads."""
         from ldlmap.map.mapfile import read_map
 
-        files, root = map_files(maps)
+        files, root = map_files(maps, recursive)
         entries, skipped = [], []
         for f in files:
             if progress:
@@ -73,9 +73,10 @@ class MapSet:
         return cls(entries, skipped)
 
 
-def map_files(maps: str | Path) -> tuple[list[Path], Path | None]:
-    """The map files of ``--maps`` (a file, or a folder searched recursively for ``*.h5``, hidden
-    folders left out, sorted) and the folder their names are relative to (None for a file)."""
+def map_files(maps: str | Path, recursive: bool = True) -> tuple[list[Path], Path | None]:
+    """The map files of ``--maps`` (a file, or a folder searched for ``*.h5``, recursively unless
+    ``recursive`` is False, hidden folders left out, sorted) and the folder their names are relative
+    to (None for a file)."""
     p = Path(maps)
     if p.is_file():
         return [p], None
@@ -83,7 +84,7 @@ def map_files(maps: str | Path) -> tuple[list[Path], Path | None]:
         raise InputError(f"--maps not found: {p} (a map .h5 file or a folder of maps)")
     if not p.is_dir():
         raise InputError(f"--maps is neither a file nor a folder: {p}")
-    files = sorted(f for f in p.rglob("*.h5") if f.is_file()
+    files = sorted(f for f in (p.rglob("*.h5") if recursive else p.glob("*.h5")) if f.is_file()
                    and not any(part.startswith(".") for part in f.relative_to(p).parts))
     if not files:
         raise InputError(f"--maps {p}: no .h5 map in this folder or below (build maps with `ldlmap build` "
@@ -120,6 +121,12 @@ class MapChoice:
         if best.loc is not None and best.loc.confidence is not None:
             out["confidence"] = float(best.loc.confidence)
         return out
+
+    def record(self) -> dict:
+        """The results record's fields of the choice: ``map`` (the chosen map's path),
+        ``map_runner_up`` and, with several maps, ``map_scores``."""
+        return {"map": str(self.chosen.entry.path), "map_runner_up": self.runner_up(),
+                "map_scores": self.scores() if len(self.ranked) > 1 else None}
 
     def scores(self) -> list[dict]:
         """Per map that was refined: ``{"map", "search_loss", "loss"}``; then the next ranked maps'
