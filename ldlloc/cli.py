@@ -506,7 +506,7 @@ def report(
 ) -> None:
     """Print the accuracy and timing tables of a results file again (and write an HTML report)."""
     from ldlloc.batch.results import load_results
-    from ldlloc.batch.accuracy import summary_table, timing_table
+    from ldlloc.batch.accuracy import has_ground_truth, summary_table, timing_table
 
     check_range(max_thumbnails, "--max-thumbnails", 0, 100000, integer=True)
     if html is not None:
@@ -518,6 +518,8 @@ def report(
     console.print(summary_table(rs, "split", f"{results} by split"))
     console.print(timing_table(rs))
     _print_search_summary(rs)
+    if has_ground_truth(rs):
+        _print_own_maps(rs)
     _print_verdicts(rs)
     if html is not None:
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn

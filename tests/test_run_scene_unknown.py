@@ -73,3 +73,11 @@ def test_folder_without_maps_says_how_to_build(demo_dataset, tmp_path):
     res = runner.invoke(app, ["run", "--root", str(demo_dataset), "--split", "robot", "--scene-unknown",
                               "--maps", str(tmp_path / "none"), "--output", str(tmp_path / "r.json")])
     assert "ldlmap prepare" in error_line(res)
+
+
+def test_report_says_how_often_the_own_map_was_chosen(unknown_run):
+    res, out = unknown_run
+    assert res.exit_code == 0, res.output
+    rep = runner.invoke(app, ["report", str(out)])
+    assert rep.exit_code == 0, rep.output
+    assert "chosen map is the query's own for 10 / 10" in rep.output
