@@ -153,7 +153,8 @@ def test_run_on_ray_gives_the_same_results_with_an_actor_killed(cluster, demo_da
             killed.append((scene, event.worker.pid))
 
     out = tmp_path / "robot.json"
-    meta = {"dataset": "synthetic", "root": str(demo_dataset), "splits": ["robot"], "maps": str(demo_dataset / "maps")}
+    meta = {"dataset": "synthetic", "root": str(demo_dataset), "splits": ["robot"], "maps": str(demo_dataset / "maps"),
+            "scene_unknown": False}  # the meta `ldlloc run` writes
     results = run_queries_ray(ds.queries(["robot"]), demo_dataset / "maps", out, LocalizeParams(), meta=meta,
                               progress=progress)
     scene, pid = killed[0]
