@@ -138,7 +138,7 @@ def run_level(zind_root: Path, level: str, args) -> dict:
             "t_error_m": r.t_error_m if ok else None, "r_error_deg": r.r_error_deg if ok else None,
             "top1_good": bool(ok and getattr(r, "first_good_rank", None) == 1),
             "final_good": bool(ok and r.t_error_m < GOOD_T and r.r_error_deg < GOOD_R),
-            "refined": bool(r.refined),
+            "refined": bool(r.refined), "confident": r.verdict == "confident",
             "first_good_rank": getattr(r, "first_good_rank", None) if ok else None,
             "nearest_candidate_m": near, "num_translations": n_t,
             "num_rotations": r.num_rotations, "rotation_prior": getattr(r, "rotation_prior", ""),
@@ -154,9 +154,13 @@ def summarize(rows: list[dict]) -> dict:
     med = lambda key: float(np.median([r["seconds"].get(key, np.nan) for r in rows if r["seconds"]]))  # noqa: E731
     pose_search = float(np.median([r["seconds"].get("rotation", 0) + r["seconds"].get("search", 0)
                                    for r in rows if "search" in r["seconds"]] or [np.nan]))
+    right = (te < 0.25) & (re < 5)
+    confident = np.array([r.get("confident", False) for r in rows], dtype=bool)
     return {
         "count": n,
         "failed": sum(r["status"] == "failed" for r in rows),
+        "confident": int(confident.sum()),
+        "confident_wrong": int((confident & ~right).sum()),  # beyond 0.25 m / 5 deg
         "top1_0.5m_10deg": float(np.mean([r["top1_good"] for r in rows])),
         "final_0.5m_10deg": float(np.mean([r["final_good"] for r in rows])),
         "refined": float(np.mean([r["refined"] for r in rows])),
@@ -198,7 +202,7 @@ def print_summary(results: list[dict]) -> None:
         t.add_column(f"{r['level']} level", justify="right")
     targets = {"room": {"top1_0.5m_10deg": ">= 0.8", "top20_0.5m_10deg": ">= 0.95", "median_pose_search_seconds": "< 0.05"},
                "floor": {"top1_0.5m_10deg": ">= 0.5", "top20_0.5m_10deg": ">= 0.8", "median_pose_search_seconds": "< 0.15"}}
-    keys = ["count", "failed", "top1_0.5m_10deg", "top20_0.5m_10deg", "final_0.5m_10deg", "refined", "acc_0.1m_5deg", "acc_0.25m_5deg",
+    keys = ["count", "failed", "confident", "confident_wrong", "top1_0.5m_10deg", "top20_0.5m_10deg", "final_0.5m_10deg", "refined", "acc_0.1m_5deg", "acc_0.25m_5deg",
             "median_t_error_m", "median_r_error_deg", "nearest_candidate_within_0.25m", "median_num_translations",
             "median_pose_search_seconds"]
     for k in keys:
@@ -216,23 +220,25 @@ def print_summary(results: list[dict]) -> None:
 
 def print_sweep(sweep: list[dict]) -> None:
     """Per level and spacing: queries within 0.1 m and 0.25 m / 5 deg, the search's top-1 and top 20
-    (counts of 19), the median error; and each level's sums over the spacings."""
+    (counts of 19), the poses marked confident (of them beyond 0.25 m / 5 deg), the median error; and
+    each level's sums over the spacings."""
     from rich.table import Table
 
     t = Table(title="ZInD over candidate spacings (counts of queries)")
-    for col in ("level", "spacing m", "N_t median", "top-1", "top 20", "0.1 m / 5 deg", "0.25 m / 5 deg", "median m"):
+    for col in ("level", "spacing m", "N_t median", "top-1", "top 20", "0.1 m / 5 deg", "0.25 m / 5 deg",
+                "confident (wrong)", "median m"):
         t.add_column(col, justify="right")
     sums: dict[str, list[int]] = {}
     for r in sweep:
         s, n = r["summary"], r["summary"]["count"]
         row = [round(s["top1_0.5m_10deg"] * n), round(s["top20_0.5m_10deg"] * n), round(s["acc_0.1m_5deg"] * n),
-               round(s["acc_0.25m_5deg"] * n)]
-        acc = sums.setdefault(r["level"], [0, 0, 0, 0])
+               round(s["acc_0.25m_5deg"] * n), s["confident"], s["confident_wrong"]]
+        acc = sums.setdefault(r["level"], [0] * len(row))
         sums[r["level"]] = [a + b for a, b in zip(acc, row)]
-        t.add_row(r["level"], f"{r['spacing']:.2f}", f"{s['median_num_translations']:.0f}", *map(str, row),
-                  f"{s['median_t_error_m']:.3f}")
+        t.add_row(r["level"], f"{r['spacing']:.2f}", f"{s['median_num_translations']:.0f}", *map(str, row[:4]),
+                  f"{row[4]} ({row[5]})", f"{s['median_t_error_m']:.3f}")
     for level, acc in sums.items():
-        t.add_row(level, "sum", "", *map(str, acc), "")
+        t.add_row(level, "sum", "", *map(str, acc[:4]), f"{acc[4]} ({acc[5]})", "")
     console().print(t)
 
 

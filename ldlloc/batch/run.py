@@ -199,7 +199,8 @@ def localize_query(cache: MapCache, q, params: LocalizeParams,
     else a bad panorama or map provokes) becomes this query's ``failed`` record, never the run's
     end; a picture that cannot be written is recorded (``picture_error``) beside the result."""
     t0 = time.perf_counter()
-    tilt = 180.0 if max_tilt_for(q, params) is None else max_tilt_for(q, params)
+    tilt = max_tilt_for(q, params)
+    tilt = 180.0 if tilt is None else tilt  # free rotation
     try:
         if isinstance(cache, FolderMaps):
             from ldlloc.batch.which_map import localize_on_maps
