@@ -81,3 +81,18 @@ def test_report_says_how_often_the_own_map_was_chosen(unknown_run):
     rep = runner.invoke(app, ["report", str(out)])
     assert rep.exit_code == 0, rep.output
     assert "chosen map is the query's own for 10 / 10" in rep.output
+
+
+def test_a_non_map_in_the_folder_is_left_out_with_a_warning(demo_dataset, tmp_path):
+    maps = tmp_path / "maps"
+    maps.mkdir()
+    (maps / "synthroom_1.h5").symlink_to(demo_dataset / "maps" / "synthroom_1.h5")
+    (maps / "notes.h5").write_bytes(b"not hdf5 at all")
+    out = tmp_path / "r.json"
+    res = runner.invoke(app, ["run", "--root", str(demo_dataset), "--split", "robot", "--scene", "synthroom_1",
+                              "--scene-unknown", "--maps", str(maps), "--output", str(out)])
+    assert res.exit_code == 0, res.output
+    assert res.output.count("notes.h5 left out") == 1, res.output
+    recs = json.loads(out.read_text())["queries"]
+    assert len(recs) == 5 and all(r["status"] == "ok" and r["map"].endswith("synthroom_1.h5") for r in recs)
+    assert all(r["t_error_m"] < 0.1 for r in recs)

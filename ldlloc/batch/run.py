@@ -119,11 +119,12 @@ class FolderMaps(MapCache):
     folder of maps (:func:`ldlloc.batch.which_map.localize_on_maps`, ``top_maps`` refined). The
     maps of one folder must share a frame for the errors against the dataset's ground truth to
     mean anything (a ZInD floor's rooms do). A folder whose maps fail to load fails each of its
-    queries."""
+    queries; an ``.h5`` in it that is not a map is left out, and ``warn`` (when given) says so once."""
 
-    def __init__(self, maps_dir: Path, params: LocalizeParams, device: str, top_maps: int):
+    def __init__(self, maps_dir: Path, params: LocalizeParams, device: str, top_maps: int,
+                 warn: Callable[[str], None] | None = None):
         super().__init__(maps_dir, params, device)
-        self.top_maps = int(top_maps)
+        self.top_maps, self.warn = int(top_maps), warn
 
     def key(self, scene: str) -> Path:
         return self.maps_dir / Path(scene).parent
@@ -132,7 +133,10 @@ class FolderMaps(MapCache):
         """The :class:`ldlloc.batch.which_map.MapSet` of the maps in folder ``key``."""
         from ldlloc.batch.which_map import MapSet
 
-        return MapSet.load(key, self.params, self.device, recursive=False)
+        maps = MapSet.load(key, self.params, self.device, recursive=False)
+        for path, why in maps.skipped if self.warn is not None else []:
+            self.warn(f"warning: {path} left out: {why}")
+        return maps
 
 
 def default_results_path(label: str, kind: str, root: Path, splits: list[str] | None, scene: str | None = None,
@@ -231,12 +235,14 @@ def localize_query(cache: MapCache, q, params: LocalizeParams,
     return r
 
 
-def scene_maps(maps_dir: str | Path, params: LocalizeParams, device: str, top_maps: int | None) -> MapCache:
+def scene_maps(maps_dir: str | Path, params: LocalizeParams, device: str, top_maps: int | None,
+               warn: Callable[[str], None] | None = None) -> MapCache:
     """Where a run's queries find their maps: their scene's (``top_maps`` None) or their scene
-    folder's, judged together with ``top_maps`` refined (:class:`FolderMaps`)."""
+    folder's, judged together with ``top_maps`` refined (:class:`FolderMaps`, which ``warn``s of
+    files left out)."""
     if top_maps is None:
         return MapCache(Path(maps_dir), params, device)
-    return FolderMaps(Path(maps_dir), params, device, top_maps)
+    return FolderMaps(Path(maps_dir), params, device, top_maps, warn)
 
 
 def picture_path(save_vis: str | Path, q) -> Path:
@@ -269,7 +275,7 @@ def run_queries(queries: list, maps_dir: str | Path, output: str | Path, params:
     :func:`ldlloc.batch.ray_run.run_queries_ray` does the same on a Ray cluster."""
     with open_results(output, params, device, meta, resume, any_options, queries, say) as writer:
         done = writer.done()
-        cache = scene_maps(maps_dir, params, device, top_maps)
+        cache = scene_maps(maps_dir, params, device, top_maps, say)
         for q in sorted(queries, key=query_key):
             if q.name in done:
                 continue
