@@ -22,34 +22,46 @@ runner = CliRunner()
 
 @pytest.fixture(scope="module")
 def unknown_run(demo_dataset, tmp_path_factory):
-    out = tmp_path_factory.mktemp("unknown") / "r.json"
+    """The robot split with the scene not given, against a folder of the two maps and a file that
+    is not a map."""
+    tmp = tmp_path_factory.mktemp("unknown")
+    maps = tmp / "maps"
+    maps.mkdir()
+    for room in ("synthroom_1", "synthroom_2"):
+        (maps / f"{room}.h5").symlink_to(demo_dataset / "maps" / f"{room}.h5")
+    (maps / "notes.h5").write_bytes(b"not hdf5 at all")
+    out = tmp / "r.json"
     res = runner.invoke(app, ["run", "--root", str(demo_dataset), "--split", "robot", "--scene-unknown",
-                              "--top-maps", "2", "--output", str(out)])
-    return res, out
+                              "--top-maps", "2", "--maps", str(maps), "--output", str(out)])
+    return res, out, maps
 
 
-def test_each_query_finds_its_room_and_pose(demo_dataset, unknown_run):
-    res, out = unknown_run
+def test_each_query_finds_its_room_and_pose(unknown_run):
+    res, out, maps = unknown_run
     assert res.exit_code == 0, res.output
     data = json.loads(out.read_text())
     recs = data["queries"]
     assert len(recs) == 10 and data["meta"]["scene_unknown"] is True and data["meta"]["top_maps"] == 2
     for r in recs:
         assert r["status"] == "ok", r
-        assert r["map"] == str(demo_dataset / "maps" / f"{r['scene']}.h5"), (r["name"], r["map"])
+        assert r["map"] == str(maps / f"{r['scene']}.h5"), (r["name"], r["map"])
         other = "synthroom_2" if r["scene"] == "synthroom_1" else "synthroom_1"
-        assert r["map_runner_up"]["map"] == str(demo_dataset / "maps" / f"{other}.h5")
+        assert r["map_runner_up"]["map"] == str(maps / f"{other}.h5")
         assert r["t_error_m"] < 0.1 and r["r_error_deg"] < 5.0, (r["name"], r["t_error_m"], r["r_error_deg"])
     assert "chosen map is the query's own for 10 / 10" in res.output
 
 
-def test_resume_refuses_mixing_scene_given_and_unknown(demo_dataset, tmp_path):
-    out = tmp_path / "given.json"
-    base = ["run", "--root", str(demo_dataset), "--split", "robot", "--scene", "synthroom_1", "--output", str(out)]
-    res = runner.invoke(app, base)
-    assert res.exit_code == 0, res.output
-    assert json.loads(out.read_text())["meta"]["scene_unknown"] is False
-    res = runner.invoke(app, [*base, "--resume", "--scene-unknown"])
+def test_a_non_map_in_the_folder_is_left_out_with_a_warning(unknown_run):
+    res, _, _ = unknown_run
+    assert res.output.count("notes.h5 left out") == 1, res.output
+
+
+def test_resume_refuses_mixing_scene_given_and_unknown(demo_dataset, unknown_run, tmp_path):
+    _, out, maps = unknown_run
+    copy = tmp_path / "r.json"
+    copy.write_text(out.read_text())
+    res = runner.invoke(app, ["run", "--root", str(demo_dataset), "--split", "robot", "--maps", str(maps),
+                              "--output", str(copy), "--resume"])
     assert "other options (scene_unknown" in error_line(res)
 
 
@@ -76,23 +88,9 @@ def test_folder_without_maps_says_how_to_build(demo_dataset, tmp_path):
 
 
 def test_report_says_how_often_the_own_map_was_chosen(unknown_run):
-    res, out = unknown_run
+    res, out, _ = unknown_run
     assert res.exit_code == 0, res.output
     rep = runner.invoke(app, ["report", str(out)])
     assert rep.exit_code == 0, rep.output
     assert "chosen map is the query's own for 10 / 10" in rep.output
 
-
-def test_a_non_map_in_the_folder_is_left_out_with_a_warning(demo_dataset, tmp_path):
-    maps = tmp_path / "maps"
-    maps.mkdir()
-    (maps / "synthroom_1.h5").symlink_to(demo_dataset / "maps" / "synthroom_1.h5")
-    (maps / "notes.h5").write_bytes(b"not hdf5 at all")
-    out = tmp_path / "r.json"
-    res = runner.invoke(app, ["run", "--root", str(demo_dataset), "--split", "robot", "--scene", "synthroom_1",
-                              "--scene-unknown", "--maps", str(maps), "--output", str(out)])
-    assert res.exit_code == 0, res.output
-    assert res.output.count("notes.h5 left out") == 1, res.output
-    recs = json.loads(out.read_text())["queries"]
-    assert len(recs) == 5 and all(r["status"] == "ok" and r["map"].endswith("synthroom_1.h5") for r in recs)
-    assert all(r["t_error_m"] < 0.1 for r in recs)
