@@ -284,7 +284,7 @@ def test_scene_unknown_run_on_ray_equals_the_plain_one(cluster, demo_dataset, tm
     """`run --scene-unknown --ray`: one actor per scene folder, holding its maps, gives the plain
     run's records but for the timings (the chosen map included)."""
     base = ["run", "--root", str(demo_dataset), "--split", "robot", "--scene", "synthroom_2", "--scene-unknown",
-            "--top-maps", "2"]
+            "--top-maps", "1"]
     for out, extra in ((tmp_path / "plain.json", []), (tmp_path / "ray.json", ["--ray", "local"])):
         res = runner.invoke(loc_app, [*base, *extra, "--output", str(out)])
         assert res.exit_code == 0, res.output

@@ -21,6 +21,7 @@ from ldlmap.core.geometry import rotation_error_deg, translation_error
 from ldlmap.datasets import open_dataset
 from tests._hostile import error_line
 
+pytestmark = pytest.mark.xdist_group("run_images")  # one worker: the module's image run is made once
 runner = CliRunner()
 PICK = {"synthroom_1": ("0000", "0001"), "synthroom_2": ("0000", "0003")}  # robot split: 2 per room, one stem twice
 

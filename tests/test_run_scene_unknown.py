@@ -17,6 +17,7 @@ from typer.testing import CliRunner
 from ldlloc.cli import app
 from tests._hostile import error_line
 
+pytestmark = pytest.mark.xdist_group("scene_unknown")  # one worker: the module's run is made once
 runner = CliRunner()
 
 
