@@ -79,7 +79,8 @@ def _run_on_ray(writer: ResultsWriter, queries: list, maps_dir: str | Path, para
                 save_vis: str | Path | None, progress: Callable[[TaskDone], None] | None, address: str,
                 threads: int, top_maps: int | None = None) -> list[QueryResult]:
     """The body of :func:`run_queries_ray`, writing through the open (locked) ``writer``."""
-    group = (lambda q: q.scene) if top_maps is None else (lambda q: Path(q.scene).parent.as_posix())  # noqa: E731
+    key = scene_maps(maps_dir, params, device, top_maps).key  # one actor per key: a scene, or a scene folder
+    group = lambda q: str(key(q.scene))  # noqa: E731
     done = writer.done()
     todo = [q for q in sorted(queries, key=query_key) if q.name not in done]
     if not todo:  # everything is in the results file already: nothing to start

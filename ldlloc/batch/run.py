@@ -19,7 +19,7 @@ option (``max_tilt_deg``, None when not given) and the upright default.
 from __future__ import annotations
 
 import time
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Callable
 
@@ -97,6 +97,12 @@ class MapCache:
             raise InputError(f"map not found: {path} (build it with `ldlmap prepare ROOT --maps {self.maps_dir}`)")
         return Localizer(read_map(path, load_cloud=False), self.params, self.device)
 
+    def localize(self, scene: str, img: np.ndarray, max_tilt_deg: float) -> tuple[Localization, Localizer, dict]:
+        """``img`` localized against ``scene``'s map: the localization, the localizer whose map holds
+        the pose, and the results record's extra fields (none here)."""
+        loc = self.get(scene)
+        return loc.localize(img, max_tilt_deg=max_tilt_deg), loc, {}
+
     def get(self, scene: str):
         """:meth:`load` of ``scene``'s key, loaded once (raises its load error each time)."""
         key = self.key(scene)
@@ -137,6 +143,14 @@ class FolderMaps(MapCache):
         for path, why in maps.skipped if self.warn is not None else []:
             self.warn(f"warning: {path} left out: {why}")
         return maps
+
+    def localize(self, scene: str, img: np.ndarray, max_tilt_deg: float) -> tuple[Localization, Localizer, dict]:
+        """``img`` localized against the maps of ``scene``'s folder; the record's extra fields name
+        the chosen map and the runner-up (:meth:`ldlloc.batch.which_map.MapChoice.record`)."""
+        from ldlloc.batch.which_map import localize_on_maps
+
+        res, choice = localize_on_maps(img, self.get(scene), max_tilt_deg, self.top_maps)
+        return res, choice.chosen.entry.localizer, choice.record()
 
 
 def default_results_path(label: str, kind: str, root: Path, splits: list[str] | None, scene: str | None = None,
@@ -206,21 +220,10 @@ def localize_query(cache: MapCache, q, params: LocalizeParams,
     tilt = max_tilt_for(q, params)
     tilt = 180.0 if tilt is None else tilt  # free rotation
     try:
-        if isinstance(cache, FolderMaps):
-            from ldlloc.batch.which_map import localize_on_maps
-
-            maps = cache.get(q.scene)
-            img = load_image(q.image)
-            res, choice = localize_on_maps(img, maps, tilt, cache.top_maps)
-            r = result_from_localization(q, res)
-            for key, value in choice.record().items():
-                setattr(r, key, value)
-            loc = choice.chosen.entry.localizer
-        else:
-            loc = cache.get(q.scene)
-            img = load_image(q.image)
-            res = loc.localize(img, max_tilt_deg=tilt)
-            r = result_from_localization(q, res)
+        cache.get(q.scene)  # a map that cannot be read fails the query before its image is read
+        img = load_image(q.image)
+        res, loc, extra = cache.localize(q.scene, img, tilt)
+        r = replace(result_from_localization(q, res), **extra)
     except LdlError as exc:
         return failed_result(q, params, str(exc), time.perf_counter() - t0)
     except Exception as exc:  # noqa: BLE001 - e.g. cv2.error, MemoryError: one query's failure, not the run's
