@@ -21,6 +21,7 @@ intensity x0.75, gamma 0.2, white balance ``diag(0.7, 0.9, 0.8)``), and mild see
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 from typing import Literal
 
 import numpy as np
@@ -112,9 +113,14 @@ def bilinear_lookup(image: np.ndarray, st: np.ndarray) -> np.ndarray:
     y0 = np.minimum(np.floor(y).astype(np.int64), h - 2 if h > 1 else 0)
     x1, y1 = np.minimum(x0 + 1, w - 1), np.minimum(y0 + 1, h - 1)
     fx, fy = (x - x0).astype(np.float32)[:, None], (y - y0).astype(np.float32)[:, None]
-    img = image.astype(np.float32) if image.dtype != np.float32 else image
-    top = img[y0, x0] * (1 - fx) + img[y0, x1] * fx
-    bot = img[y1, x0] * (1 - fx) + img[y1, x1] * fx
+    # Corners gathered by flat index (np.take: ~5x faster than 2-D fancy indexing), then converted.
+    flat = np.asarray(image).reshape(h * w, -1)
+
+    def corner(r: np.ndarray, c: np.ndarray) -> np.ndarray:
+        return np.take(flat, r * w + c, axis=0).astype(np.float32)
+
+    top = corner(y0, x0) * (1 - fx) + corner(y0, x1) * fx
+    bot = corner(y1, x0) * (1 - fx) + corner(y1, x1) * fx
     return top * (1 - fy) + bot * fy
 
 
@@ -185,8 +191,11 @@ class Renderer:
 
     def _colors_of_rays(self, center: np.ndarray, dirs: np.ndarray) -> tuple[np.ndarray, dict]:
         hits = self.cast(center, dirs)
-        colors = np.zeros((len(dirs), 3), dtype=np.float32)
         ok = hits["tri"] >= 0
+        if ok.all():  # a closed room: every ray hits, no masked copies
+            pts = center + dirs * hits["t"][:, None]
+            return self.surface_color(hits["tri"], hits["bary"], pts), hits
+        colors = np.zeros((len(dirs), 3), dtype=np.float32)
         if np.any(ok):
             pts = center + dirs[ok] * hits["t"][ok, None]
             colors[ok] = self.surface_color(hits["tri"][ok], hits["bary"][ok], pts)
@@ -203,17 +212,16 @@ class Renderer:
         """
         R = np.asarray(rot_cam_from_world, dtype=np.float64)
         c = np.asarray(center, dtype=np.float64).reshape(3)
-        uv = pixel_centers(width, height).reshape(-1, 2)
-        dirs = bearing_from_pixel(uv, width, height) @ R  # world_from_cam without the offset
+        dirs = _pixel_bearings(width, height, 0.0, 0.0) @ R  # world_from_cam without the offset
         if supersample <= 1:
             colors, hits = self._colors_of_rays(c, dirs)
         else:
             hits = self.cast(c, dirs)
             offs = (np.arange(supersample) + 0.5) / supersample - 0.5
-            colors = np.zeros((len(uv), 3), dtype=np.float32)
+            colors = np.zeros((len(dirs), 3), dtype=np.float32)
             for du in offs:
                 for dv in offs:
-                    sub = bearing_from_pixel(uv + np.array([du, dv]), width, height) @ R
+                    sub = _pixel_bearings(width, height, float(du), float(dv)) @ R
                     colors += self._colors_of_rays(c, sub)[0]
             colors /= float(supersample * supersample)
         depth = hits["t"].astype(np.float32).reshape(height, width)
@@ -231,6 +239,18 @@ class Renderer:
         if noise_sigma > 0:
             img = add_noise(img, noise_sigma, rng if rng is not None else np.random.default_rng(0))
         return Panorama(to_uint8(img), depth, tri)
+
+
+@lru_cache(maxsize=8)
+def _pixel_bearings(width: int, height: int, du: float, dv: float) -> np.ndarray:
+    """Camera-frame bearings (H W, 3) of the pixel centres shifted by ``(du, dv)`` pixels: the
+    same for every panorama of a size, so made once (read only)."""
+    uv = pixel_centers(width, height).reshape(-1, 2)
+    if du or dv:
+        uv = uv + np.array([du, dv])
+    out = bearing_from_pixel(uv, width, height)
+    out.flags.writeable = False
+    return out
 
 
 def render_panorama(mesh: SceneMesh, rot_cam_from_world: np.ndarray, center: np.ndarray, width: int = 1024,
