@@ -230,26 +230,35 @@ class PointRenderer:
             u0 = torch.floor(uw - 0.5 * w_u).long()
             nv = torch.floor(vw + 0.5 * w_v).long() - v0 + 1
             nu = torch.floor(uw + 0.5 * w_u).long() - u0 + 1
-            count = nu * nv
-            big = torch.nonzero(count > 1).squeeze(1)
+            big = torch.nonzero(nu * nv > 1).squeeze(1)
             if len(big):
-                count = count[big]
-                starts = torch.cumsum(count, 0) - count
-                # One gather per footprint pixel: (v0, u0, nu, start, key) of its owner.
-                table = torch.stack([v0[big], u0[big], nu[big], starts, key[win[big]]], dim=1)
-                owner = torch.repeat_interleave(torch.arange(len(big), device=dev), count)
-                v0_o, u0_o, nu_o, st_o, key_o = table.index_select(0, owner).unbind(1)
-                local = torch.arange(len(owner), device=dev) - st_o
-                rr = (v0_o + torch.div(local, nu_o, rounding_mode="floor")).clamp_(0, H - 1)
-                cc = (u0_o + local.remainder(nu_o)).remainder_(W)
+                # Expanded in two steps, footprint rows then their pixels, with no integer
+                # division: one entry per footprint pixel, (row, col, key of its owner).
+                nv_b, nu_b = nv[big], nu[big]
+                rows_b = torch.cumsum(nv_b, 0) - nv_b
+                n_rows = int(nv_b.sum())
+                in_fp = torch.arange(n_rows, device=dev) - torch.repeat_interleave(rows_b, nv_b)
                 # Rows beyond a pole are clamped onto the pole row (they are near it).
-                flat2 = rr * W + cc
-                zbuf.scatter_reduce_(0, flat2, key_o, reduce="amin", include_self=True)
-                pos2 = key_o & 0xFFFFFFFF
+                rr_r = (torch.repeat_interleave(v0[big], nv_b) + in_fp).clamp_(0, H - 1)
+                nu_r = torch.repeat_interleave(nu_b, nv_b)
+                key_r = torch.repeat_interleave(key[win[big]], nv_b)
+                # Column of pixel j of the expansion: u0 + (j - first pixel of its row).
+                first_r = torch.cumsum(nu_r, 0) - nu_r
+                base_r = torch.repeat_interleave(u0[big], nv_b) - first_r
+                cc = torch.repeat_interleave(base_r, nu_r) + torch.arange(int(nu_r.sum()), device=dev)
+                if W > 2.0 * w_max + 2.0:  # footprints overhang u by less than W: one wrap each way
+                    cc = torch.where(cc < 0, cc + W, cc)
+                    cc = torch.where(cc >= W, cc - W, cc)
+                else:
+                    cc = cc.remainder(W)
+                rr = torch.repeat_interleave(rr_r, nu_r)
+                key2 = torch.repeat_interleave(key_r, nu_r)
+                zbuf.scatter_reduce_(0, rr * W + cc, key2, reduce="amin", include_self=True)
+                extra = (rr, cc, key2 & 0xFFFFFFFF)
             else:
-                flat2 = pos2 = torch.zeros(0, dtype=torch.int64, device=dev)
+                extra = None
             if p.depth_tolerance > 0:
-                zbuf = self._select_surface_points(zbuf, rng, u, v, row * W + col, flat2, pos2)
+                zbuf = self._select_surface_points(zbuf, rng, u, v, (row, col), extra)
             zbuf = zbuf.view(H, W)
             for _ in range(p.fill_iterations):
                 zbuf = _fill_holes_once(zbuf)
@@ -268,26 +277,30 @@ class PointRenderer:
                             center=t, rot_cam_from_world=R)
 
     def _select_surface_points(self, zbuf: "torch.Tensor", rng: "torch.Tensor", u: "torch.Tensor",
-                               v: "torch.Tensor", flat1: "torch.Tensor", flat2: "torch.Tensor",
-                               pos2: "torch.Tensor") -> "torch.Tensor":
+                               v: "torch.Tensor", own: tuple, extra: tuple | None) -> "torch.Tensor":
         """Soft z-buffer: per pixel, of the candidates within ``depth_tolerance`` of the nearest
         range, keep the one projecting closest to the pixel centre (sharper images and 3D points
-        on the pixel's ray instead of the nearest footprint's centre). Returns range-keyed keys."""
+        on the pixel's ray instead of the nearest footprint's centre). ``own``: (row, col) of every
+        point's own pixel; ``extra``: (row, col, point) of the footprint pixels, or None. Returns
+        range-keyed keys."""
         import torch
 
         W = self.params.width
-        n = len(rng)
-        flat = torch.cat([flat1, flat2])
-        pos = torch.cat([torch.arange(n, device=flat.device), pos2])
         has = zbuf != _EMPTY_KEY
         min_rng = torch.where(has, zbuf >> 32, torch.zeros_like(zbuf)).int().view(torch.float32)
-        ok = rng[pos] <= min_rng[flat] * (1.0 + self.params.depth_tolerance)
-        flat, pos = flat[ok], pos[ok]
-        du = torch.remainder(torch.remainder(flat, W) + 0.5 - u[pos] + 0.5 * W, W) - 0.5 * W
-        dv = torch.div(flat, W, rounding_mode="floor") + 0.5 - v[pos]
-        d2 = (du * du + dv * dv).float()
         sel = torch.full_like(zbuf, _EMPTY_KEY)
-        sel.scatter_reduce_(0, flat, (d2.view(torch.int32).long() << 32) | pos, reduce="amin", include_self=True)
+        parts = [(*own, None)] + ([extra] if extra is not None else [])
+        for r, c, pos in parts:
+            flat = r * W + c
+            rng_p, u_p, v_p = (rng, u, v) if pos is None else (x.index_select(0, pos) for x in (rng, u, v))
+            if pos is None:
+                pos = torch.arange(len(rng), device=zbuf.device)
+            ok = rng_p <= min_rng.index_select(0, flat) * (1.0 + self.params.depth_tolerance)
+            du = torch.remainder(c + 0.5 - u_p + 0.5 * W, W) - 0.5 * W
+            dv = r + 0.5 - v_p
+            d2 = (du * du + dv * dv).float()
+            cand = torch.where(ok, (d2.view(torch.int32).long() << 32) | pos, _EMPTY_KEY)
+            sel.scatter_reduce_(0, flat, cand, reduce="amin", include_self=True)
         chosen = sel & 0xFFFFFFFF
         out = (rng[torch.where(has, chosen, torch.zeros_like(chosen))].view(torch.int32).long() << 32) | chosen
         return torch.where(has, out, zbuf)
