@@ -217,15 +217,15 @@ class PointRenderer:
             win = zbuf[zbuf != _EMPTY_KEY] & 0xFFFFFFFF
             px_per_rad = H / math.pi
             w_min = 2.0 * p.point_radius_px + 1.0 if p.point_radius_px > 0 else 0.0
-            spacing = self.spacing if self.point_spacing is None else self.point_spacing[idx[win]]
+            spacing = self.spacing if self.point_spacing is None else self.point_spacing.index_select(0, idx.index_select(0, win))
             w_max = 2.0 * p.max_radius_px + 1.0
-            w_v = (p.splat_scale * spacing * px_per_rad / rng[win]).clamp(w_min, w_max)
+            w_v = (p.splat_scale * spacing * px_per_rad / rng.index_select(0, win)).clamp(w_min, w_max)
             # Near the poles every pixel of a row has its own winner: cap the u stretch at 2x.
-            w_u = (w_v / torch.sin(theta[win]).clamp_min(1e-6)).clamp_max(2.0 * w_max)
+            w_u = (w_v / torch.sin(theta.index_select(0, win)).clamp_min(1e-6)).clamp_max(2.0 * w_max)
             # Sub-pixel footprints stay in the point's own pixel (no straddling of pixel borders).
             w_v = torch.where(w_v < 1.0, torch.zeros_like(w_v), w_v)
             w_u = torch.where(w_u < 1.0, torch.zeros_like(w_u), w_u)
-            uw, vw = u[win], v[win]
+            uw, vw = u.index_select(0, win), v.index_select(0, win)
             v0 = torch.floor(vw - 0.5 * w_v).long()
             u0 = torch.floor(uw - 0.5 * w_u).long()
             nv = torch.floor(vw + 0.5 * w_v).long() - v0 + 1
@@ -234,17 +234,17 @@ class PointRenderer:
             if len(big):
                 # Expanded in two steps, footprint rows then their pixels, with no integer
                 # division: one entry per footprint pixel, (row, col, key of its owner).
-                nv_b, nu_b = nv[big], nu[big]
+                nv_b, nu_b = nv.index_select(0, big), nu.index_select(0, big)
                 rows_b = torch.cumsum(nv_b, 0) - nv_b
                 n_rows = int(nv_b.sum())
                 in_fp = torch.arange(n_rows, device=dev) - torch.repeat_interleave(rows_b, nv_b)
                 # Rows beyond a pole are clamped onto the pole row (they are near it).
-                rr_r = (torch.repeat_interleave(v0[big], nv_b) + in_fp).clamp_(0, H - 1)
+                rr_r = (torch.repeat_interleave(v0.index_select(0, big), nv_b) + in_fp).clamp_(0, H - 1)
                 nu_r = torch.repeat_interleave(nu_b, nv_b)
-                key_r = torch.repeat_interleave(key[win[big]], nv_b)
+                key_r = torch.repeat_interleave(key.index_select(0, win.index_select(0, big)), nv_b)
                 # Column of pixel j of the expansion: u0 + (j - first pixel of its row).
                 first_r = torch.cumsum(nu_r, 0) - nu_r
-                base_r = torch.repeat_interleave(u0[big], nv_b) - first_r
+                base_r = torch.repeat_interleave(u0.index_select(0, big), nv_b) - first_r
                 cc = torch.repeat_interleave(base_r, nu_r) + torch.arange(int(nu_r.sum()), device=dev)
                 if W > 2.0 * w_max + 2.0:  # footprints overhang u by less than W: one wrap each way
                     cc = torch.where(cc < 0, cc + W, cc)
@@ -264,11 +264,11 @@ class PointRenderer:
                 zbuf = _fill_holes_once(zbuf)
 
             valid = zbuf != _EMPTY_KEY
-            pidx = idx[torch.where(valid, zbuf & 0xFFFFFFFF, torch.zeros_like(zbuf))]
+            pidx = idx.index_select(0, torch.where(valid, zbuf & 0xFFFFFFFF, torch.zeros_like(zbuf)).view(-1))
             depth = (zbuf >> 32).int().view(torch.float32)
-            rgb = self.colors[pidx]
+            rgb = self.colors.index_select(0, pidx).view(H, W, -1)
             rgb[~valid] = p.background
-            xyz = self.points[pidx]
+            xyz = self.points.index_select(0, pidx).view(H, W, 3)
             nan = torch.tensor(float("nan"), device=dev)
             depth = torch.where(valid, depth, nan)
         xyz_np = xyz.cpu().numpy().astype(np.float64) + self.origin
