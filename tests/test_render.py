@@ -76,13 +76,14 @@ def test_zbuffer_matches_brute_force_min_range():
     np.testing.assert_allclose(depth[ok], rngs[idx], rtol=1e-6)
 
 
-def test_footprint_wraps_around_u():
+@pytest.mark.parametrize("width", [W, 16])  # 16: narrower than the largest footprint (the other wrap)
+def test_footprint_wraps_around_u(width):
     # A point straight behind the camera sits on the u = 0 / W seam; a wide footprint covers both sides.
     pts = np.array([[-2.0, 1e-4, 0.0]])
-    rgb, xyz, depth = render_points_panorama(pts, np.full((1, 3), 200, np.uint8), np.eye(3), np.zeros(3), W, H,
-                                             point_radius_px=2, fill_iterations=0)
+    rgb, xyz, depth = render_points_panorama(pts, np.full((1, 3), 200, np.uint8), np.eye(3), np.zeros(3), width,
+                                             width // 2, point_radius_px=2, fill_iterations=0)
     cols = np.nonzero(np.isfinite(depth).any(axis=0))[0]
-    assert {0, 1, W - 1, W - 2} <= set(cols.tolist())
+    assert {0, 1, width - 1, width - 2} <= set(cols.tolist())
     assert len(cols) in (5, 6)  # a 5-pixel-wide square touches 5 or 6 columns
 
 
