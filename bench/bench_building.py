@@ -121,7 +121,7 @@ def dataset(args) -> Path:
     out.parent.mkdir(parents=True, exist_ok=True)
     extra = (["--width", str(args.width)] if args.width else []) + (
         ["--per-split", str(args.per_split)] if args.per_split else [])
-    console().print(f"generating {args.preset} into {out} (slow: about 14 min for the full building on 2 cores)")
+    console().print(f"generating {args.preset} into {out} (slow: about 5 min for the full building on 2 cores)")
     rec = timed(cli("ldlmap.cli", "synth", str(out), "--preset", args.preset, "--quiet", *extra),
                 out.parent / "synth.time", out.parent / "synth.log")
     write_json(out.parent / "synth.json", rec)
