@@ -113,8 +113,28 @@ def project_lines(lines: "torch.Tensor", centers: "torch.Tensor") -> tuple["torc
     return s, e
 
 
+def arc_products(s: "torch.Tensor", e: "torch.Tensor", bounds: Sequence[int]) -> list["torch.Tensor | None"]:
+    """The five vectors of :func:`grouped_min_distance` per group, ``(s, e, n, n x s, e x n)``
+    stacked as (c, 5 k, 3) (None for an empty group): what one set of arcs needs for any number
+    of point batches, so that a caller sampling many batches against the same arcs makes it once."""
+    import torch
+
+    n = torch.linalg.cross(s, e, dim=-1)
+    nn = torch.linalg.vector_norm(n, dim=-1, keepdim=True)
+    n = torch.where(nn > DEGENERATE_EPS, n / nn.clamp_min(DEGENERATE_EPS), torch.zeros_like(n))
+    a_side = torch.linalg.cross(n, s, dim=-1)  # x . (n x s) > 0: x on e's side of the s-plane
+    b_side = torch.linalg.cross(e, n, dim=-1)  # x . (e x n) > 0: x on s's side of the e-plane
+    out: list = []
+    for g in range(len(bounds) - 1):  # G = 3 groups: contiguous slices of the sorted lines
+        lo, hi = bounds[g], bounds[g + 1]
+        out.append(None if hi == lo else
+                   torch.cat([s[:, lo:hi], e[:, lo:hi], n[:, lo:hi], a_side[:, lo:hi], b_side[:, lo:hi]], dim=1))
+    return out
+
+
 def grouped_min_distance(x: "torch.Tensor", s: "torch.Tensor", e: "torch.Tensor",
-                         bounds: Sequence[int], visible: "torch.Tensor | None" = None) -> "torch.Tensor":
+                         bounds: Sequence[int], visible: "torch.Tensor | None" = None,
+                         products: list | None = None) -> "torch.Tensor":
     """``min over lines of group g`` of eq. 2 for points ``x`` (P, 3) and arcs ``s, e`` (c, L, 3).
 
     ``x`` may also be (c, P, 3): its own points for each of the ``c`` arc sets (one pose each).
@@ -128,24 +148,21 @@ def grouped_min_distance(x: "torch.Tensor", s: "torch.Tensor", e: "torch.Tensor"
     products stay in cache: docs/measurements.md#grouped-products). Returns (c, G, P).
 
     ``visible`` (c, L) bool, optional: lines that are not visible from the arc set's centre (hidden
-    behind walls) are left out of the minimum.
+    behind walls) are left out of the minimum. ``products``: :func:`arc_products` of ``s, e``,
+    when the caller made them already.
     """
     import torch
 
-    n = torch.linalg.cross(s, e, dim=-1)
-    nn = torch.linalg.vector_norm(n, dim=-1, keepdim=True)
-    n = torch.where(nn > DEGENERATE_EPS, n / nn.clamp_min(DEGENERATE_EPS), torch.zeros_like(n))
-    a_side = torch.linalg.cross(n, s, dim=-1)  # x . (n x s) > 0: x on e's side of the s-plane
-    b_side = torch.linalg.cross(e, n, dim=-1)  # x . (e x n) > 0: x on s's side of the e-plane
+    if products is None:
+        products = arc_products(s, e, bounds)
     c = s.shape[0]
     xt = x.transpose(-1, -2).contiguous()  # (3, P) or (c, 3, P): bmm on a contiguous operand is the fast path
     outs = []
-    for g in range(len(bounds) - 1):  # G = 3 groups: contiguous slices of the sorted lines
+    for g, V in enumerate(products):
         lo, hi = bounds[g], bounds[g + 1]
-        if hi == lo:
+        if V is None:
             outs.append(torch.full((c, x.shape[-2]), EMPTY_DISTANCE, dtype=x.dtype, device=x.device))
             continue
-        V = torch.cat([s[:, lo:hi], e[:, lo:hi], n[:, lo:hi], a_side[:, lo:hi], b_side[:, lo:hi]], dim=1)  # (c, 5k, 3)
         dots = torch.bmm(V, xt) if xt.dim() == 3 else torch.matmul(V, xt)  # (c, 5k, P): all dot products
         xs, xe, xn, xa, xb = dots.split(hi - lo, dim=1)
         inside = (xa > 0) & (xb > 0)

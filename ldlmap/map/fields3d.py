@@ -85,7 +85,7 @@ def compute_fields(lines: np.ndarray, groups: np.ndarray, translations: np.ndarr
     """
     import torch
 
-    from ldlmap.core.sphere_distance import group_order, grouped_min_distance, project_lines
+    from ldlmap.core.sphere_distance import arc_products, group_order, grouped_min_distance, project_lines
 
     lines = np.asarray(lines, dtype=np.float64)
     T = np.asarray(translations, dtype=np.float64)
@@ -123,9 +123,10 @@ def compute_fields(lines: np.ndarray, groups: np.ndarray, translations: np.ndarr
         with torch.no_grad():
             for a in range(0, len(T), step):  # chunks of translations x chunks of nodes
                 s, e = project_lines(L, Tt[a:a + step])
+                products = arc_products(s, e, bounds)  # the same arcs for every node batch
                 for p in range(0, x.shape[0], pc):
-                    f = grouped_min_distance(x[p:p + pc], s, e, bounds,
-                                             None if vis is None else vis[a:a + step])  # (c, G_groups, nodes)
+                    f = grouped_min_distance(x[p:p + pc], s, e, bounds, None if vis is None else vis[a:a + step],
+                                             products=products)  # (c, G_groups, nodes)
                     flat[a:a + step, :, p:p + pc] = f.cpu().numpy()
                 if progress:
                     progress(min(a + step, len(T)), len(T))
