@@ -217,7 +217,8 @@ class PointRenderer:
             win = zbuf[zbuf != _EMPTY_KEY] & 0xFFFFFFFF
             px_per_rad = H / math.pi
             w_min = 2.0 * p.point_radius_px + 1.0 if p.point_radius_px > 0 else 0.0
-            spacing = self.spacing if self.point_spacing is None else self.point_spacing.index_select(0, idx.index_select(0, win))
+            spacing = (self.spacing if self.point_spacing is None
+                       else self.point_spacing.index_select(0, idx.index_select(0, win)))
             w_max = 2.0 * p.max_radius_px + 1.0
             w_v = (p.splat_scale * spacing * px_per_rad / rng.index_select(0, win)).clamp(w_min, w_max)
             # Near the poles every pixel of a row has its own winner: cap the u stretch at 2x.
@@ -292,9 +293,10 @@ class PointRenderer:
         parts = [(*own, None)] + ([extra] if extra is not None else [])
         for r, c, pos in parts:
             flat = r * W + c
-            rng_p, u_p, v_p = (rng, u, v) if pos is None else (x.index_select(0, pos) for x in (rng, u, v))
-            if pos is None:
-                pos = torch.arange(len(rng), device=zbuf.device)
+            if pos is None:  # every point in its own pixel
+                pos, rng_p, u_p, v_p = torch.arange(len(rng), device=zbuf.device), rng, u, v
+            else:
+                rng_p, u_p, v_p = (x.index_select(0, pos) for x in (rng, u, v))
             ok = rng_p <= min_rng.index_select(0, flat) * (1.0 + self.params.depth_tolerance)
             du = torch.remainder(c + 0.5 - u_p + 0.5 * W, W) - 0.5 * W
             dv = r + 0.5 - v_p
