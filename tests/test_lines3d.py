@@ -188,6 +188,21 @@ def test_extract_lines_is_deterministic(room):
     assert a.shape == b.shape and np.allclose(a, b, atol=1e-9)
 
 
+def test_extract_lines_same_for_any_point_order_and_thread_count(room):
+    """Lines bit for bit equal with the points in several orders (sorted, reversed, shuffled,
+    a duplicated block moved) and with 1 and 2 BLAS / k-d tree threads."""
+    from threadpoolctl import threadpool_limits
+
+    P, _ = room
+    rng = np.random.default_rng(3)
+    orders = [np.arange(len(P))[::-1], rng.permutation(len(P)), np.lexsort(P.T[::-1])]
+    ref = extract_lines(P)
+    for threads, order in zip([1, 2, 2], orders):
+        with threadpool_limits(threads):
+            out = extract_lines(P[order])
+        assert out.shape == ref.shape and np.array_equal(out, ref), (threads, len(out), len(ref))
+
+
 def test_extract_lines_bad_input():
     with pytest.raises(InputError):
         extract_lines(np.zeros((0, 3)))

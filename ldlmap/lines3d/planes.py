@@ -113,6 +113,12 @@ def _morton_order(q: np.ndarray) -> np.ndarray:
     return np.argsort(code, kind="stable")
 
 
+def canonical_order(P: np.ndarray) -> np.ndarray:
+    """The points sorted by (x, y, z): every later reduction (voxel means, centroids, sums) then
+    adds them in the same order whatever order the scan came in, so the lines do not depend on it."""
+    return P[np.lexsort((P[:, 2], P[:, 1], P[:, 0]))]
+
+
 def point_cap(P: np.ndarray, params: Lines3DParams) -> int:
     """How many points the downsampling keeps at most: ``max_points`` per ``max_points_area_m2`` of
     the scan's footprint (the product of its two largest extents), never fewer than ``max_points``:
@@ -277,8 +283,7 @@ def segment_planes(points: np.ndarray, params: Lines3DParams = Lines3DParams()) 
     from scipy.sparse import csr_matrix
     from scipy.sparse.csgraph import connected_components
 
-    P = _check_points(points)
-    P, v = _downsample(P, params)
+    P, v = _downsample(canonical_order(_check_points(points)), params)
     if len(P) < max(params.normal_k, 10):
         raise InputError(f"point cloud too small for line extraction ({len(P)} points)")
     tree, dist, knn = _knn(P, max(params.normal_k, params.graph_k + 1))
