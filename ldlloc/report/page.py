@@ -21,6 +21,7 @@ from ldlloc.batch.accuracy import STAGES, THRESHOLDS, QueryResult, group_by, sum
 from ldlloc.report.plots import cdf_svg, histogram_svg
 
 MARK = "<!-- ldlloc report -->"  # second line of every page: a page this command may replace
+PAGE_HEAD = f"<!DOCTYPE html>\n{MARK}\n"  # how every page begins; a file that begins otherwise is not ours
 VERDICT_COLORS = {"confident": "#2e8540", "ambiguous": "#c77700", "failed": "#b3261e", "none": "#8a8a8a"}
 STATUS_COLORS = {"ok": "#2e8540", "coarse": "#c77700", "failed": "#b3261e"}
 
@@ -39,6 +40,7 @@ th{background:#f0f0f0} td.l,th.l{text-align:left}
 .bar{display:inline-block;height:10px;background:#4e79a7;vertical-align:middle}
 img.thumb{display:block;width:384px;height:192px}
 .note{color:#8a4b00;font-size:12px;text-align:left}
+.unfinished{background:#fff3e0;border:1px solid #c77700;border-radius:6px;padding:8px 12px;color:#8a4b00;font-weight:600}
 td.q{max-width:260px;overflow-wrap:anywhere}
 .nothumb{width:384px;height:60px;display:flex;align-items:center;justify-content:center;color:#b3261e;
 background:#fff3f2;font-size:12px;text-align:center}
@@ -189,6 +191,16 @@ def _query_rows(records: list[dict], thumbs: dict, limit: int) -> str:
     return f'<table id="queries"><tr>{header}</tr>{"".join(rows)}</table>'
 
 
+def unfinished_note(records: list, meta: dict) -> str | None:
+    """What to say of a results file whose run did not finish (``meta["finished"]`` false: killed
+    or interrupted), None for a finished run (or one written before the flag existed)."""
+    if meta.get("finished") is not False:
+        return None
+    return (f"this run did not finish (killed or interrupted): the file holds {len(records)} "
+            f"quer{'y' if len(records) == 1 else 'ies'}, not necessarily all of its run; `ldlloc run ... --resume` "
+            "continues it")
+
+
 def render_page(results_path: Path, records: list[dict], meta: dict[str, Any], thumbs: dict, limit: int) -> str:
     """The whole page (``records`` in the order shown: :func:`worst_first`)."""
     results = [QueryResult.from_dict(q) for q in records]
@@ -198,8 +210,10 @@ def render_page(results_path: Path, records: list[dict], meta: dict[str, Any], t
                       if meta.get(k) not in (None, ""))
     order = ("worst first: by the larger of t error / 0.1 m and R error / 5°" if has_ground_truth(records) else
              "worst first: failed, then by confidence (lowest first)")
+    unfinished = unfinished_note(records, meta)
     sections = [f"<h1>Localization report: {escape(results_path.name)}</h1>",
                 f'<p class="meta">{escape(str(results_path))} · {info} · written {when}</p>',
+                *([f'<p class="unfinished">{escape(unfinished)}</p>'] if unfinished else []),
                 "<h2>Summary</h2>", _cards(records, results)]
     if has_ground_truth(records):
         sections += ["<h2>Accuracy per split</h2>", _split_table(results)]
@@ -208,6 +222,6 @@ def render_page(results_path: Path, records: list[dict], meta: dict[str, Any], t
                  '<p class="meta">lines coloured by the map\'s principal direction: red, green, blue; grey: none</p>',
                  _query_rows(records, thumbs, limit)]
     body = "\n".join(sections)
-    return (f'<!DOCTYPE html>\n{MARK}\n<html lang="en"><head><meta charset="utf-8">'
+    return (f'{PAGE_HEAD}<html lang="en"><head><meta charset="utf-8">'
             f"<title>ldlloc report: {escape(results_path.name)}</title><style>{CSS}</style></head>"
             f"<body>\n{body}\n</body></html>\n")
