@@ -38,6 +38,7 @@ def write_html_report(results: str | Path, html: str | Path, max_thumbnails: int
     """Write the report of ``results`` to ``html`` (atomically). ``max_thumbnails``: the worst
     queries that get a thumbnail; ``progress(done, total)`` after each thumbnail."""
     from ldlmap.core.errors import atomic_file, refuse_overwriting_inputs
+    from ldlmap.io.imagefile import printable
     from ldlloc.export.poses import read_records, resolve_path
     from ldlloc.report.page import render_page, worst_first
     from ldlloc.report.thumbnails import make_thumbnails
@@ -57,7 +58,7 @@ def write_html_report(results: str | Path, html: str | Path, max_thumbnails: int
     thumbs = make_thumbnails(shown, meta, tick)
     page = render_page(results, ordered, meta, thumbs, max_thumbnails)
     with atomic_file(html) as tmp:
-        tmp.write_text(page, encoding="utf-8")
+        tmp.write_text(printable(page), encoding="utf-8")  # names that are not UTF-8 shown as \xff
     return html
 
 

@@ -12,7 +12,7 @@ import numpy as np
 
 from ldlmap.core.errors import InputError, atomic_file
 from ldlmap.core.geometry import cam_from_world, normalize, pixel_from_bearing
-from ldlmap.io.imagefile import encode_image, image_comment
+from ldlmap.io.imagefile import encode_image, image_comment, printable
 
 GROUP_COLORS_BGR = {0: (40, 40, 230), 1: (40, 180, 40), 2: (230, 90, 40), -1: (150, 150, 150),
                     # Atlanta frames of more than 3 directions (issue 23): further horizontals
@@ -42,6 +42,8 @@ def caption_band(width: int, caption: str, items: list[tuple[tuple[int, int, int
     in a row goes to the next."""
     import cv2
 
+    caption, note = printable(caption), printable(note)  # OpenCV crashes on text that is not UTF-8
+    items = [(color, printable(label)) for color, label in items]
     font, size, thick = cv2.FONT_HERSHEY_SIMPLEX, 0.55 * scale, max(1, int(round(1.2 * scale)))
     pad, gap, swatch = int(8 * scale), int(18 * scale), int(26 * scale)
     text_h = cv2.getTextSize("Ag", font, size, thick)[0][1]

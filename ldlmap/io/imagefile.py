@@ -25,6 +25,13 @@ _PNG_KEYWORD = b"Comment"
 _HEAD_BYTES = 512  # where image_comment looks: the comment sits right after the header
 
 
+def printable(text: str) -> str:
+    """``text`` (a file name, or a caption holding one) with the bytes that are not UTF-8 (Python
+    holds them as lone surrogates, ``"z\\udcff"``) written ``\\xff``: text that OpenCV can draw
+    (a surrogate crashes ``cv2.putText``) and that UTF-8 outputs (pages, JSON) can hold."""
+    return text.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
+
+
 def read_image(path: str | os.PathLike, flags: int | None = None) -> np.ndarray | None:
     """The decoded image at ``path`` (``cv2.imdecode`` with ``flags``, default ``IMREAD_COLOR``;
     the ``IMREAD_REDUCED_*`` flags work too), None when it cannot be decoded; ``OSError`` when the
@@ -95,4 +102,4 @@ def image_comment(path: str | os.PathLike) -> str | None:
     return None
 
 
-__all__ = ["encode_image", "image_comment", "read_image", "write_image"]
+__all__ = ["encode_image", "image_comment", "printable", "read_image", "write_image"]
