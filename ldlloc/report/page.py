@@ -41,7 +41,8 @@ th{background:#f0f0f0} td.l,th.l{text-align:left}
 img.thumb{display:block;width:384px;height:192px}
 .note{color:#8a4b00;font-size:12px;text-align:left}
 .unfinished{background:#fff3e0;border:1px solid #c77700;border-radius:6px;padding:8px 12px;color:#8a4b00;font-weight:600}
-td.q{max-width:260px;overflow-wrap:anywhere}
+td.q{max-width:260px;overflow-wrap:break-word}
+td.c{white-space:nowrap;font-variant-numeric:tabular-nums} td.c i{color:#666;font-style:normal}
 .nothumb{width:384px;height:60px;display:flex;align-items:center;justify-content:center;color:#b3261e;
 background:#fff3f2;font-size:12px;text-align:center}
 """
@@ -72,6 +73,12 @@ def worst_first(records: list[dict]) -> list[dict]:
         return (q.get("status") != "failed", -1.0 if c is None else c, q.get("status") != "coarse", q["name"])
 
     return sorted(records, key=key)
+
+
+def breakable(name: str) -> str:
+    """``name`` escaped for HTML, with a line-break opportunity after each ``/`` and ``_`` so a long
+    query name wraps between its parts, not inside a word."""
+    return escape(name).replace("/", "/<wbr>").replace("_", "_<wbr>")
 
 
 def _fmt(x: float | None, spec: str) -> str:
@@ -156,7 +163,7 @@ def _query_rows(records: list[dict], thumbs: dict, limit: int) -> str:
     head = ["#", "thumbnail: the map's lines at the estimated pose", "query", "status"]
     head += (["verdict"] if with_verdict else []) + (["confidence"] if with_conf else [])
     head += ["t error (m)", "R error (°)"] if gt else []
-    head += ["camera centre", "matches / inliers", "s"]
+    head += ["camera centre (m)", "matches / inliers", "s"]
     rows = []
     for i, q in enumerate(records, start=1):
         th = thumbs.get(q["name"])
@@ -165,14 +172,16 @@ def _query_rows(records: list[dict], thumbs: dict, limit: int) -> str:
         elif th.data_uri is None:
             pic = f'<div class="nothumb">{escape(th.note)}</div>'
         else:
-            pic = f'<img class="thumb" alt="{escape(q["name"])}" src="{th.data_uri}">'
+            img = f'<img class="thumb" alt="{escape(q["name"])}" src="{th.data_uri}">'
+            pic = img if th.href is None else (f'<a href="{escape(th.href)}" target="_blank" '
+                                               f'title="open the panorama">{img}</a>')
         note = [th.note] if th is not None and th.data_uri is not None and th.note else []
         if q.get("message"):
             note.append(q["message"])
         verdict = q.get("verdict")
         t = q.get("t")
         cells = [f"<td>{i}</td>", f'<td class="l">{pic}</td>',
-                 f'<td class="l q"><b>{escape(q["name"])}</b><br><span class="meta">{escape(q["scene"])} · '
+                 f'<td class="l q"><b>{breakable(q["name"])}</b><br><span class="meta">{escape(q["scene"])} · '
                  f'{escape(q["split"])} · {escape(Path(q["image"]).name)}</span>'
                  + "".join(f'<div class="note">{escape(n)}</div>' for n in note) + "</td>",
                  f'<td>{_badge(q.get("status", "ok"), STATUS_COLORS.get(q.get("status", "ok"), "#8a8a8a"))}</td>']
@@ -182,8 +191,8 @@ def _query_rows(records: list[dict], thumbs: dict, limit: int) -> str:
             cells.append(f'<td>{_fmt(q.get("confidence"), ".2f")}</td>')
         if gt:
             cells += [f'<td>{_fmt(q.get("t_error_m"), ".3f")}</td>', f'<td>{_fmt(q.get("r_error_deg"), ".2f")}</td>']
-        centre = "–" if t is None else "<br>".join(f"{v:.2f}" for v in t)
-        cells += [f"<td>{centre}</td>", f'<td>{q.get("num_matches", 0)} / {q.get("num_inliers", 0)}</td>',
+        centre = "–" if t is None else "<br>".join(f"<i>{a}</i> {v:.2f}" for a, v in zip("xyz", t))
+        cells += [f'<td class="c">{centre}</td>', f'<td>{q.get("num_matches", 0)} / {q.get("num_inliers", 0)}</td>',
                   f'<td>{_fmt((q.get("seconds") or {}).get("total"), ".2f")}</td>']
         rows.append(f'<tr class="query">{"".join(cells)}</tr>')
     header = "".join(f'<th class="l">{escape(h)}</th>' if h.startswith(("thumbnail", "query")) else

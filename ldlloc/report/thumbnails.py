@@ -24,6 +24,7 @@ JPEG_QUALITY = 85
 class Thumbnail:
     data_uri: str | None  # data:image/jpeg;base64,... (None: the image could not be read)
     note: str = ""  # why lines (or the picture) are missing; "" when all is drawn
+    href: str | None = None  # the full panorama (a file: URI) that the thumbnail opens
 
 
 def read_small(path: str | Path) -> np.ndarray:
@@ -96,11 +97,12 @@ def _thumbnail(q: dict, image: Path, ldl_map, map_note: str, looked: list[Path],
         img = read_small(image)
     except LdlError as exc:
         return Thumbnail(None, str(exc))
+    href = image.resolve().as_uri()
     if not posed:
-        return Thumbnail(data_uri(img), "no pose: no lines drawn")
+        return Thumbnail(data_uri(img), "no pose: no lines drawn", href)
     if ldl_map is None:
         note = map_note or ("no lines: map not found" + (f" ({', '.join(map(str, looked[:3]))})" if looked else ""))
-        return Thumbnail(data_uri(img), note)
+        return Thumbnail(data_uri(img), note, href)
     drawn = draw(img, ldl_map, np.asarray(q["R"], dtype=np.float64), np.asarray(q["t"], dtype=np.float64),
                  thickness=2)
-    return Thumbnail(data_uri(drawn))
+    return Thumbnail(data_uri(drawn), href=href)
