@@ -90,7 +90,8 @@ def test_page_renders_in_chromium(run_results, tmp_path):
     records = json.loads(run_results.read_text())["queries"]
     shot, dom = open_page(page, tmp_path)
     assert float(shot.std()) > 20.0  # not a blank page
-    rows = [n.replace("<wbr>", "") for n in re.findall(r'<tr class="query">.*?<b>(.+?)</b>', dom, re.S)]  # names wrap at / and _
+    # names wrap at / and _ (line-break opportunities between their parts)
+    rows = [n.replace("<wbr>", "") for n in re.findall(r'<tr class="query">.*?<b>(.+?)</b>', dom, re.S)]
     worst = sorted(records, key=lambda q: -normalized_error(q))
     assert rows == [q["name"] for q in worst] and len(rows) == len(records)
     assert 'id="queries"' in dom and "confidence (" in dom and "translation error, per split" in dom

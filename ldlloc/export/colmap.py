@@ -62,7 +62,8 @@ MODEL_SUFFIXES = (".bin", ".txt")
 
 def model_files(folder: str | Path) -> list[Path]:
     """The model files (:data:`MODEL_FILES`, binary or text) that ``folder`` holds."""
-    return [Path(folder) / f"{n}{s}" for n in MODEL_FILES for s in MODEL_SUFFIXES if (Path(folder) / f"{n}{s}").exists()]
+    files = [Path(folder) / f"{n}{s}" for n in MODEL_FILES for s in MODEL_SUFFIXES]
+    return [f for f in files if f.exists()]
 
 
 def check_image_names(names: list[str], text: bool) -> None:

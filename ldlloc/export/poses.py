@@ -199,8 +199,8 @@ def export_poses(records: list[dict], frame: str, meta: dict[str, Any], given_ma
     for q in records:
         R, t = pose_in_frame(q, frame, meta, given_map)
         check_rotation(R, q["name"])
-        out.append(ExportPose(name=q["name"], scene=q["scene"], image=resolve_path(q["image"], meta), rot_cam_from_world=R,
-                              center=t, record=q))
+        out.append(ExportPose(name=q["name"], scene=q["scene"], image=resolve_path(q["image"], meta),
+                              rot_cam_from_world=R, center=t, record=q))
     return out
 
 

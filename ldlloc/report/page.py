@@ -40,7 +40,8 @@ th{background:#f0f0f0} td.l,th.l{text-align:left}
 .bar{display:inline-block;height:10px;background:#4e79a7;vertical-align:middle}
 img.thumb{display:block;width:384px;height:192px}
 .note{color:#8a4b00;font-size:12px;text-align:left}
-.unfinished{background:#fff3e0;border:1px solid #c77700;border-radius:6px;padding:8px 12px;color:#8a4b00;font-weight:600}
+.unfinished{background:#fff3e0;border:1px solid #c77700;border-radius:6px;padding:8px 12px;color:#8a4b00;
+font-weight:600}
 td.q{max-width:260px;overflow-wrap:break-word}
 td.c{white-space:nowrap;font-variant-numeric:tabular-nums} td.c i{color:#666;font-style:normal}
 .nothumb{width:384px;height:60px;display:flex;align-items:center;justify-content:center;color:#b3261e;
