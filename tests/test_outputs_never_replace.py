@@ -184,16 +184,20 @@ def test_picture_of_a_glob_with_dotdot_stays_inside_the_vis_folder(tmp_path, mon
 
 
 def test_dataset_pictures_are_one_per_query(tiny_synth, tmp_path):
-    """Queries of two scenes with the same image name (``scene_1/0000``, ``scene_2/0000``) get two
-    pictures (they used to share ``vis/robot/synthroom_1_0000.jpg``)."""
+    """Queries of two scene folders of one room with the same image name (``synthroom_1_scene_1/0000``,
+    ``synthroom_1_scene_2/0000``) get two pictures (they used to share ``vis/robot/synthroom_1_0000.jpg``);
+    so does every query of a dataset."""
+    from types import SimpleNamespace
+
     from ldlmap.datasets import open_dataset
     from ldlloc.batch.run import picture_path
 
+    twins = [SimpleNamespace(name=f"robot/synthroom_1_scene_{k}/0000", scene="synthroom_1", split="robot",
+                             image=Path(f"data/robot_pano/synthroom_1_scene_{k}/0000.jpg")) for k in (1, 2)]
+    assert picture_path(tmp_path / "vis", twins[0]) != picture_path(tmp_path / "vis", twins[1])
     queries = open_dataset(tiny_synth).queries(None)
     pictures = [picture_path(tmp_path / "vis", q) for q in queries]
     assert len(set(pictures)) == len(queries) > 1
-    stems = [Path(q.image).stem for q in queries]
-    assert len(set(stems)) < len(stems)  # the case that collided: image names repeat across scenes
     assert all((tmp_path / "vis").resolve() in p.resolve().parents for p in pictures)
 
 
