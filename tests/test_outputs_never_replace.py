@@ -71,6 +71,18 @@ def test_colmap_overwrite_replaces_only_model_files(results, tmp_path, files):
     assert not any(p.name.startswith(".out") for p in tmp_path.iterdir())  # no temporary left
 
 
+@pytest.mark.parametrize("folder_named", ["cameras.bin", "points3D.bin"])
+def test_colmap_overwrite_refuses_a_folder_named_as_a_model_file(results, tmp_path, folder_named):
+    """Checked before anything is moved: the model goes in whole or not at all."""
+    out = tmp_path / "out"
+    (out / folder_named).mkdir(parents=True)
+    (out / "images.bin").write_bytes(b"old")
+    before = snapshot(tmp_path)
+    line = error_line(_invoke(["export", results, "--format", "colmap", "-o", out, "--overwrite"]))
+    assert f"{out / folder_named} is not a file" in line
+    assert snapshot(tmp_path) == before
+
+
 def test_colmap_export_into_the_workspace_of_its_own_images(tmp_path):
     """A model written beside the panoramas it names (a COLMAP workspace: ``ws/images``): allowed,
     the images untouched (only the folder holds them; no model file is one of them)."""

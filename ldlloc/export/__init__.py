@@ -56,6 +56,11 @@ def _check_options(fmt: str, out: Path, text: bool, image_root: Path | None, ove
         if out.is_dir() and any(out.iterdir()) and not overwrite:
             raise InputError(f"output folder {out} is not empty; use --overwrite to replace the model files in it "
                              "(its other files stay), or another name")
+        from ldlloc.export.colmap import model_files
+
+        odd = [f for f in (model_files(out) if out.is_dir() else []) if f.is_dir() or not f.is_file()]
+        if odd:  # checked here, so that the new model's files are moved in all or none
+            raise InputError(f"{odd[0]} is not a file: a COLMAP model file cannot replace it (move it away)")
     if image_root is not None and not Path(image_root).is_dir():
         raise InputError(f"--image-root is not a folder: {image_root}")
 
