@@ -91,7 +91,10 @@ def localize(
     max_tilt: Optional[float] = MAX_TILT,
     query_frame: str = QUERY_FRAME,
     vis: Optional[Path] = typer.Option(None, "--vis", help="Write a picture of the lines and the estimated pose "
-                                       "(.jpg, .jpeg, .png, .bmp, .tif, .tiff, .webp)."),
+                                       "(.jpg, .jpeg, .png, .bmp, .tif, .tiff, .webp); an existing file is replaced "
+                                       "only when it is a picture of ldlloc, or with --overwrite."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Let --vis replace a file that is not a picture of "
+                                   "ldlloc."),
     threads: int = threads_option(),
 ) -> None:
     """Localize one panorama: prints R (world to camera) and t (camera centre, metres).
@@ -108,7 +111,7 @@ def localize(
     from ldlloc.batch.accuracy import pose_errors
     from ldlloc.pipeline import Localizer, load_image
     from ldlmap.datasets import read_pose_file
-    from ldlmap.core.pictures import check_picture_path
+    from ldlmap.core.pictures import check_picture_path, refuse_replacing_pictures
 
     from ldlmap.core.errors import LdlError, refuse_overwriting_inputs
 
@@ -117,6 +120,7 @@ def localize(
     if vis is not None:
         check_picture_path(vis, "--vis")
         refuse_overwriting_inputs([map_path, pano, gt, weights], [vis])
+        refuse_replacing_pictures([vis], overwrite, "--vis")
     truth = read_pose_file(gt) if gt is not None else None
     img = load_image(pano)
     check_device(device)
@@ -141,8 +145,8 @@ def localize(
            "confidence_signals": loc.confidence_signals,
            "seconds": {k: round(v, 4) for k, v in loc.seconds.items()},
            "load_seconds": {k: round(v, 4) for k, v in loading.items()}}
-    if truth is not None:
-        out.update(pose_errors(loc.rot_cam_from_world, loc.center, *truth), gt=str(gt))
+    if truth is not None:  # the dataset's frame is the map's input frame: compared in the map's, as `run` does
+        out.update(pose_errors(loc.rot_cam_from_world, loc.center, *loc.truth_in_map_frame(*truth)), gt=str(gt))
     out["candidates"] = loc.candidate_dicts(6)
     in_pose = loc.input_frame_pose()  # maps built from another frame (SfM): the pose there too
     if in_pose is not None:
@@ -271,7 +275,7 @@ def run(
     save_vis: Optional[Path] = typer.Option(None, "--save-vis", help="Write a picture per query into this folder."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an --output that is not a results file, or "
                                    "the results of a run that did not finish (a finished run's are replaced "
-                                   "without it)."),
+                                   "without it); let --save-vis replace files that are not pictures of ldlloc."),
     threads: int = threads_option(),
     ray: Optional[str] = ray_option(),
 ) -> None:
@@ -317,7 +321,7 @@ def run(
         raise InputError(f"no queries in {root} for split(s) {', '.join(split or ['all'])}")
     output = output or default_results_path(label, kind, root, split, scene, getattr(ds, "map_level", None))
     maps_given, maps = maps is not None, maps or Path(root) / "maps"
-    _refuse_replacing_run_inputs(queries, maps, output, save_vis, weights, root)
+    _refuse_replacing_run_inputs(queries, maps, output, save_vis, weights, root, overwrite)
     refuse_replacing_results(output, overwrite, resume)
     missing = scenes_without_maps(queries, maps, scene_unknown)
     if len(missing) == len({q.scene for q in queries}):  # nothing could run: say how to build the maps
@@ -362,6 +366,7 @@ def _run_images(images: str, maps: Optional[Path], output: Optional[Path], param
     from ldlloc.batch.images import default_images_output, find_images, image_run_meta, picture_path, run_images
     from ldlloc.batch.which_map import TOP_MAPS, MapSet, map_files
     from ldlmap.core.errors import InputError, refuse_overwriting_inputs
+    from ldlmap.core.pictures import refuse_replacing_pictures
     from ldlloc.batch.results import refuse_replacing_results, results_outputs
 
     if maps is None:
@@ -373,6 +378,7 @@ def _run_images(images: str, maps: Optional[Path], output: Optional[Path], param
     output = output or default_images_output(images)
     pictures = [picture_path(save_vis, q) for q in queries] if save_vis is not None else []
     refuse_overwriting_inputs([weights, *files, *(q.image for q in queries)], [*results_outputs(output), *pictures])
+    refuse_replacing_pictures(pictures, overwrite, "--save-vis")
     refuse_replacing_results(output, overwrite, resume)
     check_device(device, local=ray is None)
     set_threads(threads)
@@ -461,18 +467,21 @@ def _print_priors_and_search(results: list, max_tilt: Optional[float]) -> None:
 
 
 def _refuse_replacing_run_inputs(queries: list, maps: Path, output: Path, save_vis: Optional[Path],
-                                 weights: Optional[Path], root: Path) -> None:
+                                 weights: Optional[Path], root: Path, overwrite: bool) -> None:
     """One line, before any work, when the results or a picture would replace a panorama, a pose file,
-    a map or a dataset manifest (``dataset.json`` of `ldlmap synth`, ZInD's ``zind_data.json``) of the run."""
+    a map or a dataset manifest (``dataset.json`` of `ldlmap synth`, ZInD's ``zind_data.json``) of the run,
+    or a picture a file that is not one of ldlloc's (unless ``overwrite``)."""
     from ldlloc.batch.results import results_outputs
     from ldlloc.batch.run import picture_path
     from ldlmap.core.errors import refuse_overwriting_inputs
+    from ldlmap.core.pictures import refuse_replacing_pictures
 
     manifests = [root / "dataset.json", *root.glob("*/zind_data.json"), *root.glob("zind_data.json")]
     inputs = [p for p in (weights, *{maps / f"{q.scene}.h5" for q in queries}, *{q.pose_file for q in queries},
                           *(q.image for q in queries), *manifests) if p is not None]
     pictures = [picture_path(save_vis, q) for q in queries] if save_vis is not None else []
     refuse_overwriting_inputs(inputs, [*results_outputs(output), *pictures])
+    refuse_replacing_pictures(pictures, overwrite, "--save-vis")
 
 
 def _print_verdicts(results) -> None:
@@ -514,6 +523,11 @@ def report(
 
         check_html_path(html)
     rs, meta = load_results(results)
+    from ldlloc.report.page import unfinished_note
+
+    unfinished = unfinished_note(rs, meta)
+    if unfinished:
+        console.print(f"[yellow]warning:[/] {results}: {unfinished}", soft_wrap=True, highlight=False)
     console.print(summary_table(rs, "scene", f"{results} by scene"))
     console.print(summary_table(rs, "split", f"{results} by split"))
     console.print(timing_table(rs))

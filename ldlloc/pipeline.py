@@ -117,6 +117,17 @@ class Localization:
 
         return pose_to_input(self.rot_cam_from_world, self.center, self.input_to_map)
 
+    def truth_in_map_frame(self, rot_cam_from_input: np.ndarray, center_input: np.ndarray
+                           ) -> tuple[np.ndarray, np.ndarray]:
+        """A ground-truth pose as datasets store it (the map's input frame) in the map's frame, where
+        this pose and its errors (metres) are: moved by ``input_to_map`` on maps built from another
+        frame (``--up``, ``--scale``), as it is otherwise."""
+        if self.input_to_map is None:
+            return np.asarray(rot_cam_from_input, dtype=np.float64), np.asarray(center_input, dtype=np.float64)
+        from ldlmap.core.frame import pose_to_map
+
+        return pose_to_map(rot_cam_from_input, center_input, self.input_to_map)
+
     def candidate_dicts(self, digits: int | None = None) -> list[dict]:
         """The top-K search poses, best first: ``[{"R": 3x3, "t": [3], "loss": float}, ...]``.
 
@@ -151,6 +162,7 @@ def load_image(path: str | Path) -> np.ndarray:
     import cv2
 
     from ldlmap.core.errors import require_file
+    from ldlmap.io.imagefile import read_image
 
     p = require_file(path, "image")
     if not os.access(p, os.R_OK):
@@ -160,7 +172,7 @@ def load_image(path: str | Path) -> np.ndarray:
     header = _image_header_size(p)
     if header is not None and max(header) > MAX_PANORAMA_WIDTH:  # before decoding it (EXIF may turn it)
         _check_panorama_size(header, p)
-    img = cv2.imread(str(p), cv2.IMREAD_COLOR)
+    img = read_image(p, cv2.IMREAD_COLOR)  # through Python's open(): any file name (cv2.imread crashes on some)
     if img is None:
         raise InputError(f"cannot decode image (corrupt or unsupported format): {p}")
     _check_panorama_size((img.shape[1], img.shape[0]), p)

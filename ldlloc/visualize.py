@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from ldlmap.core.pictures import draw_arcs, group_legend, project_lines, with_caption, write_picture
+from ldlmap.io.imagefile import printable
 
 
 def localization_caption(name: str, loc, errors: tuple[float, float] | None = None) -> str:
@@ -62,6 +63,7 @@ def _title(img: np.ndarray, text: str, scale: float) -> None:
     import cv2
 
     font, size, thick = cv2.FONT_HERSHEY_SIMPLEX, 0.7 * scale, max(1, int(round(1.5 * scale)))
+    text = printable(text)  # OpenCV crashes on text that is not UTF-8
     (w, h), base = cv2.getTextSize(text, font, size, thick)
     pad = int(6 * scale)
     cv2.rectangle(img, (0, 0), (w + 2 * pad, h + base + 2 * pad), (30, 30, 30), -1)

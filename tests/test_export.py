@@ -230,7 +230,7 @@ def test_outputs_are_not_replaced_without_overwrite(run_results, tmp_path):
     (model / "notes.txt").write_text("mine")
     assert "not empty; use --overwrite" in _error(["export", run_results, "--format", "colmap", "-o", model])
     _ok(["export", run_results, "--format", "colmap", "-o", model, "--overwrite"])
-    assert not (model / "notes.txt").exists() and (model / "images.bin").exists()
+    assert (model / "notes.txt").read_text() == "mine" and (model / "images.bin").exists()  # only model files replaced
     umask = os.umask(0)
     os.umask(umask)
     assert model.stat().st_mode & 0o777 == 0o777 & ~umask  # a folder like any other, not mkdtemp's 0700

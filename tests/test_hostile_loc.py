@@ -245,10 +245,11 @@ def test_run_refuses_bad_query_lists(demo_dataset, tmp_path, spoil, words):
 
 
 def test_run_outputs_never_replace_inputs(demo_dataset, tmp_path):
-    """A picture that would land on another query's panorama (through a linked folder) is refused."""
+    """A picture that would land on a query's panorama (through a linked folder) is refused: query
+    ``robot/synthroom_1_scene_1/a``'s picture ``vis/robot/synthroom_1_scene_1/a.jpg`` is its panorama."""
     root = _tiny_root(tmp_path, demo_dataset, {"a": None, "synthroom_1_a": None})
-    (tmp_path / "vis").mkdir()
-    os.symlink(root / "robot_pano" / SCENE, tmp_path / "vis" / "robot")
+    (tmp_path / "vis" / "robot").mkdir(parents=True)
+    os.symlink(root / "robot_pano" / SCENE, tmp_path / "vis" / "robot" / "synthroom_1_scene_1")
     before = snapshot(tmp_path)
     res = runner.invoke(loc_app, ["run", "--root", str(root), "--output", str(tmp_path / "r.json"),
                                   "--save-vis", str(tmp_path / "vis")])

@@ -88,12 +88,14 @@ def test_export_refuses_a_pose_that_is_not_a_rotation(image_run, tmp_path, edit)
 
 def test_export_overwrite_keeps_the_maps_folder(image_run):
     """`export -o MAPS_FOLDER --overwrite --format colmap` replaced the folder holding the map it
-    had just read (the maps were deleted); the images folder and the results were protected."""
+    had just read (the maps were deleted). A COLMAP export now replaces only model files: the map
+    it read stays, byte for byte, beside the model."""
     work, _ = image_run
+    the_map = (work / "maps" / "synthroom_1.h5").read_bytes()
     res = runner.invoke(app, ["export", str(work / "r.json"), "--format", "colmap", "-o", str(work / "maps"),
                               "--all", "--overwrite"])
-    assert "would replace the folder that holds the input" in error_line(res)
-    assert (work / "maps" / "synthroom_1.h5").is_file()
+    assert res.exit_code == 0, res.output
+    assert (work / "maps" / "synthroom_1.h5").read_bytes() == the_map and (work / "maps" / "images.bin").is_file()
 
 
 def test_report_html_refusal_names_no_missing_option(image_run):

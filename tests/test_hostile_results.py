@@ -187,7 +187,7 @@ def test_csv_that_cannot_be_written_is_a_warning(tmp_path, monkeypatch):
         w.add(QueryResult(image="b.jpg", scene="s", split="x", name=name))
     data = json.loads(path.read_text())
     assert [q["name"] for q in data["queries"]] == ["x/a", "x/b", "x/c"]
-    assert data["meta"]["csv_error"] == "No space left"
+    assert data["meta"]["csv_error"] == f"no space left writing {path.with_suffix('.csv')}"  # names the file
     assert len(said) == 1 and said[0].startswith("warning: cannot write") and "r.csv" in said[0]
     monkeypatch.undo()
     w.close()

@@ -26,6 +26,7 @@ from typing import Callable
 import numpy as np
 
 from ldlmap.core.errors import InputError, LdlError
+from ldlmap.core.pictures import picture_file
 from ldlloc.batch.accuracy import QueryResult
 from ldlloc.batch.run import open_results, write_query_picture
 from ldlloc.batch.which_map import TOP_MAPS, MapChoice, MapSet, localize_on_maps
@@ -93,8 +94,9 @@ def default_images_output(spec: str | Path) -> Path:
 
 
 def picture_path(save_vis: str | Path, q: ImageQuery) -> Path:
-    """Where ``--save-vis`` writes the picture of image query ``q``: ``<save_vis>/<name>.jpg``."""
-    return Path(save_vis) / f"{q.name}.jpg"
+    """Where ``--save-vis`` writes the picture of image query ``q``: ``<save_vis>/<name>.jpg``, inside
+    ``save_vis`` whatever the name holds (``..`` parts stay names: :func:`ldlmap.core.pictures.picture_file`)."""
+    return picture_file(save_vis, q.name)
 
 
 def image_result(q: ImageQuery, loc: Localization, choice: MapChoice) -> QueryResult:

@@ -18,6 +18,7 @@ option (``max_tilt_deg``, None when not given) and the upright default.
 
 from __future__ import annotations
 
+import os
 import time
 from dataclasses import asdict, replace
 from pathlib import Path
@@ -27,6 +28,7 @@ import numpy as np
 
 from ldlmap.core.errors import InputError, LdlError
 from ldlmap.core.geometry import rotation_error_deg, translation_error
+from ldlmap.core.pictures import picture_file
 from ldlloc.batch.accuracy import QueryResult, best_candidate, first_good_rank
 from ldlloc.batch.results import ResultsWriter
 from ldlloc.pipeline import (UPRIGHT_MAX_TILT_DEG, Localization, LocalizeParams, Localizer, load_image,
@@ -47,12 +49,9 @@ def result_from_localization(q, loc: Localization) -> QueryResult:
     The ground truth is in the dataset's frame, the map's input frame: on a map built with another
     frame (``--up``, ``--scale``) it is moved into the map frame, where errors are in metres.
     """
-    gt_rot, gt_center = q.rot_cam_from_world, q.center
+    gt_rot, gt_center = loc.truth_in_map_frame(q.rot_cam_from_world, q.center)
     input_frame = None
     if loc.input_to_map is not None:
-        from ldlmap.core.frame import pose_to_map
-
-        gt_rot, gt_center = pose_to_map(gt_rot, gt_center, loc.input_to_map)
         R_in, t_in = loc.input_frame_pose()
         input_frame = {"R": R_in.tolist(), "t": t_in.tolist()}
     cand_t = [translation_error(c, gt_center) for c in np.asarray(loc.candidates_center)]
@@ -197,8 +196,9 @@ def query_key(q) -> tuple[str, str, str]:
 
 
 def run_meta(params: LocalizeParams, device: str, meta: dict | None = None) -> dict:
-    """The results file's ``meta``: the caller's fields plus device, parameters and tilt prior."""
-    return {**(meta or {}), "device": device, "params": asdict(params),
+    """The results file's ``meta``: the caller's fields plus device, parameters and tilt prior, and
+    ``base_dir``: the absolute working folder the records' relative paths (images, maps) start from."""
+    return {**(meta or {}), "base_dir": os.path.abspath(os.curdir), "device": device, "params": asdict(params),
             "max_tilt_deg": params.max_tilt_deg, "upright_max_tilt_deg": UPRIGHT_MAX_TILT_DEG}
 
 
@@ -249,8 +249,9 @@ def scene_maps(maps_dir: str | Path, params: LocalizeParams, device: str, top_ma
 
 
 def picture_path(save_vis: str | Path, q) -> Path:
-    """Where ``--save-vis`` writes the picture of query ``q``."""
-    return Path(save_vis) / q.split / f"{q.scene}_{Path(q.image).stem}.jpg"
+    """Where ``--save-vis`` writes the picture of query ``q``: ``<save_vis>/<name>.jpg``, one per
+    query (names are unique in a run) and always inside ``save_vis``."""
+    return picture_file(save_vis, q.name)
 
 
 def write_query_picture(img: np.ndarray, res: Localization, ldl_map, path: Path, caption: str = "") -> str | None:

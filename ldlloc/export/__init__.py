@@ -8,11 +8,13 @@
 
 Which queries, which frame, image names and maps: :mod:`.poses`. Outputs are written through a
 temporary beside ``out`` and renamed at the end; an existing ``out`` is replaced only with
-``overwrite``.
+``overwrite``, and a COLMAP output folder never as a whole: only its model files are (the other
+files of the folder stay).
 """
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -52,7 +54,13 @@ def _check_options(fmt: str, out: Path, text: bool, image_root: Path | None, ove
         if out.exists() and not out.is_dir():
             raise InputError(f"output {out} exists and is not a folder (a COLMAP model is a folder)")
         if out.is_dir() and any(out.iterdir()) and not overwrite:
-            raise InputError(f"output folder {out} is not empty; use --overwrite to replace it, or another name")
+            raise InputError(f"output folder {out} is not empty; use --overwrite to replace the model files in it "
+                             "(its other files stay), or another name")
+        from ldlloc.export.colmap import model_files
+
+        odd = [f for f in (model_files(out) if out.is_dir() else []) if f.is_dir() or not f.is_file()]
+        if odd:  # checked here, so that the new model's files are moved in all or none
+            raise InputError(f"{odd[0]} is not a file: a COLMAP model file cannot replace it (move it away)")
     if image_root is not None and not Path(image_root).is_dir():
         raise InputError(f"--image-root is not a folder: {image_root}")
 
@@ -77,19 +85,40 @@ def _frame_units(poses: list, frame: str, meta: dict[str, Any], map_path: Path |
     return units
 
 
-def _write_colmap(out: Path, poses: list, lines, text: bool, image_root: Path | None, overwrite: bool) -> str:
-    """Write the COLMAP model folder (atomically); returns what to say about it."""
+def _write_colmap(out: Path, poses: list, lines, text: bool, image_root: Path | None, overwrite: bool) -> list[str]:
+    """Write the COLMAP model into ``out``: built and checked in a temporary folder beside it, then
+    its files moved in. Only model files are replaced (an earlier model's, binary or text); every
+    other file of ``out`` stays. Returns what to say about it."""
     from ldlmap.core.errors import atomic_dir
-    from ldlloc.export.colmap import line_points, write_colmap_model
+    from ldlloc.export.colmap import check_image_names, line_points, model_files, write_colmap_model
     from ldlloc.export.poses import image_names, image_size
 
-    sizes = [image_size(p.image) for p in poses]
     root, names = image_names([p.image for p in poses], image_root)
+    check_image_names(names, text)  # before reading every image's size
+    sizes = [image_size(p.image) for p in poses]
     points, colors = line_points(lines.lines, lines.groups)
-    with atomic_dir(out, overwrite=overwrite) as tmp:
-        write_colmap_model(tmp, poses, names, sizes, points, colors, text)
-    return (f"image names relative to {root} (COLMAP's image path); points3D: the {len(lines.lines)} map lines' "
-            "end points")
+    earlier = model_files(out) if out.is_dir() else []
+
+    def commit(tmp: Path, target: Path) -> None:  # move the new model in; remove the earlier model's other files
+        if not target.exists():
+            os.replace(tmp, target)
+            return
+        written = {f.name for f in tmp.iterdir()}
+        for f in earlier:
+            if f.name not in written:
+                f.unlink()
+        for name in sorted(written):
+            os.replace(tmp / name, target / name)
+
+    with atomic_dir(out, overwrite=overwrite, commit=commit) as tmp:
+        write_colmap_model(tmp, poses, names, sizes, points, colors, text, shown_as=out)
+    said = [f"image names relative to {root} (COLMAP's image path); points3D: the {len(lines.lines)} map lines' "
+            "end points"]
+    if earlier:
+        others = sorted({f.name for f in out.iterdir()} - {f.name for f in model_files(out)})
+        said.append(f"replaced the earlier model files in {out}: {', '.join(f.name for f in earlier)}"
+                    + (f"; kept its other {len(others)} file(s) and folder(s)" if others else ""))
+    return said
 
 
 def _write_nerfstudio(out: Path, poses: list, frame: str, results: Path) -> None:
@@ -117,6 +146,7 @@ def export_results(results: str | Path, fmt: str, out: str | Path, include_all: 
     to (default: the deepest folder holding every image); ``map_path``: the map for records that do
     not name one that exists (``--map``); ``scene``: only this scene's queries."""
     from ldlmap.core.errors import InputError, atomic_file, refuse_overwriting_inputs
+    from ldlloc.export.colmap import MODEL_FILES, MODEL_SUFFIXES
     from ldlloc.export.poses import FRAMES, export_poses, map_lines, read_records, select_queries
 
     results, out = Path(results), Path(out)
@@ -140,7 +170,9 @@ def export_results(results: str | Path, fmt: str, out: str | Path, include_all: 
     from ldlloc.export.poses import map_path_for
 
     maps = {map_path_for(p.record, meta, map_path)[0] for p in poses}  # the maps whose lines the export reads
-    refuse_overwriting_inputs([results, map_path, *maps, *(p.image for p in poses)], [out])
+    # a COLMAP export replaces its model files only, never the folder (which may hold the images)
+    written = [out / f"{n}{x}" for n in MODEL_FILES for x in MODEL_SUFFIXES] if fmt == "colmap" else [out]
+    refuse_overwriting_inputs([results, map_path, *maps, *(p.image for p in poses)], written)
     scenes = sorted({p.scene for p in poses})
     if len(scenes) > 1:
         notes.append(f"poses of {len(scenes)} scenes/maps in one file: they share a frame only when their maps do "
@@ -152,7 +184,7 @@ def export_results(results: str | Path, fmt: str, out: str | Path, include_all: 
     if lines.missing:
         notes.append(f"no map lines of scene(s) {', '.join(lines.missing[:5])}: map not found (give it with --map)")
     if fmt == "colmap":
-        notes.append(_write_colmap(out, poses, lines, text, image_root, overwrite))
+        notes += _write_colmap(out, poses, lines, text, image_root, overwrite)
     else:
         from ldlloc.export.ply import write_cameras_ply
 

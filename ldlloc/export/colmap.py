@@ -54,11 +54,81 @@ def build_reconstruction(poses: list, names: list[str], sizes: list[tuple[int, i
     return rec
 
 
+# The files of a model as pycolmap writes it (``.bin``, or ``.txt`` with --text): the only files of an
+# output folder that an export replaces; anything else there (images, a database, notes) is kept.
+MODEL_FILES = ("cameras", "images", "points3D", "rigs", "frames")
+MODEL_SUFFIXES = (".bin", ".txt")
+
+
+def model_files(folder: str | Path) -> list[Path]:
+    """The model files (:data:`MODEL_FILES`, binary or text) that ``folder`` holds."""
+    files = [Path(folder) / f"{n}{s}" for n in MODEL_FILES for s in MODEL_SUFFIXES]
+    return [f for f in files if f.exists()]
+
+
+def check_image_names(names: list[str], text: bool) -> None:
+    """One line for an image name a COLMAP model cannot hold as written: not valid UTF-8 (a file
+    name of other bytes), or, in a text model (``text``), one with a space, tab, newline or other
+    control character (COLMAP's ``images.txt`` reads a name up to its first white space)."""
+    from ldlmap.core.errors import InputError
+
+    for n in names:
+        try:
+            n.encode("utf-8")
+        except UnicodeEncodeError:
+            raise InputError(f"image name {n!r} is not valid UTF-8: a COLMAP model cannot hold it (rename the "
+                             "file)") from None
+        if text and any(c.isspace() or not c.isprintable() for c in n):
+            raise InputError(f"image name {n!r} holds white space or a control character, which a COLMAP text "
+                             "model cannot hold: export without --text (binary), or rename the file")
+
+
 def write_colmap_model(folder: str | Path, poses: list, names: list[str], sizes: list[tuple[int, int]],
                        points: np.ndarray | None = None, colors: np.ndarray | None = None,
-                       text: bool = False) -> Path:
+                       text: bool = False, shown_as: str | Path | None = None) -> Path:
     """Write :func:`build_reconstruction` into the existing folder ``folder`` (``.bin`` files, or
-    ``.txt`` with ``text``)."""
+    ``.txt`` with ``text``) and read it back: pycolmap does not report write errors (a full disk
+    leaves empty files), so a model that does not read back as written is a one-line error naming
+    ``shown_as`` (the output the user named; default ``folder``)."""
+    check_image_names(names, text)
     rec = build_reconstruction(poses, names, sizes, points, colors)
     (rec.write_text if text else rec.write_binary)(str(folder))
+    check_written_model(folder, rec, text, shown_as or folder)
     return Path(folder)
+
+
+def check_written_model(folder: str | Path, expected, text: bool, shown_as: str | Path) -> None:
+    """Raise a one-line :class:`ldlmap.core.errors.LdlError` unless ``folder`` holds every model
+    file, none empty, and reads back with ``expected``'s cameras, image names and point count."""
+    import pycolmap
+
+    from ldlmap.core.errors import LdlError
+
+    suffix = ".txt" if text else ".bin"
+    files = [Path(folder) / f"{n}{suffix}" for n in MODEL_FILES]
+    bad = [f.name for f in files if not f.is_file() or f.stat().st_size == 0]
+    why = f"{', '.join(bad)} missing or empty" if bad else ""
+    if not why:
+        try:
+            back = pycolmap.Reconstruction(str(folder))
+            same = (sorted(im.name for im in back.images.values()) == sorted(im.name for im in expected.images.values())
+                    and back.num_cameras() == expected.num_cameras()
+                    and back.num_points3D() == expected.num_points3D())
+            why = "" if same else "it reads back other than written"
+        except (ValueError, RuntimeError, OSError) as exc:
+            why = f"pycolmap cannot read it back: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}"
+    if why:
+        full = _disk_full(folder)
+        raise LdlError(f"no space left on device writing {shown_as}" if full else
+                       f"could not write the COLMAP model {shown_as}: {why}")
+
+
+def _disk_full(folder: str | Path) -> bool:
+    """Whether the file system of ``folder`` has no free block left for this user."""
+    import os
+
+    try:
+        st = os.statvfs(folder)
+    except OSError:
+        return False
+    return st.f_bavail * st.f_frsize < 4096

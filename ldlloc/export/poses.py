@@ -35,7 +35,7 @@ class ExportPose:
 
     name: str
     scene: str
-    image: Path  # the panorama, as the results file names it (relative: to the current folder)
+    image: Path  # the panorama, as the results file names it, relative ones resolved (:func:`resolve_path`)
     rot_cam_from_world: np.ndarray  # (3, 3) world -> camera (our camera frame), in the exported frame
     center: np.ndarray  # (3,) camera centre in the exported frame
     record: dict = field(repr=False)  # the query's record as in the file (verdict, confidence, map, ...)
@@ -100,6 +100,18 @@ def read_records(path: str | Path) -> tuple[list[dict], dict[str, Any]]:
     return records, meta
 
 
+def resolve_path(path: str | Path, meta: dict[str, Any]) -> Path:
+    """A path of a results file (a record's ``image`` or ``map``, the run's ``maps``) as seen from
+    here: a relative one starts from the run's working folder (``meta["base_dir"]``), or, in files
+    written before it was recorded or when it is not there, from the current folder."""
+    p = Path(path)
+    base = meta.get("base_dir")
+    if p.is_absolute() or not isinstance(base, str) or not base:
+        return p
+    there = Path(base) / p
+    return p if not there.exists() and p.exists() else there
+
+
 def has_pose(record: dict) -> bool:
     return record.get("status", "ok") != "failed" and record.get("R") is not None and record.get("t") is not None
 
@@ -125,12 +137,12 @@ def map_path_for(record: dict, meta: dict[str, Any], given: Path | None = None) 
     every place looked at (for a message when none exists)."""
     looked: list[Path] = []
     if record.get("map"):
-        looked.append(Path(record["map"]))
+        looked.append(resolve_path(record["map"], meta))
     if given is not None:
         looked.append(Path(given))
     folder = meta.get("maps") or (Path(meta["root"]) / "maps" if isinstance(meta.get("root"), str) else None)
     if folder:
-        looked.append(Path(folder) / f"{record['scene']}.h5")
+        looked.append(resolve_path(Path(folder) / f"{record['scene']}.h5", meta))
     return next((p for p in looked if p.is_file()), None), looked
 
 
@@ -187,8 +199,8 @@ def export_poses(records: list[dict], frame: str, meta: dict[str, Any], given_ma
     for q in records:
         R, t = pose_in_frame(q, frame, meta, given_map)
         check_rotation(R, q["name"])
-        out.append(ExportPose(name=q["name"], scene=q["scene"], image=Path(q["image"]), rot_cam_from_world=R,
-                              center=t, record=q))
+        out.append(ExportPose(name=q["name"], scene=q["scene"], image=resolve_path(q["image"], meta),
+                              rot_cam_from_world=R, center=t, record=q))
     return out
 
 
@@ -224,7 +236,9 @@ def image_size(path: str | Path) -> tuple[int, int]:
     if size is None:
         import cv2
 
-        img = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
+        from ldlmap.io.imagefile import read_image
+
+        img = read_image(p, cv2.IMREAD_UNCHANGED)
         if img is None:
             raise InputError(f"cannot decode image (corrupt or unsupported format): {p}")
         size = (int(img.shape[1]), int(img.shape[0]))

@@ -14,18 +14,19 @@ def check_html_path(path: str | Path) -> Path:
     """``path`` as an HTML output: a ``.html`` name that is not a folder, nor a file other than a page
     of this command (one-line errors, before any work)."""
     from ldlmap.core.errors import InputError, refuse_replacing_other_files
-    from ldlloc.report.page import MARK
+    from ldlloc.report.page import PAGE_HEAD
 
     p = Path(path)
     if p.suffix.lower() not in HTML_SUFFIXES:
         raise InputError(f"--html must name a .html file, got {p}")
 
-    def is_ours(q: Path) -> bool:
+    def is_ours(q: Path) -> bool:  # the page's first two lines as render_page writes them, nothing else
         try:
             with open(q, "rb") as f:
-                return MARK.encode() in f.read(200)
+                head = f.read(len(PAGE_HEAD) + 2)
         except OSError:
             return False
+        return head.replace(b"\r\n", b"\n").startswith(PAGE_HEAD.encode())
 
     refuse_replacing_other_files(p, is_ours, "an HTML report of `ldlloc report`",  # report has no --overwrite
                                  remedy="remove it first, or give another name")
@@ -37,13 +38,14 @@ def write_html_report(results: str | Path, html: str | Path, max_thumbnails: int
     """Write the report of ``results`` to ``html`` (atomically). ``max_thumbnails``: the worst
     queries that get a thumbnail; ``progress(done, total)`` after each thumbnail."""
     from ldlmap.core.errors import atomic_file, refuse_overwriting_inputs
-    from ldlloc.export.poses import read_records
+    from ldlmap.io.imagefile import printable
+    from ldlloc.export.poses import read_records, resolve_path
     from ldlloc.report.page import render_page, worst_first
     from ldlloc.report.thumbnails import make_thumbnails
 
     results, html = Path(results), check_html_path(html)
     records, meta = read_records(results)
-    refuse_overwriting_inputs([results, *(q["image"] for q in records)], [html])
+    refuse_overwriting_inputs([results, *(resolve_path(q["image"], meta) for q in records)], [html])
     ordered = worst_first(records)
     shown = ordered[:max(0, max_thumbnails)]
     count = [0]
@@ -56,7 +58,7 @@ def write_html_report(results: str | Path, html: str | Path, max_thumbnails: int
     thumbs = make_thumbnails(shown, meta, tick)
     page = render_page(results, ordered, meta, thumbs, max_thumbnails)
     with atomic_file(html) as tmp:
-        tmp.write_text(page, encoding="utf-8")
+        tmp.write_text(printable(page), encoding="utf-8")  # names that are not UTF-8 shown as \xff
     return html
 
 

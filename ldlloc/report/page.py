@@ -21,6 +21,7 @@ from ldlloc.batch.accuracy import STAGES, THRESHOLDS, QueryResult, group_by, sum
 from ldlloc.report.plots import cdf_svg, histogram_svg
 
 MARK = "<!-- ldlloc report -->"  # second line of every page: a page this command may replace
+PAGE_HEAD = f"<!DOCTYPE html>\n{MARK}\n"  # how every page begins; a file that begins otherwise is not ours
 VERDICT_COLORS = {"confident": "#2e8540", "ambiguous": "#c77700", "failed": "#b3261e", "none": "#8a8a8a"}
 STATUS_COLORS = {"ok": "#2e8540", "coarse": "#c77700", "failed": "#b3261e"}
 
@@ -39,7 +40,10 @@ th{background:#f0f0f0} td.l,th.l{text-align:left}
 .bar{display:inline-block;height:10px;background:#4e79a7;vertical-align:middle}
 img.thumb{display:block;width:384px;height:192px}
 .note{color:#8a4b00;font-size:12px;text-align:left}
-td.q{max-width:260px;overflow-wrap:anywhere}
+.unfinished{background:#fff3e0;border:1px solid #c77700;border-radius:6px;padding:8px 12px;color:#8a4b00;
+font-weight:600}
+td.q{max-width:260px;overflow-wrap:break-word}
+td.c{white-space:nowrap;font-variant-numeric:tabular-nums} td.c i{color:#666;font-style:normal}
 .nothumb{width:384px;height:60px;display:flex;align-items:center;justify-content:center;color:#b3261e;
 background:#fff3f2;font-size:12px;text-align:center}
 """
@@ -70,6 +74,12 @@ def worst_first(records: list[dict]) -> list[dict]:
         return (q.get("status") != "failed", -1.0 if c is None else c, q.get("status") != "coarse", q["name"])
 
     return sorted(records, key=key)
+
+
+def breakable(name: str) -> str:
+    """``name`` escaped for HTML, with a line-break opportunity after each ``/`` and ``_`` so a long
+    query name wraps between its parts, not inside a word."""
+    return escape(name).replace("/", "/<wbr>").replace("_", "_<wbr>")
 
 
 def _fmt(x: float | None, spec: str) -> str:
@@ -154,7 +164,7 @@ def _query_rows(records: list[dict], thumbs: dict, limit: int) -> str:
     head = ["#", "thumbnail: the map's lines at the estimated pose", "query", "status"]
     head += (["verdict"] if with_verdict else []) + (["confidence"] if with_conf else [])
     head += ["t error (m)", "R error (°)"] if gt else []
-    head += ["camera centre", "matches / inliers", "s"]
+    head += ["camera centre (m)", "matches / inliers", "s"]
     rows = []
     for i, q in enumerate(records, start=1):
         th = thumbs.get(q["name"])
@@ -163,14 +173,16 @@ def _query_rows(records: list[dict], thumbs: dict, limit: int) -> str:
         elif th.data_uri is None:
             pic = f'<div class="nothumb">{escape(th.note)}</div>'
         else:
-            pic = f'<img class="thumb" alt="{escape(q["name"])}" src="{th.data_uri}">'
+            img = f'<img class="thumb" alt="{escape(q["name"])}" src="{th.data_uri}">'
+            pic = img if th.href is None else (f'<a href="{escape(th.href)}" target="_blank" '
+                                               f'title="open the panorama">{img}</a>')
         note = [th.note] if th is not None and th.data_uri is not None and th.note else []
         if q.get("message"):
             note.append(q["message"])
         verdict = q.get("verdict")
         t = q.get("t")
         cells = [f"<td>{i}</td>", f'<td class="l">{pic}</td>',
-                 f'<td class="l q"><b>{escape(q["name"])}</b><br><span class="meta">{escape(q["scene"])} · '
+                 f'<td class="l q"><b>{breakable(q["name"])}</b><br><span class="meta">{escape(q["scene"])} · '
                  f'{escape(q["split"])} · {escape(Path(q["image"]).name)}</span>'
                  + "".join(f'<div class="note">{escape(n)}</div>' for n in note) + "</td>",
                  f'<td>{_badge(q.get("status", "ok"), STATUS_COLORS.get(q.get("status", "ok"), "#8a8a8a"))}</td>']
@@ -180,13 +192,23 @@ def _query_rows(records: list[dict], thumbs: dict, limit: int) -> str:
             cells.append(f'<td>{_fmt(q.get("confidence"), ".2f")}</td>')
         if gt:
             cells += [f'<td>{_fmt(q.get("t_error_m"), ".3f")}</td>', f'<td>{_fmt(q.get("r_error_deg"), ".2f")}</td>']
-        centre = "–" if t is None else "<br>".join(f"{v:.2f}" for v in t)
-        cells += [f"<td>{centre}</td>", f'<td>{q.get("num_matches", 0)} / {q.get("num_inliers", 0)}</td>',
+        centre = "–" if t is None else "<br>".join(f"<i>{a}</i> {v:.2f}" for a, v in zip("xyz", t))
+        cells += [f'<td class="c">{centre}</td>', f'<td>{q.get("num_matches", 0)} / {q.get("num_inliers", 0)}</td>',
                   f'<td>{_fmt((q.get("seconds") or {}).get("total"), ".2f")}</td>']
         rows.append(f'<tr class="query">{"".join(cells)}</tr>')
     header = "".join(f'<th class="l">{escape(h)}</th>' if h.startswith(("thumbnail", "query")) else
                      f"<th>{escape(h)}</th>" for h in head)
     return f'<table id="queries"><tr>{header}</tr>{"".join(rows)}</table>'
+
+
+def unfinished_note(records: list, meta: dict) -> str | None:
+    """What to say of a results file whose run did not finish (``meta["finished"]`` false: killed
+    or interrupted), None for a finished run (or one written before the flag existed)."""
+    if meta.get("finished") is not False:
+        return None
+    return (f"this run did not finish (killed or interrupted): the file holds {len(records)} "
+            f"quer{'y' if len(records) == 1 else 'ies'}, not necessarily all of its run; `ldlloc run ... --resume` "
+            "continues it")
 
 
 def render_page(results_path: Path, records: list[dict], meta: dict[str, Any], thumbs: dict, limit: int) -> str:
@@ -198,8 +220,10 @@ def render_page(results_path: Path, records: list[dict], meta: dict[str, Any], t
                       if meta.get(k) not in (None, ""))
     order = ("worst first: by the larger of t error / 0.1 m and R error / 5°" if has_ground_truth(records) else
              "worst first: failed, then by confidence (lowest first)")
+    unfinished = unfinished_note(records, meta)
     sections = [f"<h1>Localization report: {escape(results_path.name)}</h1>",
                 f'<p class="meta">{escape(str(results_path))} · {info} · written {when}</p>',
+                *([f'<p class="unfinished">{escape(unfinished)}</p>'] if unfinished else []),
                 "<h2>Summary</h2>", _cards(records, results)]
     if has_ground_truth(records):
         sections += ["<h2>Accuracy per split</h2>", _split_table(results)]
@@ -208,6 +232,6 @@ def render_page(results_path: Path, records: list[dict], meta: dict[str, Any], t
                  '<p class="meta">lines coloured by the map\'s principal direction: red, green, blue; grey: none</p>',
                  _query_rows(records, thumbs, limit)]
     body = "\n".join(sections)
-    return (f'<!DOCTYPE html>\n{MARK}\n<html lang="en"><head><meta charset="utf-8">'
+    return (f'{PAGE_HEAD}<html lang="en"><head><meta charset="utf-8">'
             f"<title>ldlloc report: {escape(results_path.name)}</title><style>{CSS}</style></head>"
             f"<body>\n{body}\n</body></html>\n")

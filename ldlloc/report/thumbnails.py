@@ -24,6 +24,7 @@ JPEG_QUALITY = 85
 class Thumbnail:
     data_uri: str | None  # data:image/jpeg;base64,... (None: the image could not be read)
     note: str = ""  # why lines (or the picture) are missing; "" when all is drawn
+    href: str | None = None  # the full panorama (a file: URI) that the thumbnail opens
 
 
 def read_small(path: str | Path) -> np.ndarray:
@@ -31,6 +32,7 @@ def read_small(path: str | Path) -> np.ndarray:
     import cv2
 
     from ldlmap.core.errors import InputError, require_file
+    from ldlmap.io.imagefile import read_image
     from ldlloc.pipeline import _image_header_size
 
     p = require_file(path, "image")
@@ -41,7 +43,10 @@ def read_small(path: str | Path) -> np.ndarray:
         if size is not None and size[0] >= factor * THUMB_W:
             flag = reduced
             break
-    img = cv2.imread(str(p), flag)
+    try:
+        img = read_image(p, flag)
+    except OSError as exc:
+        raise InputError(f"cannot read image ({exc.strerror or exc}): {p}") from None
     if img is None:
         raise InputError(f"cannot decode image: {p}")
     return cv2.resize(img, (THUMB_W, THUMB_H), interpolation=cv2.INTER_AREA)
@@ -62,7 +67,7 @@ def make_thumbnails(records: list[dict], meta: dict[str, Any],
     """A :class:`Thumbnail` per record (by name). The map of each record is found as for exports
     (:func:`ldlloc.export.poses.map_path_for`); each map is read once (records grouped by map)."""
     from ldlmap.map.mapfile import read_map
-    from ldlloc.export.poses import has_pose, map_path_for
+    from ldlloc.export.poses import has_pose, map_path_for, resolve_path
     from ldlloc.visualize import draw_map_lines
 
     by_map: dict[Path | None, list[dict]] = {}
@@ -80,22 +85,24 @@ def make_thumbnails(records: list[dict], meta: dict[str, Any],
             except LdlError as exc:
                 map_note = f"no lines: {exc}"
         for q in group:
-            out[q["name"]] = _thumbnail(q, ldl_map, map_note, looked_for[q["name"]], draw_map_lines, has_pose(q))
+            out[q["name"]] = _thumbnail(q, resolve_path(q["image"], meta), ldl_map, map_note, looked_for[q["name"]],
+                                        draw_map_lines, has_pose(q))
             if progress is not None:
                 progress()
     return out
 
 
-def _thumbnail(q: dict, ldl_map, map_note: str, looked: list[Path], draw, posed: bool) -> Thumbnail:
+def _thumbnail(q: dict, image: Path, ldl_map, map_note: str, looked: list[Path], draw, posed: bool) -> Thumbnail:
     try:
-        img = read_small(q["image"])
+        img = read_small(image)
     except LdlError as exc:
         return Thumbnail(None, str(exc))
+    href = image.resolve().as_uri()
     if not posed:
-        return Thumbnail(data_uri(img), "no pose: no lines drawn")
+        return Thumbnail(data_uri(img), "no pose: no lines drawn", href)
     if ldl_map is None:
         note = map_note or ("no lines: map not found" + (f" ({', '.join(map(str, looked[:3]))})" if looked else ""))
-        return Thumbnail(data_uri(img), note)
+        return Thumbnail(data_uri(img), note, href)
     drawn = draw(img, ldl_map, np.asarray(q["R"], dtype=np.float64), np.asarray(q["t"], dtype=np.float64),
                  thickness=2)
-    return Thumbnail(data_uri(drawn))
+    return Thumbnail(data_uri(drawn), href=href)

@@ -187,6 +187,9 @@ class _ScriptApp(typer.Typer):
     def __call__(self, *args, **kwargs):
         global _as_script
         _as_script = True
+        for stream in (sys.stdout, sys.stderr):  # a file name that is not UTF-8 is printed as \udcff, not a crash
+            if hasattr(stream, "reconfigure"):
+                stream.reconfigure(errors="backslashreplace")
         try:
             return super().__call__(*args, **kwargs)
         finally:

@@ -36,6 +36,37 @@ class FormatVersionError(LdlError):
     """A file written by another (newer or older) format version."""
 
 
+class WriteError(LdlError, OSError):
+    """An output that could not be written (no space left, quota, ...): one line naming the output,
+    and still an ``OSError`` (same ``errno``) for callers that treat write failures alike."""
+
+    def __init__(self, message: str, errno_: int | None = None):
+        super().__init__(message)
+        self.errno, self.strerror = errno_, message
+
+    def __str__(self) -> str:
+        return str(self.args[0])
+
+
+# Write failures said as "<reason> writing PATH" (the reason alone does not say which output failed).
+_WRITE_ERRNOS = {errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EIO, errno.EROFS}
+
+
+@contextlib.contextmanager
+def naming_output(target: str | os.PathLike) -> Iterator[None]:
+    """Turn a write failure (:data:`_WRITE_ERRNOS`: no space left on device, quota, ...) inside the
+    block into a :class:`WriteError` naming ``target``: ``no space left on device writing PATH``."""
+    try:
+        yield
+    except WriteError:
+        raise
+    except OSError as exc:
+        if exc.errno not in _WRITE_ERRNOS:
+            raise
+        why = (exc.strerror or os.strerror(exc.errno)).rstrip(".")
+        raise WriteError(f"{why[:1].lower()}{why[1:]} writing {target}", exc.errno) from None
+
+
 def require_file(path: str | os.PathLike, what: str = "file") -> Path:
     """Return ``path`` as a Path, raising :class:`InputError` when it is not an existing file."""
     p = Path(path)
@@ -211,8 +242,9 @@ def atomic_file(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
     tmp = Path(tmp_name)
     os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600; outputs get the usual permissions
     try:
-        yield tmp
-        os.replace(tmp, target)
+        with naming_output(target):
+            yield tmp
+            os.replace(tmp, target)
     finally:
         if tmp.exists():
             tmp.unlink()
@@ -238,13 +270,14 @@ def atomic_dir(path: str | os.PathLike, overwrite: bool = False,
     tmp = Path(tempfile.mkdtemp(prefix=_temp_prefix(target.name), suffix=".tmp", dir=target.parent))
     os.chmod(tmp, 0o777 & ~_umask())  # mkdtemp makes 0700; outputs get the usual permissions
     try:
-        yield tmp
-        if commit is not None:
-            commit(tmp, target)
-        else:
-            if target.exists():
-                shutil.rmtree(target)
-            os.replace(tmp, target)
+        with naming_output(target):
+            yield tmp
+            if commit is not None:
+                commit(tmp, target)
+            else:
+                if target.exists():
+                    shutil.rmtree(target)
+                os.replace(tmp, target)
     finally:
         if tmp.exists():
             shutil.rmtree(tmp, ignore_errors=True)

@@ -5,12 +5,14 @@ Colors by principal group (BGR for OpenCV): group 0 red, 1 green, 2 blue, none g
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
 
 from ldlmap.core.errors import InputError, atomic_file
 from ldlmap.core.geometry import cam_from_world, normalize, pixel_from_bearing
+from ldlmap.io.imagefile import encode_image, image_comment, printable
 
 GROUP_COLORS_BGR = {0: (40, 40, 230), 1: (40, 180, 40), 2: (230, 90, 40), -1: (150, 150, 150),
                     # Atlanta frames of more than 3 directions (issue 23): further horizontals
@@ -40,6 +42,8 @@ def caption_band(width: int, caption: str, items: list[tuple[tuple[int, int, int
     in a row goes to the next."""
     import cv2
 
+    caption, note = printable(caption), printable(note)  # OpenCV crashes on text that is not UTF-8
+    items = [(color, printable(label)) for color, label in items]
     font, size, thick = cv2.FONT_HERSHEY_SIMPLEX, 0.55 * scale, max(1, int(round(1.2 * scale)))
     pad, gap, swatch = int(8 * scale), int(18 * scale), int(26 * scale)
     text_h = cv2.getTextSize("Ag", font, size, thick)[0][1]
@@ -135,15 +139,51 @@ def check_picture_path(path: str | Path, option: str = "picture") -> Path:
     return p
 
 
-def write_picture(path: str | Path, image_bgr: np.ndarray, quality: int = 90) -> Path:
-    """Write a BGR picture atomically in the format its extension names (JPEG / WebP at ``quality``)."""
-    import cv2
+PICTURE_MARK = "written by ldl: a picture of ldlmap / ldlloc"  # embedded in our JPEGs and PNGs
 
+
+def is_own_picture(path: str | Path) -> bool:
+    """Whether ``path`` is a picture this toolkit wrote (a JPEG or PNG carrying :data:`PICTURE_MARK`):
+    one a later run may replace without ``--overwrite``. Other formats carry no mark."""
+    return image_comment(path) == PICTURE_MARK
+
+
+def refuse_replacing_pictures(paths: list[Path], overwrite: bool, option: str) -> None:
+    """Before any work: one line when a picture of ``paths`` would replace a file this toolkit did
+    not write (:func:`is_own_picture`) and ``overwrite`` is not set, or when two of them are the
+    same file (one picture would replace the other's)."""
+    seen: dict[str, Path] = {}
+    for p in paths:
+        key = os.path.normcase(os.path.abspath(p))
+        if key in seen:
+            raise InputError(f"{option}: two pictures would be the same file {p}")
+        seen[key] = p
+    for p in paths:
+        if Path(p).is_dir():
+            raise InputError(f"{option}: picture {p} is a folder")
+        if not overwrite and os.path.lexists(p) and not is_own_picture(p):
+            raise InputError(f"{option}: {p} exists and is not a picture of ldlloc (ldlloc's pictures carry a mark "
+                             "in the file); use --overwrite to replace it, or another name")
+
+
+def picture_file(folder: str | Path, name: str, suffix: str = ".jpg") -> Path:
+    """The picture of ``name`` (a query's name, ``/``-separated) inside ``folder``, never outside
+    it: ``.`` and empty parts are dropped and each ``..`` part becomes ``%2e%2e`` (a name, not a
+    step up), so distinct names give distinct files."""
+    parts = [("%2e%2e" if part == ".." else part) for part in str(name).split("/")
+             if part not in ("", ".")]
+    return Path(folder).joinpath(*(parts or ["_"])).with_name((parts or ["_"])[-1] + suffix)
+
+
+def write_picture(path: str | Path, image_bgr: np.ndarray, quality: int = 90) -> Path:
+    """Write a BGR picture atomically in the format its extension names (JPEG / WebP at ``quality``),
+    through Python's file I/O (any file name), marked as ours in a JPEG or PNG (:func:`is_own_picture`)."""
     p = check_picture_path(path)
-    ext = p.suffix.lower()
-    flags = {".jpg": [cv2.IMWRITE_JPEG_QUALITY, quality], ".jpeg": [cv2.IMWRITE_JPEG_QUALITY, quality],
-             ".webp": [cv2.IMWRITE_WEBP_QUALITY, quality]}.get(ext, [])
-    with atomic_file(p) as tmp:  # the temporary name keeps the extension: imwrite picks the format
-        if not cv2.imwrite(str(tmp), np.ascontiguousarray(image_bgr), flags):
-            raise InputError(f"could not write picture {p}")
+    with atomic_file(p) as tmp:
+        try:
+            data = encode_image(image_bgr, p.suffix, quality, comment=PICTURE_MARK)
+        except ValueError as exc:
+            raise InputError(f"could not write picture {p}: {exc}") from None
+        with open(tmp, "wb") as f:
+            f.write(data)
     return p
