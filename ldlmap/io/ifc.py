@@ -40,7 +40,10 @@ class IfcStorey:
 
 def open_ifc(path: str | os.PathLike):
     """The model opened by ifcopenshell, or one line saying why it cannot be read."""
-    import ifcopenshell
+    try:
+        import ifcopenshell
+    except ImportError:
+        raise InputError("IFC models need ifcopenshell: pip install 'ldl-toolkit[bim]' (make install adds it)") from None
 
     p = require_file(path, "IFC model")
     try:
