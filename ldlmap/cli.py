@@ -449,22 +449,23 @@ def e57(
 
     names = station_names(scan)
     listed = e57_images(scan)
+    done = None
+    if images is not None:  # written (or refused in one line) before anything is printed
+        from ldlmap.datasets.scanner_images import write_e57_dataset
+
+        refuse_overwriting_inputs([scan], [images])
+        done = write_e57_dataset(scan, images, overwrite)
     console.print(f"{scan}: {len(names)} station(s): " + ", ".join(f"{i}:{n}" for i, n in enumerate(names)),
                   soft_wrap=True, highlight=False)
     for im in listed:
         where = "" if im.center is None else " at (" + ", ".join(f"{x:.2f}" for x in np.asarray(im.center)) + ")"
         console.print(f"  image {im.name}: {im.kind} {im.width}x{im.height}{where}" + (f" - {im.note}" if im.note else ""),
                       soft_wrap=True, highlight=False)
-    if images is None:
-        return
-    from ldlmap.datasets.scanner_images import write_e57_dataset
-
-    refuse_overwriting_inputs([scan], [images])
-    done = write_e57_dataset(scan, images, overwrite)
-    console.print(f"wrote {len(done.written)} panorama(s) with poses into {done.root} (split scanner, scene "
-                  f"{done.scene}); {len(done.skipped)} image(s) skipped", soft_wrap=True, highlight=False)
-    console.print(f"check a map on them: ldlmap build {scan} -o {done.root / 'maps' / (done.scene + '.h5')} && "
-                  f"ldlloc run --root {done.root} --split scanner", soft_wrap=True, highlight=False)
+    if done is not None:
+        console.print(f"wrote {len(done.written)} panorama(s) with poses into {done.root} (split scanner, scene "
+                      f"{done.scene}); {len(done.skipped)} image(s) skipped", soft_wrap=True, highlight=False)
+        console.print(f"check a map on them: ldlmap build {scan} -o {done.root / 'maps' / (done.scene + '.h5')} && "
+                      f"ldlloc run --root {done.root} --split scanner", soft_wrap=True, highlight=False)
 
 
 MAX_TRANSLATIONS = 20_000  # N_t: the distance fields take ~50 kB per candidate (1 GB at this bound)

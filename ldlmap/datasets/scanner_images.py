@@ -58,7 +58,9 @@ def write_e57_dataset(e57: str | os.PathLike, out: str | os.PathLike, overwrite:
     usable = [im for im in images if not im.note]
     skipped = [(im.name, im.note) for im in images if im.note]
     if not usable:
-        what = f"{len(images)} image(s), none a full spherical panorama with a pose" if images else "no images (images2D)"
+        why = "; ".join(f"{n}: {w}" for n, w in skipped[:3])
+        what = (f"{len(images)} image(s), none a usable spherical panorama ({why})" if images
+                else "no images (images2D)")
         raise InputError(f"E57 file {src} has {what}: nothing to write")
     subdirs = [root / f"{SPLIT}_pano", root / f"{SPLIT}_pose"]
     taken = [d for d in subdirs if d.exists()]

@@ -36,6 +36,7 @@ def storey_lines(storey) -> np.ndarray:
     mesh = SimpleNamespace(vertices=storey.vertices, triangles=storey.triangles, tri_part=storey.tri_part)
     lines = mesh_edges(mesh)
     keep = lines[:, :, 2].max(axis=1) >= storey.elevation - BELOW_FLOOR
+    lines = _clip_z(lines, storey.elevation, True)  # a corner line merged with the slab's edge stops at the floor
     if storey.spaces:  # the outer faces of walls and what lies beyond them face no space: no camera sees them
         from shapely import contains_xy
         from shapely.geometry import Polygon
@@ -46,7 +47,24 @@ def storey_lines(storey) -> np.ndarray:
             inside = contains_xy(Polygon(fp).buffer(SPACE_MARGIN), mid[:, 0], mid[:, 1])
             near |= inside & (mid[:, 2] >= zlo - SPACE_MARGIN / 2) & (mid[:, 2] <= zhi + SPACE_MARGIN / 2)
         keep &= near
+        top = max(zhi for _, _, zhi in storey.spaces)  # ... and with the ceiling's edge, at the spaces' top
+        lines = _clip_z(lines, top, False)
     return lines[keep]
+
+
+def _clip_z(lines: np.ndarray, plane: float, keep_above: bool) -> np.ndarray:
+    """Segments (N, 2, 3) cut at the plane z = ``plane``, the part below (``keep_above``) or above it
+    removed; segments wholly on the removed side are returned unchanged (the caller masks them)."""
+    a, b = lines[:, 0].copy(), lines[:, 1].copy()
+    za, zb = a[:, 2], b[:, 2]
+    cross = (np.minimum(za, zb) < plane) & (np.maximum(za, zb) > plane)
+    t = (plane - za[cross]) / (zb[cross] - za[cross])
+    cut = a[cross] + t[:, None] * (b[cross] - a[cross])
+    a_out = (za[cross] < plane) if keep_above else (za[cross] > plane)  # which end lies on the removed side
+    a_new, b_new = a[cross], b[cross]
+    a_new[a_out], b_new[~a_out] = cut[a_out], cut[~a_out]
+    a[cross], b[cross] = a_new, b_new
+    return np.stack([a, b], axis=1)
 
 
 def storey_outputs(model: Path, names: list[str], output: Path | None) -> dict[str, Path]:

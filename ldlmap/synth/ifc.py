@@ -139,9 +139,9 @@ def _room(w: _Writer, spec, storey, z0: float, tag: str) -> None:
         w.place(hole, Mo, w.box(op.width, WALL_THICKNESS + 0.1, op.height))
         w.run("feature.add_feature", feature=hole, element=wall)
         fill = w.entity("IfcDoor" if op.kind == "door" else "IfcWindow", f"{tag} {op.kind} {k}", container=storey)
-        Mf = np.eye(4)  # local x along the wall, y up, z into the room: frame profiles extruded FRAME_DEPTH
-        Mf[:3, 0], Mf[:3, 1], Mf[:3, 2] = M[:3, 0], [0.0, 0.0, 1.0], M[:3, 1]
-        Mf[:3, 3] = M[:3, 3] + [0.0, 0.0, sill]
+        Mf = np.eye(4)  # local x along the wall, y up, z into the wall: profiles extruded FRAME_DEPTH back to it
+        Mf[:3, 0], Mf[:3, 1], Mf[:3, 2] = M[:3, 0], [0.0, 0.0, 1.0], -M[:3, 1]
+        Mf[:3, 3] = M[:3, 3] + M[:3, 1] * FRAME_DEPTH + [0.0, 0.0, sill]
         w.place(fill, Mf, _frame_rep(w, op.kind, op.width, op.height))
         w.run("feature.add_filling", opening=hole, element=fill)
     floor = w.entity("IfcSlab", f"{tag} floor", container=storey, predefined="FLOOR")
