@@ -395,7 +395,7 @@ def _build_ifc(model: Path, output: Optional[Path], storey: Optional[str], inclu
     from ldlmap.io.ifc import open_ifc, storey_names
     from ldlmap.map.ifc_maps import build_ifc_maps, storey_outputs
 
-    classes = tuple(c.strip() for c in include.split(",")) if include else ()
+    classes = tuple(c.strip() for c in include.split(",")) if include is not None else ()
     if include is not None and not all(classes):
         raise InputError(f"--include must be IFC class names separated by commas, got {include!r}")
     names = storey_names(open_ifc(model))

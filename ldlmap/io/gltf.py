@@ -27,7 +27,15 @@ AXES_NOTE = "glTF: +Y up by the glTF 2.0 specification, turned into z-up ((x, y,
 
 
 def _load_scene(p: Path):
+    import json
+
     import trimesh
+
+    if p.suffix.lower() == ".gltf":  # a JSON file: say where it breaks rather than trimesh's internal message
+        try:
+            json.loads(p.read_text(encoding="utf-8"))
+        except (ValueError, UnicodeDecodeError) as exc:
+            raise InputError(f"cannot read glTF file {p}: not JSON ({str(exc).splitlines()[0]})") from None
 
     try:
         return trimesh.load(str(p), force="scene")

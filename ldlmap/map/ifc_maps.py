@@ -107,6 +107,10 @@ def build_ifc_maps(model: str | Path, outputs: dict[str, Path], params: BuildPar
     for s, lines in zip(storeys, all_lines):
         if len(lines) == 0:
             raise InputError(f"IFC storey {s.name!r} gives no 3D lines")
+        height = float(lines[..., 2].max()) - s.elevation  # its ceiling, above its floor
+        if band[0] >= height:
+            raise InputError(f"--camera-height {band[0]:g}:{band[1]:g} lies above the ceiling of storey {s.name!r} "
+                             f"({height:.2f} m above its floor): no camera can stand there")
     reports = []
     for s, lines in zip(storeys, all_lines):
         walkable = Walkable(polygons=tuple(fp for fp, _, _ in s.spaces), z_range=(s.elevation + band[0], s.elevation + band[1]))
