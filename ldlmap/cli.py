@@ -140,7 +140,8 @@ def parse_band(text: Optional[str], option: str) -> Optional[tuple[float, float]
 
 @app.command()
 def lines(
-    input_path: Path = typer.Argument(..., metavar="INPUT", help="Point cloud (.ply/.pcd/.txt) or mesh (.obj/.ply)."),
+    input_path: Path = typer.Argument(..., metavar="INPUT", help="Point cloud (.ply/.pcd/.txt/.las/.laz), scan (.e57) "
+                                      "or mesh (.obj/.ply/.glb/.gltf)."),
     output: Path = typer.Option(..., "-o", "--output", help="Output .obj; a .txt with the same stem is written too."),
     lam: float = typer.Option(0.1, "--lambda", help="Length filter: drop lines shorter than lambda (bx+by+bz)/3."),
     no_filter: bool = typer.Option(False, "--no-filter", help="Write all extracted lines (no length filter)."),
@@ -152,8 +153,10 @@ def lines(
     """Extract 3D line segments from a point cloud and write them as .obj and .txt."""
     from ldlmap.core.errors import (LdlError, check_writable_output, refuse_overwriting_inputs,
                                     refuse_replacing_other_files)
+    from ldlmap.io.cloud import DEFAULT_MESH_SAMPLES
     from ldlmap.io.linefiles import sniff_line_file
     from ldlmap.io.pointcloud import read_point_cloud
+    from ldlmap.map.inputs import SCANNER_SUFFIXES, read_scanner_file
     from ldlmap.lines3d import draw_top_view, extract_lines_with_stats, filter_by_length, write_line_files
     from ldlmap.core.pictures import check_picture_path
     from ldlmap.lines3d.principal import principal_directions_3d
@@ -171,7 +174,11 @@ def lines(
         if path is not None:
             check_writable_output(path, option)
     _refuse_line_file(input_path)
-    pc = read_point_cloud(input_path)
+    if input_path.suffix.lower() in SCANNER_SUFFIXES:  # E57, LAS/LAZ, glTF (docs/inputs.md)
+        pc, note = read_scanner_file(input_path, DEFAULT_MESH_SAMPLES)
+        console.print(note, soft_wrap=True, highlight=False)
+    else:
+        pc = read_point_cloud(input_path)
     _check_scan_extent(pc.points)
     raw, stats = extract_lines_with_stats(pc.points)
     lo, hi = pc.bounds()
