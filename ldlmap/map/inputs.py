@@ -1,5 +1,6 @@
-"""What a map is built from: ``load_input(path, ...) -> SceneInput`` for a cloud, a mesh, a COLMAP
-model or a 3D line file alone.
+"""What a map is built from: ``load_input(path, ...) -> SceneInput`` for a cloud, a mesh, a scanner
+or phone file (E57, LAS/LAZ, glTF: :func:`read_scanner_file`, docs/inputs.md), a COLMAP model or a
+3D line file alone (IFC models: :mod:`ldlmap.map.ifc_maps`).
 
 A COLMAP model (``colmap_scene_input``) gives, in order of preference:
 1. a 3D line file (``--lines``): those lines, with the dense cloud (or the sparse points) for
@@ -75,8 +76,8 @@ def load_input(path: str | Path, lines_path: str | Path | None, mesh_samples: in
         cloud = read_point_cloud(p, mesh_samples=mesh_samples)
         return SceneInput(cloud.points, cloud.colors, lines, None, str(p))
     if suffix == ".ifc":
-        raise InputError(f"{p.name} is an IFC (BIM) model: its maps are lines-only, one per storey; build them with "
-                         f"`ldlmap build {p}` (not with --lines or as a library input here: ldlmap.map.ifc_maps)")
+        raise InputError(f"{p.name} is an IFC (BIM) model: its maps are lines-only, one per storey: `ldlmap build {p}` "
+                         "(from Python: ldlmap.map.ifc_maps.build_ifc_maps)")
     raise InputError(f"unsupported input {p.name}: use a point cloud, mesh, scanner or phone file, IFC model, COLMAP "
                      f"model folder or line file ({', '.join(SUPPORTED_SUFFIXES + SCANNER_SUFFIXES)}, .ifc)")
 
