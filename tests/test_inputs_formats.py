@@ -116,7 +116,7 @@ def test_glb_is_turned_from_y_up_to_z_up_with_texture_colours(tmp_path):
     # the file itself is y-up: its raw vertices' second axis spans the room's height
     import trimesh
 
-    raw = trimesh.load(str(tmp_path / "room.glb"), force="scene").dump(concatenate=True).vertices
+    raw = trimesh.load(str(tmp_path / "room.glb"), force="scene").to_geometry().vertices
     np.testing.assert_allclose(raw.max(0) - raw.min(0), [4.0, 2.5, 3.0], atol=1e-6)
     np.testing.assert_allclose(Z_UP_FROM_GLTF @ [0, 1, 0], [0, 0, 1])
 
