@@ -171,3 +171,20 @@ def test_e57_scan_builds_a_map_that_localizes_its_own_panoramas(room, tmp_path):
     assert len(results) == 2
     for q in results:
         assert q["t_error_m"] < 0.1 and q["r_error_deg"] < 5.0, q
+
+
+def test_las_at_utm_coordinates_is_recentred_with_the_shift_in_the_map(room, tmp_path):
+    from ldlmap.core.frame import apply
+    from ldlmap.map.build import BuildParams, build_map
+    from ldlmap.map.mapfile import read_map
+    from ldlmap.synth.formats import UTM_OFFSET
+
+    cap, d = room
+    report = build_map(d / "room.las", tmp_path / "las.h5",
+                       params=BuildParams(features="none", num_translations=100, distance_fields=False))
+    assert any("centred on" in n for n in report.notes)
+    m = read_map(tmp_path / "las.h5")
+    shift = -m.input_to_map[:3, 3]  # X_map = X_input - shift (z-up kept)
+    assert np.all(np.abs(shift - (UTM_OFFSET + np.median(cap.points, axis=0))) <= 1.0)
+    np.testing.assert_allclose(apply(m.input_to_map, cap.points[:5] + UTM_OFFSET), cap.points[:5] + UTM_OFFSET - shift)
+    assert np.abs(m.lines).max() < 20  # stored near the origin, in float32 without losing millimetres
