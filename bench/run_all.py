@@ -31,6 +31,9 @@ Benchmarks (in this order; names for ``--only``):
 - ``building``: the 36-room building of issue 21, one map per floor, queries localized without
   their floor; writes ``bench/building.json`` (bench_building.py; an hour and more on 2 cores the
   first time, so only with ``--only building``)
+- ``inputs``: one room as .ply, .e57, .las, .laz, .glb and .ifc: build time and peak memory per
+  format, its queries localized on each map; the E57's own panoramas; a 3-storey IFC building
+  (bench_inputs.py; about 10 min on 2 busy cores, so only with ``--only inputs``)
 
 Each runs in its own Python process (so one's memory and threads do not skew the next). Data
 and maps are cached under ``bench/.cache/``; the first run generates them. ``--quick`` runs
@@ -65,8 +68,9 @@ BENCHES: dict[str, tuple[str, list[str], list[str]]] = {
     "startup": ("bench_startup.py", [], ["--runs", "1"]),
     "sfm": ("bench_sfm.py", [], ["--seeds", "0"]),
     "building": ("bench_building.py", [], ["--preset", "building_small", "--width", "256", "--per-split", "1"]),
+    "inputs": ("bench_inputs.py", [], ["--views", "4", "--num-trans", "200", "--density", "800"]),
 }
-ON_REQUEST = {"ray", "building"}  # slow: run only when named in --only
+ON_REQUEST = {"ray", "building", "inputs"}  # slow: run only when named in --only
 DEVICE_AWARE = {"render", "ldf", "localize", "ablation"}
 THREAD_AWARE = {"render", "ldf", "build", "localize", "ablation", "real", "geometric", "startup", "sfm", "building"}
 

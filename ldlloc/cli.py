@@ -128,8 +128,13 @@ def localize(
     tick = time.perf_counter()
     localizer = Localizer(m, params, device)
     loading["setup"] = time.perf_counter() - tick
+    up = None
+    if params.max_tilt_deg is not None:  # the upright prior around the camera's own gravity (XMP GPano) when recorded
+        from ldlmap.io.panorama_meta import recorded_up
+
+        up = recorded_up(pano)
     try:
-        loc = localizer.localize(img)
+        loc = localizer.localize(img, camera_up=up)
     except LdlError as exc:  # the panorama could not be localized (too few lines, ...): a failed result
         if not as_json:
             raise

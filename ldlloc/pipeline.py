@@ -538,10 +538,12 @@ class Localizer:
         return QueryLines.detect(_check_panorama_array(image_rgb), self.params)
 
     def search(self, image_rgb: np.ndarray, max_tilt_deg: float | None = None,
-               lines: QueryLines | None = None) -> Searched:
+               lines: QueryLines | None = None, camera_up: np.ndarray | None = None) -> Searched:
         """Stages 1-3 of :meth:`localize` (2D lines, candidate rotations, pose search): the coarse
         :class:`Localization` and what refinement needs. ``lines``: the panorama's 2D lines from
-        :meth:`detect_lines` (shared with other maps; their seconds are counted as ``lines2d``)."""
+        :meth:`detect_lines` (shared with other maps; their seconds are counted as ``lines2d``).
+        ``camera_up``: the camera's own gravity (world up in the camera frame, from its XMP pose):
+        the tilt bound is then around it (:func:`ldlloc.rotation.filter_by_tilt`)."""
         from ldlloc.lines2d import filter_by_length, query_keep_ratio
         from ldlloc.rotation import (candidate_rotations, filter_by_tilt, frame_rows, pair_candidates,
                                      rotation_labels)
@@ -575,7 +577,7 @@ class Localizer:
                 rots = make(vps)
                 found = max(found, len(rots))
                 if tilt is not None:
-                    rots = filter_by_tilt(rots, tilt)
+                    rots = filter_by_tilt(rots, tilt, camera_up)
                 if len(rots):
                     break
             if found:
@@ -601,7 +603,7 @@ class Localizer:
         return Searched(out, res, arcs, labels)
 
     def localize(self, image_rgb: np.ndarray, max_tilt_deg: float | None = None, lines: QueryLines | None = None,
-                 searched: Searched | None = None) -> Localization:
+                 searched: Searched | None = None, camera_up: np.ndarray | None = None) -> Localization:
         """Localize an RGB panorama (H, W, 3) uint8; raises InputError when it cannot even search.
 
         ``max_tilt_deg``: the upright prior for this panorama, overriding
@@ -611,7 +613,7 @@ class Localizer:
         """
         img = _check_panorama_array(image_rgb)
         if searched is None:
-            searched = self.search(img, max_tilt_deg, lines)
+            searched = self.search(img, max_tilt_deg, lines, camera_up)
         out, res, arcs, labels = searched.out, searched.res, searched.arcs, searched.labels
         secs = out.seconds
         lap = _StageLaps(out.seconds)

@@ -443,9 +443,13 @@ def camera_tilt_deg(rotations: np.ndarray) -> np.ndarray:
     return np.degrees(np.arccos(np.clip(R[..., 2, 2], -1.0, 1.0)))
 
 
-def filter_by_tilt(rots: RotationCandidates, max_tilt_deg: float) -> RotationCandidates:
+def filter_by_tilt(rots: RotationCandidates, max_tilt_deg: float,
+                   camera_up: np.ndarray | None = None) -> RotationCandidates:
     """The candidates whose camera up axis (``R.T @ e_z``) is within ``max_tilt_deg`` of the world up.
 
+    ``camera_up``: the world's up axis as the camera recorded it, in the camera frame (a 360
+    camera's gravity, :func:`ldlmap.io.panorama_meta.camera_up`); then the bound is on the angle
+    between ``R @ e_z`` and it, i.e. around the recorded pitch and roll instead of around level.
     Order is kept. ``max_tilt_deg >= 180`` keeps every candidate (the paper's free rotation).
     Raises InputError for a negative or non-finite bound.
     """
@@ -454,4 +458,9 @@ def filter_by_tilt(rots: RotationCandidates, max_tilt_deg: float) -> RotationCan
         raise InputError(f"the tilt bound must be a finite angle >= 0 degrees, got {max_tilt_deg}")
     if tilt >= 180.0 or len(rots) == 0:
         return rots
-    return rots.subset(camera_tilt_deg(rots.rotations) <= tilt + 1e-9)
+    if camera_up is None:
+        return rots.subset(camera_tilt_deg(rots.rotations) <= tilt + 1e-9)
+    up = np.asarray(camera_up, dtype=np.float64).reshape(3)
+    up = up / np.linalg.norm(up)
+    off = np.degrees(np.arccos(np.clip(rots.rotations[:, :, 2] @ up, -1.0, 1.0)))  # R @ e_z: world up in the camera
+    return rots.subset(off <= tilt + 1e-9)

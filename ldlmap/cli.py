@@ -140,7 +140,8 @@ def parse_band(text: Optional[str], option: str) -> Optional[tuple[float, float]
 
 @app.command()
 def lines(
-    input_path: Path = typer.Argument(..., metavar="INPUT", help="Point cloud (.ply/.pcd/.txt) or mesh (.obj/.ply)."),
+    input_path: Path = typer.Argument(..., metavar="INPUT", help="Point cloud (.ply/.pcd/.txt/.las/.laz), scan (.e57) "
+                                      "or mesh (.obj/.ply/.glb/.gltf)."),
     output: Path = typer.Option(..., "-o", "--output", help="Output .obj; a .txt with the same stem is written too."),
     lam: float = typer.Option(0.1, "--lambda", help="Length filter: drop lines shorter than lambda (bx+by+bz)/3."),
     no_filter: bool = typer.Option(False, "--no-filter", help="Write all extracted lines (no length filter)."),
@@ -152,8 +153,10 @@ def lines(
     """Extract 3D line segments from a point cloud and write them as .obj and .txt."""
     from ldlmap.core.errors import (LdlError, check_writable_output, refuse_overwriting_inputs,
                                     refuse_replacing_other_files)
+    from ldlmap.io.cloud import DEFAULT_MESH_SAMPLES
     from ldlmap.io.linefiles import sniff_line_file
     from ldlmap.io.pointcloud import read_point_cloud
+    from ldlmap.map.inputs import SCANNER_SUFFIXES, read_scanner_file
     from ldlmap.lines3d import draw_top_view, extract_lines_with_stats, filter_by_length, write_line_files
     from ldlmap.core.pictures import check_picture_path
     from ldlmap.lines3d.principal import principal_directions_3d
@@ -171,7 +174,11 @@ def lines(
         if path is not None:
             check_writable_output(path, option)
     _refuse_line_file(input_path)
-    pc = read_point_cloud(input_path)
+    if input_path.suffix.lower() in SCANNER_SUFFIXES:  # E57, LAS/LAZ, glTF (docs/inputs.md)
+        pc, note = read_scanner_file(input_path, DEFAULT_MESH_SAMPLES)
+        console.print(note, soft_wrap=True, highlight=False)
+    else:
+        pc = read_point_cloud(input_path)
     _check_scan_extent(pc.points)
     raw, stats = extract_lines_with_stats(pc.points)
     lo, hi = pc.bounds()
@@ -271,9 +278,19 @@ def synth(
 
 @app.command()
 def build(
-    input_path: Path = typer.Argument(..., metavar="INPUT", help="Colored point cloud (.ply/.pcd/.txt), mesh (.obj/.ply), "
-                                      "COLMAP model folder, or a 3D line file alone (lines-only map)."),
-    output: Optional[Path] = typer.Option(None, "-o", "--output", help="Map file (default: INPUT with .h5)."),
+    input_path: Path = typer.Argument(..., metavar="INPUT", help="Colored point cloud (.ply/.pcd/.txt/.las/.laz), "
+                                      "scan (.e57), mesh (.obj/.ply/.glb/.gltf), IFC model (.ifc: lines-only, one map "
+                                      "per storey), COLMAP model folder, or a 3D line file alone (lines-only map); "
+                                      "docs/inputs.md."),
+    output: Optional[Path] = typer.Option(None, "-o", "--output", help="Map file (default: INPUT with .h5); an IFC "
+                                          "model of several storeys: a folder (default: INPUT_storeys/)."),
+    stations: Optional[str] = typer.Option(None, "--stations", help="E57: only these scan stations, by name or "
+                                           "0-based index, comma-separated (default: all)."),
+    storey: Optional[str] = typer.Option(None, "--storey", help="IFC: only this storey's map (default: one map per "
+                                         "storey)."),
+    include: Optional[str] = typer.Option(None, "--include", help="IFC: more element classes for the lines, "
+                                          "comma-separated (e.g. IfcFurnishingElement,IfcFlowTerminal; walls, slabs, "
+                                          "coverings, columns, doors and windows always)."),
     lines_file: Optional[Path] = typer.Option(None, "--lines", help="3D line file to use instead of extracting lines "
                                               "(Line3D++ .txt/.obj, 3DLineDetection .txt, ours)."),
     images: Optional[Path] = typer.Option(None, "--images", help="COLMAP model without fused.ply: its photos, to "
@@ -313,6 +330,12 @@ def build(
                         threads=threads)
     if png is not None:
         check_picture_path(png, "--png")
+    station_list = _check_input_options(input_path, stations, storey, include, lines_file, images)
+    if input_path.suffix.lower() == ".ifc":
+        return _build_ifc(input_path, output, storey, include, png, overwrite, threads,
+                          params_with(BuildParams(), num_views=num_views, lam=lam, min_line_length=min_length,
+                                      device=device, trans_spacing=trans_spacing, up=up, scale=scale,
+                                      camera_height=parse_band(camera_height, "--camera-height")))
     output = output if output is not None else input_path.with_suffix(".h5")
     refuse_overwriting_inputs([input_path, lines_file, images, weights], [output, png])
     refuse_replacing_non_map(output, overwrite)
@@ -323,7 +346,8 @@ def build(
     params = params_with(BuildParams(), features=features, weights=str(weights) if weights else None,
                          feature_extraction=extraction, num_translations=num_trans, translation_method=method,
                          num_views=num_views, lam=lam, min_line_length=min_length, device=device, trans_spacing=trans_spacing,
-                         camera_height=parse_band(camera_height, "--camera-height"), up=up, scale=scale)
+                         camera_height=parse_band(camera_height, "--camera-height"), up=up, scale=scale,
+                         stations=station_list)
     set_threads(threads)
     with StageProgress(console, f"map of {input_path.name}") as bar:
         report = build_map(input_path, output, lines_file, params, images_path=images,
@@ -347,6 +371,108 @@ def build(
 
         map_picture(read_map(report.path), png, name=Path(report.path).name)
         console.print(f"wrote {png}", soft_wrap=True)
+
+
+def _check_input_options(input_path: Path, stations: Optional[str], storey: Optional[str], include: Optional[str],
+                         lines_file: Optional[Path], images: Optional[Path]) -> Optional[tuple[str, ...]]:
+    """The options that go with one kind of input only, before any work; the E57 stations as a tuple."""
+    from ldlmap.core.errors import InputError
+
+    suffix = input_path.suffix.lower()
+    if stations is not None and suffix != ".e57":
+        raise InputError(f"--stations goes with an E57 scan, not {input_path.name}")
+    for option, value in (("--storey", storey), ("--include", include)):
+        if value is not None and suffix != ".ifc":
+            raise InputError(f"{option} goes with an IFC model, not {input_path.name}")
+    if suffix == ".ifc" and (lines_file is not None or images is not None):
+        raise InputError("an IFC model's lines come from its elements: --lines and --images do not apply")
+    if stations is None:
+        return None
+    names = tuple(x.strip() for x in stations.split(","))
+    if not all(names):
+        raise InputError(f"--stations must be station names or indices separated by commas, got {stations!r}")
+    return names
+
+
+def _build_ifc(model: Path, output: Optional[Path], storey: Optional[str], include: Optional[str], png: Optional[Path],
+               overwrite: bool, threads: int, params) -> None:
+    """`build MODEL.ifc`: one lines-only map per storey (ldlmap/map/ifc_maps.py), or the --storey's."""
+    from ldlmap.batch.prepare import refuse_replacing_non_map
+    from ldlmap.core.errors import InputError, check_writable_output, refuse_overwriting_inputs
+    from ldlmap.io.ifc import open_ifc, storey_names
+    from ldlmap.map.ifc_maps import build_ifc_maps, storey_outputs
+
+    classes = tuple(c.strip() for c in include.split(",")) if include is not None else ()
+    if include is not None and not all(classes):
+        raise InputError(f"--include must be IFC class names separated by commas, got {include!r}")
+    names = storey_names(open_ifc(model))
+    if not names:
+        raise InputError(f"IFC model has no storeys (IfcBuildingStorey): {model}; maps are built per storey")
+    if storey is not None:
+        if storey not in names:
+            raise InputError(f"--storey {storey!r}: no such storey in {model} (storeys: {', '.join(names)})")
+        names = [storey]
+    if png is not None and len(names) > 1:
+        raise InputError("--png draws one map: pick a storey with --storey NAME")
+    outputs = storey_outputs(model, names, output)
+    refuse_overwriting_inputs([model], [*outputs.values(), png])
+    for path in outputs.values():
+        refuse_replacing_non_map(path, overwrite)
+        check_writable_output(path, "-o")
+    set_threads(threads)
+    with StageProgress(console, f"maps of {model.name}", total=len(names), unit="storeys") as bar:
+        reports, note = build_ifc_maps(model, outputs, params, classes,
+                                       progress=lambda name, stage, done, total: bar.stage(name, stage, done, total))
+    console.print(note, soft_wrap=True, highlight=False)
+    for r in reports:
+        c = r.counts
+        console.print(f"{r.path}: {c['lines_raw']} lines -> {c['lines']} kept, {c['translations']} translations, "
+                      f"lines-only ({r.seconds['total']:.1f} s)", soft_wrap=True, highlight=False)
+        _print_notes(r)
+    if png is not None:
+        from ldlmap.map.mapfile import read_map
+        from ldlmap.map.pictures import map_picture
+
+        map_picture(read_map(reports[0].path), png, name=Path(reports[0].path).name)
+        console.print(f"wrote {png}", soft_wrap=True)
+
+
+@app.command()
+def e57(
+    scan: Path = typer.Argument(..., metavar="SCAN", help="An E57 scan (.e57)."),
+    images: Optional[Path] = typer.Option(None, "--images", metavar="OUT", help="Write the stations' spherical "
+                                          "images with their poses into this folder as a dataset (OmniScenes "
+                                          "layout, split `scanner`) that `ldlloc run --root OUT` checks the map on."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace the scanner images written into OUT before."),
+) -> None:
+    """List an E57 scan's stations and images; with --images, write its panoramas as a dataset.
+
+    Pinhole and cylindrical images (and spherical ones that do not cover the whole sphere) are
+    listed and skipped: the maps are localized with panoramas."""
+    import numpy as np
+
+    from ldlmap.core.errors import refuse_overwriting_inputs
+    from ldlmap.io.e57 import e57_images, station_names
+
+    names = station_names(scan)
+    listed = e57_images(scan)
+    done = None
+    if images is not None:  # written (or refused in one line) before anything is printed
+        from ldlmap.datasets.scanner_images import write_e57_dataset
+
+        refuse_overwriting_inputs([scan], [images])
+        done = write_e57_dataset(scan, images, overwrite)
+    console.print(f"{scan}: {len(names)} station(s): " + ", ".join(f"{i}:{n}" for i, n in enumerate(names)),
+                  soft_wrap=True, highlight=False)
+    for im in listed:
+        where = "" if im.center is None else " at (" + ", ".join(f"{x:.2f}" for x in np.asarray(im.center)) + ")"
+        console.print(f"  image {im.name}: {im.kind} {im.width}x{im.height}{where}" + (f" - {im.note}" if im.note else ""),
+                      soft_wrap=True, highlight=False)
+    if done is not None:
+        console.print(f"wrote {len(done.written)} panorama(s) with poses into {done.root} (split scanner, scene "
+                      f"{done.scene}); {len(done.skipped)} image(s) skipped", soft_wrap=True, highlight=False)
+        console.print(f"check a map on them: ldlmap build {scan} -o {done.root / 'maps' / (done.scene + '.h5')} && "
+                      f"ldlloc run --root {done.root} --split scanner", soft_wrap=True, highlight=False)
 
 
 MAX_TRANSLATIONS = 20_000  # N_t: the distance fields take ~50 kB per candidate (1 GB at this bound)

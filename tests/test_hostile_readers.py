@@ -67,7 +67,7 @@ CLOUDS = [
     ("obj-missing-mtllib", "s.obj", b"mtllib gone.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", "gone.mtl"),
     ("ply-mesh-zero-area", "s.ply", _ply(3, 3, "ascii", "element face 1\nproperty list uchar int vertex_indices\n")
      .replace(b"0 1 2\n1 2 3\n2 3 4\n", b"0 0 0\n0 0 0\n0 0 0\n") + b"3 0 1 2\n", "area"),
-    ("xyz-unsupported-suffix", "s.las", b"1 2 3\n", "unsupported"),
+    ("xyz-unsupported-suffix", "s.rcp", b"1 2 3\n", "unsupported"),
 ]
 
 _HEADER = b"# ldl lines v1\n"

@@ -31,6 +31,7 @@ from ldlloc.batch.accuracy import QueryResult
 from ldlloc.batch.run import open_results, write_query_picture
 from ldlloc.batch.which_map import TOP_MAPS, MapChoice, MapSet, localize_on_maps
 from ldlloc.pipeline import Localization, LocalizeParams, load_image, rotation_prior_name
+from ldlmap.io.panorama_meta import recorded_up
 
 IMAGES_SPLIT = "images"  # the split of every record of an image run
 NO_MAP = "(none)"  # the scene of a query that failed before a map was chosen
@@ -133,7 +134,8 @@ def localize_image_query(maps: MapSet, q: ImageQuery, params: LocalizeParams, to
     t0 = time.perf_counter()
     try:
         img = load_image(q.image)
-        loc, choice = localize_on_maps(img, maps, params.max_tilt_deg, top_maps)
+        up = recorded_up(q.image) if params.max_tilt_deg is not None else None  # the camera's own gravity
+        loc, choice = localize_on_maps(img, maps, params.max_tilt_deg, top_maps, up)
         r = image_result(q, loc, choice)
     except LdlError as exc:
         return failed_image_result(q, params, str(exc), time.perf_counter() - t0)

@@ -31,6 +31,7 @@ from ldlmap.core.geometry import rotation_error_deg, translation_error
 from ldlmap.core.pictures import picture_file
 from ldlloc.batch.accuracy import QueryResult, best_candidate, first_good_rank
 from ldlloc.batch.results import ResultsWriter
+from ldlmap.io.panorama_meta import recorded_up
 from ldlloc.pipeline import (UPRIGHT_MAX_TILT_DEG, Localization, LocalizeParams, Localizer, load_image,
                              rotation_prior_name)
 
@@ -96,11 +97,12 @@ class MapCache:
             raise InputError(f"map not found: {path} (build it with `ldlmap prepare ROOT --maps {self.maps_dir}`)")
         return Localizer(read_map(path, load_cloud=False), self.params, self.device)
 
-    def localize(self, scene: str, img: np.ndarray, max_tilt_deg: float) -> tuple[Localization, Localizer, dict]:
+    def localize(self, scene: str, img: np.ndarray, max_tilt_deg: float,
+                 camera_up: np.ndarray | None = None) -> tuple[Localization, Localizer, dict]:
         """``img`` localized against ``scene``'s map: the localization, the localizer whose map holds
-        the pose, and the results record's extra fields (none here)."""
+        the pose, and the results record's extra fields (none here). ``camera_up``: the camera's gravity."""
         loc = self.get(scene)
-        return loc.localize(img, max_tilt_deg=max_tilt_deg), loc, {}
+        return loc.localize(img, max_tilt_deg=max_tilt_deg, camera_up=camera_up), loc, {}
 
     def get(self, scene: str):
         """:meth:`load` of ``scene``'s key, loaded once (raises its load error each time)."""
@@ -143,12 +145,13 @@ class FolderMaps(MapCache):
             self.warn(f"warning: {path} left out: {why}")
         return maps
 
-    def localize(self, scene: str, img: np.ndarray, max_tilt_deg: float) -> tuple[Localization, Localizer, dict]:
+    def localize(self, scene: str, img: np.ndarray, max_tilt_deg: float,
+                 camera_up: np.ndarray | None = None) -> tuple[Localization, Localizer, dict]:
         """``img`` localized against the maps of ``scene``'s folder; the record's extra fields name
         the chosen map and the runner-up (:meth:`ldlloc.batch.which_map.MapChoice.record`)."""
         from ldlloc.batch.which_map import localize_on_maps
 
-        res, choice = localize_on_maps(img, self.get(scene), max_tilt_deg, self.top_maps)
+        res, choice = localize_on_maps(img, self.get(scene), max_tilt_deg, self.top_maps, camera_up)
         return res, choice.chosen.entry.localizer, choice.record()
 
 
@@ -222,7 +225,7 @@ def localize_query(cache: MapCache, q, params: LocalizeParams,
     try:
         cache.get(q.scene)  # a map that cannot be read fails the query before its image is read
         img = load_image(q.image)
-        res, loc, extra = cache.localize(q.scene, img, tilt)
+        res, loc, extra = cache.localize(q.scene, img, tilt, recorded_up(q.image) if tilt < 180.0 else None)
         r = replace(result_from_localization(q, res), **extra)
     except LdlError as exc:
         return failed_result(q, params, str(exc), time.perf_counter() - t0)

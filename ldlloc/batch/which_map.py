@@ -178,8 +178,8 @@ def final_pose_loss(localizer: Localizer, loc: Localization) -> float:
                              m.coverage, localizer.device, p.principal.group_tol)[0])
 
 
-def localize_on_maps(img: np.ndarray, maps: MapSet, max_tilt_deg: float | None, top_maps: int = TOP_MAPS
-                     ) -> tuple[Localization, MapChoice]:
+def localize_on_maps(img: np.ndarray, maps: MapSet, max_tilt_deg: float | None, top_maps: int = TOP_MAPS,
+                     camera_up: np.ndarray | None = None) -> tuple[Localization, MapChoice]:
     """Localize ``img`` against the maps of ``maps`` (module docstring); returns the chosen map's
     localization and the choice. Its ``seconds``: ``lines2d`` once, ``rotation`` and ``search``
     summed over every map, ``refine`` over the refined ones, ``choose`` (final losses), ``total``.
@@ -187,7 +187,7 @@ def localize_on_maps(img: np.ndarray, maps: MapSet, max_tilt_deg: float | None, 
     first = maps.entries[0].localizer
     lines = first.detect_lines(img)
     if len(maps.entries) == 1:
-        loc = first.localize(img, max_tilt_deg, lines=lines)
+        loc = first.localize(img, max_tilt_deg, lines=lines, camera_up=camera_up)
         opt = MapOption(maps.entries[0], float(loc.candidates_loss[0]), loc)
         return loc, MapChoice(opt, [opt], seconds=dict(loc.seconds))
     secs = {"lines2d": lines.seconds, "rotation": 0.0, "search": 0.0, "refine": 0.0, "choose": 0.0}
@@ -195,7 +195,7 @@ def localize_on_maps(img: np.ndarray, maps: MapSet, max_tilt_deg: float | None, 
     failures: list[tuple[MapEntry, str]] = []
     for e in maps.entries:
         try:
-            s = e.localizer.search(img, max_tilt_deg, lines)
+            s = e.localizer.search(img, max_tilt_deg, lines, camera_up)
         except InputError as exc:
             failures.append((e, str(exc)))
             continue

@@ -82,6 +82,7 @@ class BuildParams:
     # in more than two (FrameParams.max_horizontals; 2: the vertical and the main two only)
     max_inclined: int = 2  # sloped ceilings: at most this many inclined directions added to the frame
     # (FrameParams.max_inclined; 0: none)
+    stations: tuple[str, ...] = ()  # E57 input: the scan stations to use, names or 0-based indices (all when empty)
 
 
 @dataclass
@@ -165,7 +166,7 @@ def build_map(input_path: str | Path, output: str | Path | None = None, lines_pa
     if progress:
         progress("load", 0, 1)
     tick = time.perf_counter()
-    src = load_input(input_path, lines_path, params.mesh_samples, images_path)
+    src = load_input(input_path, lines_path, params.mesh_samples, images_path, params.stations)
     load_seconds = time.perf_counter() - tick
     config = {"input": str(input_path), "lines_file": str(lines_path) if lines_path else None}
     if images_path is not None:
@@ -348,6 +349,8 @@ def build_from_input(src: SceneInput, output: Path, params: BuildParams, name: s
 
     if src.points is not None and len(src.points) < 100:
         raise InputError(f"point cloud has only {len(src.points)} points: too few to build a map")
+    if params.features != "none" and src.points is not None and src.colors is None:  # before the long stages
+        raise InputError("the point cloud has no colors: features need a colored cloud (or use --features none)")
     if params.scale != 1.0:
         if src.walkable is not None:
             raise InputError("--scale does not apply to room layouts (already metric)")
@@ -464,8 +467,6 @@ def build_from_input(src: SceneInput, output: Path, params: BuildParams, name: s
     n_views = min(max(1, params.num_views), len(translations)) if with_features else 1
     start("features", n_views)
     if with_features:
-        if src.colors is None:
-            raise InputError("the point cloud has no colors: features need a colored cloud (or use --features none)")
         cb = (lambda d, t: progress("features", d, t)) if progress else None
         features = compute_features(src.points, src.colors, translations, params, cb)
     stage("features", n_views)

@@ -1,5 +1,6 @@
-"""What a map is built from: ``load_input(path, ...) -> SceneInput`` for a cloud, a mesh, a COLMAP
-model or a 3D line file alone.
+"""What a map is built from: ``load_input(path, ...) -> SceneInput`` for a cloud, a mesh, a scanner
+or phone file (E57, LAS/LAZ, glTF: :func:`read_scanner_file`, docs/inputs.md), a COLMAP model or a
+3D line file alone (IFC models: :mod:`ldlmap.map.ifc_maps`).
 
 A COLMAP model (``colmap_scene_input``) gives, in order of preference:
 1. a 3D line file (``--lines``): those lines, with the dense cloud (or the sparse points) for
@@ -39,9 +40,10 @@ class SceneInput:
 
 
 def load_input(path: str | Path, lines_path: str | Path | None, mesh_samples: int,
-               images: str | Path | None = None) -> SceneInput:
-    """Read any supported input (cloud, mesh, COLMAP model, or a line file alone); ``images``: a
-    COLMAP model's photos (:mod:`ldlmap.map.inputs`)."""
+               images: str | Path | None = None, stations: tuple[str, ...] | list[str] = ()) -> SceneInput:
+    """Read any supported input (cloud, mesh, scanner/phone format, COLMAP model, or a line file
+    alone); ``images``: a COLMAP model's photos (:mod:`ldlmap.map.inputs`); ``stations``: an E57's
+    stations to use (names or indices; all when empty)."""
     from ldlmap.io.colmap import is_colmap_model, resolve_model_dir
     from ldlmap.io.linefiles import LINE_FORMAT_NAMES, read_lines, sniff_line_file
     from ldlmap.io.cloud import SUPPORTED_SUFFIXES
@@ -59,6 +61,11 @@ def load_input(path: str | Path, lines_path: str | Path | None, mesh_samples: in
     if p.is_dir():
         raise InputError(f"{p} is a folder but not a COLMAP model (cameras/images/points3D .bin or .txt)")
     suffix = p.suffix.lower()
+    if stations and suffix != ".e57":
+        raise InputError(f"--stations goes with an E57 scan, not {p.name}")
+    if suffix in SCANNER_SUFFIXES:
+        cloud, note = read_scanner_file(p, mesh_samples, stations)
+        return SceneInput(cloud.points, cloud.colors, lines, None, str(p), note=note)
     kind = sniff_line_file(p)  # by content: a line file's rows could pass for a small point cloud
     if kind is not None and lines is not None:
         raise InputError(f"{p} is a 3D line file ({LINE_FORMAT_NAMES[kind]}), not a scan: give it alone "
@@ -68,8 +75,32 @@ def load_input(path: str | Path, lines_path: str | Path | None, mesh_samples: in
     if suffix in SUPPORTED_SUFFIXES:  # not a line file by its content: the cloud's own error, if any
         cloud = read_point_cloud(p, mesh_samples=mesh_samples)
         return SceneInput(cloud.points, cloud.colors, lines, None, str(p))
-    raise InputError(f"unsupported input {p.name}: use a point cloud, mesh, COLMAP model folder or line file "
-                     f"({', '.join(SUPPORTED_SUFFIXES)})")
+    if suffix == ".ifc":
+        raise InputError(f"{p.name} is an IFC (BIM) model: its maps are lines-only, one per storey: `ldlmap build {p}` "
+                         "(from Python: ldlmap.map.ifc_maps.build_ifc_maps)")
+    raise InputError(f"unsupported input {p.name}: use a point cloud, mesh, scanner or phone file, IFC model, COLMAP "
+                     f"model folder or line file ({', '.join(SUPPORTED_SUFFIXES + SCANNER_SUFFIXES)}, .ifc)")
+
+
+SCANNER_SUFFIXES: tuple[str, ...] = (".e57", ".las", ".laz", ".glb", ".gltf")  # docs/inputs.md
+
+
+def read_scanner_file(path: Path, mesh_samples: int, stations=()):
+    """``(PointCloud, note)`` of an E57 scan, a LAS/LAZ cloud or a glTF/GLB mesh (sampled, z-up)."""
+    suffix = path.suffix.lower()
+    if suffix == ".e57":
+        from ldlmap.io.cloud import PointCloud
+        from ldlmap.io.e57 import read_e57
+
+        scan = read_e57(path, list(stations) or None)
+        return PointCloud(scan.points, scan.colors), "; ".join(scan.notes)
+    if suffix in (".las", ".laz"):
+        from ldlmap.io.las import read_las
+
+        return read_las(path)
+    from ldlmap.io.gltf import read_gltf
+
+    return read_gltf(path, mesh_samples)
 
 
 def colmap_scene_input(model_dir: str | Path, lines=None, images: str | Path | None = None, params=None):
