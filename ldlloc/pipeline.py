@@ -151,6 +151,7 @@ def load_image(path: str | Path) -> np.ndarray:
     import cv2
 
     from ldlmap.core.errors import require_file
+    from ldlmap.io.imagefile import read_image_file
 
     p = require_file(path, "image")
     if not os.access(p, os.R_OK):
@@ -160,7 +161,7 @@ def load_image(path: str | Path) -> np.ndarray:
     header = _image_header_size(p)
     if header is not None and max(header) > MAX_PANORAMA_WIDTH:  # before decoding it (EXIF may turn it)
         _check_panorama_size(header, p)
-    img = cv2.imread(str(p), cv2.IMREAD_COLOR)
+    img = read_image_file(p, cv2.IMREAD_COLOR)  # bytes, not the path, to OpenCV: any file name; damage caught
     if img is None:
         raise InputError(f"cannot decode image (corrupt or unsupported format): {p}")
     _check_panorama_size((img.shape[1], img.shape[0]), p)
