@@ -61,6 +61,9 @@ def _title(img: np.ndarray, text: str, scale: float) -> None:
     """White text on a dark banner in the top-left corner (readable on any panorama), in place."""
     import cv2
 
+    from ldlmap.core.pictures import drawable_text
+
+    text = drawable_text(text)
     font, size, thick = cv2.FONT_HERSHEY_SIMPLEX, 0.7 * scale, max(1, int(round(1.5 * scale)))
     (w, h), base = cv2.getTextSize(text, font, size, thick)
     pad = int(6 * scale)

@@ -33,6 +33,16 @@ def group_legend(principal: np.ndarray | None = None) -> list[tuple[tuple[int, i
     return items + [(GROUP_COLORS_BGR[-1], GROUP_NAMES[-1])]
 
 
+def drawable_text(text: str) -> str:
+    """``text`` as OpenCV's Hershey fonts draw it: ASCII, other bytes as ``\\xNN`` escapes (a file
+    name that is not UTF-8 holds surrogates, which crash OpenCV's string conversion)."""
+    try:
+        data = text.encode("utf-8", "surrogateescape")
+    except UnicodeEncodeError:
+        data = text.encode("utf-8", "backslashreplace")
+    return data.decode("ascii", "backslashreplace")
+
+
 def caption_band(width: int, caption: str, items: list[tuple[tuple[int, int, int], str]], note: str = "",
                  scale: float = 1.0) -> np.ndarray:
     """A dark BGR band ``width`` pixels wide to put under a picture: ``caption`` on the first row,
@@ -42,6 +52,8 @@ def caption_band(width: int, caption: str, items: list[tuple[tuple[int, int, int
 
     font, size, thick = cv2.FONT_HERSHEY_SIMPLEX, 0.55 * scale, max(1, int(round(1.2 * scale)))
     pad, gap, swatch = int(8 * scale), int(18 * scale), int(26 * scale)
+    caption, note = drawable_text(caption), drawable_text(note)
+    items = [(color, drawable_text(label)) for color, label in items]
     text_h = cv2.getTextSize("Ag", font, size, thick)[0][1]
     row_h = text_h + int(12 * scale)
 
@@ -143,7 +155,9 @@ def write_picture(path: str | Path, image_bgr: np.ndarray, quality: int = 90) ->
     ext = p.suffix.lower()
     flags = {".jpg": [cv2.IMWRITE_JPEG_QUALITY, quality], ".jpeg": [cv2.IMWRITE_JPEG_QUALITY, quality],
              ".webp": [cv2.IMWRITE_WEBP_QUALITY, quality]}.get(ext, [])
-    with atomic_file(p) as tmp:  # the temporary name keeps the extension: imwrite picks the format
-        if not cv2.imwrite(str(tmp), np.ascontiguousarray(image_bgr), flags):
-            raise InputError(f"could not write picture {p}")
+    ok, buf = cv2.imencode(ext, np.ascontiguousarray(image_bgr), flags)  # bytes: OpenCV never sees the path
+    if not ok:
+        raise InputError(f"could not write picture {p}")
+    with atomic_file(p) as tmp:
+        tmp.write_bytes(buf.tobytes())
     return p
