@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 import ldlloc.batch.results as results_module
+from ldlloc.batch.lock import LOCK_MARK
 from ldlloc.batch.accuracy import QueryResult
 from ldlloc.batch.results import (ResultsWriter, journal_path, load_results, lock_path, read_results_data,
                                   refuse_replacing_results)
@@ -199,7 +200,7 @@ def test_a_users_own_lock_file_is_never_removed(tmp_path):
 
 def test_a_lock_left_by_a_killed_run_is_removed(tmp_path):
     path = tmp_path / "r.json"
-    lock_path(path).write_bytes(results_module.LOCK_MARK)
+    lock_path(path).write_bytes(LOCK_MARK)
     with ResultsWriter(path, meta={"device": "cpu", "dataset": "images"}) as w:
         w.add(result(0))
     assert not lock_path(path).exists()

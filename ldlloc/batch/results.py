@@ -35,7 +35,6 @@ same file is refused. Files carry ``"format_version": 1`` (absent in older files
 from __future__ import annotations
 
 import contextlib
-import fcntl
 import json
 import math
 import os
@@ -46,6 +45,8 @@ from typing import Any, Callable
 import numpy as np
 
 from ldlloc.batch.accuracy import QueryResult, results_csv, summarize
+from ldlloc.batch.journal import MAX_RESULTS_BYTES, is_journal, journal_header, journal_path, read_journal
+from ldlloc.batch.lock import ResultsBusy, acquire_lock, lock_path, release_lock
 from ldlmap.core.errors import (FormatVersionError, InputError, LdlError, atomic_file, remove_stale_temporaries,
                                 require_file)
 
@@ -54,9 +55,6 @@ RESULTS_FORMAT_VERSION = 1  # top-level "format_version" of a results file (abse
 STATUSES = ("ok", "coarse", "failed")
 OPTION_KEYS = ("dataset", "root", "splits", "map_level", "device", "params", "max_tilt_deg", "maps", "top_maps",
                "scene_unknown", "images_path")  # meta compared by --resume
-MAX_RESULTS_BYTES = 2 << 30  # a results file larger than this is not one of ours (2 GiB: ~1 million queries)
-JOURNAL_MARK = "ldlloc_results_journal"  # key of a journal's first line (is_journal)
-LOCK_MARK = b"ldlloc run lock\n"  # what a lock file made by a run holds (only such a file is removed)
 
 
 def _is_number(x: Any) -> bool:
@@ -206,59 +204,6 @@ def _read_json(path: Path) -> Any:
         raise InputError(f"not a results file of `ldlloc run`: {path} ({reason})") from None
 
 
-def journal_path(path: str | Path) -> Path:
-    """The journal of results file ``path`` (``r.json`` -> ``r.json.journal``): the records of a run
-    that goes on (or was killed) appended since the JSON was last written."""
-    p = Path(path)
-    return p.with_name(p.name + ".journal")
-
-
-def _journal_header(token: str) -> bytes:
-    """The first line of a journal: says whose it is and which JSON it extends (``token``)."""
-    return json.dumps({JOURNAL_MARK: 1, "journal": token}).encode() + b"\n"
-
-
-def is_journal(path: str | Path) -> bool:
-    """Whether ``path`` starts as a journal of :class:`ResultsWriter` (one of ours, not a user's file)."""
-    try:
-        with open(path, "rb") as fh:
-            first = fh.readline(4096)
-        return JOURNAL_MARK in json.loads(first)
-    except (OSError, ValueError, TypeError):
-        return False
-
-
-def read_journal(path: Path, token: str) -> list[dict]:
-    """The records of journal ``path`` when it extends the JSON whose token is ``token`` (else none:
-    the JSON already holds them). Only whole lines count: a line cut by a kill or a full disk (the
-    last one, without its newline) is left out, and its query runs again on ``--resume``."""
-    try:
-        size = path.stat().st_size
-    except OSError:
-        return []
-    if size > MAX_RESULTS_BYTES:
-        raise InputError(f"not a journal of `ldlloc run`: {path} ({size} bytes)")
-    lines = path.read_bytes().split(b"\n")[:-1]  # the part after the last newline is unfinished
-    bad = f"journal of `ldlloc run` is damaged: {path}"
-    try:
-        header = json.loads(lines[0]) if lines else {}
-    except ValueError:
-        raise InputError(f"{bad} (line 1 is not JSON)") from None
-    if not isinstance(header, dict) or header.get("journal") != token:
-        return []  # another JSON's journal (the run was killed while starting a new one): all in the JSON
-    records = []
-    for i, line in enumerate(lines[1:], start=2):
-        try:
-            entry = json.loads(line)
-        except (ValueError, RecursionError):
-            raise InputError(f"{bad} (line {i} is not JSON)") from None
-        rec = entry.get("query") if isinstance(entry, dict) else None
-        if not isinstance(rec, dict) or not isinstance(rec.get("name"), str):
-            raise InputError(f"{bad} (line {i} is not a query record)")
-        records.append(rec)
-    return records
-
-
 def check_results_path(path: str | Path) -> Path:
     """``path`` as a results JSON path: a ``.json`` name that is not a folder (its CSV goes beside it,
     same name, ``.csv``)."""
@@ -275,7 +220,9 @@ def refuse_replacing_results(path: str | Path, overwrite: bool = False, resume: 
     """Before a run writes results file ``path`` (and its CSV): refuse (one line) to replace a file
     that is not a results file of `ldlloc run` (a user's own JSON or CSV), or the results of a run
     that did not finish (killed or interrupted: ``meta["finished"]`` false), unless ``overwrite``;
-    ``resume`` continues such a file instead (and validates it when it opens)."""
+    ``resume`` continues such a file instead (and validates it when it opens), and is refused as a
+    plain run is when the JSON is not there (it starts the file anew: a user's CSV stays). A file
+    of the journal's name that is not a journal is refused either way."""
     p = Path(path)
     if resume and overwrite:
         raise InputError("--resume keeps the results file and --overwrite replaces it: give one of them")
@@ -301,7 +248,7 @@ def refuse_replacing_results(path: str | Path, overwrite: bool = False, resume: 
         raise InputError(f"output {p} exists and is not a results file of `ldlloc run` ({why}); use "
                          "--overwrite to replace it, or another --output") from None
     if meta.get("finished") is False:  # absent: written before the flag, or by a run that finished
-        _release_lock(*_acquire_lock(p), lock_path(p))  # a run writing it now: ResultsBusy says so
+        release_lock(*acquire_lock(p), lock_path(p))  # a run writing it now: ResultsBusy says so
         raise InputError(f"{p} holds {len(results)} results of a run that did not finish (killed or interrupted): "
                          "continue it with --resume, or replace it with --overwrite")
 
@@ -320,12 +267,6 @@ def results_outputs(path: str | Path) -> list[Path]:
     """Every file a run on results file ``path`` writes: the JSON, its CSV, the journal and the lock file."""
     p = Path(path)
     return [p, p.with_suffix(".csv"), journal_path(p), lock_path(p)]
-
-
-def lock_path(path: str | Path) -> Path:
-    """The lock file of results file ``path`` (``r.json`` -> ``r.json.lock``), held while a run writes it."""
-    p = Path(path)
-    return p.with_name(p.name + ".lock")
 
 
 def option_differences(old: dict[str, Any], new: dict[str, Any]) -> list[str]:
@@ -374,10 +315,6 @@ def record_json(r: QueryResult) -> str:
         return json.dumps(_json_safe(asdict(r)), allow_nan=False)
 
 
-class ResultsBusy(LdlError):
-    """Another run holds the lock of the results file."""
-
-
 class ResultsWriter:
     """Keeps the results of a run: appends each query's record to the journal (:func:`journal_path`)
     and rewrites ``path`` (JSON) and its ``.csv`` when the journal has grown as large as the JSON,
@@ -412,7 +349,7 @@ class ResultsWriter:
         self._json_bytes = self._journal_bytes = 0
         self.warn = warn or (lambda message: None)
         self._warned: set[str] = set()
-        self._lock = _acquire_lock(self.path)
+        self._lock = acquire_lock(self.path)
         try:
             remove_stale_temporaries(self.path, ".json")
             remove_stale_temporaries(self.csv_path, ".csv")
@@ -444,7 +381,7 @@ class ResultsWriter:
             self._journal.close()
             self._journal = None
         if self._lock is not None:
-            _release_lock(*self._lock, lock_path(self.path))
+            release_lock(*self._lock, lock_path(self.path))
             self._lock = None
 
     def __del__(self) -> None:
@@ -510,7 +447,7 @@ class ResultsWriter:
         if finished:
             _remove_journal(self.journal_path)
             return
-        header = _journal_header(token)
+        header = journal_header(token)
         with _naming_errors(self.journal_path):
             with atomic_file(self.journal_path) as tmp:
                 tmp.write_bytes(header)
@@ -600,49 +537,3 @@ def _resumed_meta(path: Path, old: dict[str, Any], new: dict[str, Any], any_opti
     return meta
 
 
-def _acquire_lock(path: Path) -> tuple[int, bool]:
-    """An open, exclusively locked (``flock``) lock file of results file ``path``, and whether it is
-    ours to remove afterwards: made by this run, or left by a killed one (it holds :data:`LOCK_MARK`);
-    a user's own file of that name is locked but never written or removed. Refuses at once
-    (:class:`ResultsBusy`) when another run holds it."""
-    lock = lock_path(path)
-    try:
-        lock.parent.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise LdlError(f"cannot create output folder {lock.parent}: {exc.strerror or exc}") from None
-    while True:
-        try:
-            fd, made = os.open(lock, os.O_RDWR | os.O_CREAT | os.O_EXCL, 0o666), True
-            os.write(fd, LOCK_MARK)
-        except FileExistsError:
-            try:
-                fd, made = os.open(lock, os.O_RDONLY), False
-            except FileNotFoundError:
-                continue  # removed by a run that just finished: make it anew
-            except OSError as exc:
-                raise LdlError(f"cannot open {lock}: {exc.strerror or exc}") from None
-        except OSError as exc:
-            raise LdlError(f"cannot write beside {path}: {exc.strerror or exc}") from None
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            os.close(fd)
-            raise ResultsBusy(f"another `ldlloc run` is writing {path} (it holds {lock.name}); wait for it to "
-                              "finish or use another --output") from None
-        try:
-            same = os.fstat(fd).st_ino == os.stat(lock).st_ino  # not removed by a run that just finished
-        except FileNotFoundError:
-            same = False
-        if same:
-            return fd, made or os.pread(fd, len(LOCK_MARK) + 1, 0) == LOCK_MARK
-        os.close(fd)
-
-
-def _release_lock(fd: int, ours: bool, lock: Path) -> None:
-    """Unlock; remove the lock file only when it is ours (:func:`_acquire_lock`)."""
-    if ours:
-        try:
-            lock.unlink()  # while still holding it: a run that opened the old file retries on a new one
-        except OSError:
-            pass
-    os.close(fd)
