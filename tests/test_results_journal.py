@@ -147,27 +147,38 @@ def test_a_users_file_named_like_the_journal_is_not_replaced(tmp_path):
 # ----------------------------------------------------------------------------- a full disk
 
 
-def test_a_full_disk_names_the_file_and_keeps_the_records_before(tmp_path, monkeypatch):
-    path = tmp_path / "r.json"
-    w = ResultsWriter(path, meta={"device": "cpu", "dataset": "images"})
-    for i in range(5):
-        w.add(result(i))
+def _fill_the_disk(w: ResultsWriter, monkeypatch) -> None:
+    """From now on the journal's writes fail half-way, as on a full disk."""
     real_write = w._journal.write
 
-    def full(data):  # half the line gets to the disk, then it is full
+    def full(data):
         real_write(data[: len(data) // 2])
         raise OSError(28, "No space left on device")
 
     monkeypatch.setattr(w._journal, "write", full)
+
+
+@pytest.mark.parametrize("go_on", [False, True])
+def test_a_full_disk_names_the_file_and_keeps_the_records_before(tmp_path, monkeypatch, go_on):
+    """The run ends with one line naming the journal; the records before stay, and --resume finishes.
+    A caller that goes on writing (Ctrl-C handling keeps what arrived) never appends after the cut line."""
+    path = tmp_path / "r.json"
+    w = ResultsWriter(path, meta={"device": "cpu", "dataset": "images"})
+    for i in range(5):
+        w.add(result(i))
+    _fill_the_disk(w, monkeypatch)
     with pytest.raises(LdlError, match=r"cannot write .*r.json.journal: No space left on device .*--resume"):
         w.add(result(5))
-    w.close()
     monkeypatch.undo()
-    assert [r.name for r in load_results(path)[0]] == [f"q{i:05d}" for i in range(5)]
+    if go_on:
+        w.add(result(6))
+        assert [r.name for r in load_results(path)[0]] == [f"q{i:05d}" for i in range(7)]
+    w.close()
+    assert [r.name for r in load_results(path)[0]] == [f"q{i:05d}" for i in range(7 if go_on else 5)]
     with ResultsWriter(path, meta={"device": "cpu", "dataset": "images"}, resume=True) as w2:
         w2.add(result(5))
         w2.finish()
-    assert len(load_results(path)[0]) == 6
+    assert len(load_results(path)[0]) == (7 if go_on else 6)
 
 
 def test_a_full_disk_while_the_json_is_rewritten_names_it(tmp_path, monkeypatch):

@@ -457,8 +457,14 @@ class ResultsWriter:
         """Append the records of ``results`` to the journal, one line each, in one write."""
         lines = "".join(f'{{"query": {self._texts[r.name]}}}\n' for r in results).encode()
         with _naming_errors(self.journal_path):
-            self._journal.write(lines)
-            self._journal.flush()
+            try:
+                self._journal.write(lines)
+                self._journal.flush()
+            except OSError:  # part of a line may be there: never append after it (the next write rewrites)
+                journal, self._journal = self._journal, None
+                with contextlib.suppress(OSError):
+                    journal.close()
+                raise
         self._journal_bytes += len(lines)
 
     def _write_json(self, token: str | None) -> None:
