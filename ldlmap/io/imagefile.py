@@ -27,7 +27,8 @@ CORRUPT_DATA_WARNINGS = ("Corrupt JPEG data", "Premature end of JPEG file")
 
 def read_image_file(path: str | os.PathLike, flags: int | None = None) -> np.ndarray | None:
     """The decoded image of file ``path`` (``cv2.imdecode``; ``flags``: default ``IMREAD_COLOR``),
-    None when OpenCV cannot decode it; :class:`InputError` when the decoder reports damaged data."""
+    None when OpenCV cannot decode it (what the decoder said of it is not printed); :class:`InputError`
+    when the decoder reports damaged data."""
     import cv2
 
     data = np.frombuffer(Path(path).read_bytes(), np.uint8)
@@ -37,8 +38,8 @@ def read_image_file(path: str | os.PathLike, flags: int | None = None) -> np.nda
     damaged = [line for line in text.splitlines() if line.startswith(CORRUPT_DATA_WARNINGS)]
     if damaged:
         raise InputError(f"corrupt image data ({damaged[0].strip()}): {path}")
-    if text:  # anything else the decoder said (or another thread wrote meanwhile) goes where it was going
-        sys.stderr.write(text)
+    if text and img is not None:  # anything else said meanwhile goes where it was going; for a file that
+        sys.stderr.write(text)     # cannot be decoded, the caller's one-line error says it all
     return img
 
 
