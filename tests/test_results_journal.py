@@ -185,7 +185,8 @@ def test_a_full_disk_while_the_json_is_rewritten_names_it(tmp_path, monkeypatch)
     path = tmp_path / "r.json"
     w = ResultsWriter(path, meta={"device": "cpu", "dataset": "images"})
     w.add(result(0))
-    monkeypatch.setattr(Path, "write_text", lambda self, *a, **k: (_ for _ in ()).throw(OSError(28, "No space left on device")))
+    full = OSError(28, "No space left on device")
+    monkeypatch.setattr(Path, "write_text", lambda self, *a, **k: (_ for _ in ()).throw(full))
     with pytest.raises(LdlError, match=rf"cannot write {path}: No space left on device"):
         w.finish()
     monkeypatch.undo()

@@ -46,7 +46,7 @@ class ImageQuery:
     """One panorama of an image run."""
 
     image: Path
-    name: str  # its path below the folder (or the glob's folder part) without suffix
+    name: str  # its path below the folder (or the glob's folder part), without suffix unless needed (query_names)
     split: str = IMAGES_SPLIT
     scene: str = NO_MAP  # unknown until a map is chosen
 
