@@ -1,4 +1,4 @@
-"""What writing a run's results costs per query as the run grows (issue 37: the results file was
+"""What writing a run's results costs per query as the run grows (until the journal, the results file was
 rewritten whole after every query, quadratic in the run's length).
 
 For each size N (default 30, 2000, 3000): a results file of N realistic records (20 search
