@@ -8,7 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ldlmap.core.pictures import draw_arcs, group_legend, project_lines, with_caption, write_picture
+from ldlmap.core.pictures import (draw_arcs, drawable_text, group_legend, project_lines, with_caption,
+                                  write_picture)
 
 
 def localization_caption(name: str, loc, errors: tuple[float, float] | None = None) -> str:
@@ -60,8 +61,6 @@ def draw_map_lines(image_bgr: np.ndarray, ldl_map, rot_cam_from_world: np.ndarra
 def _title(img: np.ndarray, text: str, scale: float) -> None:
     """White text on a dark banner in the top-left corner (readable on any panorama), in place."""
     import cv2
-
-    from ldlmap.core.pictures import drawable_text
 
     text = drawable_text(text)
     font, size, thick = cv2.FONT_HERSHEY_SIMPLEX, 0.7 * scale, max(1, int(round(1.5 * scale)))

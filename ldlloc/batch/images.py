@@ -32,6 +32,7 @@ import numpy as np
 
 from ldlmap.core.errors import InputError, LdlError
 from ldlloc.batch.accuracy import QueryResult
+from ldlloc.batch.results import load_results
 from ldlloc.batch.run import open_results, write_query_picture
 from ldlloc.batch.which_map import TOP_MAPS, MapChoice, MapSet, localize_on_maps
 from ldlloc.pipeline import Localization, LocalizeParams, load_image, rotation_prior_name
@@ -234,8 +235,6 @@ def refuse_other_folders_results(output: Path, spec: str | Path) -> None:
     """The default output (:func:`default_images_output`) of ``--images spec`` when it holds the
     results of another folder of the same name (``day1/pano``, then ``day2/pano``): refuse in one
     line naming that folder (a run never replaces another folder's results; ``-o`` names its own)."""
-    from ldlloc.batch.results import load_results
-
     if not output.is_file():
         return
     try:
