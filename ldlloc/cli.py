@@ -250,13 +250,13 @@ def run(
                                        "against every map in its scene map's folder, judged together as --images "
                                        "judges a folder (ZInD room maps: the rooms of its floor). The maps of a "
                                        "folder must share a frame (a ZInD floor's rooms do)."),
-    root: Optional[Path] = typer.Option(None, "--root", help="Dataset root (default ./data/<dataset>)."),
+    root: Optional[str] = typer.Option(None, "--root", help="Dataset root (default ./data/<dataset>)."),
     dataset: Optional[str] = typer.Option(None, "--dataset", help=DATASET_HELP),
     map_level: Optional[str] = typer.Option(None, "--map-level",
                                             help="room | floor: which maps of `ldlmap prepare` to use (zind)."),
     split: Optional[list[str]] = typer.Option(None, "--split", help=SPLIT_HELP),
     scene: Optional[str] = typer.Option(None, "--scene", help="Only queries of this scene."),
-    maps: Optional[Path] = typer.Option(None, "--maps", help="Folder of the maps (default ROOT/maps); with --images "
+    maps: Optional[str] = typer.Option(None, "--maps", help="Folder of the maps (default ROOT/maps); with --images "
                                         "a map file or a folder searched recursively for .h5 maps."),
     output: Optional[Path] = typer.Option(None, "--output", "-o", help="Results JSON, a .json name (a CSV of the "
                                           "same name is written beside it; a run holds NAME.json.lock while it writes); "
@@ -277,7 +277,7 @@ def run(
                                 "ones; refuses options other than the file's (see --resume-any-options)."),
     resume_any_options: bool = typer.Option(False, "--resume-any-options", help="With --resume: allow options other "
                                             "than the file's (the file's meta records the earlier ones)."),
-    save_vis: Optional[Path] = typer.Option(None, "--save-vis", help="Write a picture per query into this folder."),
+    save_vis: Optional[str] = typer.Option(None, "--save-vis", help="Write a picture per query into this folder."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an --output that is not a results file, or "
                                    "the results of a run that did not finish (a finished run's are replaced "
                                    "without it); let --save-vis replace files that are not pictures of ldlloc."),
@@ -296,6 +296,7 @@ def run(
 
     params = _params(top_k, loss, no_decompose, no_refine, privacy, features, weights, max_tilt, refine, query_frame)
     check_threads(threads)
+    root, maps, save_vis = _path(root, "--root"), _path(maps, "--maps"), _path(save_vis, "--save-vis")
     if output is not None:
         check_results_path(output)
     if resume_any_options and not resume:
@@ -364,11 +365,29 @@ def run(
     _print_run(results, label, output, max_tilt)
 
 
+def _path(value: Optional[str], option: str) -> Optional[Path]:
+    """A path option as a Path; an empty one is refused (it would mean the working folder)."""
+    from ldlmap.core.errors import InputError
+
+    if value is not None and not value.strip():
+        raise InputError(f"{option} is empty: give a path")
+    return None if value is None else Path(value)
+
+
+def _shown(text: str) -> str:
+    """``text`` as the terminal can print it: a file name's bytes that are not UTF-8 as escapes."""
+    try:
+        return text.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
+    except UnicodeEncodeError:
+        return text.encode("utf-8", "backslashreplace").decode("utf-8")
+
+
 def _run_images(images: str, maps: Optional[Path], output: Optional[Path], params, top_maps: Optional[int], device: str,
                 resume: bool, any_options: bool, save_vis: Optional[Path], weights: Optional[Path], threads: int,
                 ray: Optional[str], overwrite: bool) -> None:
     """`run --images`: find the panoramas and the maps, localize, print the counts (ldlloc/batch/images.py)."""
-    from ldlloc.batch.images import default_images_output, find_images, image_run_meta, picture_path, run_images
+    from ldlloc.batch.images import (default_images_output, find_images, image_run_meta, picture_path,
+                                     refuse_other_folders_results, run_images)
     from ldlloc.batch.which_map import TOP_MAPS, MapSet, map_files
     from ldlmap.core.errors import InputError, refuse_overwriting_inputs
     from ldlmap.core.pictures import refuse_replacing_pictures
@@ -378,16 +397,19 @@ def _run_images(images: str, maps: Optional[Path], output: Optional[Path], param
         raise InputError("--images needs --maps: a map (.h5) or a folder of maps")
     top_maps = TOP_MAPS if top_maps is None else top_maps
     check_range(top_maps, "--top-maps", 1, 1000, integer=True)
-    queries = find_images(images, exclude=[save_vis] if save_vis is not None else [])
+    say = lambda message: console.print(_shown(message), soft_wrap=True, highlight=False)  # noqa: E731
+    queries = find_images(images, exclude=[save_vis] if save_vis is not None else [], warn=say)
     files, _ = map_files(maps)
-    output = output or default_images_output(images)
+    if output is None:
+        output = default_images_output(images)
+        if not resume:  # --resume compares the folders itself
+            refuse_other_folders_results(output, images)
     pictures = [picture_path(save_vis, q) for q in queries] if save_vis is not None else []
     refuse_overwriting_inputs([weights, *files, *(q.image for q in queries)], [*results_outputs(output), *pictures])
     refuse_replacing_pictures(pictures, overwrite, "--save-vis")
     refuse_replacing_results(output, overwrite, resume)
     check_device(device, local=ray is None)
     set_threads(threads)
-    say = lambda message: console.print(message, soft_wrap=True, highlight=False)  # noqa: E731
     meta = image_run_meta(images, maps, top_maps)
     opts = {"meta": meta, "top_maps": top_maps, "any_options": any_options, "say": say}
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
@@ -415,8 +437,8 @@ def _run_images(images: str, maps: Optional[Path], output: Optional[Path], param
         bar.update(task, total=len(queries), completed=0, description="localizing")
 
         def progress(r) -> None:
-            bar.update(task, advance=1, description=f"{r.name}: {r.status}" + ("" if r.status == "failed"
-                                                                              else f" in {r.scene}"))
+            bar.update(task, advance=1, description=f"{_shown(r.name)}: {r.status}" + ("" if r.status == "failed"
+                                                                                       else f" in {r.scene}"))
 
         results = run_images(queries, mapset, output, params, device, resume, save_vis, **opts, progress=progress)
     _print_run(results, "images", output, params.max_tilt_deg)
@@ -440,7 +462,7 @@ def _print_run(results: list, label: str, output: Path, max_tilt: Optional[float
         _print_own_maps(results)
     _print_verdicts(results)
     for r in failed[:10]:
-        console.print(f"[yellow]failed[/] {r.name}: {r.message}", soft_wrap=True)
+        console.print(f"[yellow]failed[/] {_shown(r.name)}: {_shown(r.message)}", soft_wrap=True)
     if len(failed) > 10:
         console.print(f"... and {len(failed) - 10} more failures (see {output})", soft_wrap=True)
     no_picture = [r for r in results if r.picture_error]

@@ -8,8 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ldlmap.core.pictures import draw_arcs, group_legend, project_lines, with_caption, write_picture
-from ldlmap.io.imagefile import printable
+from ldlmap.core.pictures import draw_arcs, drawable_text, group_legend, project_lines, with_caption, write_picture
 
 
 def localization_caption(name: str, loc, errors: tuple[float, float] | None = None) -> str:
@@ -62,8 +61,8 @@ def _title(img: np.ndarray, text: str, scale: float) -> None:
     """White text on a dark banner in the top-left corner (readable on any panorama), in place."""
     import cv2
 
+    text = drawable_text(text)
     font, size, thick = cv2.FONT_HERSHEY_SIMPLEX, 0.7 * scale, max(1, int(round(1.5 * scale)))
-    text = printable(text)  # OpenCV crashes on text that is not UTF-8
     (w, h), base = cv2.getTextSize(text, font, size, thick)
     pad = int(6 * scale)
     cv2.rectangle(img, (0, 0), (w + 2 * pad, h + base + 2 * pad), (30, 30, 30), -1)

@@ -34,6 +34,8 @@ def test_writer_is_resumable(tmp_path):
     w = ResultsWriter(out, meta={"device": "cpu"})
     w.add(res("a", 0.01, 1.0))
     w.add(res("b", 0.5, 1.0, split="robot"))
+    assert [q.name for q in load_results(out)[0]] == ["a", "b"]  # the JSON and its journal, while it runs
+    w.finish()  # the whole JSON and CSV
     data = json.loads(out.read_text())
     assert len(data["queries"]) == 2 and data["summary"]["accuracy"]["0.1m_5deg"] == 0.5
     assert out.with_suffix(".csv").read_text().count("\n") == 3
@@ -41,6 +43,7 @@ def test_writer_is_resumable(tmp_path):
     w2 = ResultsWriter(out, resume=True)
     assert w2.done() == {"a", "b"}
     w2.add(res("b", 0.02, 1.0, split="robot"))  # replaces, does not duplicate
+    w2.finish()
     w2.close()
     qs, meta = load_results(out)
     assert len(qs) == 2 and meta["device"] == "cpu"

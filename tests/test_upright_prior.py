@@ -18,7 +18,7 @@ from typer.testing import CliRunner
 
 from ldlloc.cli import app as loc_app
 from ldlloc.batch.accuracy import QueryResult, best_candidate, first_good_rank
-from ldlloc.batch.results import ResultsWriter, load_results
+from ldlloc.batch.results import ResultsWriter, load_results, read_results_data
 from ldlloc.pipeline import UPRIGHT_MAX_TILT_DEG, LocalizeParams, Localizer, load_image, rotation_prior_name
 from ldlloc.rotation import RotationCandidates, camera_tilt_deg, filter_by_tilt
 from ldlmap.datasets import open_dataset
@@ -226,6 +226,6 @@ def test_results_file_without_the_new_fields_still_loads(tmp_path):
     w = ResultsWriter(path, meta={"device": "cpu"}, resume=True)
     w.add(QueryResult(image="b.jpg", scene="room_1", split="robot", name="robot/b", status="failed",
                       rotation_prior="upright<=10deg"))
-    data = json.loads(path.read_text())
+    data = read_results_data(path)  # the JSON with the records of its journal (the run goes on)
     assert [q["rotation_prior"] for q in data["queries"]] == ["free", "upright<=10deg"]
     assert "search" not in data["summary"]  # no query kept candidates

@@ -150,19 +150,26 @@ def has_ground_truth(results: list[QueryResult]) -> bool:
     return not results or any(r.split != "images" for r in results)
 
 
+def outcome(r: QueryResult) -> str:
+    """How a run without ground truth counts query ``r``: its status, except that a pose whose own
+    verdict is ``failed`` counts as failed (never as ok or coarse)."""
+    return "failed" if r.verdict == "failed" else r.status
+
+
 def _summarize_without_truth(results: list[QueryResult], device: str | None) -> dict[str, Any]:
-    """:func:`summarize` of an image run: counts by status and by map, median stage seconds."""
+    """:func:`summarize` of an image run: counts by :func:`outcome` and by map, median stage seconds."""
     stages = sorted({s for r in results for s in r.seconds})
     per_map: dict[str, dict[str, int]] = {}
-    for r in results:
+    outcomes = [outcome(r) for r in results]
+    for r, o in zip(results, outcomes):
         c = per_map.setdefault(r.map or r.scene, {"count": 0, "ok": 0, "coarse": 0, "failed": 0})
         c["count"] += 1
-        c[r.status] += 1
+        c[o] += 1
     out: dict[str, Any] = {
         "count": len(results),
-        "localized": int(sum(r.status == "ok" for r in results)),
-        "failed": int(sum(r.status == "failed" for r in results)),
-        "coarse_only": int(sum(r.status == "coarse" for r in results)),
+        "localized": outcomes.count("ok"),
+        "failed": outcomes.count("failed"),
+        "coarse_only": outcomes.count("coarse"),
         "median_t_error_m": None, "median_r_error_deg": None,
         "accuracy": {name: None for name, _, _ in THRESHOLDS},
         "median_seconds": {s: _median(r.seconds.get(s) for r in results if r.status != "failed") for s in stages},
@@ -265,7 +272,8 @@ def _counts_table(groups: dict[str, list[QueryResult]], by: str, title: str):
     (the search's pose kept) and failed, and the median seconds."""
     from rich.table import Table
 
-    table = Table(title=title, caption="no ground truth: ok = refined pose, coarse = the search's pose")
+    table = Table(title=title, caption="no ground truth: ok = refined pose, coarse = the search's pose, fail = "
+                  "none, or a pose whose verdict is failed")
     table.add_column(by, no_wrap=True, min_width=max([len(k) for k in groups] + [3]))
     for col in ("n", "ok", "coarse", "fail", "s"):
         table.add_column(col, justify="right", no_wrap=True)

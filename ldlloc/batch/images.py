@@ -4,8 +4,10 @@ The panoramas (:func:`find_images`): one image file; a folder, searched recursiv
 files (:data:`IMAGE_SUFFIXES`, any case; hidden files and folders, and the run's own ``--save-vis``
 folder, are left out); or a glob (quote it: ``'shots/*.jpg'``, ``**`` goes into subfolders).
 Each query's ``name`` is its path relative to the folder (the glob's folder part) without the
-suffix, ``sub/pano_01``: unique even when two folders hold the same file name (the suffix is kept
-when two files differ by it alone).
+suffix, ``sub/pano_01``: unique even when two folders hold the same file name; with the suffix
+when that alone tells two files apart (``a.jpg``, ``a.png``, ``a.jpg.png``: :func:`query_names`).
+Folders are searched following symbolic links once (never in a loop) and each file is one query
+however many links lead to it; what was left out is said (:func:`find_images`).
 
 Each panorama is localized against the maps of ``--maps`` (:mod:`ldlloc.batch.which_map`: one map,
 or the best of several) and recorded as ``split="images"``, ``scene`` = the chosen map's name,
@@ -17,8 +19,11 @@ pictures (``save_vis``: ``<save_vis>/<name>.jpg``).
 
 from __future__ import annotations
 
+import fnmatch
 import glob
+import os
 import time
+from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
@@ -28,6 +33,7 @@ import numpy as np
 from ldlmap.core.errors import InputError, LdlError
 from ldlmap.core.pictures import picture_file
 from ldlloc.batch.accuracy import QueryResult
+from ldlloc.batch.results import load_results
 from ldlloc.batch.run import open_results, write_query_picture
 from ldlloc.batch.which_map import TOP_MAPS, MapChoice, MapSet, localize_on_maps
 from ldlloc.pipeline import Localization, LocalizeParams, load_image, rotation_prior_name
@@ -43,37 +49,160 @@ class ImageQuery:
     """One panorama of an image run."""
 
     image: Path
-    name: str  # its path below the folder (or the glob's folder part) without suffix
+    name: str  # its path below the folder (or the glob's folder part), without suffix unless needed (query_names)
     split: str = IMAGES_SPLIT
     scene: str = NO_MAP  # unknown until a map is chosen
 
 
-def find_images(spec: str | Path, exclude: list[Path] = ()) -> list[ImageQuery]:
+def find_images(spec: str | Path, exclude: list[Path] = (),
+                warn: Callable[[str], None] | None = None) -> list[ImageQuery]:
     """The panoramas of ``--images`` (module docstring), sorted by name; one-line error when there
-    are none. ``exclude``: folders whose files are left out (the run's --save-vis)."""
+    are none. ``exclude``: folders whose files are left out (the run's --save-vis). Folders are
+    searched following symbolic links once: a folder reached again (a link loop, a second link to
+    it) is not searched again, and a file reached twice (through links) is one query; ``warn``
+    says what was left out, once per kind."""
     text = str(spec)
+    if not text.strip():
+        raise InputError("--images is empty: give an image, a folder of images or a quoted glob")
     p = Path(text)
+    walk = _Walk()
     if p.is_file():
         return [ImageQuery(p, p.stem)]
     if p.is_dir():
         base = p
-        files = [f for f in p.rglob("*") if f.is_file() and f.suffix.lower() in IMAGE_SUFFIXES
-                 and not any(part.startswith(".") for part in f.relative_to(p).parts)]
+        files = [f for f in walk.files(p) if f.suffix.lower() in IMAGE_SUFFIXES]
         what = f"no image files ({', '.join(s[1:] for s in IMAGE_SUFFIXES)}) in {p} or below"
     elif glob.has_magic(text):
         base = _glob_base(text)
-        files = [Path(f) for f in glob.glob(text, recursive=True) if Path(f).is_file()]
+        files = _glob_files(text, base, walk)
         what = f"no file matches --images {text}"
     else:
         raise InputError(f"--images not found: {text} (an image, a folder of images or a quoted glob)")
     skip = [Path(e).resolve() for e in exclude]
-    files = sorted(f for f in files if not any(s in f.resolve().parents for s in skip))
+    left_out = {f for f in files if any(s in f.resolve().parents for s in skip)}
+    files, twins = _one_per_file(sorted(f for f in files if f not in left_out))
+    if not files and left_out:
+        raise InputError(f"the {len(left_out)} image file(s) of --images {text} are in the --save-vis folder "
+                         f"{exclude[0]}, which a run leaves out (pictures are not queries): write the pictures "
+                         "to another folder")
     if not files:
         raise InputError(what)
+    say = warn or (lambda message: None)
+    if left_out:
+        say(f"warning: {len(left_out)} image file(s) in the --save-vis folder {exclude[0]} left out (pictures "
+            "are not queries)")
+    if walk.skipped:
+        link, target = walk.skipped[0]
+        say(f"warning: {len(walk.skipped)} linked folder(s) not searched again (e.g. {link} -> {target}: "
+            "searched already; links are followed once)")
+    if twins:
+        say(f"warning: {len(twins)} file(s) left out: the same file as another through a link (e.g. {twins[0][0]} "
+            f"is {twins[0][1]})")
     rel = [f.relative_to(base) if f.is_relative_to(base) else Path(f.name) for f in files]
+    return [ImageQuery(f, name) for f, name in zip(files, query_names(rel))]
+
+
+def query_names(rel: list[Path]) -> list[str]:
+    """The query name of each image path ``rel`` (distinct paths, relative to the folder searched):
+    its path without the suffix, unless another image has the same one or that is another's path
+    with suffix (``a.jpg``, ``a.png``, ``a.jpg.png``): then its path with the suffix. Names are
+    unique and depend only on the set of files."""
+    full = [r.as_posix() for r in rel]
     stems = [r.with_suffix("").as_posix() for r in rel]
-    twice = {s for s in stems if stems.count(s) > 1}
-    return [ImageQuery(f, r.as_posix() if s in twice else s) for f, r, s in zip(files, rel, stems)]
+    counts = Counter(stems)
+    taken = set(full)
+    return [s if counts[s] == 1 and s not in taken else f for s, f in zip(stems, full)]
+
+
+class _Walk:
+    """Searches folders following symbolic links once: each real folder (device, inode) is searched
+    once; ``skipped`` lists the (link, target) of folders reached again. Hidden files and folders
+    (``.name``) are left out unless ``hidden``."""
+
+    def __init__(self, hidden: bool = False):
+        self.hidden = hidden
+        self.seen: set[tuple[int, int]] = set()
+        self.skipped: list[tuple[Path, Path]] = []
+
+    def files(self, folder: Path) -> list[Path]:
+        """Every file below ``folder``, in sorted order of the walk."""
+        try:
+            st = folder.stat()
+        except OSError:
+            return []
+        self.seen.add((st.st_dev, st.st_ino))
+        out: list[Path] = []
+        stack = [folder]
+        while stack:
+            current = stack.pop()
+            try:
+                entries = sorted(os.scandir(current), key=lambda e: e.name)
+            except OSError:
+                continue  # unreadable folder: nothing from it
+            subfolders = []
+            for e in entries:
+                if e.name.startswith(".") and not self.hidden:
+                    continue
+                try:
+                    is_dir, is_file = e.is_dir(), e.is_file()  # both follow links
+                except OSError:
+                    continue
+                path = current / e.name
+                if is_dir:
+                    try:
+                        st = e.stat()
+                    except OSError:
+                        continue
+                    key = (st.st_dev, st.st_ino)
+                    if key in self.seen:
+                        self.skipped.append((path, Path(os.path.realpath(path))))
+                        continue
+                    self.seen.add(key)
+                    subfolders.append(path)
+                elif is_file:
+                    out.append(path)
+            stack.extend(reversed(subfolders))
+        return out
+
+
+def _glob_files(pattern: str, base: Path, walk: _Walk) -> list[Path]:
+    """The files that glob ``pattern`` (its folder part ``base``) matches. A pattern with ``**``
+    walks ``base`` through :class:`_Walk` (links once, never a loop) and matches the paths below it
+    as :func:`glob.glob` does (``**``: any folders; a hidden name only by a pattern part starting
+    with a dot); others are :func:`glob.glob` (bounded by the pattern's depth)."""
+    parts = Path(pattern).parts[len(base.parts) if base != Path(".") else 0:]
+    if "**" not in parts:
+        return [Path(f) for f in glob.glob(pattern) if Path(f).is_file()]
+    if any(part in (".", "..") for part in parts):
+        raise InputError(f"--images {pattern}: a '**' glob cannot go up or stay ('..', '.') after its folder part")
+    walk.hidden = any(part.startswith(".") for part in parts)
+    files = walk.files(base)
+    return [f for f in files if _matches(parts, f.relative_to(base).parts)]
+
+
+def _matches(pattern: tuple[str, ...], parts: tuple[str, ...]) -> bool:
+    """Whether path ``parts`` match glob ``pattern`` parts (``**``: zero or more folders)."""
+    if not pattern:
+        return not parts
+    if pattern[0] == "**":
+        return _matches(pattern[1:], parts) or (bool(parts) and not parts[0].startswith(".")
+                                                 and _matches(pattern, parts[1:]))
+    if not parts or (parts[0].startswith(".") and not pattern[0].startswith(".")):
+        return False
+    return fnmatch.fnmatchcase(parts[0], pattern[0]) and _matches(pattern[1:], parts[1:])
+
+
+def _one_per_file(files: list[Path]) -> tuple[list[Path], list[tuple[Path, Path]]]:
+    """``files`` with each real file once (the first path to it kept), and the (left out, kept) pairs."""
+    kept: dict[str, Path] = {}
+    twins = []
+    for f in files:
+        real = os.path.realpath(f)
+        if real in kept:
+            twins.append((f, kept[real]))
+        else:
+            kept[real] = f
+    return list(kept.values()), twins
 
 
 def _glob_base(pattern: str) -> Path:
@@ -87,11 +216,39 @@ def _glob_base(pattern: str) -> Path:
     return Path(*fixed) if fixed else Path(".")
 
 
+def images_path(spec: str | Path) -> str:
+    """``--images`` as an absolute path (a glob: its folder part resolved, the rest as given): what
+    ``--resume`` compares, and what tells two folders of the same name apart."""
+    text, p = str(spec), Path(str(spec))
+    if glob.has_magic(text) and not p.exists():
+        base = _glob_base(text)
+        return str(base.resolve().joinpath(*p.parts[len(base.parts) if base != Path(".") else 0:]))
+    return str(p.resolve())
+
+
 def default_images_output(spec: str | Path) -> Path:
     """``results/images_<folder>.json``: the folder (or glob's folder, or image) named by ``--images``."""
     p = Path(str(spec))
     base = _glob_base(str(spec)) if glob.has_magic(str(spec)) and not p.exists() else p
     return Path("results") / f"images_{base.resolve().stem or 'root'}.json"
+
+
+def refuse_other_folders_results(output: Path, spec: str | Path) -> None:
+    """The default output (:func:`default_images_output`) of ``--images spec`` when it holds the
+    results of another folder of the same name (``day1/pano``, then ``day2/pano``): refuse in one
+    line naming that folder (a run never replaces another folder's results; ``-o`` names its own)."""
+    if not output.is_file():
+        return
+    try:
+        _, meta = load_results(output)
+    except LdlError:
+        return  # not a results file: refuse_replacing_results says so
+    if meta.get("dataset") != IMAGES_SPLIT:
+        return
+    earlier = meta.get("images_path") or (images_path(meta["images"]) if isinstance(meta.get("images"), str) else None)
+    if earlier is not None and earlier != images_path(spec):
+        raise InputError(f"{output} holds the results of another --images ({earlier}); name this run's results "
+                         "with -o (or move that file)")
 
 
 def picture_path(save_vis: str | Path, q: ImageQuery) -> Path:
@@ -152,8 +309,10 @@ def localize_image_query(maps: MapSet, q: ImageQuery, params: LocalizeParams, to
 
 
 def image_run_meta(images: str, maps: str | Path, top_maps: int, meta: dict | None = None) -> dict:
-    """The results ``meta`` of an image run (``maps`` and ``top_maps`` are compared by --resume)."""
-    return {**(meta or {}), "dataset": IMAGES_SPLIT, "images": str(images), "maps": str(maps), "top_maps": top_maps}
+    """The results ``meta`` of an image run (``images_path``, ``maps`` and ``top_maps`` are compared
+    by --resume)."""
+    return {**(meta or {}), "dataset": IMAGES_SPLIT, "images": str(images), "images_path": images_path(images),
+            "maps": str(maps), "top_maps": top_maps}
 
 
 def run_images(queries: list[ImageQuery], maps: MapSet, output: str | Path, params: LocalizeParams,

@@ -121,7 +121,7 @@ def _run_on_ray(writer: ResultsWriter, queries: list, maps_dir: str | Path, para
             stop([r for r in refs if r not in finished], list(actors.values()))
             raise
     rank = {q.name: i for i, q in enumerate(todo)}  # resumed records first, as they were; then the plain order
-    writer.results.sort(key=lambda r: rank.get(r.name, -1))
+    writer.reorder(key=lambda r: rank.get(r.name, -1))
     writer.finish()  # every query done; flushes the sorted results
     return writer.results
 
@@ -197,6 +197,6 @@ def run_images_ray(queries: list, maps: str | Path, output: str | Path, params: 
             for a in actors:
                 ray.kill(a)
         rank = {q.name: i for i, q in enumerate(todo)}
-        writer.results.sort(key=lambda r: rank.get(r.name, -1))
+        writer.reorder(key=lambda r: rank.get(r.name, -1))
         writer.finish()  # every query done (as run_images); flushes the sorted results
         return writer.results

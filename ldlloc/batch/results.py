@@ -19,17 +19,24 @@ Image runs (``run --images``: ``split="images"``, no errors) add ``map``, ``map_
 The candidates are in the JSON only (not in the CSV). Files written before these fields existed
 still load (the fields get their defaults: no candidates, rotation prior "free").
 
-``ResultsWriter`` rewrites the JSON and then the CSV beside it, each atomically, after every
-query, so an interrupted run loses nothing and ``--resume`` skips the queries already there (and
-retries the failed ones). It holds a lock (``r.json.lock``) while it writes: a second run on the
+While a run goes on, ``ResultsWriter`` appends each query's record to a journal beside the JSON
+(``r.json.journal``, JSON Lines: :func:`journal_path`) and rewrites the JSON (and the CSV beside it,
+each atomically) only when the journal has grown as large as the JSON, and at the end: writing n
+records costs O(n) in all, a few milliseconds per query whatever the run's length (``bench/bench_results_write.py``).
+The JSON of an unfinished run names its journal (top-level ``"journal"``: a token the journal's
+first line repeats); :func:`load_results` (``report``, ``export``, ``--resume``) reads the JSON and
+then the records of its journal, so an interrupted run loses nothing and ``--resume`` skips the
+queries already there (and retries the failed ones). A finished run's JSON holds every record
+and has no journal. The run holds a lock (``r.json.lock``) while it writes: a second run on the
 same file is refused. Files carry ``"format_version": 1`` (absent in older files, read as 1);
-:func:`validate_results` checks every record when a file is read (``report``, ``--resume``).
+:func:`validate_results` checks every record when a file is read.
 """
 
 from __future__ import annotations
 
-import fcntl
+import contextlib
 import json
+import math
 import os
 from dataclasses import asdict
 from pathlib import Path
@@ -38,6 +45,8 @@ from typing import Any, Callable
 import numpy as np
 
 from ldlloc.batch.accuracy import QueryResult, results_csv, summarize
+from ldlloc.batch.journal import MAX_RESULTS_BYTES, is_journal, journal_header, journal_path, read_journal
+from ldlloc.batch.lock import ResultsBusy, acquire_lock, lock_path, release_lock
 from ldlmap.core.errors import (FormatVersionError, InputError, LdlError, atomic_file, remove_stale_temporaries,
                                 require_file)
 
@@ -45,12 +54,14 @@ from ldlmap.core.errors import (FormatVersionError, InputError, LdlError, atomic
 RESULTS_FORMAT_VERSION = 1  # top-level "format_version" of a results file (absent: written before it, read as 1)
 STATUSES = ("ok", "coarse", "failed")
 OPTION_KEYS = ("dataset", "root", "splits", "map_level", "device", "params", "max_tilt_deg", "maps", "top_maps",
-               "scene_unknown")  # meta compared by --resume
-MAX_RESULTS_BYTES = 2 << 30  # a results file larger than this is not one of ours (2 GiB: ~1 million queries)
+               "scene_unknown", "images_path")  # meta compared by --resume
 
 
 def _is_number(x: Any) -> bool:
-    return isinstance(x, (int, float)) and not isinstance(x, bool) and bool(np.isfinite(x))
+    """Whether ``x`` is a finite number (not a bool); math, not numpy: called per matrix entry."""
+    if isinstance(x, float):
+        return math.isfinite(x)
+    return isinstance(x, int) and not isinstance(x, bool)
 
 
 def _is_count(x: Any, lo: int = 0) -> bool:
@@ -157,16 +168,40 @@ def validate_results(data: Any, source: str | Path = "results") -> tuple[list[Qu
 
 
 def load_results(path: str | Path) -> tuple[list[QueryResult], dict[str, Any]]:
-    """Read and validate (:func:`validate_results`) a results JSON written by :class:`ResultsWriter`."""
+    """Read and validate (:func:`validate_results`) a results file written by :class:`ResultsWriter`,
+    with the records of its journal when the run did not finish (:func:`read_results_data`)."""
+    return validate_results(read_results_data(path), path)
+
+
+def read_results_data(path: str | Path) -> dict[str, Any]:
+    """The parsed results JSON ``path`` with its journal's records applied (a record replaces the
+    one of the same name and moves to the end, as :class:`ResultsWriter` keeps them); not yet
+    validated. One-line :class:`InputError` for a file that is not JSON, too large, or whose
+    journal is broken."""
     path = require_file(path, "results file")
+    data = _read_json(path)
+    token = data.get("journal") if isinstance(data, dict) else None
+    if isinstance(token, str) and isinstance(data.get("queries"), list):
+        records = read_journal(journal_path(path), token)
+        if records:
+            latest: dict[str, dict] = {}
+            for rec in records:
+                latest.pop(rec["name"], None)
+                latest[rec["name"]] = rec
+            kept = [q for q in data["queries"] if not (isinstance(q, dict) and q.get("name") in latest)]
+            data["queries"] = kept + list(latest.values())
+    return data
+
+
+def _read_json(path: Path) -> Any:
+    """``path`` parsed as JSON, or a one-line error saying it is not a results file."""
     if path.stat().st_size > MAX_RESULTS_BYTES:
         raise InputError(f"not a results file of `ldlloc run`: {path} ({path.stat().st_size} bytes)")
     try:
-        data = json.loads(path.read_bytes())
+        return json.loads(path.read_bytes())
     except (json.JSONDecodeError, UnicodeDecodeError, RecursionError) as exc:
         reason = "nested too deeply" if isinstance(exc, RecursionError) else f"not JSON: {exc}"
         raise InputError(f"not a results file of `ldlloc run`: {path} ({reason})") from None
-    return validate_results(data, path)
 
 
 def check_results_path(path: str | Path) -> Path:
@@ -185,14 +220,22 @@ def refuse_replacing_results(path: str | Path, overwrite: bool = False, resume: 
     """Before a run writes results file ``path`` (and its CSV): refuse (one line) to replace a file
     that is not a results file of `ldlloc run` (a user's own JSON or CSV), or the results of a run
     that did not finish (killed or interrupted: ``meta["finished"]`` false), unless ``overwrite``;
-    ``resume`` continues such a file instead (and validates it when it opens)."""
+    ``resume`` continues such a file instead (and validates it when it opens), and is refused as a
+    plain run is when the JSON is not there (it starts the file anew: a user's CSV stays). A file
+    of the journal's name that is not a journal is refused either way."""
     p = Path(path)
     if resume and overwrite:
         raise InputError("--resume keeps the results file and --overwrite replaces it: give one of them")
-    if overwrite or resume:
+    if overwrite:
         return
+    journal = journal_path(p)
+    if journal.exists() and not is_journal(journal):
+        raise InputError(f"{journal} (written beside --output {p.name}) exists and is not a journal of `ldlloc run`; "
+                         "use --overwrite to replace it, or another --output")
+    if resume and p.exists():
+        return  # continued: the writer validates it when it opens
     csv_path = p.with_suffix(".csv")
-    if not p.exists():
+    if not p.exists():  # a run (resumed or not) that starts the file anew writes the CSV too
         if csv_path.is_file() and not _is_results_csv(csv_path):
             raise InputError(f"{csv_path} (written beside --output {p.name}) exists and is not a results CSV of "
                              "`ldlloc run`; use --overwrite to replace it, or another --output")
@@ -205,7 +248,7 @@ def refuse_replacing_results(path: str | Path, overwrite: bool = False, resume: 
         raise InputError(f"output {p} exists and is not a results file of `ldlloc run` ({why}); use "
                          "--overwrite to replace it, or another --output") from None
     if meta.get("finished") is False:  # absent: written before the flag, or by a run that finished
-        _release_lock(_acquire_lock(p), lock_path(p))  # a run writing it now: ResultsBusy says so
+        release_lock(*acquire_lock(p), lock_path(p))  # a run writing it now: ResultsBusy says so
         raise InputError(f"{p} holds {len(results)} results of a run that did not finish (killed or interrupted): "
                          "continue it with --resume, or replace it with --overwrite")
 
@@ -221,15 +264,9 @@ def _is_results_csv(path: Path) -> bool:
 
 
 def results_outputs(path: str | Path) -> list[Path]:
-    """Every file a run on results file ``path`` writes: the JSON, its CSV and the lock file."""
+    """Every file a run on results file ``path`` writes: the JSON, its CSV, the journal and the lock file."""
     p = Path(path)
-    return [p, p.with_suffix(".csv"), lock_path(p)]
-
-
-def lock_path(path: str | Path) -> Path:
-    """The lock file of results file ``path`` (``r.json`` -> ``r.json.lock``), held while a run writes it."""
-    p = Path(path)
-    return p.with_name(p.name + ".lock")
+    return [p, p.with_suffix(".csv"), journal_path(p), lock_path(p)]
 
 
 def option_differences(old: dict[str, Any], new: dict[str, Any]) -> list[str]:
@@ -269,47 +306,68 @@ def _json_safe(obj: Any) -> Any:
     return obj
 
 
-class ResultsBusy(LdlError):
-    """Another run holds the lock of the results file."""
+def record_json(r: QueryResult) -> str:
+    """Query record ``r`` as one line of strict JSON (non-finite numbers as null)."""
+    fields = {k: getattr(r, k) for k in r.__dataclass_fields__}  # values are plain lists and dicts already
+    try:
+        return json.dumps(fields, allow_nan=False)
+    except ValueError:  # a NaN or an infinity somewhere: null
+        return json.dumps(_json_safe(asdict(r)), allow_nan=False)
 
 
 class ResultsWriter:
-    """Keeps the results of a run and rewrites ``path`` (JSON) and its ``.csv`` after each query.
+    """Keeps the results of a run: appends each query's record to the journal (:func:`journal_path`)
+    and rewrites ``path`` (JSON) and its ``.csv`` when the journal has grown as large as the JSON,
+    and at :meth:`finish` (module docstring): O(1) amortized work and bytes per query.
 
     While open it holds an exclusive lock on ``path``'s lock file (:func:`lock_path`): a second
     writer of the same file is refused at once (:class:`ResultsBusy`). Opening removes temporary
-    files that killed runs left beside the results and rewrites a CSV that is behind its JSON.
-    Each flush writes the JSON first, then the CSV (both atomically): a kill between the two leaves
-    a CSV at most one flush behind, never ahead, and the next open brings it level. A CSV that
-    cannot be written is a warning (``warn``, once; ``meta["csv_error"]``), never a lost result.
+    files that killed runs left beside the results; a resumed file is rewritten at once (its journal
+    folded in, the CSV brought level). Each rewrite writes the JSON, then the CSV, then a new empty
+    journal (each atomically): a kill anywhere leaves a JSON and journal that together hold every
+    record written, and a CSV that matches the JSON or an earlier one. A CSV that cannot be written
+    is a warning (``warn``, once; ``meta["csv_error"]``), never a lost result; a JSON or journal
+    that cannot be written is an :class:`LdlError` naming the file (the records written before stay).
 
     ``resume``: keep the file's records; :meth:`done` (the queries not to run again) excludes
     failed ones, which a resumed run retries. Options (:data:`OPTION_KEYS`) that differ from the
     file's ``meta`` are refused unless ``any_options`` (then ``meta["mixed_options"]`` records the
-    earlier options). Use it as a context manager, or call :meth:`close`, to release the lock.
+    earlier options); a run of another kind (:func:`run_kind`) always. Use it as a context
+    manager, or call :meth:`close`, to release the lock.
     """
 
     def __init__(self, path: str | Path, meta: dict[str, Any] | None = None, resume: bool = False,
                  any_options: bool = False, warn: Callable[[str], None] | None = None):
         self._lock = None
+        self._journal = None  # the journal, open for appending (None: the JSON must be rewritten first)
         self.path = check_results_path(path)
         self.csv_path = self.path.with_suffix(".csv")
+        self.journal_path = journal_path(self.path)
         self.meta = {**(meta or {}), "finished": False}  # true once :meth:`finish` ran (a rerun checks it)
-        self.results: list[QueryResult] = []
-        self._records: dict[str, tuple[QueryResult, dict]] = {}  # name -> (result, its JSON-safe record)
+        self._results: dict[str, QueryResult] = {}  # name -> result, in file order
+        self._texts: dict[str, str] = {}  # name -> its record as one line of JSON (made once per record)
+        self._json_bytes = self._journal_bytes = 0
         self.warn = warn or (lambda message: None)
         self._warned: set[str] = set()
-        self._lock = _acquire_lock(self.path)
+        self._lock = acquire_lock(self.path)
         try:
             remove_stale_temporaries(self.path, ".json")
             remove_stale_temporaries(self.csv_path, ".csv")
+            remove_stale_temporaries(self.journal_path, ".journal")
             if resume and self.path.exists():
-                self.results, old_meta = load_results(self.path)
+                results, old_meta = load_results(self.path)
+                self._results = {r.name: r for r in results}
+                self._texts = {r.name: record_json(r) for r in results}
                 self.meta = _resumed_meta(self.path, old_meta, self.meta, any_options)
-                self._sync_csv()
+                self.flush()
         except BaseException:
             self.close()
             raise
+
+    @property
+    def results(self) -> list[QueryResult]:
+        """The records, in file order."""
+        return list(self._results.values())
 
     def __enter__(self) -> "ResultsWriter":
         return self
@@ -318,41 +376,56 @@ class ResultsWriter:
         self.close()
 
     def close(self) -> None:
-        """Release the lock (and remove its file)."""
+        """Close the journal and release the lock (removing its file when this run made it)."""
+        if self._journal is not None:
+            self._journal.close()
+            self._journal = None
         if self._lock is not None:
-            _release_lock(self._lock, lock_path(self.path))
+            release_lock(*self._lock, lock_path(self.path))
             self._lock = None
 
     def __del__(self) -> None:
         self.close()
 
     def finish(self) -> None:
-        """Record that the run ended with every query done (``meta["finished"]``): a later run
-        without ``--resume`` may replace the file (:func:`refuse_replacing_results`)."""
+        """Record that the run ended with every query done (``meta["finished"]``) and write the
+        whole JSON (no journal left): a later run without ``--resume`` may replace the file
+        (:func:`refuse_replacing_results`)."""
         if self.meta.get("finished") is not True:
             self.meta["finished"] = True
             self.flush()
 
     def done(self) -> set[str]:
         """Names of the queries already in the file that a resumed run skips (failed ones excepted)."""
-        return {r.name for r in self.results if r.status != "failed"}
+        return {r.name for r in self._results.values() if r.status != "failed"}
 
     def failed(self) -> set[str]:
         """Names of the failed queries in the file (a resumed run retries them)."""
-        return {r.name for r in self.results if r.status == "failed"}
+        return {r.name for r in self._results.values() if r.status == "failed"}
+
+    def reorder(self, key: Callable[[QueryResult], Any]) -> None:
+        """Put the records in the order of ``key`` (written at the next rewrite, e.g. :meth:`finish`)."""
+        self._results = {r.name: r for r in sorted(self._results.values(), key=key)}
+        self._texts = {name: self._texts[name] for name in self._results}
 
     def add(self, result: QueryResult) -> None:
         self.extend([result])
 
     def extend(self, results: list[QueryResult]) -> None:
-        """Add (or replace, by name) several results and rewrite the files once."""
+        """Add (or replace, by name: the record moves to the end) several results and write them."""
         latest = {r.name: r for r in results}  # one record per query, the last one given
-        self.results = [r for r in self.results if r.name not in latest] + list(latest.values())
         for r in latest.values():
+            self._results.pop(r.name, None)
+            self._texts.pop(r.name, None)
+            self._results[r.name] = r
+            self._texts[r.name] = record_json(r)
             if r.picture_error:
                 self.warn_once("picture", f"picture of {r.name} not written ({r.picture_error}); its result is "
                                "kept (later picture failures: picture_error in the results file)")
-        self.flush()
+        if self._journal is None or self._journal_bytes >= self._json_bytes:
+            self.flush()  # the journal as large as the JSON: rewriting now keeps the total linear
+        else:
+            self._append(list(latest.values()))
 
     def warn_once(self, kind: str, message: str) -> None:
         """Say ``message`` through ``warn`` the first time a warning of ``kind`` comes."""
@@ -361,53 +434,103 @@ class ResultsWriter:
             self.warn(f"warning: {message}")
 
     def flush(self) -> None:
-        """Write the JSON, then the CSV (each atomically)."""
-        self._write_json()
-        self._write_csv()
+        """Rewrite the JSON (every record), then the CSV, then start an empty journal (none once
+        finished), each atomically."""
+        finished = self.meta.get("finished") is True
+        token = None if finished else os.urandom(8).hex()
+        if self._journal is not None:
+            self._journal.close()
+            self._journal = None
+        self._write_json(token)
+        self._write_csv(token)
+        self._journal_bytes = 0
+        if finished:
+            _remove_journal(self.journal_path)
+            return
+        header = journal_header(token)
+        with _naming_errors(self.journal_path):
+            with atomic_file(self.journal_path) as tmp:
+                tmp.write_bytes(header)
+            self._journal = open(self.journal_path, "ab")
 
-    def _record(self, r: QueryResult) -> dict:
-        """``r``'s JSON-safe record, converted once (a flush follows every query)."""
-        hit = self._records.get(r.name)
-        if hit is None or hit[0] is not r:
-            hit = self._records[r.name] = (r, _json_safe(asdict(r)))
-        return hit[1]
+    def _append(self, results: list[QueryResult]) -> None:
+        """Append the records of ``results`` to the journal, one line each, in one write."""
+        lines = "".join(f'{{"query": {self._texts[r.name]}}}\n' for r in results).encode()
+        with _naming_errors(self.journal_path):
+            try:
+                self._journal.write(lines)
+                self._journal.flush()
+            except OSError:  # part of a line may be there: never append after it (the next write rewrites)
+                journal, self._journal = self._journal, None
+                with contextlib.suppress(OSError):
+                    journal.close()
+                raise
+        self._journal_bytes += len(lines)
 
-    def _write_json(self) -> None:
-        data = _json_safe({
+    def _write_json(self, token: str | None) -> None:
+        """The JSON: its head indented, then ``"queries"`` with one record per line (each serialized
+        once, when it was added)."""
+        head = _json_safe({
             "format_version": RESULTS_FORMAT_VERSION,
             "meta": self.meta,
             "summary": summarize(self.results, self.meta.get("device")),
+            **({"journal": token} if token is not None else {}),  # the journal of this JSON (read_results_data)
         })
-        data["queries"] = [self._record(r) for r in self.results]
-        with atomic_file(self.path) as tmp:
-            tmp.write_text(json.dumps(data, indent=1, allow_nan=False))
+        text = json.dumps(head, indent=1, allow_nan=False)[:-2]  # without the closing "\n}"
+        text += ',\n "queries": [\n' + ",\n".join(self._texts.values()) + "\n ]\n}" if self._texts else \
+            ',\n "queries": []\n}'
+        with _naming_errors(self.path):
+            with atomic_file(self.path) as tmp:
+                tmp.write_text(text)
+        self._json_bytes = len(text)
 
-    def _write_csv(self) -> None:
+    def _write_csv(self, token: str | None) -> None:
         """Write the CSV; on failure warn once and record why in the JSON's ``meta["csv_error"]``."""
         try:
             with atomic_file(self.csv_path) as tmp:
-                tmp.write_text(results_csv(self.results))
+                tmp.write_text(results_csv(self.results), errors="surrogateescape")  # names as their bytes
         except (OSError, LdlError) as exc:
             reason = getattr(exc, "strerror", None) or str(exc)
             self.warn_once("csv", f"cannot write {self.csv_path} ({reason}); the results are in {self.path}")
             if self.meta.get("csv_error") != reason:
                 self.meta["csv_error"] = reason
-                self._write_json()
+                self._write_json(token)
         else:
-            self.meta.pop("csv_error", None)  # written again: the next JSON says so
+            if self.meta.pop("csv_error", None) is not None:  # written again: the JSON says so
+                self._write_json(token)
 
-    def _sync_csv(self) -> None:
-        """Rewrite the CSV when it does not match the JSON (a run killed between the two writes)."""
+
+@contextlib.contextmanager
+def _naming_errors(path: Path):
+    """Turn an OSError (a full disk, a folder made read-only) into a one-line error naming ``path``."""
+    try:
+        yield
+    except OSError as exc:
+        raise LdlError(f"cannot write {path}: {exc.strerror or exc} (the results written before are kept: "
+                       "continue with --resume)") from None
+
+
+def _remove_journal(path: Path) -> None:
+    """Remove a finished run's journal (only one of ours)."""
+    if is_journal(path):
         try:
-            current = self.csv_path.read_bytes().decode()  # as written: csv rows end in \r\n
-        except (OSError, UnicodeDecodeError):
-            current = None
-        if current != results_csv(self.results):
-            self._write_csv()
+            path.unlink()
+        except OSError:
+            pass
+
+
+def run_kind(meta: dict[str, Any]) -> str:
+    """``images`` for a run of ``--images`` (meta ``dataset``), else ``dataset``: runs of two kinds
+    never share a results file."""
+    return "images" if meta.get("dataset") == "images" else "dataset"
 
 
 def _resumed_meta(path: Path, old: dict[str, Any], new: dict[str, Any], any_options: bool) -> dict[str, Any]:
     """The meta of a resumed file: refuses other options unless ``any_options`` (then recorded)."""
+    if run_kind(old) != run_kind(new):  # never mixed, even with any_options
+        kind = {"images": "an --images run", "dataset": "a dataset run"}
+        raise InputError(f"--resume: {path} holds the results of {kind[run_kind(old)]} and this is "
+                         f"{kind[run_kind(new)]} (never mixed in one file); use another --output")
     diffs = option_differences(old, new)
     if diffs and not any_options:
         shown = ", ".join(diffs[:4]) + (f" and {len(diffs) - 4} more" if len(diffs) > 4 else "")
@@ -420,37 +543,3 @@ def _resumed_meta(path: Path, old: dict[str, Any], new: dict[str, Any], any_opti
     return meta
 
 
-def _acquire_lock(path: Path):
-    """An open, exclusively locked (``flock``) lock file of results file ``path``; refuses at once
-    (:class:`ResultsBusy`) when another run holds it."""
-    lock = lock_path(path)
-    try:
-        lock.parent.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise LdlError(f"cannot create output folder {lock.parent}: {exc.strerror or exc}") from None
-    while True:
-        try:
-            fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o666)
-        except OSError as exc:
-            raise LdlError(f"cannot write beside {path}: {exc.strerror or exc}") from None
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            os.close(fd)
-            raise ResultsBusy(f"another `ldlloc run` is writing {path} (it holds {lock.name}); wait for it to "
-                              "finish or use another --output") from None
-        try:
-            same = os.fstat(fd).st_ino == os.stat(lock).st_ino  # not removed by a run that just finished
-        except FileNotFoundError:
-            same = False
-        if same:
-            return fd
-        os.close(fd)
-
-
-def _release_lock(fd: int, lock: Path) -> None:
-    try:
-        lock.unlink()  # while still holding it: a run that opened the old file retries on a new one
-    except OSError:
-        pass
-    os.close(fd)

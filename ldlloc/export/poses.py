@@ -92,10 +92,10 @@ def _check_extra_fields(records: list[dict], source: Path) -> None:
 def read_records(path: str | Path) -> tuple[list[dict], dict[str, Any]]:
     """The query records (as plain dicts, every field kept) and ``meta`` of a results file, after
     :func:`ldlloc.batch.results.load_results` has validated it (one-line errors for bad files)."""
-    from ldlloc.batch.results import load_results
+    from ldlloc.batch.results import load_results, read_results_data
 
     results, meta = load_results(path)
-    records = json.loads(Path(path).read_bytes())["queries"]
+    records = read_results_data(path)["queries"]  # with the journal of a run that did not finish
     _check_extra_fields(records, Path(path))
     return records, meta
 

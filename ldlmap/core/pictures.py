@@ -12,7 +12,7 @@ import numpy as np
 
 from ldlmap.core.errors import InputError, atomic_file
 from ldlmap.core.geometry import cam_from_world, normalize, pixel_from_bearing
-from ldlmap.io.imagefile import encode_image, image_comment, printable
+from ldlmap.io.imagefile import encode_image, image_comment
 
 GROUP_COLORS_BGR = {0: (40, 40, 230), 1: (40, 180, 40), 2: (230, 90, 40), -1: (150, 150, 150),
                     # Atlanta frames of more than 3 directions (issue 23): further horizontals
@@ -35,6 +35,16 @@ def group_legend(principal: np.ndarray | None = None) -> list[tuple[tuple[int, i
     return items + [(GROUP_COLORS_BGR[-1], GROUP_NAMES[-1])]
 
 
+def drawable_text(text: str) -> str:
+    """``text`` as OpenCV's Hershey fonts draw it: ASCII, other bytes as ``\\xNN`` escapes (a file
+    name that is not UTF-8 holds surrogates, which crash OpenCV's string conversion)."""
+    try:
+        data = text.encode("utf-8", "surrogateescape")
+    except UnicodeEncodeError:
+        data = text.encode("utf-8", "backslashreplace")
+    return data.decode("ascii", "backslashreplace")
+
+
 def caption_band(width: int, caption: str, items: list[tuple[tuple[int, int, int], str]], note: str = "",
                  scale: float = 1.0) -> np.ndarray:
     """A dark BGR band ``width`` pixels wide to put under a picture: ``caption`` on the first row,
@@ -42,10 +52,10 @@ def caption_band(width: int, caption: str, items: list[tuple[tuple[int, int, int
     in a row goes to the next."""
     import cv2
 
-    caption, note = printable(caption), printable(note)  # OpenCV crashes on text that is not UTF-8
-    items = [(color, printable(label)) for color, label in items]
     font, size, thick = cv2.FONT_HERSHEY_SIMPLEX, 0.55 * scale, max(1, int(round(1.2 * scale)))
     pad, gap, swatch = int(8 * scale), int(18 * scale), int(26 * scale)
+    caption, note = drawable_text(caption), drawable_text(note)
+    items = [(color, drawable_text(label)) for color, label in items]
     text_h = cv2.getTextSize("Ag", font, size, thick)[0][1]
     row_h = text_h + int(12 * scale)
 

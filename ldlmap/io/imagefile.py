@@ -8,21 +8,33 @@ system holds, ``OSError`` with the reason) and OpenCV only sees buffers (``imdec
 A written JPEG or PNG can carry a short text (``comment``): a JPEG COM segment after the start
 marker, a PNG ``tEXt`` chunk (keyword ``Comment``) after ``IHDR``; :func:`image_comment` reads it
 back from the file's first bytes (it is how a command recognizes its own pictures).
+
+libjpeg reports damaged data (a file cut short, its end marker kept) only as a warning on the
+process's stderr and returns a grey-filled image: :func:`read_image` catches the decoder's stderr,
+and such a warning makes the file corrupt (:class:`InputError`), never a line leaked to the terminal.
 """
 
 from __future__ import annotations
 
+import contextlib
 import os
 import struct
+import sys
+import tempfile
 import zlib
 from pathlib import Path
+from typing import Iterator
 
 import numpy as np
+
+from ldlmap.core.errors import InputError
 
 JPEG_SUFFIXES = (".jpg", ".jpeg")
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 _PNG_KEYWORD = b"Comment"
 _HEAD_BYTES = 512  # where image_comment looks: the comment sits right after the header
+# What libjpeg says of data it could not decode in full (its JWRN_* warnings): the image is damaged.
+CORRUPT_DATA_WARNINGS = ("Corrupt JPEG data", "Premature end of JPEG file")
 
 
 def printable(text: str) -> str:
@@ -34,15 +46,46 @@ def printable(text: str) -> str:
 
 def read_image(path: str | os.PathLike, flags: int | None = None) -> np.ndarray | None:
     """The decoded image at ``path`` (``cv2.imdecode`` with ``flags``, default ``IMREAD_COLOR``;
-    the ``IMREAD_REDUCED_*`` flags work too), None when it cannot be decoded; ``OSError`` when the
-    file cannot be read."""
+    the ``IMREAD_REDUCED_*`` flags work too), None when it cannot be decoded (what the decoder said
+    of it is not printed); ``OSError`` when the file cannot be read; :class:`InputError` when the
+    decoder reports damaged data."""
     import cv2
 
     with open(path, "rb") as f:
         data = np.frombuffer(f.read(), dtype=np.uint8)
     if data.size == 0:
         return None
-    return cv2.imdecode(data, cv2.IMREAD_COLOR if flags is None else flags)
+    with _native_stderr() as said:
+        img = cv2.imdecode(data, cv2.IMREAD_COLOR if flags is None else flags)
+    text = said()
+    damaged = [line for line in text.splitlines() if line.startswith(CORRUPT_DATA_WARNINGS)]
+    if damaged:
+        raise InputError(f"corrupt image data ({damaged[0].strip()}): {printable(os.fspath(path))}")
+    if text and img is not None:  # anything else said meanwhile goes where it was going; for a file that
+        sys.stderr.write(text)     # cannot be decoded, the caller's one-line error says it all
+    return img
+
+
+@contextlib.contextmanager
+def _native_stderr() -> Iterator:
+    """Catch what is written to file descriptor 2 (C libraries' stderr) inside the block; yields a
+    function returning it as text ("" when the descriptor cannot be redirected)."""
+    caught: list[str] = []
+    try:
+        sys.stderr.flush()
+        saved = os.dup(2)
+    except (OSError, ValueError, AttributeError):
+        yield lambda: ""
+        return
+    with tempfile.TemporaryFile() as tmp:
+        os.dup2(tmp.fileno(), 2)
+        try:
+            yield lambda: "".join(caught)
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+            tmp.seek(0)
+            caught.append(tmp.read().decode("utf-8", "replace"))
 
 
 def encode_image(image: np.ndarray, suffix: str, quality: int = 90, comment: str | None = None) -> bytes:
