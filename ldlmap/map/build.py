@@ -154,6 +154,8 @@ def build_map(input_path: str | Path, output: str | Path | None = None, lines_pa
               images_path: str | Path | None = None) -> BuildReport:
     """Build the LDL map of one scene and write it to ``output`` (default: input with ``.h5``).
     ``images_path``: the photos of a COLMAP model without ``fused.ply`` (default: its workspace's).
+    ``name``: the scene's name stored in the map (default: the output's stem, which is what `ldlloc
+    run --maps` calls the scene; the input is recorded in the map's config).
 
     ``progress(stage, done, total)`` is called as stages advance (for a progress bar): with
     ``done = 0`` when a stage starts, ``done = total`` when it ends, and in between by the stages
@@ -170,13 +172,14 @@ def build_map(input_path: str | Path, output: str | Path | None = None, lines_pa
     config = {"input": str(input_path), "lines_file": str(lines_path) if lines_path else None}
     if images_path is not None:
         config["images"] = str(images_path)
-    return build_from_input(src, output, params, name or input_path.stem, progress, config, load_seconds)
+    return build_from_input(src, output, params, name or output.stem, progress, config, load_seconds)
 
 
-def build_lines_map(lines: np.ndarray, output: str | Path, params: BuildParams = BuildParams(), name: str = "lines",
+def build_lines_map(lines: np.ndarray, output: str | Path, params: BuildParams = BuildParams(), name: str | None = None,
                     walkable=None, source: str = "lines",
                     progress: Callable[[str, int, int], None] | None = None) -> BuildReport:
-    """Build a lines-only map from 3D segments (L, 2, 3) held in memory (e.g. a room layout).
+    """Build a lines-only map from 3D segments (L, 2, 3) held in memory (e.g. a room layout);
+    ``name``: the scene's name (default: the output's stem, as :func:`build_map`).
 
     ``walkable`` (:class:`ldlmap.map.translations.Walkable`) says where cameras can stand; without it
     candidate translations fill the free space of the lines.
@@ -184,9 +187,10 @@ def build_lines_map(lines: np.ndarray, output: str | Path, params: BuildParams =
     from ldlmap.io.linefiles import _check_segments
 
     _check_params(params)
-    segs = _check_segments(lines, name)
+    output = Path(output)
+    segs = _check_segments(lines, name or "lines")
     src = SceneInput(None, None, segs, None, source, walkable)
-    return build_from_input(src, Path(output), params, name, progress, {"input": source, "lines_file": None})
+    return build_from_input(src, output, params, name or output.stem, progress, {"input": source, "lines_file": None})
 
 
 def _check_params(params: BuildParams) -> None:
