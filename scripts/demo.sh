@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # End-to-end demo on a synthetic scene it generates: dataset -> maps -> batch localization.
-# Usage: [PYTHON=python3] scripts/demo.sh [OUT]   (default demo_out; about 2 minutes on 2 cores)
+# Usage: [PYTHON=python3] scripts/demo.sh [OUT]   (default demo_out; about 3 minutes on 2 cores)
 # The programs run as modules of $PYTHON (`make demo PYTHON=...` passes it), so the demo uses the
 # toolkit installed for that interpreter, not whatever `ldlmap` is first on PATH.
 set -euo pipefail
