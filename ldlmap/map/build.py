@@ -16,8 +16,10 @@ Stages (paper section 3.1, DESIGN.md 5.1-5.4), each timed:
    the vertical and those two (Atlanta frame; ``build_config["principal_frame"]``), and the
    further horizontal directions of rooms whose walls run in more than two (up to
    ``max_horizontals``: the map then has K > 3 directions); in rooms with a sloped ceiling, the
-   slopes' inclined directions too (up to ``max_inclined``); and each kept line's group (lines
-   join only directions of about their own elevation).
+   slopes' inclined directions too (up to ``max_inclined``, each only with the evidence of
+   ``FrameParams``); and each kept line's group (lines join only directions of about their own
+   elevation). When the user, the cameras or a room layout gave the up axis, the vertical is
+   that axis (:func:`known_up`), not the lines' most vertical direction.
 4. ``translations``: N_t candidate camera centres in the free space of the scan.
    ``fields``: when ``distance_fields``, each translation's K decomposed 3D line distance
    functions sampled on a spherical grid (:mod:`ldlmap.map.fields3d`) for the fast pose search.
@@ -310,6 +312,17 @@ def map_frame(src: SceneInput, lines_raw: np.ndarray, params: BuildParams) -> tu
     return R, info, note, est.weak
 
 
+def known_up(frame_info: dict, rot: np.ndarray) -> np.ndarray | None:
+    """The up axis in the map frame when the user, the cameras or a room layout gave it (the
+    map's vertical is then this, not the lines' most vertical direction); None when the lines told it."""
+    if frame_info["up_source"] == "layout":
+        return np.array([0.0, 0.0, 1.0])
+    if frame_info["up_source"] in ("user", "cameras"):
+        up = rot @ np.asarray(frame_info["up_input"], dtype=np.float64)
+        return up / np.linalg.norm(up)
+    return None
+
+
 def _azimuths(principal: np.ndarray) -> str:
     """The azimuths (degrees modulo 180, ascending) of the horizontal rows of a z-up frame, for notes."""
     horizontal = principal[np.abs(principal[:, 2]) < np.sin(np.radians(10.0))]
@@ -394,12 +407,15 @@ def build_from_input(src: SceneInput, output: Path, params: BuildParams, name: s
     start("principal")
     principal = principal_directions_3d(lines)
     deviation, frame_kind = np.zeros(3), "voted"
+    up = known_up(frame_info, rot)
+    gravity = {"up": (0.0, 0.0, 1.0) if up is None else up, "up_known": up is not None}
     if params.orthonormal_directions and params.atlanta_frame:
         principal, deviation, frame_kind = principal_frame(lines, principal,
                                                            params=FrameParams(max_horizontals=params.max_horizontals,
-                                                                              max_inclined=params.max_inclined))
+                                                                              max_inclined=params.max_inclined),
+                                                           **gravity)
     elif params.orthonormal_directions:
-        (principal, deviation), frame_kind = manhattan_frame(lines, principal), "manhattan"
+        (principal, deviation), frame_kind = manhattan_frame(lines, principal, **gravity), "manhattan"
     if frame_kind == "atlanta" and len(principal) == 3:
         pair = np.degrees(np.arccos(np.abs(principal @ principal.T)[np.triu_indices(3, 1)].max()))
         report.notes.append(f"principal directions: an Atlanta frame (the vertical and the two main horizontal "
@@ -411,9 +427,11 @@ def build_from_input(src: SceneInput, output: Path, params: BuildParams, name: s
     elif frame_kind == "sloped":
         rise = np.degrees(np.arcsin(np.minimum(np.abs(principal[:, 2]), 1.0)))  # each row's elevation
         tilted = [f"{a:.0f}" for a in rise if 10.0 < a < 80.0]
-        slopes = f"{len(tilted)} inclined at {', '.join(tilted)} deg" if tilted else "no inclined direction"
-        report.notes.append(f"principal directions: {len(principal)} (the vertical, {int((rise <= 10.0).sum())} "
-                            f"horizontal at azimuths {_azimuths(principal)} deg and {slopes}: a sloped ceiling)")
+        level = f"the vertical, {int((rise <= 10.0).sum())} horizontal at azimuths {_azimuths(principal)} deg"
+        report.notes.append(f"principal directions: {len(principal)} ({level} and {len(tilted)} inclined at "
+                            f"{', '.join(tilted)} deg: a sloped ceiling)" if tilted else
+                            f"principal directions: {len(principal)} ({level}); the inclined lines form no direction "
+                            "of their own (too short or too few for a sloped ceiling's edges)")
     if deviation.max() > 5.0:
         frame_words = {"manhattan": "the nearest orthogonal (Manhattan) frame",
                        "sloped": "the frame of the vertical and the main horizontal directions",
