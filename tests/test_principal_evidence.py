@@ -6,9 +6,11 @@ add none while the generator's sloped ceilings keep theirs."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from ldlmap.core.pictures import group_legend
-from ldlmap.lines3d.principal import FrameParams, inclined_peaks, principal_directions_3d, principal_frame
+from ldlmap.lines3d.principal import (FrameParams, inclined_peaks, longest_crease, principal_directions_3d,
+                                      principal_frame)
 
 SMALL_ROOM = """
 name = "synthroom"
@@ -61,7 +63,7 @@ def _box_room_lines(rng: np.random.Generator) -> np.ndarray:
 
 def test_short_zigzags_make_no_inclined_direction_but_a_slopes_edges_do():
     """Eight 0.25-0.39 m pieces at 45 deg (enough of the length, as a sparse scan's plane outlines
-    give) are no sloped ceiling; two 1.6 m creases at 30 deg are one; lines steeper than a ceiling
+    give) are no sloped ceiling; two 1.6 m creases at 30 deg, each in two pieces, are one; lines steeper than a ceiling
     slopes (65 deg, the docs' room's false direction) are never one."""
     rng = np.random.default_rng(4)
     room = _box_room_lines(rng)
@@ -73,17 +75,28 @@ def test_short_zigzags_make_no_inclined_direction_but_a_slopes_edges_do():
     assert length[len(room):].sum() / length.sum() > FrameParams().inclined_share  # enough length to pass before
     F, _, kind = principal_frame(lines, principal_directions_3d(lines))
     assert len(F) == 3 and not np.any((_rise_deg(F) > 10) & (_rise_deg(F) < 80)), _rise_deg(F)
-    assert len(inclined_peaks(lines, F, (0, 0, 1), FrameParams(inclined_trace_m=0.0, inclined_min_lines=1))) == 1
+    assert len(inclined_peaks(lines, F, (0, 0, 1), FrameParams(inclined_chain_m=0.0, inclined_min_lines=1))) == 1
     tilt65 = np.array([np.cos(np.radians(65)), 0, np.sin(np.radians(65))])
     steep = np.concatenate([room, _segments(tilt65, [(1, 0, 0.2), (3, 4, 0.2)], 1.6)])
     assert len(inclined_peaks(steep, F, (0, 0, 1))) == 0
 
-    tilt30 = [np.cos(np.radians(30)), 0, np.sin(np.radians(30))]
-    slope = _segments(tilt30, [(0, 0, 2.6), (0, 4, 2.6)], 1.6)
+    tilt30 = np.array([np.cos(np.radians(30)), 0, np.sin(np.radians(30))])
+    slope = np.concatenate([_segments(tilt30, [(0, 0, 1.2), (0, 4, 1.2)], 0.8),  # each crease in two pieces
+                            _segments(tilt30, [(0, 0, 1.2) + 0.85 * tilt30, (0, 4, 1.2) + 0.85 * tilt30], 0.8)])
     lines = np.concatenate([room, zigzag, slope])
     F, _, kind = principal_frame(lines, principal_directions_3d(lines))
     inclined = _rise_deg(F)[(_rise_deg(F) > 10) & (_rise_deg(F) < 80)]
     assert kind == "sloped" and np.allclose(inclined, [30.0], atol=1.0), _rise_deg(F)
+
+
+def test_longest_crease_sums_pieces_end_to_end_not_side_by_side():
+    p = np.array([1.0, 0, 1.0]) / np.sqrt(2)
+    end_to_end = _segments(p, [(0, 0, 0), 0.5 * p, 1.0 * p], 0.45)
+    side_by_side = _segments(p, [(0, 0, 0), (0, 0.3, 0), (0, 0.6, 0)], 0.45)
+    assert longest_crease(end_to_end, p, 0.15) == pytest.approx(1.35)
+    assert longest_crease(side_by_side, p, 0.15) == pytest.approx(0.45)
+    assert longest_crease(side_by_side[::-1], p, 0.15) == pytest.approx(0.45)  # whatever the order
+    assert longest_crease(end_to_end[:1], p, 0.15) == pytest.approx(0.45)
 
 
 def test_known_up_is_the_vertical_of_an_sfm_like_line_set():

@@ -192,9 +192,10 @@ class FrameParams:
     inclined_max_deg: float = 60.0  # ... rising at most this much (ceilings slope 15-45 deg; steeper lines are
     # walls' or an SfM model's leaning verticals, 15 deg off when its gravity is known) ...
     inclined_min_lines: int = 2  # ... and held by at least this many lines (a slope meets two walls) ...
-    inclined_trace_m: float = 1.2  # ... whose two longest are together at least this long (metres: maps are
-    # metric). A sparse scan's plane outlines zigzag in pieces near the length threshold (0.2-0.55 m): in flat
-    # rooms their peaks' two longest lines hold 0.7-1.1 m, a sloped ceiling's creases 1.5-7 m
+    inclined_chain_m: float = 1.0  # ... of which those along one crease (pieces whose axes lie within
+    inclined_chain_gap_m: float = 0.15  # this of each other) hold at least this length (metres: maps are metric).
+    # A sparse scan's plane outlines zigzag in parallel pieces near the length threshold, side by side, not end
+    # to end: in flat rooms their longest crease holds 0.3-0.7 m, a sloped ceiling's 1.2-5.6 m
     # (docs/measurements.md#inclined-evidence)
 
 
@@ -318,14 +319,30 @@ def horizontal_directions(lines: np.ndarray, v: np.ndarray, params: FrameParams 
     return H, float(_apart(azimuth[1], azimuth[0]))
 
 
+def longest_crease(lines: np.ndarray, direction: np.ndarray, gap_m: float) -> float:
+    """The summed length of the largest set of ``lines`` (n, 2, 3), all about along ``direction``,
+    that lie on one axis: their midpoints, seen along ``direction``, within ``gap_m`` of each other
+    (single linkage). One crease broken into pieces sums up; parallel pieces side by side do not."""
+    from scipy.cluster.hierarchy import fcluster, linkage
+
+    p = normalize(np.asarray(direction, dtype=np.float64)[None])[0]
+    length = np.linalg.norm(lines[:, 1] - lines[:, 0], axis=1)
+    if len(lines) < 2:
+        return float(length.sum())
+    mids = lines.mean(axis=1)
+    across = mids - np.outer(mids @ p, p)  # where each line's axis meets the plane perpendicular to the direction
+    labels = fcluster(linkage(across, "single"), gap_m, "distance")
+    return float(np.bincount(labels, length).max())
+
+
 def inclined_peaks(lines: np.ndarray, frame: np.ndarray, v: np.ndarray, params: FrameParams = FrameParams()
                    ) -> np.ndarray:
     """Inclined line directions (n, 3), n <= ``max_inclined``, to add to ``frame`` (K, 3): the
     length-weighted 3D vote (:func:`principal_directions_3d`) among the lines 10 (``horizontal_deg``) to
     ``inclined_max_deg`` degrees from horizontal and at least ``inclined_apart_deg`` from every frame direction, each
     peak kept while it holds ``inclined_share`` of all the line length (within ``refine_deg``) and
-    only with the evidence of a surface's edge: at least ``inclined_min_lines`` lines whose two longest
-    hold ``inclined_trace_m`` (a peak without it is passed over). A sloped ceiling's edges (the gable
+    only with the evidence of a surface's edge: at least ``inclined_min_lines`` lines, and pieces of
+    one crease holding ``inclined_chain_m`` (:func:`longest_crease`; a peak without it is passed over). A sloped ceiling's edges (the gable
     walls' tops, the slope's own creases) then form groups of their own instead of being left out
     of the loss, and a flat room's short scan artefacts add no direction."""
     d, w = line_directions(lines)
@@ -339,11 +356,11 @@ def inclined_peaks(lines: np.ndarray, frame: np.ndarray, v: np.ndarray, params: 
     L = np.asarray(lines, dtype=np.float64)
     while len(found) < params.max_inclined and alive.any():
         p = principal_directions_3d(L[alive], k=1)[0]
-        held = w[(np.abs(d @ p) >= np.cos(np.radians(params.refine_deg))) & alive]
-        if float(held.sum()) < params.inclined_share * total:
+        held = (np.abs(d @ p) >= np.cos(np.radians(params.refine_deg))) & alive
+        if float(w[held].sum()) < params.inclined_share * total:
             break
-        longest = np.sort(held)[::-1]
-        if len(held) >= params.inclined_min_lines and float(longest[:2].sum()) >= params.inclined_trace_m:
+        if held.sum() >= params.inclined_min_lines and \
+                longest_crease(L[held], p, params.inclined_chain_gap_m) >= params.inclined_chain_m:
             found.append(p * (1.0 if p @ v >= 0 else -1.0))
         alive &= np.abs(d @ p) < cos_sep
     return np.asarray(found, dtype=np.float64).reshape(-1, 3)
