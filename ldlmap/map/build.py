@@ -330,6 +330,34 @@ def _azimuths(principal: np.ndarray) -> str:
                                                for h in horizontal))
 
 
+def _frame_notes(report: BuildReport, principal: np.ndarray, deviation: np.ndarray, frame_kind: str) -> None:
+    """The build's note on a frame that is not the plain Manhattan one (Atlanta, sloped), and its
+    warning when the voted directions were far from the frame the map uses."""
+    if frame_kind == "atlanta" and len(principal) == 3:
+        pair = np.degrees(np.arccos(np.abs(principal @ principal.T)[np.triu_indices(3, 1)].max()))
+        report.notes.append(f"principal directions: an Atlanta frame (the vertical and the two main horizontal "
+                            f"directions, {pair:.0f} deg apart: walls not at right angles)")
+    elif frame_kind == "atlanta":
+        report.notes.append(f"principal directions: an Atlanta frame of {len(principal)} (the vertical and "
+                            f"{len(principal) - 1} horizontal directions, at azimuths "
+                            f"{_azimuths(principal)} deg: walls in more than two directions)")
+    elif frame_kind == "sloped":
+        rise = np.degrees(np.arcsin(np.minimum(np.abs(principal[:, 2]), 1.0)))  # each row's elevation
+        tilted = [f"{a:.0f}" for a in rise if 10.0 < a < 80.0]
+        level = f"the vertical, {int((rise <= 10.0).sum())} horizontal at azimuths {_azimuths(principal)} deg"
+        report.notes.append(f"principal directions: {len(principal)} ({level} and {len(tilted)} inclined at "
+                            f"{', '.join(tilted)} deg: a sloped ceiling)" if tilted else
+                            f"principal directions: {len(principal)} ({level}); the inclined lines form no direction "
+                            "of their own (too short or too few for a sloped ceiling's edges)")
+    if deviation.max() > 5.0:
+        frame_words = {"manhattan": "the nearest orthogonal (Manhattan) frame",
+                       "sloped": "the frame of the vertical and the main horizontal directions",
+                       "atlanta": "the frame of the vertical and the two main horizontal directions (Atlanta)"}
+        report.warnings.append(
+            f"the lines' principal directions are up to {deviation.max():.0f} deg off {frame_words[frame_kind]}, "
+            "which the map uses: noisy lines or a building of other shapes")
+
+
 def build_from_input(src: SceneInput, output: Path, params: BuildParams, name: str,
                      progress: Callable[[str, int, int], None] | None = None, config: dict | None = None,
                      load_seconds: float = 0.0) -> BuildReport:
@@ -416,29 +444,7 @@ def build_from_input(src: SceneInput, output: Path, params: BuildParams, name: s
                                                            **gravity)
     elif params.orthonormal_directions:
         (principal, deviation), frame_kind = manhattan_frame(lines, principal, **gravity), "manhattan"
-    if frame_kind == "atlanta" and len(principal) == 3:
-        pair = np.degrees(np.arccos(np.abs(principal @ principal.T)[np.triu_indices(3, 1)].max()))
-        report.notes.append(f"principal directions: an Atlanta frame (the vertical and the two main horizontal "
-                            f"directions, {pair:.0f} deg apart: walls not at right angles)")
-    elif frame_kind == "atlanta":
-        report.notes.append(f"principal directions: an Atlanta frame of {len(principal)} (the vertical and "
-                            f"{len(principal) - 1} horizontal directions, at azimuths "
-                            f"{_azimuths(principal)} deg: walls in more than two directions)")
-    elif frame_kind == "sloped":
-        rise = np.degrees(np.arcsin(np.minimum(np.abs(principal[:, 2]), 1.0)))  # each row's elevation
-        tilted = [f"{a:.0f}" for a in rise if 10.0 < a < 80.0]
-        level = f"the vertical, {int((rise <= 10.0).sum())} horizontal at azimuths {_azimuths(principal)} deg"
-        report.notes.append(f"principal directions: {len(principal)} ({level} and {len(tilted)} inclined at "
-                            f"{', '.join(tilted)} deg: a sloped ceiling)" if tilted else
-                            f"principal directions: {len(principal)} ({level}); the inclined lines form no direction "
-                            "of their own (too short or too few for a sloped ceiling's edges)")
-    if deviation.max() > 5.0:
-        frame_words = {"manhattan": "the nearest orthogonal (Manhattan) frame",
-                       "sloped": "the frame of the vertical and the main horizontal directions",
-                       "atlanta": "the frame of the vertical and the two main horizontal directions (Atlanta)"}
-        report.warnings.append(
-            f"the lines' principal directions are up to {deviation.max():.0f} deg off {frame_words[frame_kind]}, "
-            "which the map uses: noisy lines or a building of other shapes")
+    _frame_notes(report, principal, deviation, frame_kind)
     # under a sloped ceiling, lines join only directions of about their own elevation (the map frame's up is z)
     groups = assign_line_groups(line_directions(lines)[0], principal,
                                 up=(0.0, 0.0, 1.0) if frame_kind == "sloped" else None)
