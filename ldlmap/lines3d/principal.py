@@ -384,7 +384,7 @@ def principal_frame(lines: np.ndarray, estimated: np.ndarray, up: np.ndarray = (
     perpendicular, once those further ones hold ``extra_share`` of the length together (below that,
     with a perpendicular main pair: the Manhattan frame, as for boxes). Where more than
     ``sloped_share`` of the line length is inclined (a sloped ceiling), the frame is ``"sloped"``:
-    the main inclined directions (:func:`inclined_peaks`, none where none holds ``inclined_share``)
+    the main inclined directions (:func:`inclined_peaks`, none where none has the evidence of a crease)
     follow as the last rows, so the slope's edges form groups of their own in the map and in the
     query instead of joining a horizontal's group in the map only (the map build then groups lines
     by elevation, :func:`assign_line_groups` with ``up``). The first
