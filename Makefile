@@ -39,7 +39,7 @@ test:
 	$(PYTHON) -m pytest -q -n 2 --dist loadgroup -p no:hypothesispytest -p no:dash -p no:benchmark tests
 
 demo:
-	bash scripts/demo.sh $(DEMO_DIR)
+	PYTHON="$(PYTHON)" bash scripts/demo.sh $(DEMO_DIR)
 
 bench:
 	$(PYTHON) bench/run_all.py

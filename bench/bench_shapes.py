@@ -21,7 +21,8 @@ and the main two horizontals only (docs/measurements.md#atlanta-many).
 
 Printed per kind and split, per map kind: search top-1 and best of the top 20 within 0.5 m / 10 deg,
 final within 0.1 m / 5 deg and 0.25 m / 5 deg, median errors, and how many final poses are upside
-down (camera up more than 90 deg from the truth's). Results go to ``bench/shapes.json``.
+down (camera up more than 90 deg from the truth's), and how many poses are marked confident (of them
+beyond 0.25 m / 5 deg). Results go to ``bench/shapes.json``.
 """
 
 from __future__ import annotations
@@ -97,7 +98,7 @@ def localize(root: Path, maps: Path, max_tilt: float | None) -> list[dict]:
         rows.append({"name": r.name, "scene": r.scene, "split": r.split, "status": r.status,
                      "t_error_m": r.t_error_m if ok else None, "r_error_deg": r.r_error_deg if ok else None,
                      "first_good_rank": r.first_good_rank if ok else None, "upside_down": upside_down,
-                     "seconds": r.seconds})
+                     "confident": r.verdict == "confident", "seconds": r.seconds})
     return rows
 
 
@@ -105,6 +106,7 @@ def summarize(rows: list[dict]) -> dict:
     te = np.array([r["t_error_m"] if r["t_error_m"] is not None else np.inf for r in rows])
     re = np.array([r["r_error_deg"] if r["r_error_deg"] is not None else np.inf for r in rows])
     ranks = [r["first_good_rank"] for r in rows]
+    confident = np.array([r["confident"] for r in rows], dtype=bool)
     return {
         "count": len(rows),
         "top1": float(np.mean([k == 1 for k in ranks])) if rows else None,
@@ -114,6 +116,8 @@ def summarize(rows: list[dict]) -> dict:
         "median_t_error_m": float(np.median(te)) if rows else None,
         "median_r_error_deg": float(np.median(re)) if rows else None,
         "upside_down": int(sum(r["upside_down"] for r in rows)),
+        "confident": int(confident.sum()),
+        "confident_wrong": int((confident & ~((te < 0.25) & (re < 5))).sum()),  # beyond 0.25 m / 5 deg
     }
 
 
@@ -122,13 +126,13 @@ def print_table(title: str, table: dict) -> None:
 
     t = Table(title=title)
     for col in ("kind", "split", "queries", "top-1 0.5m/10deg", "top-20", "final 0.1m/5deg", "final 0.25m/5deg",
-                "median t m", "median r deg", "upside down"):
+                "median t m", "median r deg", "upside down", "confident (wrong)"):
         t.add_column(col, justify="right" if col not in ("kind", "split") else "left")
     for (kind, split), s in table.items():
         f = lambda x, spec=".2f": "-" if x is None else format(x, spec)  # noqa: E731
         t.add_row(kind, split, str(s["count"]), f(s["top1"]), f(s["top20"]), f(s["acc_0.1m_5deg"]),
                   f(s["acc_0.25m_5deg"]), f(s["median_t_error_m"], ".3f"), f(s["median_r_error_deg"], ".2f"),
-                  str(s["upside_down"]))
+                  str(s["upside_down"]), f"{s['confident']} ({s['confident_wrong']})")
     console().print(t)
 
 

@@ -62,7 +62,7 @@ def info(map_path: Path = typer.Argument(..., metavar="MAP", help="An LDL map (.
     table.add_column("field", style="bold")
     table.add_column("value")
     rows = [
-        ("scene", h["name"]),
+        ("scene", _scene_name(h["name"], map_path)),
         ("format version", str(h["format_version"])),
         ("3D lines (raw -> kept)", f"{h['num_lines_raw']} -> {h['num_lines']} (kept ratio {h['kept_ratio']:.3f}, "
                                    f"length threshold {h['length_threshold']:.3f} m)"),
@@ -86,6 +86,15 @@ def info(map_path: Path = typer.Argument(..., metavar="MAP", help="An LDL map (.
 
         map_picture(m, png, name=map_path.name)
         console.print(f"wrote {png}", soft_wrap=True)
+
+
+def _scene_name(stored: str, map_path: Path) -> str:
+    """The map's scene as `ldlloc run` names it: the stored name, which `build` and `prepare` make
+    the file's stem (its path below the maps folder); a file renamed since (or a map built before
+    that rule) shows its stem, which `run` uses, with the stored name beside it."""
+    if Path(stored).name == map_path.stem:
+        return stored
+    return f"{map_path.stem} (stored as {stored!r}; `ldlloc run --maps` names it by the file)"
 
 
 def _principal_rows(header: dict) -> list[tuple[str, str]]:

@@ -214,14 +214,54 @@ def runnable(page: Path) -> list[Block]:
     return [b for b in fenced_blocks(page) if b.language in RUN_LANGUAGES and b.marker is None]
 
 
+OUTPUT_OPTIONS = ("-o", "--output", "--html", "--save-vis")  # what a command writes, beside `synth OUT`
+
+
+def taken_outputs(code: str, cwd: Path) -> list[str]:
+    """The outputs that the ``ldlmap``/``ldlloc`` lines of a bash block would write but that ``cwd``
+    already holds, so the block would fail or mix with earlier results there: ``synth OUT`` into a
+    non-empty folder, an existing ``-o``/``--output``/``--html``/``--save-vis`` path; lines with
+    ``--overwrite`` or ``--resume`` mean to reuse them."""
+    taken = []
+    for cmd in shell_commands(code):
+        words = [] if needs_shell(cmd) else shlex.split(cmd, comments=True)
+        if len(words) < 3 or words[0] not in PROGRAMS or {"--overwrite", "--resume"} & set(words):
+            continue
+        outs = [words[2]] if words[:2] == ["ldlmap", "synth"] else []
+        outs += [words[i + 1] for i, w in enumerate(words[:-1]) if w in OUTPUT_OPTIONS]
+        for out in outs:
+            p = cwd / out
+            if p.is_file() or (p.is_dir() and any(p.iterdir())):
+                taken.append(f"`{cmd}`: {out} is already there")
+    return taken
+
+
+def test_taken_outputs_names_what_a_block_would_collide_with(tmp_path):
+    (tmp_path / "data" / "synth").mkdir(parents=True)
+    (tmp_path / "data" / "synth" / "dataset.json").write_text("{}")
+    (tmp_path / "results").mkdir()
+    (tmp_path / "results" / "all.json").write_text("{}")
+    code = ("ldlmap synth data/synth --preset demo\nldlmap synth data/new\n"
+            "ldlloc run --root data/synth --output results/all.json\n"
+            "ldlloc run --root data/synth --output results/all.json --resume\n"
+            "ldlloc report results/all.json --html report.html\n")
+    assert taken_outputs(code, tmp_path) == ["`ldlmap synth data/synth --preset demo`: data/synth is already there",
+                                             "`ldlloc run --root data/synth --output results/all.json`: "
+                                             "results/all.json is already there"]
+
+
 @pytest.mark.parametrize("page", [p.relative_to(REPO).as_posix() for p in doc_pages() if runnable(p)])
 def test_examples_run(page, working_folder, program_bin, tmp_path):
-    blocks = runnable(REPO / page)
+    """The page's blocks in order, as a reader follows them; a block that is not run must still
+    fit there: it would not collide with what the working folder and the blocks before it hold."""
     folder = tmp_path / "work"
     shutil.copytree(working_folder, folder)
     runner = Runner(folder, program_bin)
-    for block in blocks:
-        runner.run_block(block)
+    for block in fenced_blocks(REPO / page):
+        if block.language in RUN_LANGUAGES and block.marker is None:
+            runner.run_block(block)
+        elif block.language == "bash" and block.marker == "not run":
+            assert not taken_outputs(block.code, runner.cwd), (block.where, taken_outputs(block.code, runner.cwd))
 
 
 def _slug(heading: str) -> str:

@@ -4,11 +4,14 @@ Both programs are Typer apps made by :func:`make_app`; its click group turns
 :class:`~ldlmap.core.errors.LdlError` (and ``OSError``) raised anywhere in a command into one line
 ``error: <message>`` on stderr and exit code 1, both for the installed scripts and for Typer's
 ``CliRunner`` in tests. Any other exception is a bug of ours: one line ``error: internal error
-(...)`` and exit code 70. Set ``LDL_DEBUG=1`` to get the traceback instead.
+(...)`` and exit code 70. Set ``LDL_DEBUG=1`` to get the traceback instead. A reader of stdout that
+leaves early (``| head``) ends the program quietly with exit code 141; ``--version`` prints the
+installed version.
 """
 
 from __future__ import annotations
 
+import io
 import os
 import sys
 
@@ -17,12 +20,31 @@ import typer
 from rich.console import Console
 from typer.core import TyperCommand, TyperGroup
 
+INTERNAL_ERROR = 70  # EX_SOFTWARE: an exception no check of ours anticipated (a bug to report)
+BROKEN_PIPE = 141  # 128 + SIGPIPE: what the shell reports for a program whose reader left (`| head`)
+DISTRIBUTION = "ldl-toolkit"  # the package both programs come from (pyproject.toml), for --version
+
+
+def exit_broken_pipe() -> None:
+    """Stop quietly because stdout's reader is gone (``ldlloc report r.json | head``): no message,
+    exit code :data:`BROKEN_PIPE`. stdout is pointed at /dev/null first, so Python's own flush at
+    exit does not fail again and print "Exception ignored"."""
+    try:
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+    except (OSError, ValueError, AttributeError, io.UnsupportedOperation):  # no file descriptor (CliRunner)
+        pass
+    raise SystemExit(BROKEN_PIPE)
+
+
+def _console_on_broken_pipe(self: Console) -> None:
+    """Rich's ``Console.on_broken_pipe`` in a CLI process: :func:`exit_broken_pipe` (Rich's exits 1)."""
+    self.quiet = True
+    exit_broken_pipe()
+
+
 # When output goes to a file or a CI log, Rich would assume 80 columns and squeeze the tables.
 console = Console(width=None if sys.stdout.isatty() or os.environ.get("COLUMNS") else 132)
 err_console = Console(stderr=True, width=None if sys.stderr.isatty() or os.environ.get("COLUMNS") else 400)
-
-
-INTERNAL_ERROR = 70  # EX_SOFTWARE: an exception no check of ours anticipated (a bug to report)
 
 
 def fail(message: str, code: int = 1, as_json: bool = False) -> None:
@@ -131,6 +153,13 @@ class _ErrorHandlingGroup(TyperGroup):
             tidy_metavar(param)
         return params
 
+    def make_context(self, *args, **kwargs) -> click.Context:
+        """Click's, ending quietly when the program's own ``--help`` meets a broken pipe."""
+        try:
+            return super().make_context(*args, **kwargs)
+        except BrokenPipeError:
+            exit_broken_pipe()
+
     def invoke(self, ctx: click.Context):  # noqa: D401 - click API
         from ldlmap.core.errors import LdlError
 
@@ -141,6 +170,8 @@ class _ErrorHandlingGroup(TyperGroup):
         try:
             with sigterm_as_interrupt():  # SIGTERM: as Ctrl-C, then "terminated" (exit 143)
                 return super().invoke(ctx)
+        except BrokenPipeError:  # the reader of stdout left (`| head`): not an error of the input
+            exit_broken_pipe()
         except _usage_error() as exc:  # a malformed option: click's message, or JSON with --json
             if not as_json:
                 raise
@@ -190,12 +221,17 @@ class _ScriptApp(typer.Typer):
         for stream in (sys.stdout, sys.stderr):  # a file name that is not UTF-8 is printed as \udcff, not a crash
             if hasattr(stream, "reconfigure"):
                 stream.reconfigure(errors="backslashreplace")
+        Console.on_broken_pipe = _console_on_broken_pipe  # every Rich console of the program: ours and the help's
         try:
             return super().__call__(*args, **kwargs)
         finally:
             import gc
 
             gc.freeze()
+            try:  # what is still buffered, now: at interpreter exit a broken pipe would print a warning
+                sys.stdout.flush()
+            except BrokenPipeError:
+                exit_broken_pipe()
 
 
 def import_heavy(*modules: str) -> None:
@@ -218,14 +254,30 @@ def import_heavy(*modules: str) -> None:
         gc.freeze()
 
 
+def package_version() -> str:
+    """The installed toolkit's version (its distribution's metadata), or "unknown" when it is not installed."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version(DISTRIBUTION)
+    except PackageNotFoundError:
+        return "unknown"
+
+
 def make_app(name: str, help: str) -> typer.Typer:
-    """A Typer app with one-line error reporting and no pretty tracebacks of locals."""
+    """A Typer app with one-line error reporting, ``--version`` and no pretty tracebacks of locals."""
     app = _ScriptApp(name=name, help=help, cls=_ErrorHandlingGroup, no_args_is_help=True,
                      add_completion=False, pretty_exceptions_show_locals=False)
 
+    def show_version(value: bool) -> None:
+        if value:
+            typer.echo(f"{name} {package_version()}")
+            raise typer.Exit()
+
     @app.callback()
-    def _root() -> None:  # keeps the app a command group even with a single command
-        pass
+    def _root(version: bool = typer.Option(False, "--version", is_eager=True, callback=show_version,
+                                           help="Print the program's version and exit.")) -> None:
+        """The program itself (a command group even with a single command)."""
 
     return app
 

@@ -25,12 +25,14 @@ BAND_BGR = (30, 30, 30)  # the caption band under a picture: white text on dark 
 
 def group_legend(principal: np.ndarray | None = None) -> list[tuple[tuple[int, int, int], str]]:
     """Legend entries (BGR colour, label) of the principal groups; given the map's principal
-    directions (K, 3), each label says whether its direction is the vertical one."""
+    directions (K, 3) (z up), each label says whether its direction is vertical, horizontal (within
+    10 deg) or inclined, with its elevation (a sloped ceiling's)."""
     items = []
     for g in range(3 if principal is None else len(principal)):
         label = GROUP_NAMES[g]
         if principal is not None:
-            label += " vertical" if abs(float(np.asarray(principal)[g][2])) > 0.9 else " horizontal"
+            rise = float(np.degrees(np.arcsin(min(abs(float(np.asarray(principal)[g][2])), 1.0))))
+            label += " vertical" if rise >= 80.0 else " horizontal" if rise <= 10.0 else f" inclined {rise:.0f} deg"
         items.append((GROUP_COLORS_BGR[g], label))
     return items + [(GROUP_COLORS_BGR[-1], GROUP_NAMES[-1])]
 

@@ -131,13 +131,13 @@ def assign_line_groups(directions_of_lines: np.ndarray, principal: np.ndarray,
 
 def manhattan_frame(lines: np.ndarray, estimated: np.ndarray, up: np.ndarray = (0.0, 0.0, 1.0),
                     horizontal_deg: float = 15.0, vote_deg: float = 2.0,
-                    refine_deg: float = 5.0) -> tuple[np.ndarray, np.ndarray]:
+                    refine_deg: float = 5.0, up_known: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """The orthonormal (Manhattan) frame nearest the lines, and each estimated direction's angle to it.
 
     The paper assumes three orthogonal principal directions; voting them one by one does not
     enforce it (an SfM map's may be far from perpendicular: docs/measurements.md#manhattan-frame).
-    The frame keeps the vertical (the ``estimated`` row closest to ``up``, which is gravity, when
-    within 20 degrees, else ``up``) and fits the horizontals to the data rather than to the
+    The frame keeps the vertical (``up`` itself when ``up_known``: the user, the cameras or a layout
+    gave it; else the ``estimated`` row closest to ``up`` when within 20 degrees, else ``up``) and fits the horizontals to the data rather than to the
     estimated directions: the azimuths of the lines within ``horizontal_deg`` of horizontal, folded
     modulo 90 degrees, vote (length-weighted, +-``vote_deg``) for the pair of perpendicular
     horizontals, refined by the circular mean of the votes within ``refine_deg``. So every
@@ -151,7 +151,7 @@ def manhattan_frame(lines: np.ndarray, estimated: np.ndarray, up: np.ndarray = (
         raise InputError(f"estimated principal directions must have shape (3, 3), got {E.shape}")
     u = normalize(np.asarray(up, dtype=np.float64)[None])[0]
     d, w = line_directions(lines)
-    kv, v = _vertical(E, u)
+    kv, v = _vertical(E, u, up_known)
     e1 = _any_perpendicular(v)
     e2 = np.cross(v, e1)
     hz = (np.abs(d @ v) < np.sin(np.radians(horizontal_deg))) & (w > 1e-12)
@@ -189,12 +189,23 @@ class FrameParams:
     inclined_share: float = 0.02  # ... each holding at least this share of all the line length
     inclined_apart_deg: float = 12.0  # ... and at least this far from every other direction (a 15-deg slope
     # is 15 deg from its horizontal; ldlmap.map.validate.MAX_PRINCIPAL_COS)
+    inclined_max_deg: float = 60.0  # ... rising at most this much (ceilings slope 15-45 deg; steeper lines are
+    # walls' or an SfM model's leaning verticals, 15 deg off when its gravity is known) ...
+    inclined_min_lines: int = 2  # ... and held by at least this many lines (a slope meets two walls) ...
+    inclined_chain_m: float = 1.0  # ... of which those along one crease (pieces whose axes lie within
+    inclined_chain_gap_m: float = 0.15  # this of each other) hold at least this length (metres: maps are metric).
+    # A sparse scan's plane outlines zigzag in parallel pieces near the length threshold, side by side, not end
+    # to end: in flat rooms their longest crease holds 0.3-0.7 m, a sloped ceiling's 1.2-5.6 m
+    # (docs/measurements.md#inclined-evidence)
 
 
-def _vertical(E: np.ndarray, u: np.ndarray) -> tuple[int, np.ndarray]:
-    """Index of the estimated row closest to ``u`` and the vertical: that row (sign towards ``u``)
-    when within 20 degrees of ``u``, else ``u``."""
+def _vertical(E: np.ndarray, u: np.ndarray, known: bool = False) -> tuple[int, np.ndarray]:
+    """Index of the estimated row closest to ``u`` and the vertical: ``u`` when ``known`` (gravity
+    from the user, the cameras or a layout: an SfM model's most vertical line direction may lean 15
+    deg), else that row (sign towards ``u``) when within 20 degrees of ``u``, else ``u``."""
     kv = int(np.argmax(np.abs(E @ u)))
+    if known:
+        return kv, u
     v = E[kv] * np.sign(E[kv] @ u)
     return kv, (v if v @ u >= np.cos(np.radians(20.0)) else u)
 
@@ -308,41 +319,61 @@ def horizontal_directions(lines: np.ndarray, v: np.ndarray, params: FrameParams 
     return H, float(_apart(azimuth[1], azimuth[0]))
 
 
+def longest_crease(lines: np.ndarray, direction: np.ndarray, gap_m: float) -> float:
+    """The summed length of the largest set of ``lines`` (n, 2, 3), all about along ``direction``,
+    that lie on one axis: their midpoints, seen along ``direction``, within ``gap_m`` of each other
+    (single linkage). One crease broken into pieces sums up; parallel pieces side by side do not."""
+    from scipy.cluster.hierarchy import fcluster, linkage
+
+    p = normalize(np.asarray(direction, dtype=np.float64)[None])[0]
+    length = np.linalg.norm(lines[:, 1] - lines[:, 0], axis=1)
+    if len(lines) < 2:
+        return float(length.sum())
+    mids = lines.mean(axis=1)
+    across = mids - np.outer(mids @ p, p)  # where each line's axis meets the plane perpendicular to the direction
+    labels = fcluster(linkage(across, "single"), gap_m, "distance")
+    return float(np.bincount(labels, length).max())
+
+
 def inclined_peaks(lines: np.ndarray, frame: np.ndarray, v: np.ndarray, params: FrameParams = FrameParams()
                    ) -> np.ndarray:
     """Inclined line directions (n, 3), n <= ``max_inclined``, to add to ``frame`` (K, 3): the
-    length-weighted 3D vote (:func:`principal_directions_3d`) among the lines 10-80 degrees from
-    horizontal (``horizontal_deg``) and at least ``inclined_apart_deg`` from every frame direction, each
-    peak kept while it holds ``inclined_share`` of all the line length (within ``refine_deg``). A
-    sloped ceiling's edges (the gable walls' tops, the slope's own creases) then form groups of
-    their own instead of being left out of the loss."""
+    length-weighted 3D vote (:func:`principal_directions_3d`) among the lines 10 (``horizontal_deg``) to
+    ``inclined_max_deg`` degrees from horizontal and at least ``inclined_apart_deg`` from every frame direction, each
+    peak kept while it holds ``inclined_share`` of all the line length (within ``refine_deg``) and
+    only with the evidence of a surface's edge: at least ``inclined_min_lines`` lines, and pieces of
+    one crease holding ``inclined_chain_m`` (:func:`longest_crease`; a peak without it is passed over). A sloped ceiling's edges (the gable
+    walls' tops, the slope's own creases) then form groups of their own instead of being left out
+    of the loss, and a flat room's short scan artefacts add no direction."""
     d, w = line_directions(lines)
     v = normalize(np.asarray(v, dtype=np.float64)[None])[0]
     total = max(float(w.sum()), 1e-12)
     elevation = np.degrees(np.arcsin(np.clip(np.abs(d @ v), 0.0, 1.0)))
     cos_sep = np.cos(np.radians(params.inclined_apart_deg))
-    alive = ((elevation > params.horizontal_deg) & (elevation < 90.0 - params.horizontal_deg) & (w > 1e-12)
+    alive = ((elevation > params.horizontal_deg) & (elevation <= params.inclined_max_deg) & (w > 1e-12)
              & np.all(np.abs(d @ np.asarray(frame).T) < cos_sep, axis=1))
     found: list[np.ndarray] = []
     L = np.asarray(lines, dtype=np.float64)
     while len(found) < params.max_inclined and alive.any():
         p = principal_directions_3d(L[alive], k=1)[0]
-        near = np.abs(d @ p) >= np.cos(np.radians(params.refine_deg))
-        if float(w[near & alive].sum()) < params.inclined_share * total:
+        held = (np.abs(d @ p) >= np.cos(np.radians(params.refine_deg))) & alive
+        if float(w[held].sum()) < params.inclined_share * total:
             break
-        found.append(p * (1.0 if p @ v >= 0 else -1.0))
+        if held.sum() >= params.inclined_min_lines and \
+                longest_crease(L[held], p, params.inclined_chain_gap_m) >= params.inclined_chain_m:
+            found.append(p * (1.0 if p @ v >= 0 else -1.0))
         alive &= np.abs(d @ p) < cos_sep
     return np.asarray(found, dtype=np.float64).reshape(-1, 3)
 
 
 def principal_frame(lines: np.ndarray, estimated: np.ndarray, up: np.ndarray = (0.0, 0.0, 1.0),
-                    params: FrameParams = FrameParams()) -> tuple[np.ndarray, np.ndarray, str]:
+                    params: FrameParams = FrameParams(), up_known: bool = False) -> tuple[np.ndarray, np.ndarray, str]:
     """The map's principal directions: the Manhattan frame, or an Atlanta frame where the walls
     are not at right angles, and inclined directions where the ceiling slopes. Returns ``(frame
     (K, 3), deviation_deg (3,), kind)``, kind ``"manhattan"`` (K = 3), ``"atlanta"`` (K = 3 .. 1 +
     ``max_horizontals``) or ``"sloped"`` (either of those and 0 .. ``max_inclined`` inclined rows).
 
-    The vertical is kept as :func:`manhattan_frame` keeps it; the horizontals come from the
+    The vertical is kept as :func:`manhattan_frame` keeps it (``up`` itself when ``up_known``); the horizontals come from the
     horizontal lines only (:func:`horizontal_peaks`: sloped ceiling edges and other inclined lines
     do not compete). When the two main horizontal directions are within ``atlanta_deg`` of
     perpendicular (boxes), the Manhattan frame is used (:func:`manhattan_frame`, unchanged);
@@ -353,7 +384,7 @@ def principal_frame(lines: np.ndarray, estimated: np.ndarray, up: np.ndarray = (
     perpendicular, once those further ones hold ``extra_share`` of the length together (below that,
     with a perpendicular main pair: the Manhattan frame, as for boxes). Where more than
     ``sloped_share`` of the line length is inclined (a sloped ceiling), the frame is ``"sloped"``:
-    the main inclined directions (:func:`inclined_peaks`, none where none holds ``inclined_share``)
+    the main inclined directions (:func:`inclined_peaks`, none where none has the evidence of a crease)
     follow as the last rows, so the slope's edges form groups of their own in the map and in the
     query instead of joining a horizontal's group in the map only (the map build then groups lines
     by elevation, :func:`assign_line_groups` with ``up``). The first
@@ -364,7 +395,7 @@ def principal_frame(lines: np.ndarray, estimated: np.ndarray, up: np.ndarray = (
     if E.shape != (3, 3):
         raise InputError(f"estimated principal directions must have shape (3, 3), got {E.shape}")
     u = normalize(np.asarray(up, dtype=np.float64)[None])[0]
-    kv, v = _vertical(E, u)
+    kv, v = _vertical(E, u, up_known)
     found = horizontal_peaks(lines, v, params)
     d, w = line_directions(lines)
     elevation = np.degrees(np.arcsin(np.clip(np.abs(d @ v), 0.0, 1.0)))
@@ -372,7 +403,7 @@ def principal_frame(lines: np.ndarray, estimated: np.ndarray, up: np.ndarray = (
     sloped = w[inclined].sum() > params.sloped_share * max(w.sum(), 1e-12)
     perpendicular = found is not None and 90.0 - float(_apart(found[2][1], found[2][0])) <= params.atlanta_deg
     if found is None or (perpendicular and found[1][2:].sum() < params.extra_share):
-        F, dev = manhattan_frame(lines, E, u)
+        F, dev = manhattan_frame(lines, E, u, up_known=up_known)
         F_all, kind = F, "manhattan"
     else:
         H = found[0]

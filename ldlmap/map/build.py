@@ -16,8 +16,10 @@ Stages (paper section 3.1, DESIGN.md 5.1-5.4), each timed:
    the vertical and those two (Atlanta frame; ``build_config["principal_frame"]``), and the
    further horizontal directions of rooms whose walls run in more than two (up to
    ``max_horizontals``: the map then has K > 3 directions); in rooms with a sloped ceiling, the
-   slopes' inclined directions too (up to ``max_inclined``); and each kept line's group (lines
-   join only directions of about their own elevation).
+   slopes' inclined directions too (up to ``max_inclined``, each only with the evidence of
+   ``FrameParams``); and each kept line's group (lines join only directions of about their own
+   elevation). When the user, the cameras or a room layout gave the up axis, the vertical is
+   that axis (:func:`known_up`), not the lines' most vertical direction.
 4. ``translations``: N_t candidate camera centres in the free space of the scan.
    ``fields``: when ``distance_fields``, each translation's K decomposed 3D line distance
    functions sampled on a spherical grid (:mod:`ldlmap.map.fields3d`) for the fast pose search.
@@ -155,6 +157,8 @@ def build_map(input_path: str | Path, output: str | Path | None = None, lines_pa
               images_path: str | Path | None = None) -> BuildReport:
     """Build the LDL map of one scene and write it to ``output`` (default: input with ``.h5``).
     ``images_path``: the photos of a COLMAP model without ``fused.ply`` (default: its workspace's).
+    ``name``: the scene's name stored in the map (default: the output's stem, which is what `ldlloc
+    run --maps` calls the scene; the input is recorded in the map's config).
 
     ``progress(stage, done, total)`` is called as stages advance (for a progress bar): with
     ``done = 0`` when a stage starts, ``done = total`` when it ends, and in between by the stages
@@ -171,13 +175,14 @@ def build_map(input_path: str | Path, output: str | Path | None = None, lines_pa
     config = {"input": str(input_path), "lines_file": str(lines_path) if lines_path else None}
     if images_path is not None:
         config["images"] = str(images_path)
-    return build_from_input(src, output, params, name or input_path.stem, progress, config, load_seconds)
+    return build_from_input(src, output, params, name or output.stem, progress, config, load_seconds)
 
 
-def build_lines_map(lines: np.ndarray, output: str | Path, params: BuildParams = BuildParams(), name: str = "lines",
+def build_lines_map(lines: np.ndarray, output: str | Path, params: BuildParams = BuildParams(), name: str | None = None,
                     walkable=None, source: str = "lines",
                     progress: Callable[[str, int, int], None] | None = None) -> BuildReport:
-    """Build a lines-only map from 3D segments (L, 2, 3) held in memory (e.g. a room layout).
+    """Build a lines-only map from 3D segments (L, 2, 3) held in memory (e.g. a room layout);
+    ``name``: the scene's name (default: the output's stem, as :func:`build_map`).
 
     ``walkable`` (:class:`ldlmap.map.translations.Walkable`) says where cameras can stand; without it
     candidate translations fill the free space of the lines.
@@ -185,9 +190,10 @@ def build_lines_map(lines: np.ndarray, output: str | Path, params: BuildParams =
     from ldlmap.io.linefiles import _check_segments
 
     _check_params(params)
-    segs = _check_segments(lines, name)
+    output = Path(output)
+    segs = _check_segments(lines, name or "lines")
     src = SceneInput(None, None, segs, None, source, walkable)
-    return build_from_input(src, Path(output), params, name, progress, {"input": source, "lines_file": None})
+    return build_from_input(src, output, params, name or output.stem, progress, {"input": source, "lines_file": None})
 
 
 def _check_params(params: BuildParams) -> None:
@@ -307,11 +313,50 @@ def map_frame(src: SceneInput, lines_raw: np.ndarray, params: BuildParams) -> tu
     return R, info, note, est.weak
 
 
+def known_up(frame_info: dict, rot: np.ndarray) -> np.ndarray | None:
+    """The up axis in the map frame when the user, the cameras or a room layout gave it (the
+    map's vertical is then this, not the lines' most vertical direction); None when the lines told it."""
+    if frame_info["up_source"] == "layout":
+        return np.array([0.0, 0.0, 1.0])
+    if frame_info["up_source"] in ("user", "cameras"):
+        up = rot @ np.asarray(frame_info["up_input"], dtype=np.float64)
+        return up / np.linalg.norm(up)
+    return None
+
+
 def _azimuths(principal: np.ndarray) -> str:
     """The azimuths (degrees modulo 180, ascending) of the horizontal rows of a z-up frame, for notes."""
     horizontal = principal[np.abs(principal[:, 2]) < np.sin(np.radians(10.0))]
     return ", ".join(f"{a:.0f}" for a in sorted(round(float(np.degrees(np.arctan2(h[1], h[0]))) % 180.0)
                                                for h in horizontal))
+
+
+def _frame_notes(report: BuildReport, principal: np.ndarray, deviation: np.ndarray, frame_kind: str) -> None:
+    """The build's note on a frame that is not the plain Manhattan one (Atlanta, sloped), and its
+    warning when the voted directions were far from the frame the map uses."""
+    if frame_kind == "atlanta" and len(principal) == 3:
+        pair = np.degrees(np.arccos(np.abs(principal @ principal.T)[np.triu_indices(3, 1)].max()))
+        report.notes.append(f"principal directions: an Atlanta frame (the vertical and the two main horizontal "
+                            f"directions, {pair:.0f} deg apart: walls not at right angles)")
+    elif frame_kind == "atlanta":
+        report.notes.append(f"principal directions: an Atlanta frame of {len(principal)} (the vertical and "
+                            f"{len(principal) - 1} horizontal directions, at azimuths "
+                            f"{_azimuths(principal)} deg: walls in more than two directions)")
+    elif frame_kind == "sloped":
+        rise = np.degrees(np.arcsin(np.minimum(np.abs(principal[:, 2]), 1.0)))  # each row's elevation
+        tilted = [f"{a:.0f}" for a in rise if 10.0 < a < 80.0]
+        level = f"the vertical, {int((rise <= 10.0).sum())} horizontal at azimuths {_azimuths(principal)} deg"
+        report.notes.append(f"principal directions: {len(principal)} ({level} and {len(tilted)} inclined at "
+                            f"{', '.join(tilted)} deg: a sloped ceiling)" if tilted else
+                            f"principal directions: {len(principal)} ({level}); the inclined lines form no direction "
+                            "of their own (too short or too few for a sloped ceiling's edges)")
+    if deviation.max() > 5.0:
+        frame_words = {"manhattan": "the nearest orthogonal (Manhattan) frame",
+                       "sloped": "the frame of the vertical and the main horizontal directions",
+                       "atlanta": "the frame of the vertical and the two main horizontal directions (Atlanta)"}
+        report.warnings.append(
+            f"the lines' principal directions are up to {deviation.max():.0f} deg off {frame_words[frame_kind]}, "
+            "which the map uses: noisy lines or a building of other shapes")
 
 
 def build_from_input(src: SceneInput, output: Path, params: BuildParams, name: str,
@@ -393,33 +438,16 @@ def build_from_input(src: SceneInput, output: Path, params: BuildParams, name: s
     start("principal")
     principal = principal_directions_3d(lines)
     deviation, frame_kind = np.zeros(3), "voted"
+    up = known_up(frame_info, rot)
+    gravity = {"up": (0.0, 0.0, 1.0) if up is None else up, "up_known": up is not None}
     if params.orthonormal_directions and params.atlanta_frame:
         principal, deviation, frame_kind = principal_frame(lines, principal,
                                                            params=FrameParams(max_horizontals=params.max_horizontals,
-                                                                              max_inclined=params.max_inclined))
+                                                                              max_inclined=params.max_inclined),
+                                                           **gravity)
     elif params.orthonormal_directions:
-        (principal, deviation), frame_kind = manhattan_frame(lines, principal), "manhattan"
-    if frame_kind == "atlanta" and len(principal) == 3:
-        pair = np.degrees(np.arccos(np.abs(principal @ principal.T)[np.triu_indices(3, 1)].max()))
-        report.notes.append(f"principal directions: an Atlanta frame (the vertical and the two main horizontal "
-                            f"directions, {pair:.0f} deg apart: walls not at right angles)")
-    elif frame_kind == "atlanta":
-        report.notes.append(f"principal directions: an Atlanta frame of {len(principal)} (the vertical and "
-                            f"{len(principal) - 1} horizontal directions, at azimuths "
-                            f"{_azimuths(principal)} deg: walls in more than two directions)")
-    elif frame_kind == "sloped":
-        rise = np.degrees(np.arcsin(np.minimum(np.abs(principal[:, 2]), 1.0)))  # each row's elevation
-        tilted = [f"{a:.0f}" for a in rise if 10.0 < a < 80.0]
-        slopes = f"{len(tilted)} inclined at {', '.join(tilted)} deg" if tilted else "no inclined direction"
-        report.notes.append(f"principal directions: {len(principal)} (the vertical, {int((rise <= 10.0).sum())} "
-                            f"horizontal at azimuths {_azimuths(principal)} deg and {slopes}: a sloped ceiling)")
-    if deviation.max() > 5.0:
-        frame_words = {"manhattan": "the nearest orthogonal (Manhattan) frame",
-                       "sloped": "the frame of the vertical and the main horizontal directions",
-                       "atlanta": "the frame of the vertical and the two main horizontal directions (Atlanta)"}
-        report.warnings.append(
-            f"the lines' principal directions are up to {deviation.max():.0f} deg off {frame_words[frame_kind]}, "
-            "which the map uses: noisy lines or a building of other shapes")
+        (principal, deviation), frame_kind = manhattan_frame(lines, principal, **gravity), "manhattan"
+    _frame_notes(report, principal, deviation, frame_kind)
     # under a sloped ceiling, lines join only directions of about their own elevation (the map frame's up is z)
     groups = assign_line_groups(line_directions(lines)[0], principal,
                                 up=(0.0, 0.0, 1.0) if frame_kind == "sloped" else None)
