@@ -206,7 +206,7 @@ def _bad_invocations(tmp: Path) -> list[tuple[str, str, list[str]]]:
     (tmp / "file").write_text("x")
     base = {("ldlmap", "info"): [f"{tmp}/none.h5"], ("ldlmap", "lines"): [f"{tmp}/none.ply", "-o", f"{tmp}/o.obj"],
             ("ldlmap", "synth"): [f"{tmp}/file"], ("ldlmap", "build"): [f"{tmp}/none.ply"],
-            ("ldlmap", "prepare"): [f"{tmp}/none"], ("ldlloc", "localize"): [f"{tmp}/m.h5", f"{tmp}/p.jpg"],
+            ("ldlmap", "prepare"): [f"{tmp}/none"], ("ldlmap", "e57"): [f"{tmp}/none.e57"], ("ldlloc", "localize"): [f"{tmp}/m.h5", f"{tmp}/p.jpg"],
             ("ldlloc", "run"): ["--root", f"{tmp}/none"], ("ldlloc", "report"): [f"{tmp}/none.json"],
             ("ldlloc", "export"): [f"{tmp}/none.json", "--format", "ply", "-o", f"{tmp}/o.ply"]}
     cases = []

@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from ldlloc.batch.results import read_results_data
 from ldlloc.cli import app as loc_app
 from ldlmap.cli import app as map_app
 from tests._hostile import assert_clean_failure, error_line, snapshot
@@ -412,7 +413,7 @@ def test_sigterm_ends_a_run_quietly_and_a_rerun_does_not_replace_its_results(sma
     stdout, stderr = proc.communicate(timeout=60)
     assert proc.returncode == 143, (proc.returncode, stderr[-3000:])
     assert [line for line in stderr.splitlines() if line.strip()] == ["error: terminated"], stderr[-3000:]
-    data = json.loads(out.read_text())
+    data = read_results_data(out)  # the JSON and its journal: what a --resume would find
     done = len(data["queries"])
     assert 0 < done < 400 and data["meta"]["finished"] is False
     before = snapshot(tmp_path)

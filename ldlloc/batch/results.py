@@ -47,7 +47,7 @@ import numpy as np
 from ldlloc.batch.accuracy import QueryResult, results_csv, summarize
 from ldlloc.batch.journal import MAX_RESULTS_BYTES, is_journal, journal_header, journal_path, read_journal
 from ldlloc.batch.lock import ResultsBusy, acquire_lock, lock_path, release_lock
-from ldlmap.core.errors import (FormatVersionError, InputError, LdlError, atomic_file, remove_stale_temporaries,
+from ldlmap.core.errors import (FormatVersionError, InputError, LdlError, WriteError, atomic_file, remove_stale_temporaries,
                                 require_file)
 
 
@@ -503,11 +503,13 @@ class ResultsWriter:
 @contextlib.contextmanager
 def _naming_errors(path: Path):
     """Turn an OSError (a full disk, a folder made read-only) into a one-line error naming ``path``."""
+    kept = "(the results written before are kept: continue with --resume)"
     try:
         yield
+    except WriteError as exc:  # already names the file it could not write
+        raise LdlError(f"{exc} {kept}") from None
     except OSError as exc:
-        raise LdlError(f"cannot write {path}: {exc.strerror or exc} (the results written before are kept: "
-                       "continue with --resume)") from None
+        raise LdlError(f"cannot write {path}: {exc.strerror or exc} {kept}") from None
 
 
 def _remove_journal(path: Path) -> None:
