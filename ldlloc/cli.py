@@ -279,6 +279,11 @@ def run(
                               "scene (--scene-unknown: per folder of maps), in capture order (ZInD: the panorama number)."),
     order: Optional[str] = typer.Option(None, "--order", help="--images --walk: name (natural file-name order, the "
                                         "default) | time (EXIF capture time)."),
+    video: Optional[Path] = typer.Option(None, "--video", help="An equirectangular video (mp4, mov, ...) localized as "
+                                         "one walk, tracked frame to frame (needs --maps; ldlloc/walk/video.py)."),
+    fps: Optional[float] = typer.Option(None, "--fps", help="--video: frames a second to localize (at most the "
+                                        "video's rate; default: every frame)."),
+    every: Optional[int] = typer.Option(None, "--every", metavar="N", help="--video: every N-th frame."),
 ) -> None:
     """Localize every query of a dataset split (or all splits) and print accuracy tables; or, with
     --images, your own panoramas against a map or a folder of maps (which map: --top-maps).
@@ -300,6 +305,11 @@ def run(
         from ldlloc.walk.options import check_walk_options
 
         check_walk_options(walk, order, images, ray, save_vis)
+    if video is not None or fps is not None or every is not None:
+        from ldlloc.walk.options import check_video_options
+
+        check_video_options(video, fps, every, images, root, dataset, ray, save_vis, resume, maps)
+        return _run_video(video, maps, output, params, top_maps, device, fps, every, threads, overwrite)
     if images is not None:
         given = [o for o, v in (("--root", root), ("--dataset", dataset), ("--split", split), ("--scene", scene),
                                 ("--map-level", map_level), ("--scene-unknown", scene_unknown)) if v]
@@ -437,6 +447,34 @@ def _run_images(images: str, maps: Optional[Path], output: Optional[Path], param
 
         results = run_images(queries, mapset, output, params, device, resume, save_vis, **opts, progress=progress)
     _print_run(results, "images", output, params.max_tilt_deg)
+
+
+def _run_video(video: Path, maps: Path, output: Optional[Path], params, top_maps: Optional[int], device: str,
+               fps: Optional[float], every: Optional[int], threads: int, overwrite: bool) -> None:
+    """`run --video`: the video as one tracked walk against the maps (ldlloc/walk/run.py)."""
+    from ldlloc.batch.results import refuse_replacing_results, results_outputs
+    from ldlloc.batch.which_map import TOP_MAPS, MapSet, map_files
+    from ldlloc.walk.localize import VIDEO
+    from ldlloc.walk.run import run_walk_video
+    from ldlmap.core.errors import refuse_overwriting_inputs
+    from dataclasses import replace
+
+    top_maps = TOP_MAPS if top_maps is None else top_maps
+    check_range(top_maps, "--top-maps", 1, 1000, integer=True)
+    files, _ = map_files(maps)
+    output = output or Path("results") / f"video_{video.stem}.json"
+    refuse_overwriting_inputs([video, *files], results_outputs(output))
+    refuse_replacing_results(output, overwrite, False)
+    check_device(device, local=True)
+    set_threads(threads)
+    say = lambda message: console.print(message, soft_wrap=True, highlight=False)  # noqa: E731
+    mapset = MapSet.load(maps, params, device)
+    for f, why in mapset.skipped:
+        say(f"[yellow]warning:[/] {f} left out: {why}")
+    with console.status(f"localizing {video.name} as one walk"):
+        results = run_walk_video(video, mapset, output, params, replace(VIDEO, top_maps=top_maps), fps, every, device,
+                                 meta={"dataset": "video", "maps": str(maps), "top_maps": top_maps}, say=say)
+    _print_run(results, "video", output, params.max_tilt_deg)
 
 
 def _print_run(results: list, label: str, output: Path, max_tilt: Optional[float]) -> None:

@@ -20,7 +20,7 @@ frame (the corridor it came out into) decide an earlier one (the copy of a room 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Callable
+from typing import Callable, Iterable
 
 import numpy as np
 
@@ -52,6 +52,10 @@ class WalkParams:
     max_hypotheses: int = MAX_HYPOTHESES
 
 
+VIDEO = WalkParams(track=True, motion=MotionParams(turn_deg=30.0))  # a video: frames a few tenths of a second apart
+# (the free step from the walking speed and their time apart), tracked, turning little between frames
+
+
 @dataclass(frozen=True)
 class WalkFrame:
     """One frame of a walk: its name, how to read it (RGB panorama), its time (s) and upright prior."""
@@ -75,23 +79,27 @@ class FrameOutcome:
     single_confidence: float | None = None  # the image's own judgement
     single_verdict: str | None = None
     single_pose: tuple[np.ndarray, np.ndarray] | None = None  # (R, t) of the image's own pose
+    competitors: list = field(default_factory=list)  # the poses its image named as competing ({R, t, ...})
     walk_decided: bool = False
     walk_margin: float | None = None  # nats (inf: no distinct pose in the frame's hypotheses)
     hypotheses: Hypotheses | None = field(default=None, repr=False)
 
 
-def localize_walk(frames: list[WalkFrame], maps: MapSet, params: WalkParams = WalkParams(),
+def localize_walk(frames: Iterable, maps: MapSet, params: WalkParams = WalkParams(),
                   progress: Callable[[int, FrameOutcome], None] | None = None) -> list[FrameOutcome]:
-    """Localize ``frames`` (in walk order) against ``maps`` as one walk (module docstring).
-    ``progress(index, outcome)``: after each frame's own localization. A frame that cannot be localized
-    gets its ``error`` and the walk goes on around it."""
+    """Localize ``frames`` (in walk order) against ``maps`` as one walk (module docstring): each a
+    :class:`WalkFrame`, or a ``(WalkFrame, image)`` pair whose image the first pass takes (a
+    video's decoder: frames are read once, in order). ``progress(index, outcome)``: after each
+    frame's own localization. A frame that cannot be localized gets its ``error`` and the walk goes
+    on around it."""
     index = {id(e): i for i, e in enumerate(maps.entries)}
     outcomes: list[FrameOutcome] = []
     ref_loss: float | None = None  # the last global frame's final loss: what a tracked pose must come near
-    for i, fr in enumerate(frames):
+    for i, item in enumerate(frames):
+        fr, img = item if isinstance(item, tuple) else (item, None)
         out = FrameOutcome(fr)
         try:
-            img = fr.load()
+            img = fr.load() if img is None else img
             got = track(img, outcomes[-1], fr, params, ref_loss) if params.track and outcomes else None
             if got is None:
                 loc, choice = localize_on_maps(img, maps, fr.max_tilt_deg, params.top_maps)
@@ -103,6 +111,7 @@ def localize_walk(frames: list[WalkFrame], maps: MapSet, params: WalkParams = Wa
             out.hypotheses = from_choice(choice, index, params.max_hypotheses)
             out.single_confidence, out.single_verdict = loc.confidence, loc.verdict
             out.single_pose = (np.asarray(loc.rot_cam_from_world, float), np.asarray(loc.center, float))
+            out.competitors = list(loc.competitors)
         except LdlError as exc:
             out.error = str(exc)
         except Exception as exc:  # noqa: BLE001 - one frame's failure (cv2.error, a decoder's), not the walk's
@@ -189,12 +198,19 @@ def augment(outcomes: list[FrameOutcome], maps: MapSet, params: WalkParams) -> N
 
 
 def emission_costs(o: FrameOutcome, params: WalkParams) -> np.ndarray:
-    """A frame's costs of its poses: from their losses (:meth:`Hypotheses.emission_costs`), plus, for
-    the poses distinct from its image's own, the anchor cost (its image was confident) or the own cost."""
+    """A frame's costs of its poses: from their losses (:meth:`Hypotheses.emission_costs`); a pose
+    distinct from its image's own costs at least as much as that one (the image chose it on more than
+    its loss: refinement, map-line support, PnP), plus the anchor cost (its image was confident) or
+    the own cost (it was not)."""
     h, m = o.hypotheses, params.motion
     e = h.emission_costs(m.emission_weight)
-    extra = m.anchor_cost if o.single_verdict == "confident" else m.own_cost
-    return e + extra * distinct(*o.single_pose, h.rot_cam_from_world, h.center)
+    other = distinct(*o.single_pose, h.rot_cam_from_world, h.center)
+    own = float(np.min(e[~other])) if (~other).any() else 0.0
+    extra = np.full(len(h), m.anchor_cost if o.single_verdict == "confident" else m.own_cost)
+    if o.single_verdict != "confident":  # the poses the image named as its competitors: no extra cost
+        for c in o.competitors:
+            extra[~distinct(np.asarray(c["R"], float), np.asarray(c["t"], float), h.rot_cam_from_world, h.center)] = 0.0
+    return np.where(other, np.maximum(e, own) + extra, e)
 
 
 def decide(outcomes: list[FrameOutcome], maps: MapSet, params: WalkParams) -> None:

@@ -20,7 +20,7 @@ import numpy as np
 class MotionParams:
     """The motion model of a walk (defaults: a capture tour of photos)."""
 
-    free_m: float = 4.0  # a step this long or shorter costs nothing (tours: shots 0.6-3.8 m apart) ...
+    free_m: float = 5.0  # a step this long or shorter costs nothing (tours: shots 0.6-5 m apart) ...
     speed_mps: float = 1.4  # ... with times (videos): this walking speed times the frames' time apart ...
     min_free_m: float = 0.3  # ... but at least this (a frame's pose error)
     step_m: float = 1.5  # beyond the free length, each step_m more costs 1 ...
@@ -31,8 +31,8 @@ class MotionParams:
     emission_weight: float = 20.0  # a frame's pose that explains no line costs this (the best pose 0)
     anchor_cost: float = 6.0  # a pose distinct from a frame's own confident pose costs this more (less than two jumps:
     # a confident pose in the wrong copy of a room, reached and left by jumps, still gives way)
-    own_cost: float = 2.0  # ... and distinct from its own pose when not confident (the image chose it on more than
-    # its loss: refinement, map-line support, PnP; the walk moves it when the motion says so)
+    own_cost: float = 0.5  # ... or this when it was not, unless the image named that pose as its competitor (a copy
+    # of a room it cannot tell from its own pose costs nothing more: the motion decides)
 
 
 def free_length(params: MotionParams, dt: float | None) -> float:

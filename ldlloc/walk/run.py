@@ -148,3 +148,39 @@ def _dataset_record(q, out: FrameOutcome, params: LocalizeParams, walk: str, ind
         r = replace(result_from_localization(q, out.loc), **choice_fields(out))
     r.walk = walk_fields(out, walk, index)
     return r
+
+
+def run_walk_video(video: str | Path, maps: MapSet, output: str | Path, params: LocalizeParams, walk: WalkParams,
+                   fps: float | None = None, every: int | None = None, device: str = "cpu", meta: dict | None = None,
+                   say: Callable[[str], None] | None = None,
+                   progress: Callable[[QueryResult], None] | None = None) -> list[QueryResult]:
+    """An equirectangular video localized as one walk (:mod:`ldlloc.walk.video`), its kept frames
+    decoded in order (``fps`` or ``every``), each record named ``<stem>/<frame index>`` with the
+    video as its image and its timestamp in ``walk.time``. The records are written once the walk
+    is decided (a rerun localizes the video again)."""
+    from ldlloc.batch.images import ImageQuery
+    from ldlloc.walk.video import check_sampling, decoded_frames, frame_at, video_info
+
+    info = video_info(video)
+    check_sampling(info, fps, every)
+    stem = info.path.stem
+    meta = {**(meta or {}), "video": str(info.path), "fps": fps, "every": every,
+            "walk": {"order": "time", "motion": vars(walk.motion), "track": walk.track}}
+    pairs = ((WalkFrame(f"{stem}/{vf.index:06d}", (lambda vf=vf: frame_at(info, vf)), vf.time, params.max_tilt_deg),
+              img) for vf, img in decoded_frames(info, fps, every))
+    queries: list = []
+    tell = None if progress is None else (lambda i, o: progress(_image_record(queries[i], o, params, stem, i)))
+
+    def frames():
+        for fr, img in pairs:
+            queries.append(ImageQuery(info.path, fr.name))
+            yield fr, img
+
+    outs = localize_walk(frames(), maps, walk, tell)
+    if len(outs) < MIN_FRAMES:
+        raise InputError(f"--video {info.path}: {len(outs)} frame(s) kept; a walk needs at least {MIN_FRAMES} "
+                         "(lower --every or raise --fps)")
+    with open_results(output, params, device, meta, False, False, queries, say) as writer:
+        writer.extend([_image_record(q, o, params, stem, i) for i, (q, o) in enumerate(zip(queries, outs))])
+        writer.finish()
+        return writer.results
