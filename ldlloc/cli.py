@@ -422,8 +422,9 @@ def _run_images(images: str, maps: Optional[Path], output: Optional[Path], param
 
     if walk_order is not None:  # --walk: the panoramas as one walk (ldlloc/walk/run.py)
         from ldlloc.walk.localize import WalkParams
-        from ldlloc.walk.run import run_walk_images
+        from ldlloc.walk.run import run_walk_images, walk_photos
 
+        walk_photos(queries, walk_order)  # its errors before the maps are read
         mapset = MapSet.load(maps, params, device)
         for f, why in mapset.skipped:
             say(f"[yellow]warning:[/] {f} left out: {why}")

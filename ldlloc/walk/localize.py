@@ -19,7 +19,7 @@ frame (the corridor it came out into) decide an earlier one (the copy of a room 
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Callable, Iterable
 
 import numpy as np
@@ -27,11 +27,12 @@ import numpy as np
 from ldlmap.core.errors import InputError, LdlError
 from ldlloc.batch.which_map import TOP_MAPS, MapChoice, MapEntry, MapOption, MapSet, final_pose_loss, localize_on_maps
 from ldlloc.confidence import distinct, walk_judgement
-from ldlloc.pipeline import Localization, SearchNear
+from ldlloc.pipeline import Localization, Localizer, SearchNear
 from ldlloc.walk.hypotheses import MAX_HYPOTHESES, Hypotheses, from_choice, joined
 from ldlloc.walk.motion import MotionParams, transition_costs
 from ldlloc.walk.viterbi import best_path, margin
 
+TIE_COST = 0.01  # nats: what a pose the image named as its competitor costs more than its own (ties: its own)
 MIN_FRAMES = 2  # a walk of one frame is a single image (the runs refuse it)
 
 
@@ -45,6 +46,8 @@ class WalkParams:
     track_radius_m: float = 0.75  # tracking: candidate translations within this of the previous pose ...
     track_cone_deg: float = 15.0  # ... and candidate rotations within this of its rotation
     track_keep: float = 0.8  # a tracked pose explaining fewer lines than this share of the last global frame's is lost
+    track_refine: str = "same"  # how a tracked pose is refined: same (as the global localization) | geometric (lines
+    # alone, no features to extract and match: 1.4 x faster, fewer poses within 0.1 m: docs/measurements.md#walks)
     gap_radius_m: float = 4.5  # a frame whose image was not confident is searched again within this radius of the
     max_gap_radius_m: float = 12.0  # confident frames before and after it, times their distance in frames (at most this)
     near_radius_m: float = 0.6  # a search pose the path chose is searched again within this radius ...
@@ -93,6 +96,7 @@ def localize_walk(frames: Iterable, maps: MapSet, params: WalkParams = WalkParam
     frame's own localization. A frame that cannot be localized gets its ``error`` and the walk goes
     on around it."""
     index = {id(e): i for i, e in enumerate(maps.entries)}
+    trackers: dict[int, Localizer] = {}  # the localizers tracked frames are refined with, per map
     outcomes: list[FrameOutcome] = []
     ref_loss: float | None = None  # the last global frame's final loss: what a tracked pose must come near
     for i, item in enumerate(frames):
@@ -100,7 +104,7 @@ def localize_walk(frames: Iterable, maps: MapSet, params: WalkParams = WalkParam
         out = FrameOutcome(fr)
         try:
             img = fr.load() if img is None else img
-            got = track(img, outcomes[-1], fr, params, ref_loss) if params.track and outcomes else None
+            got = track(img, outcomes[-1], fr, params, ref_loss, trackers) if params.track and outcomes else None
             if got is None:
                 loc, choice = localize_on_maps(img, maps, fr.max_tilt_deg, params.top_maps)
                 ref_loss = own_loss(choice)
@@ -131,13 +135,23 @@ def own_loss(choice: MapChoice) -> float:
     return float(o.loss) if o.loss is not None else final_pose_loss(o.entry.localizer, o.loc)
 
 
+def tracker(entry: MapEntry, params: WalkParams, trackers: dict[int, Localizer]) -> Localizer:
+    """The localizer that refines tracked frames on ``entry``'s map (``track_refine``), made once."""
+    if params.track_refine == "same" or entry.localizer.refine_mode == "geometric":
+        return entry.localizer
+    if id(entry) not in trackers:
+        loz = entry.localizer
+        trackers[id(entry)] = Localizer(loz.map, replace(loz.params, refine_mode="geometric"), loz.device)
+    return trackers[id(entry)]
+
+
 def track(img: np.ndarray, prev: FrameOutcome, fr: WalkFrame, params: WalkParams,
-          ref_loss: float | None) -> tuple[Localization, MapChoice] | None:
+          ref_loss: float | None, trackers: dict[int, Localizer]) -> tuple[Localization, MapChoice] | None:
     """The frame localized near ``prev``'s pose on its map, or None when it is lost there (no
     previous pose, no candidate near it, a pose not refined or explaining too few lines)."""
     if prev.loc is None or prev.entry is None or ref_loss is None:
         return None
-    loz = prev.entry.localizer
+    loz = tracker(prev.entry, params, trackers)
     near = SearchNear(np.asarray(prev.loc.center, float), np.asarray(prev.loc.rot_cam_from_world, float),
                       params.track_radius_m, params.track_cone_deg)
     try:
@@ -207,9 +221,10 @@ def emission_costs(o: FrameOutcome, params: WalkParams) -> np.ndarray:
     other = distinct(*o.single_pose, h.rot_cam_from_world, h.center)
     own = float(np.min(e[~other])) if (~other).any() else 0.0
     extra = np.full(len(h), m.anchor_cost if o.single_verdict == "confident" else m.own_cost)
-    if o.single_verdict != "confident":  # the poses the image named as its competitors: no extra cost
-        for c in o.competitors:
-            extra[~distinct(np.asarray(c["R"], float), np.asarray(c["t"], float), h.rot_cam_from_world, h.center)] = 0.0
+    if o.single_verdict != "confident":  # the poses the image named as its competitors: next to no extra cost
+        for c in o.competitors:  # (a tie goes to the image's own pose)
+            named = ~distinct(np.asarray(c["R"], float), np.asarray(c["t"], float), h.rot_cam_from_world, h.center)
+            extra[named] = TIE_COST
     return np.where(other, np.maximum(e, own) + extra, e)
 
 

@@ -57,6 +57,16 @@ def check_frame_sizes(paths: list[Path]) -> None:
         raise InputError(f"a walk's frames must be of one size: {pa} is {a[0]}x{a[1]}, {pb} is {b[0]}x{b[1]}")
 
 
+def walk_photos(queries: list, order: str = "name") -> tuple[list, list[float | None]]:
+    """A walk's photos (:class:`ldlloc.batch.images.ImageQuery`) in ``order`` with their capture
+    times; one-line errors for fewer than two, photos of different sizes, or ``time`` without times."""
+    if len(queries) < MIN_FRAMES:
+        raise InputError(f"--walk needs at least {MIN_FRAMES} photos, got {len(queries)}")
+    queries, times = ordered(queries, order, lambda q: q.name, lambda q: q.image)
+    check_frame_sizes([q.image for q in queries])
+    return queries, times
+
+
 def run_walk_images(queries: list, maps: MapSet, output: str | Path, params: LocalizeParams, walk: WalkParams,
                     order: str = "name", device: str = "cpu", resume: bool = False, meta: dict | None = None,
                     progress: Callable[[QueryResult], None] | None = None, any_options: bool = False,
@@ -64,10 +74,7 @@ def run_walk_images(queries: list, maps: MapSet, output: str | Path, params: Loc
     """Localize ``queries`` (:class:`ldlloc.batch.images.ImageQuery`) as one walk in ``order``
     (name | time) against ``maps`` and write their records. ``progress``: after each frame's own
     localization (its single-image record)."""
-    if len(queries) < MIN_FRAMES:
-        raise InputError(f"--walk needs at least {MIN_FRAMES} photos, got {len(queries)}")
-    queries, times = ordered(queries, order, lambda q: q.name, lambda q: q.image)
-    check_frame_sizes([q.image for q in queries])
+    queries, times = walk_photos(queries, order)
     meta = {**(meta or {}), "walk": {"order": order, "motion": vars(walk.motion), "track": walk.track}}
     with open_results(output, params, device, meta, resume, any_options, queries, say) as writer:
         if resume and {q.name for q in queries} <= writer.done():
