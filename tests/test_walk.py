@@ -317,3 +317,18 @@ def test_report_draws_the_walk_coloured_by_verdict(walk_run, copies, tmp_path):
     page = html.read_text()
     assert "top view of the walk" in page and page.count("decided by the walk") >= 3
     assert page.count("<circle") >= len(walk_run[0])
+
+
+def test_dataset_run_as_walks_with_ground_truth(demo_dataset, tmp_path):
+    out = tmp_path / "d.json"
+    args = ["run", "--root", str(demo_dataset), "--split", "robot", "--scene", "synthroom_1", "--walk",
+            "--output", str(out)]
+    res = runner.invoke(app, args)
+    assert res.exit_code == 0, res.output
+    recs = json.loads(out.read_text())["queries"]
+    assert len(recs) == 5 and sorted(r["walk"]["frame"] for r in recs) == list(range(5))
+    assert all(r["walk"]["name"] == "synthroom_1" for r in recs)
+    assert all(r["t_error_m"] < 0.1 and r["r_error_deg"] < 5 for r in recs), [r["t_error_m"] for r in recs]
+    again = runner.invoke(app, [*args, "--resume"])  # every frame of the walk done: nothing runs again
+    assert again.exit_code == 0, again.output
+    assert json.loads(out.read_text())["queries"] == recs
