@@ -301,14 +301,11 @@ def run(
         check_results_path(output)
     if resume_any_options and not resume:
         raise InputError("--resume-any-options goes with --resume")
-    if walk or order is not None:
+    if walk or video is not None or any(v is not None for v in (order, fps, every)):
         from ldlloc.walk.options import check_walk_options
 
-        check_walk_options(walk, order, images, ray, save_vis)
-    if video is not None or fps is not None or every is not None:
-        from ldlloc.walk.options import check_video_options
-
-        check_video_options(video, fps, every, images, root, dataset, ray, save_vis, resume, maps)
+        check_walk_options(walk, order, images, ray, save_vis, video, fps, every, root, dataset, resume, maps)
+    if video is not None:
         return _run_video(video, maps, output, params, top_maps, device, fps, every, threads, overwrite)
     if images is not None:
         given = [o for o, v in (("--root", root), ("--dataset", dataset), ("--split", split), ("--scene", scene),
@@ -356,12 +353,8 @@ def run(
                       f"{', ...' if len(missing) > 5 else ''}): their queries fail; `ldlmap prepare` builds them",
                       soft_wrap=True)
     if walk:  # one walk per scene (ldlloc/walk/run.py)
-        from ldlloc.walk.localize import WalkParams
-        from ldlloc.walk.run import run_walk_queries
-
-        with console.status(f"localizing {len(queries)} queries as walks"):
-            results = run_walk_queries(queries, maps, output, params, WalkParams(top_maps=top_maps or TOP_MAPS),
-                                       device, resume, meta, scene_unknown, any_options=resume_any_options, say=say)
+        results = _run_dataset_walks(queries, maps, output, params, top_maps, device, resume, meta, scene_unknown,
+                                     resume_any_options, say)
     elif ray is not None:  # one Ray actor per scene map (ldlloc/batch/ray_run.py)
         from ldlloc.batch.ray_run import run_queries_ray
         from ldlmap.batch.ray_cluster import ThroughputBar
@@ -448,6 +441,18 @@ def _run_images(images: str, maps: Optional[Path], output: Optional[Path], param
 
         results = run_images(queries, mapset, output, params, device, resume, save_vis, **opts, progress=progress)
     _print_run(results, "images", output, params.max_tilt_deg)
+
+
+def _run_dataset_walks(queries: list, maps: Path, output: Path, params, top_maps: Optional[int], device: str,
+                       resume: bool, meta: dict, scene_unknown: bool, any_options: bool, say) -> list:
+    """`run --root ... --walk`: one walk per scene (ldlloc/walk/run.py)."""
+    from ldlloc.batch.which_map import TOP_MAPS
+    from ldlloc.walk.localize import WalkParams
+    from ldlloc.walk.run import run_walk_queries
+
+    with console.status(f"localizing {len(queries)} queries as walks"):
+        return run_walk_queries(queries, maps, output, params, WalkParams(top_maps=top_maps or TOP_MAPS), device,
+                                resume, meta, scene_unknown, any_options=any_options, say=say)
 
 
 def _run_video(video: Path, maps: Path, output: Optional[Path], params, top_maps: Optional[int], device: str,
