@@ -275,8 +275,8 @@ def run(
     threads: int = threads_option(),
     ray: Optional[str] = ray_option(),
     walk: bool = typer.Option(False, "--walk", help="The panoramas are one walk (a capture tour): localize them "
-                              "together, choosing the most likely path (ldlloc/walk/); with --root, one walk per "
-                              "scene (--scene-unknown: per folder of maps), in capture order (ZInD: the panorama number)."),
+                              "together, choosing the most likely path (ldlloc/walk/); with --root, one walk per scene "
+                              "(--scene-unknown: per folder of maps), in capture order (ZInD: the panorama number)."),
     order: Optional[str] = typer.Option(None, "--order", help="--images --walk: name (natural file-name order, the "
                                         "default) | time (EXIF capture time)."),
     video: Optional[Path] = typer.Option(None, "--video", help="An equirectangular video (mp4, mov, ...) localized as "

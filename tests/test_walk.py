@@ -125,8 +125,9 @@ def _shifted(src: Path, dst: Path, offset: np.ndarray) -> None:
     m = read_map(src, load_cloud=False)
     f = m.features
     f = replace(f, xyz=f.xyz + offset, view_centers=f.view_centers + offset)
-    write_map(dst, replace(m, lines_raw=m.lines_raw + offset, lines=m.lines + offset, translations=m.translations + offset,
-                           bounds_min=m.bounds_min + offset, bounds_max=m.bounds_max + offset, features=f))
+    write_map(dst, replace(m, lines_raw=m.lines_raw + offset, lines=m.lines + offset, features=f,
+                           translations=m.translations + offset, bounds_min=m.bounds_min + offset,
+                           bounds_max=m.bounds_max + offset))
 
 
 @pytest.fixture(scope="module")
@@ -144,7 +145,8 @@ def copies(demo_dataset, tmp_path_factory):
     qs = {s: [q for q in open_dataset(demo_dataset, "omniscenes").queries(["robot"]) if q.scene == s]
           for s in ("synthroom_1", "synthroom_2")}
     truth = {}
-    for i, (q, off) in enumerate([(q, np.zeros(3)) for q in qs["synthroom_2"][1:2]] + [(q, NEAR) for q in qs["synthroom_1"][:2]]):
+    shots = [(q, np.zeros(3)) for q in qs["synthroom_2"][1:2]] + [(q, NEAR) for q in qs["synthroom_1"][:2]]
+    for i, (q, off) in enumerate(shots):
         name = f"frame_{i:02d}"
         os.symlink(q.image, walk / f"{name}{Path(q.image).suffix}")
         truth[name] = (q.rot_cam_from_world, q.center + off)

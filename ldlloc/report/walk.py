@@ -58,7 +58,8 @@ def walk_svg(records: list[dict], colors: dict[str, str], lines_xy: np.ndarray |
                 + " ".join(f"{x:.1f},{y:.1f}" for x, y in path) + '"/>')
     for r, (x, y) in zip(walk, path):
         color = colors.get(r.get("verdict") or "none", colors.get("none", "#888"))
-        tip = escape(f"{r['name']}: {r.get('verdict')}" + (", decided by the walk" if r["walk"].get("walk_decided") else ""))
+        decided = ", decided by the walk" if r["walk"].get("walk_decided") else ""
+        tip = escape(f"{r['name']}: {r.get('verdict')}{decided}")
         body.append(f'<circle cx="{x:.1f}" cy="{y:.1f}" r="4" fill="{color}"><title>{tip}</title></circle>')
         if r["walk"].get("walk_decided"):
             body.append(f'<circle cx="{x:.1f}" cy="{y:.1f}" r="7.5" fill="none" stroke="{color}" stroke-width="1.5"/>')

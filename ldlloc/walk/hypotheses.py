@@ -61,7 +61,8 @@ def from_choice(choice, map_index: dict[int, int], limit: int = MAX_HYPOTHESES) 
         for f in finals:
             keep &= distinct(R[f], t[f], Rs, ts)
         for i in np.flatnonzero(keep):
-            idx.append(k), R.append(Rs[i]), t.append(ts[i]), loss.append(float(s.candidates_loss[i])), final.append(False)
+            idx.append(k), R.append(Rs[i]), t.append(ts[i])
+            loss.append(float(s.candidates_loss[i])), final.append(False)
     h = Hypotheses(np.array(idx, dtype=np.int64), np.array(R, dtype=np.float64).reshape(-1, 3, 3),
                    np.array(t, dtype=np.float64).reshape(-1, 3), np.array(loss, dtype=np.float64),
                    np.array(final, dtype=bool))

@@ -49,7 +49,8 @@ class WalkParams:
     track_refine: str = "same"  # how a tracked pose is refined: same (as the global localization) | geometric (lines
     # alone, no features to extract and match: 1.4 x faster, fewer poses within 0.1 m: docs/measurements.md#walks)
     gap_radius_m: float = 4.5  # a frame whose image was not confident is searched again within this radius of the
-    max_gap_radius_m: float = 12.0  # confident frames before and after it, times their distance in frames (at most this)
+    max_gap_radius_m: float = 12.0  # confident frames before and after it, times their distance in frames (at most
+    # this)
     near_radius_m: float = 0.6  # a search pose the path chose is searched again within this radius ...
     near_cone_deg: float = 10.0  # ... and this cone, then refined
     max_hypotheses: int = MAX_HYPOTHESES
@@ -253,8 +254,9 @@ def decide(outcomes: list[FrameOutcome], maps: MapSet, params: WalkParams) -> No
                                                        changed, pose_ok)
         o.loc.confidence, o.loc.verdict = conf, verdict
         if o.walk_decided and changed:  # the image's own pose is the walk's competitor
-            o.loc.competitors = [{"R": np.round(o.single_pose[0], 8).tolist(), "t": np.round(o.single_pose[1], 6).tolist(),
-                                  "loss": None, "why": "the image's own pose (the walk chose another)"}]
+            R0, t0 = o.single_pose
+            o.loc.competitors = [{"R": np.round(R0, 8).tolist(), "t": np.round(t0, 6).tolist(), "loss": None,
+                                  "why": "the image's own pose (the walk chose another)"}]
         o.hypotheses = None  # not needed any more
 
 

@@ -2,8 +2,8 @@
 
 A step costs nothing up to a free length (a tour: the metres between shots; a video: a walking
 speed times the frames' time apart), then its extra length over a step scale, capped at the jump
-cost: a jump of 8-12 m between two tour shots (a room skipped) is unlikely, not impossible. A change of floor (a height change of
-:attr:`MotionParams.floor_dz_m` or more) costs more than any jump: floors change only on stairs
+cost: a jump of 8-12 m between two tour shots (a room skipped) is unlikely, not impossible. A change
+of floor (a height change of :attr:`MotionParams.floor_dz_m` or more) costs more than any jump: floors change only on stairs
 or in a lift, rarely. With ``turn_deg`` (videos: the camera turns little between frames) a
 rotation costs its angle over it, capped the same way. Costs are negative log-likelihoods
 (nats), added to the frames' emission costs (:mod:`ldlloc.walk.hypotheses`).

@@ -19,8 +19,8 @@ def check_walk_options(walk: bool, order: str | None, images, ray, save_vis, vid
     if order is not None and images is None:
         raise InputError("--order goes with --images (a dataset knows its walks' order)")
     if (walk or video is not None) and ray is not None:
-        raise InputError(f"{'--walk' if walk else '--video'} runs in this process: drop --ray (a walk is localized as a "
-                         "whole, never split)")
+        raise InputError(f"{'--walk' if walk else '--video'} runs in this process: drop --ray (a walk is localized "
+                         "as a whole, never split)")
     if (walk or video is not None) and save_vis is not None:
         raise InputError(f"{'--walk' if walk else '--video'} writes no pictures: drop --save-vis")
     if video is None and (fps is not None or every is not None):
