@@ -334,3 +334,41 @@ def test_dataset_run_as_walks_with_ground_truth(demo_dataset, tmp_path):
     again = runner.invoke(app, [*args, "--resume"])  # every frame of the walk done: nothing runs again
     assert again.exit_code == 0, again.output
     assert json.loads(out.read_text())["queries"] == recs
+
+
+def test_search_near_a_pose_stays_there_and_finds_it(demo_dataset):
+    from ldlmap.core.errors import InputError
+    from ldlmap.datasets import open_dataset
+    from ldlmap.map.mapfile import read_map
+    from ldlloc.pipeline import Localizer, SearchNear, load_image
+
+    q = [q for q in open_dataset(demo_dataset, "omniscenes").queries(["robot"]) if q.scene == "synthroom_1"][0]
+    loz = Localizer(read_map(demo_dataset / "maps" / "synthroom_1.h5", load_cloud=False))
+    img = load_image(q.image)
+    near = loz.search(img, near=SearchNear(q.center, q.rot_cam_from_world, 0.75, 15.0))
+    c = near.out
+    assert np.all(np.linalg.norm(c.candidates_center - q.center, axis=1) <= 0.75 + 1e-9)
+    assert all(rotation_error_deg(R, q.rot_cam_from_world) <= 15.0 for R in c.candidates_rot)
+    T = loz.map.translations[near.res.translation_index]  # indices into the whole map's translations
+    assert np.allclose(T, c.candidates_center)
+    assert translation_error(c.candidates_center[0], q.center) < 0.5
+    whole = loz.search(img).out  # the restricted search scores its poses as the whole search does
+    same = np.flatnonzero(np.linalg.norm(whole.candidates_center - c.candidates_center[0], axis=1) < 1e-6)
+    for i in same:
+        if rotation_error_deg(whole.candidates_rot[i], c.candidates_rot[0]) < 1e-3:
+            assert whole.candidates_loss[i] == pytest.approx(c.candidates_loss[0], rel=1e-4)
+    with pytest.raises(InputError, match="no candidate translation within"):
+        loz.search(img, near=SearchNear(q.center + [100.0, 0, 0], None, 0.5))
+
+
+def test_distance_fields_of_a_subset_are_its_columns():
+    import torch
+
+    from ldlloc.search.fields import DistanceFields
+
+    d = np.random.default_rng(0).random((5, 3, 9, 16)).astype(np.float32)
+    full = DistanceFields.from_arrays(d, {"rows": 8})
+    sub = full.subset(np.array([4, 1]))
+    pts = torch.nn.functional.normalize(torch.randn(7, 3), dim=1)
+    assert sub.num_translations == 2
+    assert torch.allclose(sub.lookup(pts), full.lookup(pts)[:, :, [4, 1]])
