@@ -58,7 +58,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--frames", type=int, default=40)
     ap.add_argument("--width", type=int, default=1024)
     ap.add_argument("--threads", type=int, default=2)
-    ap.add_argument("--track-refine", default="same", help="tracked frames refined by: same | geometric")
+    ap.add_argument("--track-refine", default="light", help="tracked frames refined by: light | same | geometric")
     ap.add_argument("--no-single", action="store_true", help="skip the single-image pass")
     ap.add_argument("--output", default=str(HERE / "video.json"))
     args = ap.parse_args(argv)

@@ -33,6 +33,7 @@ from ldlloc.walk.motion import MotionParams, transition_costs
 from ldlloc.walk.viterbi import best_path, margin
 
 TIE_COST = 0.01  # nats: what a pose the image named as its competitor costs more than its own (ties: its own)
+TRACK_REFINES = ("light", "same", "geometric")
 MIN_FRAMES = 2  # a walk of one frame is a single image (the runs refuse it)
 
 
@@ -46,8 +47,9 @@ class WalkParams:
     track_radius_m: float = 0.75  # tracking: candidate translations within this of the previous pose ...
     track_cone_deg: float = 15.0  # ... and candidate rotations within this of its rotation
     track_keep: float = 0.8  # a tracked pose explaining fewer lines than this share of the last global frame's is lost
-    track_refine: str = "same"  # how a tracked pose is refined: same (as the global localization) | geometric (lines
-    # alone, no features to extract and match: 1.4 x faster, fewer poses within 0.1 m: docs/measurements.md#walks)
+    track_refine: str = "light"  # how a tracked pose is refined: light (features in one query frame, PnP on 2 views, no
+    # retrieval fallback: the tracked pose is near) | same (as the global localization) | geometric (lines alone)
+    # (docs/measurements.md#walks)
     gap_radius_m: float = 4.5  # a frame whose image was not confident is searched again within this radius of the
     max_gap_radius_m: float = 12.0  # confident frames before and after it, times their distance in frames (at most
     # this)
@@ -96,6 +98,8 @@ def localize_walk(frames: Iterable, maps: MapSet, params: WalkParams = WalkParam
     video's decoder: frames are read once, in order). ``progress(index, outcome)``: after each
     frame's own localization. A frame that cannot be localized gets its ``error`` and the walk goes
     on around it."""
+    if params.track_refine not in TRACK_REFINES:
+        raise InputError(f"unknown track_refine {params.track_refine!r}; valid: {', '.join(TRACK_REFINES)}")
     index = {id(e): i for i, e in enumerate(maps.entries)}
     trackers: dict[int, Localizer] = {}  # the localizers tracked frames are refined with, per map
     outcomes: list[FrameOutcome] = []
@@ -141,8 +145,13 @@ def tracker(entry: MapEntry, params: WalkParams, trackers: dict[int, Localizer])
     if params.track_refine == "same" or entry.localizer.refine_mode == "geometric":
         return entry.localizer
     if id(entry) not in trackers:
-        loz = entry.localizer
-        trackers[id(entry)] = Localizer(loz.map, replace(loz.params, refine_mode="geometric"), loz.device)
+        loz, p = entry.localizer, entry.localizer.params
+        if params.track_refine == "light":
+            p = replace(p, max_query_frames=1, refine=replace(p.refine, pnp_views=2,
+                                                              retrieval=replace(p.refine.retrieval, views=0)))
+        else:
+            p = replace(p, refine_mode="geometric")
+        trackers[id(entry)] = Localizer(loz.map, p, loz.device)
     return trackers[id(entry)]
 
 
