@@ -23,6 +23,8 @@ Benchmarks (in this order; names for ``--only``):
 - ``real``: real ZInD panoramas against their layout maps, room and floor level; writes
   ``bench/real.json`` (bench_real.py; prints a note and measures nothing when the real data,
   ``--data`` / ``$LDL_REAL_DATA`` / ``../shared/data``, is absent)
+- ``walk``: the real ZInD panoramas as one walk in capture order, single image against walk
+  (bench_walk.py; a note and no measurement without the real data, as ``real``)
 - ``startup``: ``ldlmap --help``, ``ldlloc --help`` and one ``ldlloc localize`` as fresh processes,
   wall and CPU seconds with localize's stages (map read, setup, query, the rest); writes
   ``bench/startup.json`` (bench_startup.py)
@@ -65,6 +67,7 @@ BENCHES: dict[str, tuple[str, list[str], list[str]]] = {
     "multiroom": ("bench_multiroom.py", [], ["--rooms", "2", "--per-split", "1", "--no-room-lambda"]),
     "colmap": ("bench_colmap_lines.py", [], ["--seeds", "10", "--photos", "8", "--no-map"]),
     "real": ("bench_real.py", [], ["--levels", "room"]),
+    "walk": ("bench_walk.py", [], ["--levels", "floor"]),
     "geometric": ("bench_geometric.py", [], ["--quick"]),
     "ray": ("bench_ray.py", [], ["--quick"]),
     "startup": ("bench_startup.py", [], ["--runs", "1"]),
@@ -75,7 +78,8 @@ BENCHES: dict[str, tuple[str, list[str], list[str]]] = {
 }
 ON_REQUEST = {"ray", "building", "inputs"}  # slow: run only when named in --only
 DEVICE_AWARE = {"render", "ldf", "localize", "ablation"}
-THREAD_AWARE = {"render", "ldf", "build", "localize", "ablation", "real", "geometric", "startup", "sfm", "building"}
+THREAD_AWARE = {"render", "ldf", "build", "localize", "ablation", "real", "walk", "geometric", "startup", "sfm",
+                "building"}
 
 
 def main(argv: list[str] | None = None) -> int:

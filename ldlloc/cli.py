@@ -283,6 +283,16 @@ def run(
                                    "without it); let --save-vis replace files that are not pictures of ldlloc."),
     threads: int = threads_option(),
     ray: Optional[str] = ray_option(),
+    walk: bool = typer.Option(False, "--walk", help="The panoramas are one walk (a capture tour): localize them "
+                              "together, choosing the most likely path (ldlloc/walk/); with --root, one walk per scene "
+                              "(--scene-unknown: per folder of maps), in capture order (ZInD: the panorama number)."),
+    order: Optional[str] = typer.Option(None, "--order", help="--images --walk: name (natural file-name order, the "
+                                        "default) | time (EXIF capture time)."),
+    video: Optional[Path] = typer.Option(None, "--video", help="An equirectangular video (mp4, mov, ...) localized as "
+                                         "one walk, tracked frame to frame (needs --maps; ldlloc/walk/video.py)."),
+    fps: Optional[float] = typer.Option(None, "--fps", help="--video: frames a second to localize (at most the "
+                                        "video's rate; default: every frame)."),
+    every: Optional[int] = typer.Option(None, "--every", metavar="N", help="--video: every N-th frame."),
 ) -> None:
     """Localize every query of a dataset split (or all splits) and print accuracy tables; or, with
     --images, your own panoramas against a map or a folder of maps (which map: --top-maps).
@@ -301,13 +311,19 @@ def run(
         check_results_path(output)
     if resume_any_options and not resume:
         raise InputError("--resume-any-options goes with --resume")
+    if walk or video is not None or any(v is not None for v in (order, fps, every)):
+        from ldlloc.walk.options import check_walk_options
+
+        check_walk_options(walk, order, images, ray, save_vis, video, fps, every, root, dataset, resume, maps)
+    if video is not None:
+        return _run_video(video, maps, output, params, top_maps, device, fps, every, threads, overwrite)
     if images is not None:
         given = [o for o, v in (("--root", root), ("--dataset", dataset), ("--split", split), ("--scene", scene),
                                 ("--map-level", map_level), ("--scene-unknown", scene_unknown)) if v]
         if given:
             raise InputError(f"--images runs without a dataset: drop {', '.join(given)}")
         return _run_images(images, maps, output, params, top_maps, device, resume, resume_any_options, save_vis,
-                           weights, threads, ray, overwrite)
+                           weights, threads, ray, overwrite, (order or "name") if walk else None)
     from ldlmap.datasets import MAP_LEVELS
 
     if top_maps is not None and not scene_unknown:
@@ -346,7 +362,10 @@ def run(
         console.print(f"[yellow]warning:[/] no map for {len(missing)} scene(s) in {maps} ({', '.join(missing[:5])}"
                       f"{', ...' if len(missing) > 5 else ''}): their queries fail; `ldlmap prepare` builds them",
                       soft_wrap=True)
-    if ray is not None:  # one Ray actor per scene map (ldlloc/batch/ray_run.py)
+    if walk:  # one walk per scene (ldlloc/walk/run.py)
+        results = _run_dataset_walks(queries, maps, output, params, top_maps, device, resume, meta, scene_unknown,
+                                     resume_any_options, say)
+    elif ray is not None:  # one Ray actor per scene map (ldlloc/batch/ray_run.py)
         from ldlloc.batch.ray_run import run_queries_ray
         from ldlmap.batch.ray_cluster import ThroughputBar
 
@@ -384,7 +403,7 @@ def _shown(text: str) -> str:
 
 def _run_images(images: str, maps: Optional[Path], output: Optional[Path], params, top_maps: Optional[int], device: str,
                 resume: bool, any_options: bool, save_vis: Optional[Path], weights: Optional[Path], threads: int,
-                ray: Optional[str], overwrite: bool) -> None:
+                ray: Optional[str], overwrite: bool, walk_order: Optional[str] = None) -> None:
     """`run --images`: find the panoramas and the maps, localize, print the counts (ldlloc/batch/images.py)."""
     from ldlloc.batch.images import (default_images_output, find_images, image_run_meta, picture_path,
                                      refuse_other_folders_results, run_images)
@@ -427,6 +446,19 @@ def _run_images(images: str, maps: Optional[Path], output: Optional[Path], param
         _print_run(results, "images", output, params.max_tilt_deg)
         return
 
+    if walk_order is not None:  # --walk: the panoramas as one walk (ldlloc/walk/run.py)
+        from ldlloc.walk.localize import WalkParams
+        from ldlloc.walk.run import run_walk_images, walk_photos
+
+        walk_photos(queries, walk_order)  # its errors before the maps are read
+        mapset = MapSet.load(maps, params, device)
+        for f, why in mapset.skipped:
+            say(f"[yellow]warning:[/] {f} left out: {why}")
+        with console.status(f"localizing {len(queries)} panoramas as one walk"):
+            results = run_walk_images(queries, mapset, output, params, WalkParams(top_maps=top_maps), walk_order,
+                                      device, resume, meta, any_options=any_options, say=say)
+        _print_run(results, "images", output, params.max_tilt_deg)
+        return
     with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(),
                   console=console, transient=True) as bar:
         task = bar.add_task(f"loading {len(files)} map(s)", total=len(files))
@@ -442,6 +474,46 @@ def _run_images(images: str, maps: Optional[Path], output: Optional[Path], param
 
         results = run_images(queries, mapset, output, params, device, resume, save_vis, **opts, progress=progress)
     _print_run(results, "images", output, params.max_tilt_deg)
+
+
+def _run_dataset_walks(queries: list, maps: Path, output: Path, params, top_maps: Optional[int], device: str,
+                       resume: bool, meta: dict, scene_unknown: bool, any_options: bool, say) -> list:
+    """`run --root ... --walk`: one walk per scene (ldlloc/walk/run.py)."""
+    from ldlloc.batch.which_map import TOP_MAPS
+    from ldlloc.walk.localize import WalkParams
+    from ldlloc.walk.run import run_walk_queries
+
+    with console.status(f"localizing {len(queries)} queries as walks"):
+        return run_walk_queries(queries, maps, output, params, WalkParams(top_maps=top_maps or TOP_MAPS), device,
+                                resume, meta, scene_unknown, any_options=any_options, say=say)
+
+
+def _run_video(video: Path, maps: Path, output: Optional[Path], params, top_maps: Optional[int], device: str,
+               fps: Optional[float], every: Optional[int], threads: int, overwrite: bool) -> None:
+    """`run --video`: the video as one tracked walk against the maps (ldlloc/walk/run.py)."""
+    from ldlloc.batch.results import refuse_replacing_results, results_outputs
+    from ldlloc.batch.which_map import TOP_MAPS, MapSet, map_files
+    from ldlloc.walk.localize import VIDEO
+    from ldlloc.walk.run import run_walk_video
+    from ldlmap.core.errors import refuse_overwriting_inputs
+    from dataclasses import replace
+
+    top_maps = TOP_MAPS if top_maps is None else top_maps
+    check_range(top_maps, "--top-maps", 1, 1000, integer=True)
+    files, _ = map_files(maps)
+    output = output or Path("results") / f"video_{video.stem}.json"
+    refuse_overwriting_inputs([video, *files], results_outputs(output))
+    refuse_replacing_results(output, overwrite, False)
+    check_device(device, local=True)
+    set_threads(threads)
+    say = lambda message: console.print(message, soft_wrap=True, highlight=False)  # noqa: E731
+    mapset = MapSet.load(maps, params, device)
+    for f, why in mapset.skipped:
+        say(f"[yellow]warning:[/] {f} left out: {why}")
+    with console.status(f"localizing {video.name} as one walk"):
+        results = run_walk_video(video, mapset, output, params, replace(VIDEO, top_maps=top_maps), fps, every, device,
+                                 meta={"dataset": "video", "maps": str(maps), "top_maps": top_maps}, say=say)
+    _print_run(results, "video", output, params.max_tilt_deg)
 
 
 def _print_run(results: list, label: str, output: Path, max_tilt: Optional[float]) -> None:
@@ -579,9 +651,10 @@ def report(
 def export(
     results: Path = typer.Argument(..., help="Results JSON written by `ldlloc run`."),
     fmt: str = typer.Option(..., "--format", help="colmap (a model folder: cameras, images, points3D) | nerfstudio "
-                            "(a transforms.json) | ply (cameras and map lines for a viewer)."),
+                            "(a transforms.json) | ply (cameras and map lines for a viewer) | tum (a walk's trajectory: "
+                            "timestamp tx ty tz qx qy qz qw)."),
     output: Path = typer.Option(..., "--output", "-o", help="colmap: a folder; nerfstudio: a .json file; ply: a "
-                                ".ply file."),
+                                ".ply file; tum: a .txt file."),
     include_all: bool = typer.Option(False, "--all", help="Also queries whose verdict is not `confident` (failed "
                                      "queries never)."),
     frame: str = typer.Option("map", "--frame", help="map (the map's frame: metres, z up) | input (the frame the "

@@ -356,3 +356,37 @@ def assess_across(locs: list, losses: list[float], names: list[str], params=None
                                   "loss": float(losses[j]), "why": f"map {names[j]}", "map": names[j]} for j in across]
         loc.verdict = verdict_for(loc.confidence, loc.competitors, model,
                                   rival=max(rival_share(loc), map_rival) >= RIVAL_SHARE or twin)
+
+
+WALK_MARGIN = 3.0  # nats: a walk singles a frame's pose out when every path through a distinct pose of that frame
+# costs this much more than the chosen path (ldlloc.walk.viterbi.margin); its confidence is then the model's threshold
+
+
+def walk_confidence(margin: float, model: ConfidenceModel = MODEL) -> float:
+    """The walk's confidence in a frame's pose from its path margin (nats): ``model.confident_at`` at
+    :data:`WALK_MARGIN`, a logistic in the margin around it (1 for a frame no other pose competes with)."""
+    if not np.isfinite(margin):
+        return 1.0
+    ca = model.confident_at
+    z = float(margin) - WALK_MARGIN + np.log(ca / (1.0 - ca))
+    return float(1.0 / (1.0 + np.exp(-np.clip(z, -50, 50))))
+
+
+def walk_judgement(single_confidence: float | None, single_verdict: str | None, margin: float, changed: bool,
+                   pose_ok: bool, model: ConfidenceModel = MODEL) -> tuple[float, str, bool]:
+    """A walk frame's ``(confidence, verdict, walk_decided)`` from its single-image judgement and the
+    walk's (one rule for every walk): a frame whose image was confident and whose pose the walk kept
+    stays as it is. Otherwise the walk decides (``walk_decided``) when it moved the pose
+    (``changed``) or when it singles the image's pose out (its ``margin``): ``confident`` when the
+    walk's confidence (:func:`walk_confidence`) reaches the threshold and the pose was refined
+    (``pose_ok``), else ``ambiguous`` when there is a pose, else ``failed``. A frame the walk leaves
+    undecided keeps its image's judgement."""
+    single = 0.0 if single_confidence is None else float(single_confidence)
+    if not changed and single_verdict == "confident":
+        return single, "confident", False
+    walk = walk_confidence(margin, model)
+    if not changed and (walk < model.confident_at or not pose_ok):
+        return single, single_verdict or "failed", False
+    if walk >= model.confident_at and pose_ok:
+        return round(max(walk, single) if not changed else walk, 6), "confident", True
+    return round(walk, 6), "ambiguous", True  # the walk moved the pose but does not single it out

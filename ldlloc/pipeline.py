@@ -181,6 +181,11 @@ def load_image(path: str | Path) -> np.ndarray:
     return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
 
 
+def image_size(path: str | Path) -> tuple[int, int] | None:
+    """(width, height) of a PNG or JPEG from its header, without decoding it (None: another format)."""
+    return _image_header_size(Path(path))
+
+
 def _check_panorama_size(size: tuple[int, int], p: Path) -> None:
     """One-line errors for a (width, height) that is too large, not 2:1 or too small."""
     w, h = size
@@ -267,6 +272,18 @@ class QueryLines:
         if key not in self._vps:
             self._vps[key] = vanishing_points(filter_by_length(self.arcs, ratio), principal.k_2d, principal)
         return self._vps[key]
+
+
+@dataclass(frozen=True)
+class SearchNear:
+    """A restricted pose search (tracking a walk, :mod:`ldlloc.walk`): only the map's candidate
+    translations within ``radius_m`` of ``center`` and the candidate rotations within ``cone_deg``
+    of ``rot_cam_from_world``."""
+
+    center: np.ndarray  # (3,) predicted camera centre
+    rot_cam_from_world: np.ndarray | None  # (3, 3) predicted rotation (None: any rotation)
+    radius_m: float = 0.75
+    cone_deg: float = 15.0
 
 
 @dataclass
@@ -538,12 +555,14 @@ class Localizer:
         return QueryLines.detect(_check_panorama_array(image_rgb), self.params)
 
     def search(self, image_rgb: np.ndarray, max_tilt_deg: float | None = None,
-               lines: QueryLines | None = None, camera_up: np.ndarray | None = None) -> Searched:
+               lines: QueryLines | None = None, camera_up: np.ndarray | None = None,
+               near: SearchNear | None = None) -> Searched:
         """Stages 1-3 of :meth:`localize` (2D lines, candidate rotations, pose search): the coarse
         :class:`Localization` and what refinement needs. ``lines``: the panorama's 2D lines from
         :meth:`detect_lines` (shared with other maps; their seconds are counted as ``lines2d``).
         ``camera_up``: the camera's own gravity (world up in the camera frame, from its XMP pose):
-        the tilt bound is then around it (:func:`ldlloc.rotation.filter_by_tilt`)."""
+        the tilt bound is then around it (:func:`ldlloc.rotation.filter_by_tilt`). ``near``: search
+        only near a predicted pose (:class:`SearchNear`); an InputError when no candidate lies there."""
         from ldlloc.lines2d import filter_by_length, query_keep_ratio
         from ldlloc.rotation import (candidate_rotations, filter_by_tilt, frame_rows, pair_candidates,
                                      rotation_labels)
@@ -587,11 +606,23 @@ class Localizer:
                              f"({found} found; raise --max-tilt, or 180 for free rotation)")
         if len(rots) == 0:
             raise InputError("no candidate rotation: the panorama's vanishing points do not match the map's")
+        t_idx = None
+        if near is not None:
+            rots, t_idx = self._near(rots, near)
         labels = rotation_labels(arcs, vps, rots, m.principal_directions, p.principal.group_tol)
         lap("rotation")
-        res = search_poses(arcs, labels, rots.rotations, m.lines, m.line_groups, m.translations,
-                           p.search, self.device, fields=self.fields, visibility=m.visibility,
-                           coverage=m.coverage, num_groups=len(m.principal_directions))
+        if t_idx is None:
+            res = search_poses(arcs, labels, rots.rotations, m.lines, m.line_groups, m.translations,
+                               p.search, self.device, fields=self.fields, visibility=m.visibility,
+                               coverage=m.coverage, num_groups=len(m.principal_directions))
+        else:  # the subset's fields, visibility and coverage; indices back into the whole map's
+            sub = lambda a: None if a is None else a[t_idx]  # noqa: E731
+            res = search_poses(arcs, labels, rots.rotations, m.lines, m.line_groups, m.translations[t_idx],
+                               p.search, self.device,
+                               fields=None if self.fields is None else self.fields.subset(t_idx),
+                               visibility=sub(m.visibility), coverage=sub(m.coverage),
+                               num_groups=len(m.principal_directions))
+            res.translation_index = t_idx[res.translation_index]
         lap("search")
         best_r, best_t = res.rotations[0], res.centers[0]
         out = Localization(best_r, best_t, best_r, best_t, res.rotations, res.centers, secs,
@@ -601,6 +632,22 @@ class Localizer:
                            rotation_prior=rotation_prior_name(tilt),
                            input_to_map=None if is_identity(m.input_to_map) else m.input_to_map)
         return Searched(out, res, arcs, labels)
+
+    def _near(self, rots, near: SearchNear):
+        """The candidate rotations within ``near``'s cone and the indices of the map's candidate
+        translations within its radius (one-line InputErrors when none is)."""
+        from ldlmap.core.geometry import rotation_error_deg
+
+        T = np.asarray(self.map.translations, dtype=np.float64)
+        t_idx = np.flatnonzero(np.linalg.norm(T - np.asarray(near.center, float), axis=1) <= near.radius_m)
+        if len(t_idx) == 0:
+            raise InputError(f"no candidate translation within {near.radius_m:g} m of the predicted pose")
+        if near.rot_cam_from_world is not None:
+            ang = np.array([rotation_error_deg(R, near.rot_cam_from_world) for R in rots.rotations])
+            rots = rots.subset(ang <= near.cone_deg)
+            if len(rots) == 0:
+                raise InputError(f"no candidate rotation within {near.cone_deg:g} deg of the predicted pose")
+        return rots, t_idx
 
     def localize(self, image_rgb: np.ndarray, max_tilt_deg: float | None = None, lines: QueryLines | None = None,
                  searched: Searched | None = None, camera_up: np.ndarray | None = None) -> Localization:

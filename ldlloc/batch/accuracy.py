@@ -78,6 +78,8 @@ class QueryResult:
     verdict: str | None = None  # confident | ambiguous | failed (None: older runs)
     competitors: list = field(default_factory=list)  # distinct poses of nearly the same loss: {R, t, loss, why}
     confidence_signals: dict | None = None  # what the confidence was computed from (ldlloc.confidence)
+    walk: dict | None = None  # a frame of a walk (ldlloc.walk.run.walk_fields): {name, frame, time, walk_decided,
+    # single_verdict, single_confidence, margin, tracked}; None: a single image
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> "QueryResult":

@@ -100,6 +100,7 @@ class MapOption:
     search_loss: float  # the search's best loss (the ranking)
     loc: Localization | None = None  # refined localization (top maps only)
     loss: float | None = None  # exact loss of the final pose (lower is better; score_poses)
+    searched: Localization | None = None  # the search's coarse localization: its top-K poses (ldlloc.walk)
 
 
 @dataclass
@@ -188,7 +189,7 @@ def localize_on_maps(img: np.ndarray, maps: MapSet, max_tilt_deg: float | None, 
     lines = first.detect_lines(img)
     if len(maps.entries) == 1:
         loc = first.localize(img, max_tilt_deg, lines=lines, camera_up=camera_up)
-        opt = MapOption(maps.entries[0], float(loc.candidates_loss[0]), loc)
+        opt = MapOption(maps.entries[0], float(loc.candidates_loss[0]), loc, searched=loc)
         return loc, MapChoice(opt, [opt], seconds=dict(loc.seconds))
     secs = {"lines2d": lines.seconds, "rotation": 0.0, "search": 0.0, "refine": 0.0, "choose": 0.0}
     searched: list[tuple[MapOption, Searched]] = []
@@ -201,7 +202,7 @@ def localize_on_maps(img: np.ndarray, maps: MapSet, max_tilt_deg: float | None, 
             continue
         secs["rotation"] += s.out.seconds["rotation"]
         secs["search"] += s.out.seconds["search"]
-        searched.append((MapOption(e, s.best_loss), s))
+        searched.append((MapOption(e, s.best_loss, searched=s.out), s))
     if not searched:
         raise InputError(f"no map could be searched ({failures[0][0].scene}: {failures[0][1]})")
     searched.sort(key=lambda x: x[0].search_loss)

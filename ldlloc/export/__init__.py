@@ -4,7 +4,8 @@
 
 - ``colmap`` (:mod:`.colmap`): a model folder that ``pycolmap.Reconstruction(out)`` reads;
 - ``nerfstudio`` (:mod:`.nerfstudio`): a ``transforms.json``;
-- ``ply`` (:mod:`.ply`): cameras and map lines for a viewer.
+- ``ply`` (:mod:`.ply`): cameras and map lines for a viewer;
+- ``tum`` (:mod:`.tum`): a walk's trajectory as TUM text (``timestamp tx ty tz qx qy qz qw``).
 
 Which queries, which frame, image names and maps: :mod:`.poses`. Outputs are written through a
 temporary beside ``out`` and renamed at the end; an existing ``out`` is replaced only with
@@ -21,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-FORMATS = ("colmap", "nerfstudio", "ply")
+FORMATS = ("colmap", "nerfstudio", "ply", "tum")
 
 
 @dataclass
@@ -42,7 +43,7 @@ def _check_options(fmt: str, out: Path, text: bool, image_root: Path | None, ove
     if fmt != "colmap" and (text or image_root is not None):
         raise InputError(f"{'--text' if text else '--image-root'} is for --format colmap (a COLMAP model), "
                          f"not {fmt}")
-    suffix = {"nerfstudio": ".json", "ply": ".ply"}.get(fmt)
+    suffix = {"nerfstudio": ".json", "ply": ".ply", "tum": ".txt"}.get(fmt)
     if suffix is not None:
         if out.suffix.lower() != suffix:
             raise InputError(f"--format {fmt} writes a {suffix} file: name -o OUT{suffix}, got {out}")
@@ -179,6 +180,12 @@ def export_results(results: str | Path, fmt: str, out: str | Path, include_all: 
                      f"(ZInD room maps of one floor do); --scene NAME exports one")
     if fmt == "nerfstudio":
         _write_nerfstudio(out, poses, frame, results)
+        return ExportOutcome(out=out, count=len(poses), notes=notes)
+    if fmt == "tum":
+        from ldlloc.export.tum import tum_text
+
+        with atomic_file(out) as tmp:
+            Path(tmp).write_text(tum_text(poses, frame))
         return ExportOutcome(out=out, count=len(poses), notes=notes)
     lines = map_lines(poses, frame, meta, map_path)
     if lines.missing:

@@ -61,6 +61,9 @@ def transforms(poses: list, json_path: str | Path, sizes: list[tuple[int, int]],
         if not shared:
             frame.update(intrinsics(*size))
         frame["ldl_name"] = pose.name  # the query's name in the results file (ignored by nerfstudio)
+        walk = pose.record.get("walk") or {}
+        if walk.get("time") is not None:  # a walk's frame: its time in seconds (a video's timestamp, a capture time)
+            frame["time"] = float(walk["time"])
         frames.append(frame)
     out: dict = {"camera_model": "EQUIRECTANGULAR"}
     if shared and sizes:

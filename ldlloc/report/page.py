@@ -19,6 +19,7 @@ import numpy as np
 
 from ldlloc.batch.accuracy import STAGES, THRESHOLDS, QueryResult, group_by, summarize
 from ldlloc.report.plots import cdf_svg, histogram_svg
+from ldlloc.report.walk import map_lines_xy, walk_svg
 
 MARK = "<!-- ldlloc report -->"  # second line of every page: a page this command may replace
 PAGE_HEAD = f"<!DOCTYPE html>\n{MARK}\n"  # how every page begins; a file that begins otherwise is not ours
@@ -227,6 +228,9 @@ def render_page(results_path: Path, records: list[dict], meta: dict[str, Any], t
                 "<h2>Summary</h2>", _cards(records, results)]
     if has_ground_truth(records):
         sections += ["<h2>Accuracy per split</h2>", _split_table(results)]
+    walk = walk_svg(records, VERDICT_COLORS, map_lines_xy(records))  # a walk's top view (ldlloc/report/walk.py)
+    if walk is not None:
+        sections += ["<h2>Walk (top view, coloured by verdict)</h2>", walk]
     sections += ["<h2>Plots</h2>", _plots(records, results), "<h2>Seconds per stage</h2>", _timings(results),
                  f'<h2>Queries ({len(records)}, {order})</h2>',
                  '<p class="meta">lines coloured by the map\'s principal direction: red, green, blue; grey: none</p>',

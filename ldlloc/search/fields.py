@@ -98,6 +98,14 @@ class DistanceFields:
                              f"the map has {len(ldl_map.translations)}: rebuild the map")
         return f
 
+    def subset(self, translation_index: np.ndarray) -> "DistanceFields":
+        """The fields of these translations only (a restricted search, ``ldlloc.pipeline.SearchNear``)."""
+        import torch
+
+        idx = torch.as_tensor(np.asarray(translation_index, dtype=np.int64), device=self.table.device)
+        t = self.table.view(self.table.shape[0], self.num_groups, self.num_translations)[:, :, idx]
+        return DistanceFields(t.reshape(t.shape[0], -1).contiguous(), self.rows, len(idx), self.num_groups)
+
     @property
     def nbytes(self) -> int:
         return int(self.table.numel() * self.table.element_size())

@@ -1,0 +1,288 @@
+"""Localize a walk: ``localize_walk(frames, maps, params) -> list[FrameOutcome]`` (offline: the whole walk).
+
+1. Each frame is localized alone (:func:`ldlloc.batch.which_map.localize_on_maps`: every map
+   searched, the best refined), or, with tracking on (dense frames: videos), first near the
+   previous frame's pose (:class:`ldlloc.pipeline.SearchNear`: translations within a radius,
+   rotations within a cone, on that pose's map), falling back to the global search when the
+   tracked pose is lost (not refined, or explaining fewer lines than ``track_keep`` of the last
+   global frame's). Its hypotheses (:mod:`ldlloc.walk.hypotheses`) are kept, not its image.
+2. The most likely path over the hypotheses (:func:`ldlloc.walk.viterbi.best_path` with the
+   motion model of :mod:`ldlloc.walk.motion`) chooses one pose per frame, with its margin.
+3. Where the path chose another pose than the image's own, the frame takes it: another map's
+   refined pose as it is, a search pose after a search and refinement near it (the image read
+   again). :func:`ldlloc.confidence.walk_judgement` gives each frame its confidence and verdict
+   and says whether the walk (not its image) decided it; the image's own judgement stays beside it.
+
+Offline, not online: a tour is localized after it was shot, and the whole walk lets a later
+frame (the corridor it came out into) decide an earlier one (the copy of a room it was in).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import Callable, Iterable
+
+import numpy as np
+
+from ldlmap.core.errors import InputError, LdlError
+from ldlloc.batch.which_map import TOP_MAPS, MapChoice, MapEntry, MapOption, MapSet, final_pose_loss, localize_on_maps
+from ldlloc.confidence import distinct, walk_judgement
+from ldlloc.pipeline import Localization, Localizer, SearchNear
+from ldlloc.walk.hypotheses import MAX_HYPOTHESES, Hypotheses, from_choice, joined
+from ldlloc.walk.motion import MotionParams, transition_costs
+from ldlloc.walk.viterbi import best_path, margin
+
+TIE_COST = 0.01  # nats: what a pose the image named as its competitor costs more than its own (ties: its own)
+TRACK_REFINES = ("light", "same", "geometric")
+MIN_FRAMES = 2  # a walk of one frame is a single image (the runs refuse it)
+
+
+@dataclass(frozen=True)
+class WalkParams:
+    """How a walk is localized (defaults: a capture tour)."""
+
+    motion: MotionParams = field(default_factory=MotionParams)
+    top_maps: int = TOP_MAPS  # maps refined per frame after the ranking (several maps)
+    track: bool = False  # search near the previous frame's pose first (dense frames: videos)
+    track_radius_m: float = 0.75  # tracking: candidate translations within this of the previous pose ...
+    track_cone_deg: float = 15.0  # ... and candidate rotations within this of its rotation
+    track_keep: float = 0.8  # a tracked pose explaining fewer lines than this share of the last global frame's is lost
+    track_refine: str = "light"  # how a tracked pose is refined: light (features in one query frame, PnP on 2 views, no
+    # retrieval fallback: the tracked pose is near) | same (as the global localization) | geometric (lines alone)
+    # (docs/measurements.md#walks)
+    gap_radius_m: float = 4.5  # a frame whose image was not confident is searched again within this radius of the
+    max_gap_radius_m: float = 12.0  # confident frames before and after it, times their distance in frames (at most
+    # this)
+    near_radius_m: float = 0.6  # a search pose the path chose is searched again within this radius ...
+    near_cone_deg: float = 10.0  # ... and this cone, then refined
+    max_hypotheses: int = MAX_HYPOTHESES
+
+
+VIDEO = WalkParams(track=True, motion=MotionParams(turn_deg=30.0))  # a video: frames a few tenths of a second apart
+# (the free step from the walking speed and their time apart), tracked, turning little between frames
+
+
+@dataclass(frozen=True)
+class WalkFrame:
+    """One frame of a walk: its name, how to read it (RGB panorama), its time (s) and upright prior."""
+
+    name: str
+    load: Callable[[], np.ndarray]
+    time: float | None = None
+    max_tilt_deg: float | None = None
+
+
+@dataclass
+class FrameOutcome:
+    """A frame's localization after the walk, with its image's own judgement beside it."""
+
+    frame: WalkFrame
+    loc: Localization | None = None  # the final localization (None: the frame failed)
+    entry: MapEntry | None = None  # the map its pose is in
+    choice: MapChoice | None = None  # the frame's own (single-image or tracked) choice of map
+    error: str | None = None  # why it failed
+    tracked: bool = False  # found by tracking (else global)
+    single_confidence: float | None = None  # the image's own judgement
+    single_verdict: str | None = None
+    single_pose: tuple[np.ndarray, np.ndarray] | None = None  # (R, t) of the image's own pose
+    competitors: list = field(default_factory=list)  # the poses its image named as competing ({R, t, ...})
+    walk_decided: bool = False
+    walk_margin: float | None = None  # nats (inf: no distinct pose in the frame's hypotheses)
+    hypotheses: Hypotheses | None = field(default=None, repr=False)
+
+
+def localize_walk(frames: Iterable, maps: MapSet, params: WalkParams = WalkParams(),
+                  progress: Callable[[int, FrameOutcome], None] | None = None) -> list[FrameOutcome]:
+    """Localize ``frames`` (in walk order) against ``maps`` as one walk (module docstring): each a
+    :class:`WalkFrame`, or a ``(WalkFrame, image)`` pair whose image the first pass takes (a
+    video's decoder: frames are read once, in order). ``progress(index, outcome)``: after each
+    frame's own localization. A frame that cannot be localized gets its ``error`` and the walk goes
+    on around it."""
+    if params.track_refine not in TRACK_REFINES:
+        raise InputError(f"unknown track_refine {params.track_refine!r}; valid: {', '.join(TRACK_REFINES)}")
+    index = {id(e): i for i, e in enumerate(maps.entries)}
+    trackers: dict[int, Localizer] = {}  # the localizers tracked frames are refined with, per map
+    outcomes: list[FrameOutcome] = []
+    ref_loss: float | None = None  # the last global frame's final loss: what a tracked pose must come near
+    for i, item in enumerate(frames):
+        fr, img = item if isinstance(item, tuple) else (item, None)
+        out = FrameOutcome(fr)
+        try:
+            img = fr.load() if img is None else img
+            got = track(img, outcomes[-1], fr, params, ref_loss, trackers) if params.track and outcomes else None
+            if got is None:
+                loc, choice = localize_on_maps(img, maps, fr.max_tilt_deg, params.top_maps)
+                ref_loss = own_loss(choice)
+            else:
+                loc, choice = got
+                out.tracked = True
+            out.loc, out.choice, out.entry = loc, choice, choice.chosen.entry
+            out.hypotheses = from_choice(choice, index, params.max_hypotheses)
+            out.single_confidence, out.single_verdict = loc.confidence, loc.verdict
+            out.single_pose = (np.asarray(loc.rot_cam_from_world, float), np.asarray(loc.center, float))
+            out.competitors = list(loc.competitors)
+        except LdlError as exc:
+            out.error = str(exc)
+        except Exception as exc:  # noqa: BLE001 - one frame's failure (cv2.error, a decoder's), not the walk's
+            out.error = f"internal error ({type(exc).__name__}: {exc})"
+        lighten(out)
+        outcomes.append(out)
+        if progress:
+            progress(i, out)
+    augment(outcomes, maps, params)
+    decide(outcomes, maps, params)
+    return outcomes
+
+
+def own_loss(choice: MapChoice) -> float:
+    """The loss of the chosen map's final pose (its exact loss; lower is better)."""
+    o = choice.chosen
+    return float(o.loss) if o.loss is not None else final_pose_loss(o.entry.localizer, o.loc)
+
+
+def tracker(entry: MapEntry, params: WalkParams, trackers: dict[int, Localizer]) -> Localizer:
+    """The localizer that refines tracked frames on ``entry``'s map (``track_refine``), made once."""
+    if params.track_refine == "same" or entry.localizer.refine_mode == "geometric":
+        return entry.localizer
+    if id(entry) not in trackers:
+        loz, p = entry.localizer, entry.localizer.params
+        if params.track_refine == "light":
+            p = replace(p, max_query_frames=1, refine=replace(p.refine, pnp_views=2,
+                                                              retrieval=replace(p.refine.retrieval, views=0)))
+        else:
+            p = replace(p, refine_mode="geometric")
+        trackers[id(entry)] = Localizer(loz.map, p, loz.device)
+    return trackers[id(entry)]
+
+
+def track(img: np.ndarray, prev: FrameOutcome, fr: WalkFrame, params: WalkParams,
+          ref_loss: float | None, trackers: dict[int, Localizer]) -> tuple[Localization, MapChoice] | None:
+    """The frame localized near ``prev``'s pose on its map, or None when it is lost there (no
+    previous pose, no candidate near it, a pose not refined or explaining too few lines)."""
+    if prev.loc is None or prev.entry is None or ref_loss is None:
+        return None
+    loz = tracker(prev.entry, params, trackers)
+    near = SearchNear(np.asarray(prev.loc.center, float), np.asarray(prev.loc.rot_cam_from_world, float),
+                      params.track_radius_m, params.track_cone_deg)
+    try:
+        s = loz.search(img, fr.max_tilt_deg, near=near)
+    except InputError:
+        return None
+    loc = loz.localize(img, fr.max_tilt_deg, searched=s)
+    loss = final_pose_loss(loz, loc)
+    if not loc.refined or loc.verdict == "failed" or loss > params.track_keep * ref_loss:
+        return None
+    opt = MapOption(prev.entry, float(s.best_loss), loc, loss=loss, searched=loc)
+    return loc, MapChoice(opt, [opt], seconds=dict(loc.seconds))
+
+
+def lighten(out: FrameOutcome) -> None:
+    """Drop what a frame's records do not need (its arcs, candidate rotations, the other maps'
+    localizations): a walk's memory grows by its hypotheses and records only."""
+    if out.choice is None:
+        return
+    for o in out.choice.ranked:
+        o.searched = None
+        if o.loc is not None and o is not out.choice.chosen:
+            o.loc = None
+    out.loc.arcs, out.loc.rotations, out.loc.arc_groups = None, None, None
+
+
+def augment(outcomes: list[FrameOutcome], maps: MapSet, params: WalkParams) -> None:
+    """Frames whose image was not confident (not tracked either) get more hypotheses: the top-K of a
+    search near the confident frames before and after them (on their maps, within ``gap_radius_m``
+    per frame apart): the pose a search over the whole map lost among distractors (furniture the
+    map lacks) is often the best of the few near where the walk was."""
+    index = {id(e): i for i, e in enumerate(maps.entries)}
+    sure = [i for i, o in enumerate(outcomes) if o.single_verdict == "confident" and o.loc is not None]
+    for i, o in enumerate(outcomes):
+        if o.hypotheses is None or o.single_verdict == "confident" or o.tracked:
+            continue
+        before = [a for a in sure if a < i][-1:]
+        after = [a for a in sure if a > i][:1]
+        if not before + after:
+            continue
+        try:
+            img = o.frame.load()
+            lines = maps.entries[0].localizer.detect_lines(img)
+        except LdlError:
+            continue
+        for a in before + after:
+            anchor = outcomes[a]
+            radius = min(params.gap_radius_m * abs(a - i), params.max_gap_radius_m)
+            loz = anchor.entry.localizer
+            try:
+                s = loz.search(img, o.frame.max_tilt_deg, lines, SearchNear(np.asarray(anchor.loc.center, float), None,
+                                                                             radius))
+            except InputError:
+                continue
+            c = s.out
+            o.hypotheses = joined(o.hypotheses, index[id(anchor.entry)], c.candidates_rot, c.candidates_center,
+                                  c.candidates_loss)
+
+
+def emission_costs(o: FrameOutcome, params: WalkParams) -> np.ndarray:
+    """A frame's costs of its poses: from their losses (:meth:`Hypotheses.emission_costs`); a pose
+    distinct from its image's own costs at least as much as that one (the image chose it on more than
+    its loss: refinement, map-line support, PnP), plus the anchor cost (its image was confident) or
+    the own cost (it was not)."""
+    h, m = o.hypotheses, params.motion
+    e = h.emission_costs(m.emission_weight)
+    other = distinct(*o.single_pose, h.rot_cam_from_world, h.center)
+    own = float(np.min(e[~other])) if (~other).any() else 0.0
+    extra = np.full(len(h), m.anchor_cost if o.single_verdict == "confident" else m.own_cost)
+    if o.single_verdict != "confident":  # the poses the image named as its competitors: next to no extra cost
+        for c in o.competitors:  # (a tie goes to the image's own pose)
+            named = ~distinct(np.asarray(c["R"], float), np.asarray(c["t"], float), h.rot_cam_from_world, h.center)
+            extra[named] = TIE_COST
+    return np.where(other, np.maximum(e, own) + extra, e)
+
+
+def decide(outcomes: list[FrameOutcome], maps: MapSet, params: WalkParams) -> None:
+    """Choose the walk's path over the frames that have hypotheses and give each its pose and judgement."""
+    live = [o for o in outcomes if o.hypotheses is not None and len(o.hypotheses)]
+    if not live:
+        return
+    em = [emission_costs(o, params) for o in live]
+
+    def trans(f: int) -> np.ndarray:
+        a, b = live[f - 1], live[f]
+        dt = None if a.frame.time is None or b.frame.time is None else b.frame.time - a.frame.time
+        return transition_costs(a.hypotheses, b.hypotheses, params.motion, dt)
+
+    path = best_path(em, trans)
+    for f, o in enumerate(live):
+        h, j = o.hypotheses, path.choice[f]
+        R, t = h.rot_cam_from_world[j], h.center[j]
+        o.walk_margin = margin(path.marginals[f], j, distinct(R, t, h.rot_cam_from_world, h.center))
+        changed = bool(distinct(R, t, o.single_pose[0][None], o.single_pose[1][None])[0])
+        pose_ok = bool(o.loc.refined)
+        if changed:
+            pose_ok = move_to(o, maps.entries[int(h.map_index[j])], R, t, params)
+        conf, verdict, o.walk_decided = walk_judgement(o.single_confidence, o.single_verdict, o.walk_margin,
+                                                       changed, pose_ok)
+        o.loc.confidence, o.loc.verdict = conf, verdict
+        if o.walk_decided and changed:  # the image's own pose is the walk's competitor
+            R0, t0 = o.single_pose
+            o.loc.competitors = [{"R": np.round(R0, 8).tolist(), "t": np.round(t0, 6).tolist(), "loss": None,
+                                  "why": "the image's own pose (the walk chose another)"}]
+        o.hypotheses = None  # not needed any more
+
+
+def move_to(o: FrameOutcome, entry: MapEntry, R: np.ndarray, t: np.ndarray, params: WalkParams) -> bool:
+    """Give frame ``o`` the pose the walk chose on ``entry``'s map: searched and refined near it
+    (its image read again); the coarse pose itself when that fails. Returns whether the pose is refined."""
+    loz = entry.localizer
+    near = SearchNear(t, R, params.near_radius_m, params.near_cone_deg)
+    try:
+        img = o.frame.load()
+        loc = loz.localize(img, o.frame.max_tilt_deg, searched=loz.search(img, o.frame.max_tilt_deg, near=near))
+    except LdlError as exc:
+        o.loc.rot_cam_from_world, o.loc.center, o.loc.refined = R, t, False
+        o.loc.message = f"the walk's pose (coarse: {exc})"
+        o.entry = entry
+        return False
+    loc.arcs, loc.rotations, loc.arc_groups = None, None, None
+    loc.message = f"the walk's pose, {loc.message}"
+    o.loc, o.entry = loc, entry
+    return bool(loc.refined)

@@ -1,0 +1,34 @@
+"""The checks of ``ldlloc run``'s walk options (one-line errors, before anything is read)."""
+
+from __future__ import annotations
+
+from ldlmap.core.errors import InputError
+from ldlloc.walk.order import ORDERS
+
+
+def check_walk_options(walk: bool, order: str | None, images, ray, save_vis, video=None, fps: float | None = None,
+                       every: int | None = None, root=None, dataset=None, resume: bool = False, maps=None) -> None:
+    """``--order`` goes with ``--walk --images`` and is one of :data:`ORDERS`; a walk runs in this
+    process (not on Ray: one walk is never split) and writes no pictures; ``--fps`` and ``--every``
+    go with ``--video``, which runs alone (no dataset, images or resume: a rerun localizes it again)
+    and needs ``--maps``."""
+    if order is not None and not walk:
+        raise InputError("--order goes with --walk")
+    if order is not None and order not in ORDERS:
+        raise InputError(f"--order must be {' or '.join(ORDERS)}, got {order!r}")
+    if order is not None and images is None:
+        raise InputError("--order goes with --images (a dataset knows its walks' order)")
+    if (walk or video is not None) and ray is not None:
+        raise InputError(f"{'--walk' if walk else '--video'} runs in this process: drop --ray (a walk is localized "
+                         "as a whole, never split)")
+    if (walk or video is not None) and save_vis is not None:
+        raise InputError(f"{'--walk' if walk else '--video'} writes no pictures: drop --save-vis")
+    if video is None and (fps is not None or every is not None):
+        raise InputError(f"{'--fps' if fps is not None else '--every'} goes with --video")
+    if video is not None:
+        given = [o for o, v in (("--images", images), ("--root", root), ("--dataset", dataset), ("--resume", resume),
+                                ("--walk", walk)) if v]
+        if given:
+            raise InputError(f"--video runs alone: drop {', '.join(given)}")
+        if maps is None:
+            raise InputError("--video needs --maps: a map (.h5) or a folder of maps")

@@ -1,0 +1,152 @@
+"""Equirectangular videos as walks: ``ldlloc run --video FILE [--fps F | --every N]``.
+
+Decoded in-process with PyAV (FFmpeg) frame by frame, never written to disk: the first pass
+(:func:`ldlloc.walk.localize.localize_walk`) reads the kept frames in order from one decoder
+(:func:`decoded_frames`); a frame the walk must look at again (a pose it moved) is read again by
+seeking (:func:`frame_at`). Each kept frame is named ``<video stem>/<index>`` with its timestamp
+(seconds, the stream's presentation time). A video that is not 2:1, does not decode, or is asked
+for more frames a second than it has is a one-line error.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from fractions import Fraction
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+
+from ldlmap.core.errors import InputError, require_file
+from ldlloc.pipeline import WORK_WIDTH
+
+
+@dataclass(frozen=True)
+class VideoFrame:
+    """One kept frame: its index among the video's frames, its time (s) and presentation time stamp."""
+
+    index: int
+    time: float
+    pts: int | None
+
+
+@dataclass(frozen=True)
+class VideoInfo:
+    """The video stream: size, frame rate (frames a second), duration (s, None: unknown)."""
+
+    path: Path
+    width: int
+    height: int
+    rate: float
+    duration: float | None
+
+
+def _open(path: Path):
+    import av
+
+    try:
+        container = av.open(str(path))
+    except (av.error.FFmpegError, OSError, ValueError) as exc:
+        raise InputError(f"cannot decode video {path}: {exc}") from None
+    if not container.streams.video:
+        container.close()
+        raise InputError(f"no video stream in {path}")
+    return container
+
+
+def video_info(path: str | Path) -> VideoInfo:
+    """The video's stream properties; one-line errors for a missing, undecodable or non-2:1 video."""
+    p = require_file(path, "video")
+    with _open(p) as c:
+        s = c.streams.video[0]
+        w, h = int(s.codec_context.width), int(s.codec_context.height)
+        rate = float(s.average_rate or s.guessed_rate or 0)
+        dur = float(s.duration * s.time_base) if s.duration is not None and s.time_base else None
+    if w <= 0 or h <= 0:
+        raise InputError(f"cannot decode video {p}: no frame size")
+    if w != 2 * h:
+        raise InputError(f"not an equirectangular video (width must be 2 x height): {p} is {w}x{h}")
+    if rate <= 0:
+        raise InputError(f"cannot decode video {p}: no frame rate")
+    return VideoInfo(p, w, h, rate, dur)
+
+
+def check_sampling(info: VideoInfo, fps: float | None, every: int | None) -> None:
+    """``--fps`` in (0, the video's rate] or ``--every`` >= 1, not both."""
+    if fps is not None and every is not None:
+        raise InputError("--fps and --every are two ways to say the same: give one")
+    if fps is not None and not (0 < fps <= info.rate + 1e-6):
+        raise InputError(f"--fps must be in (0, {info.rate:g}] (the video's frame rate), got {fps:g}")
+    if every is not None and every < 1:
+        raise InputError(f"--every must be at least 1, got {every}")
+
+
+def _rgb(frame) -> np.ndarray:
+    """A decoded frame as RGB uint8 at the working width (as :func:`ldlloc.pipeline.load_image`)."""
+    import cv2
+
+    img = frame.to_ndarray(format="rgb24")
+    if img.shape[1] > WORK_WIDTH:
+        img = cv2.resize(img, (WORK_WIDTH, WORK_WIDTH // 2), interpolation=cv2.INTER_AREA)
+    return np.ascontiguousarray(img)
+
+
+def _kept(index: int, time: float, fps: float | None, every: int | None, next_time: float) -> bool:
+    if fps is not None:
+        return time >= next_time - 1e-6
+    return index % (every or 1) == 0
+
+
+def decoded_frames(info: VideoInfo, fps: float | None = None, every: int | None = None
+                   ) -> Iterator[tuple[VideoFrame, np.ndarray]]:
+    """The kept frames in order with their images: every ``every``-th, or the first at or after
+    each multiple of ``1 / fps`` seconds (neither: every frame)."""
+    import av
+
+    with _open(info.path) as c:
+        s = c.streams.video[0]
+        s.thread_type = "AUTO"
+        next_time, index = 0.0, 0
+        try:
+            for frame in c.decode(s):
+                time = float(frame.time) if frame.time is not None else index / info.rate
+                if _kept(index, time, fps, every, next_time):
+                    yield VideoFrame(index, time, frame.pts), _rgb(frame)
+                    next_time = (np.floor(time * fps + 1e-6) + 1) / fps if fps else next_time
+                index += 1
+        except av.error.FFmpegError as exc:
+            raise InputError(f"cannot decode video {info.path} at frame {index}: {exc}") from None
+
+
+def frame_at(info: VideoInfo, vf: VideoFrame) -> np.ndarray:
+    """One kept frame's image again: seek to the key frame before it, decode up to it."""
+    with _open(info.path) as c:
+        s = c.streams.video[0]
+        if vf.pts is not None:
+            c.seek(int(vf.pts), stream=s, backward=True, any_frame=False)
+        for frame in c.decode(s):
+            if vf.pts is None or frame.pts is None or frame.pts >= vf.pts:
+                return _rgb(frame)
+    raise InputError(f"cannot decode video {info.path}: frame {vf.index} not found again")
+
+
+def write_video(path: str | Path, frames: Iterator[np.ndarray], fps: float, codec: str = "libx264") -> Path:
+    """Encode RGB frames (H, 2H, 3) uint8 as a video (mp4: H.264, yuv420p) at ``fps``."""
+    import av
+
+    from ldlmap.core.errors import atomic_file
+
+    target = Path(path)
+    with atomic_file(target) as tmp:
+        with av.open(str(tmp), "w") as c:
+            s = None
+            for img in frames:
+                if s is None:
+                    s = c.add_stream(codec, rate=Fraction(fps).limit_denominator(1000))
+                    s.width, s.height, s.pix_fmt = img.shape[1], img.shape[0], "yuv420p"
+                for packet in s.encode(av.VideoFrame.from_ndarray(np.ascontiguousarray(img), format="rgb24")):
+                    c.mux(packet)
+            if s is not None:
+                for packet in s.encode():
+                    c.mux(packet)
+    return target
