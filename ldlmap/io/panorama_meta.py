@@ -23,7 +23,7 @@ import os
 import re
 import struct
 from dataclasses import dataclass
-from datetime import datetime
+from datetime import datetime, timedelta
 from pathlib import Path
 
 import numpy as np
@@ -77,7 +77,8 @@ def _segments(data: bytes, path: Path) -> list[bytes]:
 
 
 def _exif_time(block: bytes) -> str | None:
-    """EXIF ``DateTimeOriginal`` (tag 0x9003 of the Exif IFD) of an APP1 EXIF block, as text."""
+    """EXIF ``DateTimeOriginal`` (tag 0x9003 of the Exif IFD) of an APP1 EXIF block, as text, with
+    ``SubSecTimeOriginal`` (0x9291) as its fraction when present."""
     tiff = block[len(EXIF_HEADER):]
     if len(tiff) < 8 or tiff[:2] not in (b"II", b"MM"):
         return None
@@ -97,20 +98,25 @@ def _exif_time(block: bytes) -> str | None:
     exif = next((struct.unpack(e + "I", raw)[0] for tag, _, _, raw in entries(ifd0) if tag == 0x8769), None)
     if exif is None:
         return None
+    texts = {}
     for tag, kind, count, raw in entries(exif):
-        if tag == 0x9003 and kind == 2:
+        if tag in (0x9003, 0x9291) and kind == 2:  # DateTimeOriginal, SubSecTimeOriginal
             start = struct.unpack(e + "I", raw)[0] if count > 4 else None
             text = raw[:count] if start is None else tiff[start:start + count]
-            return text.split(b"\x00")[0].decode("ascii", "replace")
-    return None
+            texts[tag] = text.split(b"\x00")[0].decode("ascii", "replace").strip()
+    if 0x9003 not in texts:
+        return None
+    sub = texts.get(0x9291, "")
+    return texts[0x9003] + (f".{sub}" if sub.isdigit() else "")
 
 
 def _parse_time(text: str, path: Path) -> datetime:
     """An EXIF (``YYYY:MM:DD HH:MM:SS``) or XMP (ISO 8601) time."""
     t = text.strip()
     try:
-        if re.fullmatch(r"\d{4}:\d\d:\d\d \d\d:\d\d:\d\d", t):
-            return datetime.strptime(t, "%Y:%m:%d %H:%M:%S")
+        if re.fullmatch(r"\d{4}:\d\d:\d\d \d\d:\d\d:\d\d(\.\d+)?", t):
+            whole, _, frac = t.partition(".")
+            return datetime.strptime(whole, "%Y:%m:%d %H:%M:%S") + timedelta(seconds=float(f"0.{frac or 0}"))
         return datetime.fromisoformat(t.replace("Z", "+00:00"))
     except ValueError:
         raise InputError(f"capture time {t!r} is not a date and time: {path}") from None
