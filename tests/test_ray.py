@@ -24,6 +24,7 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
+from ldlloc.batch.results import read_results_data
 from ldlloc.cli import app as loc_app
 from ldlmap.cli import app as map_app
 
@@ -185,7 +186,7 @@ def test_interrupted_ray_run_resumes(cluster, demo_dataset, plain_run, tmp_path)
     with pytest.raises(KeyboardInterrupt):
         run_queries_ray(open_dataset(demo_dataset, "omniscenes").queries(["robot"]), maps, out, LocalizeParams(),
                         progress=progress)
-    first = json.loads(out.read_text())["queries"]
+    first = read_results_data(out)["queries"]  # the JSON and its journal: what --resume finds
     assert len(first) == 3 and len({q["name"] for q in first}) == 3
     deadline = time.monotonic() + 30  # the actors were killed: their CPUs come back
     while cluster.available_resources().get("CPU", 0) < 2 and time.monotonic() < deadline:
