@@ -64,11 +64,17 @@ def video_info(path: str | Path) -> VideoInfo:
         dur = float(s.duration * s.time_base) if s.duration is not None and s.time_base else None
     if w <= 0 or h <= 0:
         raise InputError(f"cannot decode video {p}: no frame size")
-    if w != 2 * h:
-        raise InputError(f"not an equirectangular video (width must be 2 x height): {p} is {w}x{h}")
+    check_equirectangular(p, w, h)
     if rate <= 0:
         raise InputError(f"cannot decode video {p}: no frame rate")
     return VideoInfo(p, w, h, rate, dur)
+
+
+def check_equirectangular(path: Path, w: int, h: int, index: int | None = None) -> None:
+    """A one-line error for a video (or its frame ``index``: the size may change mid-stream) that is not 2:1."""
+    if w != 2 * h:
+        where = "" if index is None else f" from frame {index} on"
+        raise InputError(f"not an equirectangular video (width must be 2 x height): {path} is {w}x{h}{where}")
 
 
 def check_sampling(info: VideoInfo, fps: float | None, every: int | None) -> None:
@@ -109,6 +115,7 @@ def decoded_frames(info: VideoInfo, fps: float | None = None, every: int | None 
         next_time, index = 0.0, 0
         try:
             for frame in c.decode(s):
+                check_equirectangular(info.path, frame.width, frame.height, index)
                 time = float(frame.time) if frame.time is not None else index / info.rate
                 if _kept(index, time, fps, every, next_time):
                     yield VideoFrame(index, time, frame.pts), _rgb(frame)
