@@ -85,6 +85,14 @@ def _unfinished_video(d: Path) -> None:
     (d / "video.json").write_text(json.dumps(data))
 
 
+def _two_walks(d: Path) -> None:
+    """``two.json``: the walk's records and a copy of them as a second walk (a dataset run's, one per scene)."""
+    data = json.loads((d / "walk.json").read_text())
+    copies = [{**q, "name": f"b/{q['name']}", "walk": {**q["walk"], "name": "other"}} for q in data["queries"]]
+    data["queries"] += copies
+    (d / "two.json").write_text(json.dumps(data))
+
+
 # (case id, prepare the folder, ldlloc arguments, words the error line must hold)
 CASES = [
     ("video-frames-turn-square", _square_midway, ["run", "--video", "sq.ts", "--maps", "map.h5", "-o", "r.json"],
@@ -103,6 +111,8 @@ CASES = [
     ("colmap-of-a-video", None, ["export", "video.json", "--format", "colmap", "-o", "model"], "frames of a video"),
     ("nerfstudio-of-a-video", None, ["export", "video.json", "--format", "nerfstudio", "-o", "t.json"],
      "frames of a video"),
+    ("tum-of-two-walks", _two_walks, ["export", "two.json", "--format", "tum", "--all", "-o", "t.txt"],
+     "holds 2 walks (other, walk)"),
 ]
 
 

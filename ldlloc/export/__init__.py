@@ -191,8 +191,9 @@ def export_results(results: str | Path, fmt: str, out: str | Path, include_all: 
         _write_nerfstudio(out, poses, frame, results)
         return ExportOutcome(out=out, count=len(poses), notes=notes)
     if fmt == "tum":
-        from ldlloc.export.tum import tum_text
+        from ldlloc.export.tum import check_one_walk, tum_text
 
+        check_one_walk(poses, results)
         with atomic_file(out) as tmp:
             Path(tmp).write_text(tum_text(poses, frame))
         return ExportOutcome(out=out, count=len(poses), notes=notes)
