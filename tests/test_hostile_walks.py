@@ -111,6 +111,8 @@ CASES = [
     ("colmap-of-a-video", None, ["export", "video.json", "--format", "colmap", "-o", "model"], "frames of a video"),
     ("nerfstudio-of-a-video", None, ["export", "video.json", "--format", "nerfstudio", "-o", "t.json"],
      "frames of a video"),
+    ("video-with-dataset-options", None, ["run", "--video", "v.mp4", "--maps", "map.h5", "--split", "robot",
+                                          "--scene-unknown"], "--video runs alone: drop --split, --scene-unknown"),
     ("tum-of-two-walks", _two_walks, ["export", "two.json", "--format", "tum", "--all", "-o", "t.txt"],
      "holds 2 walks (other, walk)"),
 ]
