@@ -152,3 +152,12 @@ def test_tum_export_says_what_its_poses_are(here, results, prepare, words):
         assert words in res.output, res.output
     if words == "did not finish":
         assert "a --video run is not resumed" in res.output, res.output
+
+
+def test_html_report_of_a_video_shows_its_frames(here):
+    res = runner.invoke(app, ["report", "video.json", "--html", "r.html"])
+    assert res.exit_code == 0, res.output
+    page = (here / "r.html").read_text()
+    n = len(json.loads((here / "video.json").read_text())["queries"])
+    assert "cannot decode" not in page and page.count('class="thumb" alt="v/') == n, page[:2000]
+    assert page.count("data:image/jpeg;base64,") >= n

@@ -137,6 +137,28 @@ def frame_at(info: VideoInfo, vf: VideoFrame) -> np.ndarray:
     raise InputError(f"cannot decode video {info.path}: frame {vf.index} not found again")
 
 
+def frames_by_index(path: str | Path, indices: set[int]) -> Iterator[tuple[int, np.ndarray]]:
+    """The frames of the video at ``path`` whose index is in ``indices`` (RGB at the working width),
+    in one decoding pass (a report's thumbnails of a video run)."""
+    import av
+
+    info = video_info(path)
+    last = max(indices, default=-1)
+    with _open(info.path) as c:
+        s = c.streams.video[0]
+        s.thread_type = "AUTO"
+        index = 0
+        try:
+            for frame in c.decode(s):
+                if index > last:
+                    return
+                if index in indices:
+                    yield index, _rgb(frame)
+                index += 1
+        except av.error.FFmpegError as exc:
+            raise InputError(f"cannot decode video {info.path} at frame {index}: {exc}") from None
+
+
 def write_video(path: str | Path, frames: Iterator[np.ndarray], fps: float, codec: str = "libx264") -> Path:
     """Encode RGB frames (H, 2H, 3) uint8 as a video (mp4: H.264, yuv420p) at ``fps``."""
     import av
