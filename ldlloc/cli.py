@@ -314,7 +314,9 @@ def run(
     if walk or video is not None or any(v is not None for v in (order, fps, every)):
         from ldlloc.walk.options import check_walk_options
 
-        check_walk_options(walk, order, images, ray, save_vis, video, fps, every, root, dataset, resume, maps)
+        check_walk_options(walk, order, images, ray, save_vis, video, fps, every, root, dataset, resume, maps,
+                           {"--split": split, "--scene": scene, "--map-level": map_level,
+                            "--scene-unknown": scene_unknown})
     if video is not None:
         return _run_video(video, maps, output, params, top_maps, device, fps, every, threads, overwrite)
     if images is not None:

@@ -250,7 +250,7 @@ def refuse_replacing_results(path: str | Path, overwrite: bool = False, resume: 
     if meta.get("finished") is False:  # absent: written before the flag, or by a run that finished
         release_lock(*acquire_lock(p), lock_path(p))  # a run writing it now: ResultsBusy says so
         raise InputError(f"{p} holds {len(results)} results of a run that did not finish (killed or interrupted): "
-                         "continue it with --resume, or replace it with --overwrite")
+                         f"{continue_hint(meta, 'continue it with --resume, or replace it with --overwrite')}")
 
 
 def _is_results_csv(path: Path) -> bool:
@@ -448,7 +448,7 @@ class ResultsWriter:
             _remove_journal(self.journal_path)
             return
         header = journal_header(token)
-        with _naming_errors(self.journal_path):
+        with _naming_errors(self.journal_path, self.meta):
             with atomic_file(self.journal_path) as tmp:
                 tmp.write_bytes(header)
             self._journal = open(self.journal_path, "ab")
@@ -456,7 +456,7 @@ class ResultsWriter:
     def _append(self, results: list[QueryResult]) -> None:
         """Append the records of ``results`` to the journal, one line each, in one write."""
         lines = "".join(f'{{"query": {self._texts[r.name]}}}\n' for r in results).encode()
-        with _naming_errors(self.journal_path):
+        with _naming_errors(self.journal_path, self.meta):
             try:
                 self._journal.write(lines)
                 self._journal.flush()
@@ -479,7 +479,7 @@ class ResultsWriter:
         text = json.dumps(head, indent=1, allow_nan=False)[:-2]  # without the closing "\n}"
         text += ',\n "queries": [\n' + ",\n".join(self._texts.values()) + "\n ]\n}" if self._texts else \
             ',\n "queries": []\n}'
-        with _naming_errors(self.path):
+        with _naming_errors(self.path, self.meta):
             with atomic_file(self.path) as tmp:
                 tmp.write_text(text)
         self._json_bytes = len(text)
@@ -501,9 +501,10 @@ class ResultsWriter:
 
 
 @contextlib.contextmanager
-def _naming_errors(path: Path):
-    """Turn an OSError (a full disk, a folder made read-only) into a one-line error naming ``path``."""
-    kept = "(the results written before are kept: continue with --resume)"
+def _naming_errors(path: Path, meta: dict[str, Any]):
+    """Turn an OSError (a full disk, a folder made read-only) into a one-line error naming ``path``
+    and how to go on (``meta``: the run's, :func:`continue_hint`)."""
+    kept = f"(the results written before are kept: {continue_hint(meta)})"
     try:
         yield
     except WriteError as exc:  # already names the file it could not write
@@ -522,17 +523,32 @@ def _remove_journal(path: Path) -> None:
 
 
 def run_kind(meta: dict[str, Any]) -> str:
-    """``images`` for a run of ``--images`` (meta ``dataset``), else ``dataset``: runs of two kinds
+    """The kind of run a results ``meta`` is of: ``images`` (``--images``), ``dataset`` or ``video``,
+    ``images`` and ``dataset`` with `` walk`` for a ``--walk`` run (meta ``walk``): runs of two kinds
     never share a results file."""
-    return "images" if meta.get("dataset") == "images" else "dataset"
+    if meta.get("dataset") == "video":
+        return "video"
+    kind = "images" if meta.get("dataset") == "images" else "dataset"
+    return f"{kind} walk" if meta.get("walk") else kind
+
+
+RUN_KINDS = {"images": "an --images run", "images walk": "an --images --walk run", "dataset": "a dataset run",
+             "dataset walk": "a dataset --walk run", "video": "a --video run"}  # :func:`run_kind` in words
+
+
+def continue_hint(meta: dict[str, Any], prefix: str = "continue with --resume") -> str:
+    """How to go on with the results of a run that did not finish: ``prefix`` (resume it), or for a
+    video, which is never resumed, run it again."""
+    if run_kind(meta) == "video":
+        return "a --video run is not resumed: run it again with --overwrite"
+    return prefix
 
 
 def _resumed_meta(path: Path, old: dict[str, Any], new: dict[str, Any], any_options: bool) -> dict[str, Any]:
     """The meta of a resumed file: refuses other options unless ``any_options`` (then recorded)."""
     if run_kind(old) != run_kind(new):  # never mixed, even with any_options
-        kind = {"images": "an --images run", "dataset": "a dataset run"}
-        raise InputError(f"--resume: {path} holds the results of {kind[run_kind(old)]} and this is "
-                         f"{kind[run_kind(new)]} (never mixed in one file); use another --output")
+        raise InputError(f"--resume: {path} holds the results of {RUN_KINDS[run_kind(old)]} and this is "
+                         f"{RUN_KINDS[run_kind(new)]} (never mixed in one file); use another --output")
     diffs = option_differences(old, new)
     if diffs and not any_options:
         shown = ", ".join(diffs[:4]) + (f" and {len(diffs) - 4} more" if len(diffs) > 4 else "")

@@ -147,6 +147,8 @@ def export_results(results: str | Path, fmt: str, out: str | Path, include_all: 
     to (default: the deepest folder holding every image); ``map_path``: the map for records that do
     not name one that exists (``--map``); ``scene``: only this scene's queries."""
     from ldlmap.core.errors import InputError, atomic_file, refuse_overwriting_inputs
+    from ldlloc.batch.results import run_kind
+    from ldlloc.report.page import unfinished_note
     from ldlloc.export.colmap import MODEL_FILES, MODEL_SUFFIXES
     from ldlloc.export.poses import FRAMES, export_poses, map_lines, read_records, select_queries
 
@@ -157,6 +159,9 @@ def export_results(results: str | Path, fmt: str, out: str | Path, include_all: 
         raise InputError(f"--frame must be {' or '.join(FRAMES)}, got {frame!r}")
     _check_options(fmt, out, text, image_root, overwrite)
     records, meta = read_records(results)
+    if fmt in ("colmap", "nerfstudio") and run_kind(meta) == "video":
+        raise InputError(f"{results} holds the frames of a video, not image files: --format {fmt} needs the images "
+                         "(a video's poses export as --format tum or ply)")
     sel = select_queries(records, include_all, scene)
     if not sel.chosen:
         scenes = sorted({q["scene"] for q in records})
@@ -167,7 +172,11 @@ def export_results(results: str | Path, fmt: str, out: str | Path, include_all: 
     told = f"exporting {sel.describe(len(records))}"
     notes = [told if sel.have_verdicts else f"{results} holds no verdicts (written before confidence existed): "
              f"{told}, every localized one"]
+    if meta.get("finished") is False:  # killed or interrupted: say so, as `report` does
+        notes.append(f"{results}: {unfinished_note(records, meta)}")
     poses = export_poses(sel.chosen, frame, meta, map_path)
+    if fmt == "tum" and not any(p.record.get("walk") for p in poses):
+        notes.append(f"{results} is not of a walk (--walk, --video): the timestamps are the poses' ranks in name order")
     from ldlloc.export.poses import map_path_for
 
     maps = {map_path_for(p.record, meta, map_path)[0] for p in poses}  # the maps whose lines the export reads
@@ -182,8 +191,9 @@ def export_results(results: str | Path, fmt: str, out: str | Path, include_all: 
         _write_nerfstudio(out, poses, frame, results)
         return ExportOutcome(out=out, count=len(poses), notes=notes)
     if fmt == "tum":
-        from ldlloc.export.tum import tum_text
+        from ldlloc.export.tum import check_one_walk, tum_text
 
+        check_one_walk(poses, results)
         with atomic_file(out) as tmp:
             Path(tmp).write_text(tum_text(poses, frame))
         return ExportOutcome(out=out, count=len(poses), notes=notes)

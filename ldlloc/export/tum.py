@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ldlmap.core.errors import InputError
+
 
 def quaternion_xyzw(R: np.ndarray) -> np.ndarray:
     """The unit quaternion ``(x, y, z, w)`` of rotation matrix ``R`` (w >= 0)."""
@@ -32,6 +34,16 @@ def walk_key(pose) -> tuple:
     """A pose's place in its walk: its frame index (records of ``--walk`` runs), then its name."""
     walk = pose.record.get("walk") or {}
     return (0, int(walk["frame"])) if isinstance(walk.get("frame"), int) else (1, 0), pose.name
+
+
+def check_one_walk(poses: list, results) -> None:
+    """One-line error when ``poses`` come from several walks (a dataset run's, one per scene): a TUM
+    file is one trajectory, and walks interleaved by frame index are none."""
+    walks = sorted({str((p.record.get("walk") or {}).get("name")) for p in poses if p.record.get("walk")})
+    if len(walks) > 1:
+        shown = ", ".join(walks[:4]) + (f" and {len(walks) - 4} more" if len(walks) > 4 else "")
+        raise InputError(f"{results} holds {len(walks)} walks ({shown}): a TUM file is one trajectory; "
+                         "export one walk's scene with --scene NAME")
 
 
 def tum_text(poses: list, frame: str = "map") -> str:

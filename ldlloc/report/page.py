@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from ldlloc.batch.accuracy import STAGES, THRESHOLDS, QueryResult, group_by, summarize
+from ldlloc.batch.results import continue_hint
 from ldlloc.report.plots import cdf_svg, histogram_svg
 from ldlloc.report.walk import map_lines_xy, walk_svg
 
@@ -208,8 +209,8 @@ def unfinished_note(records: list, meta: dict) -> str | None:
     if meta.get("finished") is not False:
         return None
     return (f"this run did not finish (killed or interrupted): the file holds {len(records)} "
-            f"quer{'y' if len(records) == 1 else 'ies'}, not necessarily all of its run; `ldlloc run ... --resume` "
-            "continues it")
+            f"quer{'y' if len(records) == 1 else 'ies'}, not necessarily all of its run; "
+            f"{continue_hint(meta, '`ldlloc run ... --resume` continues it')}")
 
 
 def render_page(results_path: Path, records: list[dict], meta: dict[str, Any], thumbs: dict, limit: int) -> str:

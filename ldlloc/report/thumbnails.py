@@ -84,17 +84,57 @@ def make_thumbnails(records: list[dict], meta: dict[str, Any],
                 ldl_map = read_map(path, load_cloud=False)
             except LdlError as exc:
                 map_note = f"no lines: {exc}"
+        frames = _video_frames(group, meta)
         for q in group:
-            out[q["name"]] = _thumbnail(q, resolve_path(q["image"], meta), ldl_map, map_note, looked_for[q["name"]],
-                                        draw_map_lines, has_pose(q))
+            image = resolve_path(q["image"], meta)
+            read = (lambda p=image: read_small(p)) if frames is None else (lambda q=q: _frame_of(q, image, frames))
+            out[q["name"]] = _thumbnail(q, image, read, ldl_map, map_note, looked_for[q["name"]], draw_map_lines,
+                                        has_pose(q))
             if progress is not None:
                 progress()
     return out
 
 
-def _thumbnail(q: dict, image: Path, ldl_map, map_note: str, looked: list[Path], draw, posed: bool) -> Thumbnail:
+def _video_frames(records: list[dict], meta: dict[str, Any]) -> dict[int, np.ndarray | LdlError] | None:
+    """A video run's frames of ``records`` as thumbnails (BGR) by frame index, decoded in one pass
+    (an error instead when the video cannot be read); None for a run of images."""
+    import cv2
+
+    from ldlloc.batch.results import run_kind
+    from ldlloc.export.poses import resolve_path
+    from ldlloc.walk.video import frames_by_index
+
+    if run_kind(meta) != "video" or not records:
+        return None
+    wanted = {_frame_index(q) for q in records}
+    frames: dict[int, np.ndarray | LdlError] = {}
     try:
-        img = read_small(image)
+        for i, rgb in frames_by_index(resolve_path(records[0]["image"], meta), wanted):
+            frames[i] = cv2.resize(rgb[:, :, ::-1], (THUMB_W, THUMB_H), interpolation=cv2.INTER_AREA)
+    except LdlError as exc:
+        frames.update({i: exc for i in wanted if i not in frames})  # the frames after a decoding error
+    return frames
+
+
+def _frame_index(q: dict) -> int:
+    """A video frame record's index in its video (its name: ``<video stem>/<index>``)."""
+    tail = q["name"].rsplit("/", 1)[-1]
+    return int(tail) if tail.isdigit() else -1
+
+
+def _frame_of(q: dict, video: Path, frames: dict[int, np.ndarray | LdlError]) -> np.ndarray:
+    got = frames.get(_frame_index(q))
+    if got is None:
+        raise LdlError(f"frame {q['name']} not found in {video}")
+    if isinstance(got, LdlError):
+        raise got
+    return got
+
+
+def _thumbnail(q: dict, image: Path, read: Callable[[], np.ndarray], ldl_map, map_note: str, looked: list[Path], draw,
+               posed: bool) -> Thumbnail:
+    try:
+        img = read()
     except LdlError as exc:
         return Thumbnail(None, str(exc))
     href = image.resolve().as_uri()

@@ -2,16 +2,19 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 from ldlmap.core.errors import InputError
 from ldlloc.walk.order import ORDERS
 
 
 def check_walk_options(walk: bool, order: str | None, images, ray, save_vis, video=None, fps: float | None = None,
-                       every: int | None = None, root=None, dataset=None, resume: bool = False, maps=None) -> None:
+                       every: int | None = None, root=None, dataset=None, resume: bool = False, maps=None,
+                       dataset_options: dict[str, Any] | None = None) -> None:
     """``--order`` goes with ``--walk --images`` and is one of :data:`ORDERS`; a walk runs in this
     process (not on Ray: one walk is never split) and writes no pictures; ``--fps`` and ``--every``
-    go with ``--video``, which runs alone (no dataset, images or resume: a rerun localizes it again)
-    and needs ``--maps``."""
+    go with ``--video``, which runs alone (no dataset, images or resume: a rerun localizes it again;
+    ``dataset_options``: the dataset run's other options by name, e.g. ``--split``) and needs ``--maps``."""
     if order is not None and not walk:
         raise InputError("--order goes with --walk")
     if order is not None and order not in ORDERS:
@@ -27,7 +30,7 @@ def check_walk_options(walk: bool, order: str | None, images, ray, save_vis, vid
         raise InputError(f"{'--fps' if fps is not None else '--every'} goes with --video")
     if video is not None:
         given = [o for o, v in (("--images", images), ("--root", root), ("--dataset", dataset), ("--resume", resume),
-                                ("--walk", walk)) if v]
+                                ("--walk", walk), *(dataset_options or {}).items()) if v]
         if given:
             raise InputError(f"--video runs alone: drop {', '.join(given)}")
         if maps is None:

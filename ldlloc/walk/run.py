@@ -46,10 +46,14 @@ def choice_fields(out: FrameOutcome) -> dict:
 
 
 def check_frame_sizes(paths: list[Path]) -> None:
-    """One-line error when a walk's photos are not all of one size (read from their headers)."""
+    """One-line error when a walk's photos are not all of one size (read from their headers). A photo
+    whose header cannot be read (a truncated JPEG) is left to fail as its frame, as in a run of images."""
     sizes = {}
     for p in paths:
-        size = image_size(p)
+        try:
+            size = image_size(p)
+        except InputError:
+            continue
         if size is not None:
             sizes.setdefault(size, p)
     if len(sizes) > 1:

@@ -64,11 +64,17 @@ def video_info(path: str | Path) -> VideoInfo:
         dur = float(s.duration * s.time_base) if s.duration is not None and s.time_base else None
     if w <= 0 or h <= 0:
         raise InputError(f"cannot decode video {p}: no frame size")
-    if w != 2 * h:
-        raise InputError(f"not an equirectangular video (width must be 2 x height): {p} is {w}x{h}")
+    check_equirectangular(p, w, h)
     if rate <= 0:
         raise InputError(f"cannot decode video {p}: no frame rate")
     return VideoInfo(p, w, h, rate, dur)
+
+
+def check_equirectangular(path: Path, w: int, h: int, index: int | None = None) -> None:
+    """A one-line error for a video (or its frame ``index``: the size may change mid-stream) that is not 2:1."""
+    if w != 2 * h:
+        where = "" if index is None else f" from frame {index} on"
+        raise InputError(f"not an equirectangular video (width must be 2 x height): {path} is {w}x{h}{where}")
 
 
 def check_sampling(info: VideoInfo, fps: float | None, every: int | None) -> None:
@@ -109,6 +115,7 @@ def decoded_frames(info: VideoInfo, fps: float | None = None, every: int | None 
         next_time, index = 0.0, 0
         try:
             for frame in c.decode(s):
+                check_equirectangular(info.path, frame.width, frame.height, index)
                 time = float(frame.time) if frame.time is not None else index / info.rate
                 if _kept(index, time, fps, every, next_time):
                     yield VideoFrame(index, time, frame.pts), _rgb(frame)
@@ -128,6 +135,28 @@ def frame_at(info: VideoInfo, vf: VideoFrame) -> np.ndarray:
             if vf.pts is None or frame.pts is None or frame.pts >= vf.pts:
                 return _rgb(frame)
     raise InputError(f"cannot decode video {info.path}: frame {vf.index} not found again")
+
+
+def frames_by_index(path: str | Path, indices: set[int]) -> Iterator[tuple[int, np.ndarray]]:
+    """The frames of the video at ``path`` whose index is in ``indices`` (RGB at the working width),
+    in one decoding pass (a report's thumbnails of a video run)."""
+    import av
+
+    info = video_info(path)
+    last = max(indices, default=-1)
+    with _open(info.path) as c:
+        s = c.streams.video[0]
+        s.thread_type = "AUTO"
+        index = 0
+        try:
+            for frame in c.decode(s):
+                if index > last:
+                    return
+                if index in indices:
+                    yield index, _rgb(frame)
+                index += 1
+        except av.error.FFmpegError as exc:
+            raise InputError(f"cannot decode video {info.path} at frame {index}: {exc}") from None
 
 
 def write_video(path: str | Path, frames: Iterator[np.ndarray], fps: float, codec: str = "libx264") -> Path:
