@@ -237,18 +237,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--output", default=str(HERE / "images.json"))
     args = ap.parse_args(argv)
-    from bench.bench_real import build_maps, real_data_root
+    from bench.bench_real import build_maps, use_threads, zind_root_or_none
 
-    zind_root = real_data_root(args.data) / "zind"
-    if not zind_root.is_dir():
-        print(f"no real data at {zind_root} (pass --data or set LDL_REAL_DATA): nothing to measure")
+    zind_root = zind_root_or_none(args.data)
+    if zind_root is None:
         return 0
-    import torch
-
-    torch.set_num_threads(args.threads)
-    import cv2
-
-    cv2.setNumThreads(args.threads)
+    use_threads(args.threads)
     from ldlloc.batch.which_map import TOP_MAPS
     from ldlloc.pipeline import LocalizeParams
 

@@ -51,6 +51,24 @@ def real_data_root(arg: str | None) -> Path:
     return Path(arg or os.environ.get("LDL_REAL_DATA") or ROOT.parent / "shared" / "data")
 
 
+def zind_root_or_none(arg: str | None) -> Path | None:
+    """The ZInD folder of the real data (:func:`real_data_root`), or None after saying it is not there."""
+    zind_root = real_data_root(arg) / "zind"
+    if not zind_root.is_dir():
+        print(f"no real data at {zind_root} (pass --data or set LDL_REAL_DATA): nothing to measure")
+        return None
+    return zind_root
+
+
+def use_threads(threads: int) -> None:
+    """torch's and OpenCV's threads, as the product sets them (`--threads`)."""
+    import cv2
+    import torch
+
+    torch.set_num_threads(threads)
+    cv2.setNumThreads(threads)
+
+
 def build_maps(zind_root: Path, level: str, spacing: float | None) -> Path:
     """Maps of every scene at ``level``, cached by the code that builds them."""
     from ldlmap.map.build import BuildParams, params_with
@@ -261,17 +279,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--keep-ratio", default=None, help="2D kept-ratio bounds 'MIN,MAX' (default: Lines2DParams')")
     ap.add_argument("--output", default=str(HERE / "real.json"))
     args = ap.parse_args(argv)
-    data = real_data_root(args.data)
-    zind_root = data / "zind"
-    if not zind_root.is_dir():
-        print(f"no real data at {zind_root} (pass --data or set LDL_REAL_DATA): nothing to measure")
+    zind_root = zind_root_or_none(args.data)
+    if zind_root is None:
         return 0
-    import torch
-
-    torch.set_num_threads(args.threads)
-    import cv2
-
-    cv2.setNumThreads(args.threads)
+    use_threads(args.threads)
     levels = [x.strip() for x in args.levels.split(",") if x.strip()]
     spacings = [float(x) for x in args.spacing.split(",")] if args.spacing else [None]
     if len(spacings) > 1:
@@ -281,7 +292,7 @@ def main(argv: list[str] | None = None) -> int:
                 res = run_level(zind_root, level, argparse.Namespace(**{**vars(args), "spacing": spacing}))
                 sweep.append({"spacing": spacing, **res})
         print_sweep(sweep)
-        Path(args.output).write_text(json.dumps({"data": str(data), "threads": args.threads, "sweep": sweep}, indent=1))
+        Path(args.output).write_text(json.dumps({"data": str(zind_root.parent), "threads": args.threads, "sweep": sweep}, indent=1))
         print(f"wrote {args.output}")
         return 0
     args.spacing = spacings[0]
@@ -291,7 +302,7 @@ def main(argv: list[str] | None = None) -> int:
         print_level(res)
         results.append(res)
     print_summary(results)
-    Path(args.output).write_text(json.dumps({"data": str(data), "threads": args.threads, "levels": results}, indent=1))
+    Path(args.output).write_text(json.dumps({"data": str(zind_root.parent), "threads": args.threads, "levels": results}, indent=1))
     print(f"wrote {args.output}")
     return 0
 

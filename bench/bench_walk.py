@@ -26,7 +26,7 @@ ROOT = HERE.parent
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from bench.bench_real import build_maps, real_data_root  # noqa: E402
+from bench.bench_real import build_maps, use_threads, zind_root_or_none  # noqa: E402
 from bench.common import CACHE, console  # noqa: E402
 
 LEVELS = ("floor", "rooms")
@@ -108,15 +108,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--threads", type=int, default=1, help="torch intra-op threads (default 1)")
     ap.add_argument("--output", default=str(HERE / "walk.json"))
     args = ap.parse_args(argv)
-    zind_root = real_data_root(args.data) / "zind"
-    if not zind_root.is_dir():
-        print(f"no real data at {zind_root} (pass --data or set LDL_REAL_DATA): nothing to measure")
+    zind_root = zind_root_or_none(args.data)
+    if zind_root is None:
         return 0
-    import cv2
-    import torch
-
-    torch.set_num_threads(args.threads)
-    cv2.setNumThreads(args.threads)
+    use_threads(args.threads)
     levels = [x.strip() for x in args.levels.split(",") if x.strip()]
     bad = [x for x in levels if x not in LEVELS]
     if bad:

@@ -555,7 +555,7 @@ class Localizer:
         return QueryLines.detect(_check_panorama_array(image_rgb), self.params)
 
     def search(self, image_rgb: np.ndarray, max_tilt_deg: float | None = None,
-               lines: QueryLines | None = None, camera_up: np.ndarray | None = None,
+               lines: QueryLines | None = None, camera_up: np.ndarray | None = None, *,
                near: SearchNear | None = None) -> Searched:
         """Stages 1-3 of :meth:`localize` (2D lines, candidate rotations, pose search): the coarse
         :class:`Localization` and what refinement needs. ``lines``: the panorama's 2D lines from

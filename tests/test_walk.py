@@ -177,6 +177,23 @@ def test_walk_puts_the_frames_in_the_copy_it_walked_into(walk_run):
         assert r["verdict"] == "confident"
 
 
+def test_walk_with_a_tilt_bound_searches_near_its_confident_frames(copies):
+    """With --max-tilt (as for upright tours), the frames whose image was not confident are searched
+    again near the confident one (a search restricted to a radius around it) and still end in the
+    copy the walk came into."""
+    root, truth = copies
+    out = root / "res_tilt.json"
+    res = runner.invoke(app, ["run", "--images", str(root / "walk"), "--maps", str(root / "maps"), "--walk",
+                              "--max-tilt", "10", "--output", str(out)])
+    assert res.exit_code == 0, res.output
+    recs = {r["name"]: r for r in json.loads(out.read_text())["queries"]}
+    for name in ("frame_01", "frame_02"):
+        R, t = truth[name]
+        r = recs[name]
+        assert Path(r["map"]).stem == "room1_near" and r["walk"]["walk_decided"], r["walk"]
+        assert translation_error(np.array(r["t"]), t) < 0.1 and rotation_error_deg(np.array(r["R"]), R) < 5, name
+
+
 def test_single_image_in_a_copy_is_ambiguous_and_names_it(copies):
     root, truth = copies
     out = root / "single.json"

@@ -212,8 +212,8 @@ def augment(outcomes: list[FrameOutcome], maps: MapSet, params: WalkParams) -> N
             radius = min(params.gap_radius_m * abs(a - i), params.max_gap_radius_m)
             loz = anchor.entry.localizer
             try:
-                s = loz.search(img, o.frame.max_tilt_deg, lines, SearchNear(np.asarray(anchor.loc.center, float), None,
-                                                                             radius))
+                s = loz.search(img, o.frame.max_tilt_deg, lines,
+                               near=SearchNear(np.asarray(anchor.loc.center, float), None, radius))
             except InputError:
                 continue
             c = s.out
