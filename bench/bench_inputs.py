@@ -1,4 +1,4 @@
-"""Maps from what scanners, phones and architects hand over (issue 41): one synthetic room written
+"""Maps from what scanners, phones and architects hand over: one synthetic room written
 as .ply, .e57 (its scanner panoramas embedded), .las, .laz, .glb (y-up) and .ifc; a map built from
 each with `ldlmap build` (each build in its own process: wall seconds and peak memory, RSS of the
 process); the room's queries localized against each map (final pose within 0.1 m / 5 deg; the IFC

@@ -1,4 +1,4 @@
-"""A 360 video localized as a tracked walk against frame-by-frame single images (issue 40).
+"""A 360 video localized as a tracked walk against frame-by-frame single images.
 
 Run: ``python bench/bench_video.py --root DEMO [--scene synthroom_1] [--frames 40] [--threads 2]``.
 

@@ -1,4 +1,4 @@
-"""Walks against single images, side by side on the same frames (issue 40).
+"""Walks against single images, side by side on the same frames.
 
 Run: ``python bench/bench_walk.py [--data ../shared/data] [--levels floor,rooms] [--threads 1]``.
 

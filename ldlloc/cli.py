@@ -18,6 +18,16 @@ app = make_app("ldlloc", "Localize panoramas against LDL maps with line distance
 
 # Options shared by `localize` and `run` (method parameters, device, threads).
 DEVICE = typer.Option("cpu", "--device", help="cpu | cuda.")
+WALK = typer.Option(False, "--walk", help="The panoramas are one walk (a capture tour): localize them together, "
+                    "choosing the most likely path (ldlloc/walk/); with --root, one walk per scene (--scene-unknown: "
+                    "per folder of maps), in capture order (ZInD: the panorama number).")
+ORDER = typer.Option(None, "--order", help="--images --walk: name (natural file-name order, the default) | time "
+                     "(EXIF capture time).")
+VIDEO = typer.Option(None, "--video", help="An equirectangular video (mp4, mov, ...) localized as one walk, tracked "
+                     "frame to frame (needs --maps; ldlloc/walk/video.py).")
+FPS = typer.Option(None, "--fps", help="--video: frames a second to localize (at most the video's rate; default: "
+                   "every frame).")
+EVERY = typer.Option(None, "--every", metavar="N", help="--video: every N-th frame.")
 TOP_K = typer.Option(20, "--top-k", help="K poses kept by the search for refinement.")
 LOSS = typer.Option("inlier", "--loss", help="inlier (paper) | l1 | l2 | huber | median.")
 NO_DECOMPOSE = typer.Option(False, "--no-decompose", help="Do not decompose the distance functions.")
@@ -283,16 +293,11 @@ def run(
                                    "without it); let --save-vis replace files that are not pictures of ldlloc."),
     threads: int = threads_option(),
     ray: Optional[str] = ray_option(),
-    walk: bool = typer.Option(False, "--walk", help="The panoramas are one walk (a capture tour): localize them "
-                              "together, choosing the most likely path (ldlloc/walk/); with --root, one walk per scene "
-                              "(--scene-unknown: per folder of maps), in capture order (ZInD: the panorama number)."),
-    order: Optional[str] = typer.Option(None, "--order", help="--images --walk: name (natural file-name order, the "
-                                        "default) | time (EXIF capture time)."),
-    video: Optional[Path] = typer.Option(None, "--video", help="An equirectangular video (mp4, mov, ...) localized as "
-                                         "one walk, tracked frame to frame (needs --maps; ldlloc/walk/video.py)."),
-    fps: Optional[float] = typer.Option(None, "--fps", help="--video: frames a second to localize (at most the "
-                                        "video's rate; default: every frame)."),
-    every: Optional[int] = typer.Option(None, "--every", metavar="N", help="--video: every N-th frame."),
+    walk: bool = WALK,
+    order: Optional[str] = ORDER,
+    video: Optional[Path] = VIDEO,
+    fps: Optional[float] = FPS,
+    every: Optional[int] = EVERY,
 ) -> None:
     """Localize every query of a dataset split (or all splits) and print accuracy tables; or, with
     --images, your own panoramas against a map or a folder of maps (which map: --top-maps).
@@ -301,7 +306,6 @@ def run(
     with --images, one actor per Ray CPU slot holds all the maps."""
     from ldlloc.batch.results import check_results_path, refuse_replacing_results
     from ldlloc.batch.run import default_results_path, missing_maps_message, run_queries, scenes_without_maps
-    from ldlloc.batch.which_map import TOP_MAPS
     from ldlmap.core.errors import InputError
 
     params = _params(top_k, loss, no_decompose, no_refine, privacy, features, weights, max_tilt, refine, query_frame)
@@ -311,31 +315,21 @@ def run(
         check_results_path(output)
     if resume_any_options and not resume:
         raise InputError("--resume-any-options goes with --resume")
+    dataset_options = {"--root": root, "--dataset": dataset, "--split": split, "--scene": scene,
+                       "--map-level": map_level, "--scene-unknown": scene_unknown}
     if walk or video is not None or any(v is not None for v in (order, fps, every)):
         from ldlloc.walk.options import check_walk_options
 
-        check_walk_options(walk, order, images, ray, save_vis, video, fps, every, root, dataset, resume, maps,
-                           {"--split": split, "--scene": scene, "--map-level": map_level,
-                            "--scene-unknown": scene_unknown})
+        check_walk_options(walk, order, images, ray, save_vis, video, fps, every, resume, maps, dataset_options)
     if video is not None:
         return _run_video(video, maps, output, params, top_maps, device, fps, every, threads, overwrite)
     if images is not None:
-        given = [o for o, v in (("--root", root), ("--dataset", dataset), ("--split", split), ("--scene", scene),
-                                ("--map-level", map_level), ("--scene-unknown", scene_unknown)) if v]
+        given = [o for o, v in dataset_options.items() if v]
         if given:
             raise InputError(f"--images runs without a dataset: drop {', '.join(given)}")
         return _run_images(images, maps, output, params, top_maps, device, resume, resume_any_options, save_vis,
                            weights, threads, ray, overwrite, (order or "name") if walk else None)
-    from ldlmap.datasets import MAP_LEVELS
-
-    if top_maps is not None and not scene_unknown:
-        raise InputError("--top-maps goes with --images or --scene-unknown")
-    if scene_unknown:
-        top_maps = TOP_MAPS if top_maps is None else top_maps
-        check_range(top_maps, "--top-maps", 1, 1000, integer=True)
-
-    if map_level is not None and map_level not in MAP_LEVELS:
-        raise InputError(f"--map-level must be {' or '.join(MAP_LEVELS)}, got {map_level!r}")
+    top_maps = _dataset_top_maps(top_maps, scene_unknown, map_level)
     level = {"map_level": map_level} if map_level is not None else {}  # only when given
     ds = open_dataset_root(root, dataset, "ldlloc run --root ROOT", **level)
     root, kind, label = Path(ds.root), ds.kind, dataset_label(ds)
@@ -401,6 +395,23 @@ def _shown(text: str) -> str:
         return text.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
     except UnicodeEncodeError:
         return text.encode("utf-8", "backslashreplace").decode("utf-8")
+
+
+def _dataset_top_maps(top_maps: Optional[int], scene_unknown: bool, map_level: Optional[str]) -> Optional[int]:
+    """A dataset run's --top-maps (only with --scene-unknown: its default and range) after its
+    --map-level is checked."""
+    from ldlloc.batch.which_map import TOP_MAPS
+    from ldlmap.core.errors import InputError
+    from ldlmap.datasets import MAP_LEVELS
+
+    if top_maps is not None and not scene_unknown:
+        raise InputError("--top-maps goes with --images or --scene-unknown")
+    if scene_unknown:
+        top_maps = TOP_MAPS if top_maps is None else top_maps
+        check_range(top_maps, "--top-maps", 1, 1000, integer=True)
+    if map_level is not None and map_level not in MAP_LEVELS:
+        raise InputError(f"--map-level must be {' or '.join(MAP_LEVELS)}, got {map_level!r}")
+    return top_maps
 
 
 def _run_images(images: str, maps: Optional[Path], output: Optional[Path], params, top_maps: Optional[int], device: str,

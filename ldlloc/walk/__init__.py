@@ -1,4 +1,4 @@
-"""Walks: a sequence of panoramas (a capture tour, a 360 video) localized as one (DESIGN.md 15).
+"""Walks: a sequence of panoramas (a capture tour, a 360 video) localized as one (docs/commands.md#walks-and-videos---walk---video).
 
 :mod:`.hypotheses` (each frame's poses over every map), :mod:`.motion` (what a walking person can
 do between two frames), :mod:`.viterbi` (the most likely path, and each frame's margin),

@@ -9,7 +9,7 @@ from ldlloc.walk.order import ORDERS
 
 
 def check_walk_options(walk: bool, order: str | None, images, ray, save_vis, video=None, fps: float | None = None,
-                       every: int | None = None, root=None, dataset=None, resume: bool = False, maps=None,
+                       every: int | None = None, resume: bool = False, maps=None,
                        dataset_options: dict[str, Any] | None = None) -> None:
     """``--order`` goes with ``--walk --images`` and is one of :data:`ORDERS`; a walk runs in this
     process (not on Ray: one walk is never split) and writes no pictures; ``--fps`` and ``--every``
@@ -29,8 +29,8 @@ def check_walk_options(walk: bool, order: str | None, images, ray, save_vis, vid
     if video is None and (fps is not None or every is not None):
         raise InputError(f"{'--fps' if fps is not None else '--every'} goes with --video")
     if video is not None:
-        given = [o for o, v in (("--images", images), ("--root", root), ("--dataset", dataset), ("--resume", resume),
-                                ("--walk", walk), *(dataset_options or {}).items()) if v]
+        given = [o for o, v in (("--images", images), *(dataset_options or {}).items(), ("--resume", resume),
+                                ("--walk", walk)) if v]
         if given:
             raise InputError(f"--video runs alone: drop {', '.join(given)}")
         if maps is None:

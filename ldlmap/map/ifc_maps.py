@@ -22,7 +22,10 @@ from typing import Callable
 import numpy as np
 
 from ldlmap.core.errors import InputError
+from ldlmap.io.ifc import read_ifc, storey_file_name
 from ldlmap.map.build import BuildParams, BuildReport, build_lines_map
+from ldlmap.map.translations import Walkable
+from ldlmap.synth.edges import mesh_edges
 
 DEFAULT_BAND = (0.8, 1.8)  # metres above the storey's floor: tripods, robots and hand-held 360 cameras
 SPACE_MARGIN = 0.05  # metres: with spaces, segments whose middle lies farther outside all of them are left out
@@ -31,7 +34,6 @@ BELOW_FLOOR = 0.01  # metres: segments wholly lower than this under the storey's
 
 def storey_lines(storey) -> np.ndarray:
     """The 3D lines (N, 2, 3) of one :class:`ldlmap.io.ifc.IfcStorey` (module docstring)."""
-    from ldlmap.synth.edges import mesh_edges
 
     mesh = SimpleNamespace(vertices=storey.vertices, triangles=storey.triangles, tri_part=storey.tri_part)
     lines = mesh_edges(mesh)
@@ -70,7 +72,6 @@ def _clip_z(lines: np.ndarray, plane: float, keep_above: bool) -> np.ndarray:
 def storey_outputs(model: Path, names: list[str], output: Path | None) -> dict[str, Path]:
     """Where each storey's map goes: one storey -> ``output`` (default MODEL.h5); several -> a
     folder ``output`` (default MODEL_storeys/) holding ``<storey>.h5`` each."""
-    from ldlmap.io.ifc import storey_file_name
 
     if len(names) == 1:
         out = output if output is not None else model.with_suffix(".h5")
@@ -92,8 +93,6 @@ def build_ifc_maps(model: str | Path, outputs: dict[str, Path], params: BuildPar
                    ) -> tuple[list[BuildReport], str]:
     """Build the lines-only map of each storey named in ``outputs`` (storey -> map path); returns
     the reports (in the storeys' order) and the model's note."""
-    from ldlmap.io.ifc import read_ifc
-    from ldlmap.map.translations import Walkable
 
     model = Path(model)
     if params.scale != 1.0 or (params.up or "auto").lower() not in ("auto", "z", "+z"):

@@ -10,12 +10,23 @@ format. Every format holds the same surfaces: the scan's points (ply, e57, las, 
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
 from ldlmap.core.errors import InputError
+from ldlmap.core.geometry import rotation_from_axis_angle
+from ldlmap.io.cloud import PointCloud
+from ldlmap.io.e57 import ImageToWrite, StationToWrite, write_e57
+from ldlmap.io.gltf import write_glb
+from ldlmap.io.las import write_las
+from ldlmap.io.pointcloud import write_point_cloud
+from ldlmap.synth.ifc import StoreyToWrite, write_ifc
+from ldlmap.synth.poses import sample_positions
+from ldlmap.synth.render import Renderer
+from ldlmap.synth.scan import sample_scan
+from ldlmap.synth.scene import build_scene
 
 ROOM_FORMATS: tuple[str, ...] = ("ply", "e57", "las", "laz", "glb", "ifc")
 UTM_OFFSET = np.array([500_000.0, 4_300_000.0, 120.0])  # metres: LAS files carry the scan at UTM-sized coordinates
@@ -37,13 +48,6 @@ class RoomCapture:
 def room_capture(spec, density: float = 3000.0, stations: int = 2, pano_width: int = 512, seed: int = 0) -> RoomCapture:
     """The scan of ``spec`` (``density`` points per m^2, noise 5 mm) and ``stations`` panoramas
     rendered at scanner positions with random headings."""
-    from dataclasses import replace
-
-    from ldlmap.core.geometry import rotation_from_axis_angle
-    from ldlmap.synth.poses import sample_positions
-    from ldlmap.synth.render import Renderer
-    from ldlmap.synth.scan import sample_scan
-    from ldlmap.synth.scene import build_scene
 
     mesh = build_scene(spec)
     render = Renderer(mesh)
@@ -72,7 +76,6 @@ def write_e57_room(path: str | os.PathLike, cap: RoomCapture, spherical_second: 
     station's own frame with its pose (the second station spherical when ``spherical_second``, its
     colour given as intensity when ``intensity_second``), the panoramas as spherical images, and a
     pinhole image (``pinhole``) that readers must skip."""
-    from ldlmap.io.e57 import ImageToWrite, StationToWrite, write_e57
 
     owner = np.argmin(np.linalg.norm(cap.points[:, None] - cap.station_centers[None], axis=2), axis=1)
     stations = []
@@ -95,25 +98,20 @@ def write_e57_room(path: str | os.PathLike, cap: RoomCapture, spherical_second: 
 
 def write_room(fmt: str, path: str | os.PathLike, cap: RoomCapture, units: str = "metre") -> Path:
     """Write ``cap`` as ``fmt`` (one of :data:`ROOM_FORMATS`) at ``path``."""
-    from ldlmap.io.cloud import PointCloud
 
     if fmt == "ply":
-        from ldlmap.io.pointcloud import write_point_cloud
 
         return write_point_cloud(path, PointCloud(cap.points, cap.colors))
     if fmt == "e57":
         return write_e57_room(path, cap)
     if fmt in ("las", "laz"):
-        from ldlmap.io.las import write_las
 
         return write_las(path, PointCloud(cap.points + UTM_OFFSET, cap.colors))
     if fmt == "glb":
-        from ldlmap.io.gltf import write_glb
 
         m = cap.mesh
         return write_glb(path, m.vertices, m.triangles, m.tri_uvs, m.atlas)
     if fmt == "ifc":
-        from ldlmap.synth.ifc import StoreyToWrite, write_ifc
 
         return write_ifc(path, [StoreyToWrite("ground floor", 0.0, [cap.spec])], units=units)
     raise InputError(f"unknown room format {fmt!r}; choose one of {', '.join(ROOM_FORMATS)}")
