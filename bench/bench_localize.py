@@ -1,6 +1,6 @@
 """Benchmark: per-stage localization time beside the paper's runtime table, and accuracy per split.
 
-Run: ``python bench/bench_localize.py [--quick] [--device cpu|cuda] [--seed 1]``.
+Run: ``python bench/bench_localize.py [--quick] [--device cpu|cuda] [--seed 1] [--root DATASET]``.
 
 Localizes every query of the synthetic demo dataset (``bench/.cache/demo_s1``: 2 scenes, all
 splits, 1024 x 512) against maps built with the default :class:`~ldlmap.map.build.BuildParams`
@@ -36,8 +36,10 @@ TARGETS = {"lines2d": 0.15, "rotation": 0.02, "search": None, "refine": None, "t
 # pose search target (rotation + search) is 50 ms: shown as its own row
 
 
-def run_device(dataset: Path, device: str, splits: list[str] | None, progress: bool = True) -> dict[str, Any]:
-    """Localize every query of every scene on ``device``; per-stage medians and per-split accuracy."""
+def run_device(dataset: Path, device: str, splits: list[str] | None, progress: bool = True,
+               prepared: bool = False) -> dict[str, Any]:
+    """Localize every query of every scene on ``device``; per-stage medians and per-split accuracy.
+    ``prepared``: use the dataset's own maps (``<dataset>/maps/<scene>.h5`` of ``ldlmap prepare``)."""
     from ldlloc.batch.accuracy import group_by, summarize
     from ldlloc.pipeline import Localizer, load_image
     from ldlmap.datasets import open_dataset
@@ -49,7 +51,8 @@ def run_device(dataset: Path, device: str, splits: list[str] | None, progress: b
         queries = ds.queries(splits, scene=scene)
         if not queries:
             continue
-        loc = Localizer(read_map(common.cached_map(dataset, scene), load_cloud=False), device=device)
+        map_path = dataset / "maps" / f"{scene}.h5" if prepared else common.cached_map(dataset, scene)
+        loc = Localizer(read_map(map_path, load_cloud=False), device=device)
         loc.localize(load_image(queries[0].image))  # warm-up, untimed
         done = (lambda i, n, s=scene: print(f"\r  {device} {s}: {i}/{n}", end="", file=sys.stderr)) if progress else None
         outcomes += common.localize_queries(loc, queries, done)
@@ -116,6 +119,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     ap.add_argument("--quick", action="store_true", help="smoke run: robot and extreme splits only")
     ap.add_argument("--device", default=None, help="cpu or cuda (default: cpu, plus cuda when available)")
     ap.add_argument("--seed", type=int, default=1, help="demo dataset seed")
+    ap.add_argument("--root", type=Path, default=None, help="an OmniScenes-layout dataset with the maps of "
+                    "`ldlmap prepare` in ROOT/maps, instead of the cached demo (e.g. on a machine that cannot build maps)")
     ap.add_argument("--output", type=Path, default=Path(__file__).resolve().parent / "results.json")
     ap.add_argument("--threads", type=int, default=0, help="torch intra-op threads (0: torch default)")
     args = ap.parse_args(argv)
@@ -127,8 +132,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     else:
         devices = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
     splits = ["robot", "extreme"] if args.quick else None
-    dataset = common.demo_dataset(args.seed)
-    runs = {dev: run_device(dataset, dev, splits) for dev in devices}
+    dataset = args.root.resolve() if args.root else common.demo_dataset(args.seed)
+    runs = {dev: run_device(dataset, dev, splits, prepared=args.root is not None) for dev in devices}
     con = common.console()
     con.print(stage_table(runs))
     for dev, run in runs.items():
