@@ -46,9 +46,9 @@ def sample_mesh(path: str | os.PathLike, num_points: int, sampling: MeshSampling
     if num_points <= 0:
         raise InputError(f"number of mesh samples must be positive, got {num_points}")
     if p.suffix.lower() == ".ply":
-        from ldlmap.io.ply import _ply_header
+        from ldlmap.io.ply import ply_header
 
-        _ply_header(p)  # counts the file cannot hold are refused before pymeshlab allocates them
+        ply_header(p)  # counts the file cannot hold are refused before pymeshlab allocates them
     if cfg.method not in ("montecarlo", "poisson"):
         raise InputError(f"unknown mesh sampling method {cfg.method!r}; choose montecarlo or poisson")
     ms = pymeshlab.MeshSet()

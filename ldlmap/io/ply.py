@@ -17,13 +17,16 @@ _PLY_TYPES = {"char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short":
 
 
 @dataclass(frozen=True)
-class _PlyHeader:
+class PlyHeader:
+    """A PLY file's header: its format, elements with their properties, and where the data starts."""
+
     fmt: str  # ascii | binary_little_endian | binary_big_endian
     elements: list  # [(name, count, [(prop, type or 'list')])]
     data_offset: int  # bytes before the data
 
 
-def _ply_header(path: Path) -> _PlyHeader:
+def ply_header(path: Path) -> PlyHeader:
+    """The header of the PLY file at ``path``, its counts checked against the file's size (one-line errors)."""
     with open(path, "rb") as f:
         head = f.read(1 << 16)
     if not head.startswith(b"ply"):
@@ -49,12 +52,12 @@ def _ply_header(path: Path) -> _PlyHeader:
             raise InputError(f"corrupt PLY header line {raw.strip()!r}: {path}") from None
     if fmt not in ("ascii", "binary_little_endian", "binary_big_endian"):
         raise InputError(f"unsupported PLY format {fmt or '(none)'}: {path}")
-    header = _PlyHeader(fmt, elements, m.end())
+    header = PlyHeader(fmt, elements, m.end())
     _check_ply_counts(header, path)
     return header
 
 
-def _check_ply_counts(h: _PlyHeader, path: Path) -> None:
+def _check_ply_counts(h: PlyHeader, path: Path) -> None:
     """Refuse element counts that the file's size cannot hold (before anything is allocated):
     a binary row needs its fixed-size properties (a list at least its 1-byte length), an ASCII
     row at least 2 bytes (a digit and a separator) per property."""
@@ -72,6 +75,6 @@ def _check_ply_counts(h: _PlyHeader, path: Path) -> None:
                          f"the file holds {available}: {path}")
 
 
-def _ply_face_count(path: Path) -> int:
+def ply_face_count(path: Path) -> int:
     """Number of faces declared in a PLY header (0 for point clouds)."""
-    return sum(count for name, count, _ in _ply_header(path).elements if name == "face")
+    return sum(count for name, count, _ in ply_header(path).elements if name == "face")

@@ -17,7 +17,7 @@ import numpy as np
 
 from ldlmap.core.errors import InputError, atomic_file, require_file
 from ldlmap.io.cloud import DEFAULT_MESH_SAMPLES, MESH_SUFFIXES, PointCloud, SUPPORTED_SUFFIXES, WRITE_SUFFIXES
-from ldlmap.io.ply import _ply_face_count, _ply_header
+from ldlmap.io.ply import ply_face_count, ply_header
 
 
 def read_point_cloud(path: str | os.PathLike, mesh_samples: int = DEFAULT_MESH_SAMPLES) -> PointCloud:
@@ -31,7 +31,7 @@ def read_point_cloud(path: str | os.PathLike, mesh_samples: int = DEFAULT_MESH_S
     if suffix not in SUPPORTED_SUFFIXES:
         raise InputError(f"unsupported point cloud format {p.suffix or '(none)'} for {p}; "
                          f"supported: {', '.join(SUPPORTED_SUFFIXES)}")
-    if suffix in MESH_SUFFIXES or (suffix == ".ply" and _ply_face_count(p) > 0):
+    if suffix in MESH_SUFFIXES or (suffix == ".ply" and ply_face_count(p) > 0):
         from ldlmap.io.mesh import sample_mesh
 
         return sample_mesh(p, mesh_samples)
@@ -80,7 +80,7 @@ def _check_pcd_complete(path: Path) -> None:
 
 def _read_ply(path: Path) -> PointCloud:
     """Vertex-only PLY (ascii or binary) read with numpy; size checked against the header."""
-    h = _ply_header(path)
+    h = ply_header(path)
     if not h.elements or h.elements[0][0] != "vertex" or any(t == "list" for _, t in h.elements[0][2]):
         return _read_open3d(path)  # unusual layouts: let open3d try
     _, count, props = h.elements[0]

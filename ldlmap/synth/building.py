@@ -192,7 +192,7 @@ def _posters(rng: np.random.Generator, fp: np.ndarray, walls: list[int], count: 
 def _furnished(rng: np.random.Generator, name: str, p: BuildingParams, door_wall: int, window_wall: int,
                kinds: tuple[str, ...]) -> Any:
     """A rectangular room with a door, a window, posters on the side walls and ``kinds`` furniture."""
-    from ldlmap.synth.presets import _door_keep_out, _place_object
+    from ldlmap.synth.presets import door_keep_out, place_object
     from ldlmap.synth.spec import FRAME_WIDTH, OpeningSpec, SceneSpec, validate_spec
 
     w, d, h = p.room_width, p.room_depth, p.ceiling
@@ -203,10 +203,10 @@ def _furnished(rng: np.random.Generator, name: str, p: BuildingParams, door_wall
     openings = [door, window]
     taken = {o.wall: [(o.offset - FRAME_WIDTH, o.offset + o.width + FRAME_WIDTH)] for o in openings}
     posters = _posters(rng, fp, [1, 3], int(rng.integers(1, 3)), h, taken)
-    keep_out = _door_keep_out(fp, openings)
+    keep_out = door_keep_out(fp, openings)
     objects: list[Any] = []
     for kind in kinds:
-        obj = _place_object(rng, kind, fp, h, objects, keep_out)
+        obj = place_object(rng, kind, fp, h, objects, keep_out)
         if obj is not None:
             objects.append(obj)
     spec = SceneSpec(name=name, footprint=tuple(map(tuple, fp)), ceiling_height=h, objects=tuple(objects),
@@ -277,7 +277,7 @@ def _corridor(rng: np.random.Generator, p: BuildingParams, floor: int, length: f
               neighbours: list[tuple[str, Any, np.ndarray, int, int]]) -> tuple[Any, tuple]:
     """The corridor of ``floor``: a door facing each neighbour's door (``(id, spec, offset,
     opening, corridor wall)``), a window in the west wall, posters and a cabinet or two."""
-    from ldlmap.synth.presets import _door_keep_out, _place_object
+    from ldlmap.synth.presets import door_keep_out, place_object
     from ldlmap.synth.spec import FRAME_WIDTH, OpeningSpec, SceneSpec, validate_spec
 
     fp = _rect(length, p.corridor_width)
@@ -292,10 +292,10 @@ def _corridor(rng: np.random.Generator, p: BuildingParams, floor: int, length: f
     for o in openings:
         taken.setdefault(o.wall, []).append((o.offset - FRAME_WIDTH, o.offset + o.width + FRAME_WIDTH))
     posters = _posters(rng, fp, [0, 2], max(2, int(length / 4)), p.ceiling, taken)
-    keep_out = _door_keep_out(fp, openings)
+    keep_out = door_keep_out(fp, openings)
     objects: list[Any] = []
     for kind in ("cabinet", "shelf"):
-        obj = _place_object(rng, kind, fp, p.ceiling, objects, keep_out)
+        obj = place_object(rng, kind, fp, p.ceiling, objects, keep_out)
         if obj is not None:
             objects.append(obj)
     spec = SceneSpec(name=f"corridor{floor}", footprint=tuple(map(tuple, fp)), ceiling_height=p.ceiling,

@@ -13,8 +13,8 @@ import numpy as np
 from ldlmap.core.errors import InputError
 from ldlmap.core import polygon as pg
 from ldlmap.synth.shapes import SHAPE_KINDS, random_ceiling, shape_footprint
-from ldlmap.synth.spec import (CaptureSpec, CeilingSpec, FRAME_WIDTH, OBJECT_KINDS, ObjectSpec, OpeningSpec, PosterSpec, ScanSpec,
-                               SceneSpec, object_footprint, validate_spec, _from_dict)
+from ldlmap.synth.spec import (FRAME_WIDTH, OBJECT_KINDS, CaptureSpec, CeilingSpec, ObjectSpec, OpeningSpec, PosterSpec,
+                               ScanSpec, SceneSpec, dataclass_from_dict, object_footprint, validate_spec)
 
 
 PRESETS: dict[str, dict] = {
@@ -124,8 +124,9 @@ def _footprint(rng: np.random.Generator, size: tuple[float, float], p_chamfer: f
     return np.round(p, 3)
 
 
-def _place_object(rng: np.random.Generator, kind: str, fp: np.ndarray, ceiling: float,
-                  placed: list[ObjectSpec], keep_out: list[np.ndarray], tries: int = 300) -> ObjectSpec | None:
+def place_object(rng: np.random.Generator, kind: str, fp: np.ndarray, ceiling: float,
+                 placed: list[ObjectSpec], keep_out: list[np.ndarray], tries: int = 300) -> ObjectSpec | None:
+    """A random ``kind`` object inside footprint ``fp``, clear of ``placed`` and ``keep_out``; None after ``tries``."""
     lo, hi = _OBJECT_SIZES[kind]
     size = tuple(float(np.round(rng.uniform(a, b), 2)) for a, b in zip(lo, hi))
     size = (size[0], size[1], min(size[2], round(ceiling - 0.3, 2)))
@@ -215,7 +216,8 @@ def _wall_items(rng: np.random.Generator, fp: np.ndarray, ceiling: float, counts
     return openings, posters
 
 
-def _door_keep_out(fp: np.ndarray, openings: list[OpeningSpec]) -> list[np.ndarray]:
+def door_keep_out(fp: np.ndarray, openings: list[OpeningSpec]) -> list[np.ndarray]:
+    """The floor area (a quad, 0.9 m deep) before each door of ``openings``, where no furniture goes."""
     out = []
     for op in openings:
         if op.kind != "door":
@@ -230,7 +232,7 @@ def _door_keep_out(fp: np.ndarray, openings: list[OpeningSpec]) -> list[np.ndarr
 
 
 def _capture_from_preset(cfg: dict) -> CaptureSpec:
-    return _from_dict(CaptureSpec, cfg.get("capture", {}), "capture")
+    return dataclass_from_dict(CaptureSpec, cfg.get("capture", {}), "capture")
 
 
 def room_kind(preset: str, index: int) -> str:
@@ -259,13 +261,13 @@ def random_spec(preset: str, seed: int, index: int = 0) -> SceneSpec:
               "window": int(rng.integers(cfg["windows"][0], cfg["windows"][1] + 1)),
               "poster": int(rng.integers(cfg["posters"][0], cfg["posters"][1] + 1))}
     openings, posters = _wall_items(rng, fp, ceiling, counts)
-    keep_out = _door_keep_out(fp, openings)
+    keep_out = door_keep_out(fp, openings)
     n_obj = int(rng.integers(cfg["objects"][0], cfg["objects"][1] + 1))
     kinds = list(OBJECT_KINDS)
     objects: list[ObjectSpec] = []
     for j in range(n_obj):
         kind = ("table", "shelf", "box")[j] if j < 3 else str(rng.choice(kinds))  # variety first
-        obj = _place_object(rng, kind, fp, ceiling, objects, keep_out)
+        obj = place_object(rng, kind, fp, ceiling, objects, keep_out)
         if obj is not None:
             objects.append(obj)
     # Random rooms avoid strongly line-patterned large surfaces (brick): long texture lines
@@ -285,7 +287,7 @@ def random_spec(preset: str, seed: int, index: int = 0) -> SceneSpec:
         ceiling_material="ceiling",
         ceiling=ceiling_shape,
         capture=_capture_from_preset(cfg),
-        scan=_from_dict(ScanSpec, cfg.get("scan", {}), "scan"),
+        scan=dataclass_from_dict(ScanSpec, cfg.get("scan", {}), "scan"),
     )
     validate_spec(spec)
     return spec
@@ -296,7 +298,7 @@ def changed_spec(spec: SceneSpec, rng: np.random.Generator) -> SceneSpec:
     ch = spec.capture.change
     fp = np.asarray(spec.footprint, dtype=np.float64)
     objects = list(spec.objects)
-    keep_out = _door_keep_out(fp, list(spec.openings))
+    keep_out = door_keep_out(fp, list(spec.openings))
     order = rng.permutation(len(objects))
     n_move = min(ch.moved, len(objects))
     for i in order[:n_move]:
@@ -315,7 +317,7 @@ def changed_spec(spec: SceneSpec, rng: np.random.Generator) -> SceneSpec:
     remove = set(removable[:min(ch.removed, len(objects))])
     objects = [o for j, o in enumerate(objects) if j not in remove]
     for _ in range(ch.added):
-        obj = _place_object(rng, str(rng.choice(["box", "box", "cabinet", "table"])), fp, spec.ceiling_height,
+        obj = place_object(rng, str(rng.choice(["box", "box", "cabinet", "table"])), fp, spec.ceiling_height,
                             objects, keep_out)
         if obj is not None:
             objects.append(obj)

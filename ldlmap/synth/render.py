@@ -27,8 +27,11 @@ from typing import Literal
 import numpy as np
 
 from ldlmap.core.geometry import bearing_from_pixel, normalize, pixel_centers
+from ldlmap.core.lazy import lazy_module
 from ldlmap.core.polygon import points_in_polygon
 from ldlmap.synth.types import SceneMesh
+
+o3d = lazy_module("open3d")
 
 IlluminationKind = Literal["intensity", "gamma", "white_balance"]
 
@@ -128,8 +131,6 @@ class Renderer:
     """Ray caster for one mesh: build the open3d scene once, render many panoramas."""
 
     def __init__(self, mesh: SceneMesh, shading: Shading = Shading()) -> None:
-        import open3d as o3d
-
         self.mesh = mesh
         self.shading = shading
         verts = np.asarray(mesh.vertices, dtype=np.float64)
@@ -146,8 +147,6 @@ class Renderer:
     def cast(self, origins: np.ndarray, directions: np.ndarray) -> dict[str, np.ndarray]:
         """First hits of rays (N, 3) + (N, 3): ``t`` (N,) in units of ``|d|``, ``tri`` (N,) int32
         (-1 for none) and ``bary`` (N, 2) open3d barycentrics of the 2nd and 3rd corner."""
-        import open3d as o3d
-
         o = np.broadcast_to(np.asarray(origins, dtype=np.float32), directions.shape)
         rays = np.ascontiguousarray(np.concatenate([o, np.asarray(directions, np.float32)], axis=-1))
         ans = self._scene.cast_rays(o3d.core.Tensor(rays.reshape(-1, 6)))
@@ -159,8 +158,6 @@ class Renderer:
 
     def distance(self, points: np.ndarray) -> np.ndarray:
         """Unsigned distance (N,) from each point (N, 3) to the nearest mesh surface."""
-        import open3d as o3d
-
         q = o3d.core.Tensor(np.ascontiguousarray(np.asarray(points, np.float32).reshape(-1, 3)))
         return self._scene.compute_distance(q).numpy().astype(np.float64)
 
@@ -251,12 +248,6 @@ def _pixel_bearings(width: int, height: int, du: float, dv: float) -> np.ndarray
     out = bearing_from_pixel(uv, width, height)
     out.flags.writeable = False
     return out
-
-
-def render_panorama(mesh: SceneMesh, rot_cam_from_world: np.ndarray, center: np.ndarray, width: int = 1024,
-                    height: int | None = None, **kwargs) -> Panorama:
-    """One-off :meth:`Renderer.render` (build a :class:`Renderer` yourself to render many views)."""
-    return Renderer(mesh).render(rot_cam_from_world, center, width, height, **kwargs)
 
 
 # -------------------------------------------------------------------------- post-processing

@@ -218,7 +218,7 @@ def _convert(value: Any, tp: Any, path: str) -> Any:
             return value
         if not isinstance(value, dict):
             raise InputError(f"spec field '{path}' must be a table, got {type(value).__name__}")
-        return _from_dict(tp, value, path)
+        return dataclass_from_dict(tp, value, path)
     if origin is tuple:
         args = typing.get_args(tp)
         if not isinstance(value, (list, tuple)):
@@ -249,7 +249,7 @@ def _convert(value: Any, tp: Any, path: str) -> Any:
     raise TypeError(f"unsupported spec type {tp!r}")  # programming error
 
 
-def _from_dict(cls: type, d: dict, path: str, base: Any = None) -> Any:
+def dataclass_from_dict(cls: type, d: dict, path: str, base: Any = None) -> Any:
     """Build ``cls`` from ``d``; fields missing from ``d`` come from ``base`` (or the defaults).
 
     A nested table that sets only some fields keeps the other fields of the enclosing default
@@ -268,7 +268,7 @@ def _from_dict(cls: type, d: dict, path: str, base: Any = None) -> Any:
         if f.name in d:
             tp = hints[f.name]
             if dataclasses.is_dataclass(tp) and isinstance(d[f.name], dict) and dataclasses.is_dataclass(inherited):
-                kwargs[f.name] = _from_dict(tp, d[f.name], prefix + f.name, base=inherited)
+                kwargs[f.name] = dataclass_from_dict(tp, d[f.name], prefix + f.name, base=inherited)
             else:
                 kwargs[f.name] = _convert(d[f.name], tp, prefix + f.name)
         elif base is not None:
@@ -282,7 +282,7 @@ def spec_from_dict(d: dict) -> SceneSpec:
     """Parse and validate a scene spec from plain data (as loaded from TOML)."""
     if not isinstance(d, dict):
         raise InputError(f"a scene spec must be a table, got {type(d).__name__}")
-    spec = _from_dict(SceneSpec, d, "")
+    spec = dataclass_from_dict(SceneSpec, d, "")
     spec = _resolve_defaults(_make_ccw(spec))
     validate_spec(spec)
     return spec
