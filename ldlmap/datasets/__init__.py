@@ -1,5 +1,5 @@
-"""Readers for panoramic localization datasets in their distributed layouts (DESIGN.md sections 4
-and 10): OmniScenes (:mod:`.omniscenes`; the synthetic generator writes this layout, so one reader
+"""Readers for panoramic localization datasets in their distributed layouts (docs/datasets.md):
+OmniScenes (:mod:`.omniscenes`; the synthetic generator writes this layout, so one reader
 serves real and synthetic data), Stanford 2D-3D-S (:mod:`.stanford`) and ZInD (:mod:`.zind`).
 :func:`open_dataset` picks the reader of a root; every query pose is validated on read
 (:mod:`.poses`). The names below are the public API.

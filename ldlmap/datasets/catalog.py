@@ -7,20 +7,24 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+try:
+    import tomllib
+except ModuleNotFoundError:  # Python 3.10
+    import tomli as tomllib  # type: ignore[no-redef]
+
+from ldlmap.core.errors import InputError
 from ldlmap.datasets.base import (DATASET_KINDS, DEFAULT_ROOTS, Dataset, MANIFEST_DIRS, MAP_LEVELS, require_root,
                                   visible_dirs)
 from ldlmap.datasets.omniscenes import OmniScenes
 from ldlmap.datasets.stanford import Stanford2D3DS
 from ldlmap.datasets.zind import ZInD
-from ldlmap.core.errors import InputError
+from ldlmap.io.zind import ZIND_JSON
 
 
 
 def detect_kind(root: str | Path) -> str:
     """Guess the layout of ``root``: ``"zind"`` (``<home>/zind_data.json``, or a home folder),
     ``"stanford"`` (``area_*`` folders in ``pano``, ``pcd`` or ``pcd_line``) or ``"omniscenes"``."""
-    from ldlmap.io.zind import ZIND_JSON
-
     r = require_root(root, "")
     if (r / ZIND_JSON).is_file() or any((p / ZIND_JSON).is_file() for p in visible_dirs(r)):
         return "zind"
@@ -72,11 +76,6 @@ def manifest_path(kind: str) -> Path:
 
 def load_manifest(kind: str) -> dict:
     """Parsed split manifest of ``"omniscenes"``, ``"stanford"`` or ``"zind"`` (see ``datasets/README.md``)."""
-    try:
-        import tomllib
-    except ModuleNotFoundError:  # Python 3.10
-        import tomli as tomllib  # type: ignore[no-redef]
-
     path = manifest_path(kind)
     try:
         return tomllib.loads(path.read_text())

@@ -20,6 +20,7 @@ and a building's its floor, in the ground truth: ``Query.room``, ``Query.floor``
 
 from __future__ import annotations
 
+import json
 import re
 from pathlib import Path
 from typing import Sequence
@@ -35,8 +36,6 @@ SYNTH_GENERATOR = "ldlmap.synth"  # the ``generator`` of a dataset.json written 
 
 def written_by_synth(root: str | Path) -> bool:
     """Whether ``root`` holds a dataset written by ``ldlmap synth`` (its ``dataset.json`` says so)."""
-    import json
-
     try:
         return json.loads((Path(root) / "dataset.json").read_text()).get("generator") == SYNTH_GENERATOR
     except (OSError, ValueError, AttributeError):
@@ -48,8 +47,6 @@ def query_rooms(root: str | Path) -> dict[tuple[str, str, str], tuple[int | None
     whose scenes hold several rooms (``ldlmap synth --preset multiroom | building``: the rooms and
     their query stems in ``dataset.json``); empty for any other dataset. Multi-room rooms have no
     floor and are named ``room<i>``."""
-    import json
-
     try:
         meta = json.loads((Path(root) / "dataset.json").read_text())
     except (OSError, ValueError):

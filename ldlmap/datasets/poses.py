@@ -11,15 +11,18 @@ from typing import Sequence
 import numpy as np
 
 from ldlmap.core.errors import InputError
+from ldlmap.core.frame import MAX_POSE_COORDINATE
+from ldlmap.core.lazy import lazy_module
+
+transform = lazy_module("scipy.spatial.transform")
 
 
 ROTATION_TOLERANCE = 1e-3  # max |R^T R - I| entry accepted in ground-truth poses (text precision)
 _STANFORD_FLIP = np.diag([-1.0, -1.0, 1.0])
 def _check_pose(R: np.ndarray, t: np.ndarray, source: Path) -> None:
+    """A ground-truth pose: finite, on Earth, its rotation proper (one-line errors naming ``source``)."""
     if not (np.all(np.isfinite(R)) and np.all(np.isfinite(t))):
         raise InputError(f"pose has non-finite values: {source}")
-    from ldlmap.core.frame import MAX_POSE_COORDINATE
-
     if np.abs(t).max() > MAX_POSE_COORDINATE:
         raise InputError(f"pose translation {np.abs(t).max():.3g} is beyond {MAX_POSE_COORDINATE:.0e} from the "
                          f"origin (no place on Earth is): {source}")
@@ -83,9 +86,7 @@ def stanford_rotation(final_camera_rotation: Sequence[float]) -> np.ndarray:
     inverted, then left-multiplied by ``diag(-1, -1, 1)`` give our frame: +x forward (image
     centre), +y left, +z up.
     """
-    from scipy.spatial.transform import Rotation
-
-    M = Rotation.from_euler("xyz", np.asarray(final_camera_rotation, dtype=np.float64)).as_matrix()
+    M = transform.Rotation.from_euler("xyz", np.asarray(final_camera_rotation, dtype=np.float64)).as_matrix()
     return _STANFORD_FLIP @ M[:, [2, 0, 1]].T  # inverse of a rotation = transpose
 
 

@@ -22,6 +22,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ldlmap.core.errors import InputError
+from ldlmap.datasets.poses import write_pose_txt
+from ldlmap.io.e57 import e57_images
 
 SPLIT = "scanner"
 
@@ -49,9 +51,6 @@ def _file_stem(name: str, used: set[str]) -> str:
 def write_e57_dataset(e57: str | os.PathLike, out: str | os.PathLike, overwrite: bool = False) -> ScannerImages:
     """Write the E57 file's full spherical images with their poses as a dataset (module docstring),
     atomically per folder; refuses a non-empty ``out`` holding the same folders unless ``overwrite``."""
-    from ldlmap.datasets.poses import write_pose_txt
-    from ldlmap.io.e57 import e57_images
-
     src, root = Path(e57), Path(out)
     scene = re.sub(r"[^A-Za-z0-9._-]+", "_", src.stem) or "scan"
     images = e57_images(src)

@@ -21,7 +21,7 @@ import numpy as np
 
 from ldlmap.core.errors import InputError
 from ldlmap.datasets.base import MAP_LEVELS, Query, as_split_list, natural_key, require_root, visible_dirs
-from ldlmap.io.zind import ZindHome, room_lines, room_portals, room_walls
+from ldlmap.io.zind import ZIND_JSON, ZindHome, read_zind_home, room_lines, room_portals, room_walls
 from ldlmap.map.translations import Walkable
 
 
@@ -38,8 +38,6 @@ class ZInD:
     kind = "zind"
 
     def __init__(self, root: str | Path, map_level: str = "room") -> None:
-        from ldlmap.io.zind import ZIND_JSON
-
         if map_level not in MAP_LEVELS:
             raise InputError(f"unknown ZInD map level {map_level!r}; choose one of {', '.join(MAP_LEVELS)}")
         self.root = require_root(root, "ZInD")
@@ -50,7 +48,7 @@ class ZInD:
             self._folders = {p.name: p for p in visible_dirs(self.root) if (p / ZIND_JSON).is_file()}
         if not self._folders:
             raise InputError(f"not a ZInD root (no <home>/{ZIND_JSON}): {self.root}")
-        self._homes: dict[str, object] = {}
+        self._homes: dict[str, ZindHome] = {}
 
     def __repr__(self) -> str:
         return f"ZInD({str(self.root)!r}, map_level={self.map_level!r})"
@@ -60,18 +58,14 @@ class ZInD:
             raise InputError(f"unknown ZInD home {home!r}; available: {', '.join(self.splits())}")
         return self._folders[home]
 
-    def home(self, name: str):
+    def home(self, name: str) -> ZindHome:
         """The parsed :class:`ldlmap.io.zind.ZindHome` of a home (read once)."""
-        from ldlmap.io.zind import read_zind_home
-
         if name not in self._homes:
             self._homes[name] = read_zind_home(self._folder(name))
         return self._homes[name]
 
     def json_path(self, scene_or_home: str) -> Path:
         """``zind_data.json`` of the home a scene (or home) belongs to."""
-        from ldlmap.io.zind import ZIND_JSON
-
         return self._folder(scene_or_home.split("/", 1)[0]) / ZIND_JSON
 
     def splits(self) -> list[str]:

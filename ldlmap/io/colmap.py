@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from ldlmap.core.errors import InputError
+from ldlmap.core.signals import import_pycolmap
 from ldlmap.io.cloud import PointCloud
 from ldlmap.io.pointcloud import read_point_cloud
 
@@ -125,8 +126,7 @@ class ColmapViews:
 
 
 def _open_reconstruction(path: str | os.PathLike):
-    from ldlmap.core.signals import import_pycolmap
-
+    """The model folder found at ``path`` (it or a ``sparse/<n>`` below it) and its pycolmap reconstruction."""
     pycolmap = import_pycolmap()
     p = Path(path)
     if not p.exists():

@@ -27,7 +27,14 @@ from pathlib import Path
 
 import numpy as np
 
-from ldlmap.core.errors import InputError, require_file
+from ldlmap.core.errors import InputError, atomic_file, require_file
+from ldlmap.core.lazy import lazy_module
+
+cv2 = lazy_module("cv2")
+pye57 = lazy_module("pye57")
+libe57 = lazy_module("pye57.libe57")
+pye57_utils = lazy_module("pye57.utils")
+transform = lazy_module("scipy.spatial.transform")
 
 _CARTESIAN = ("cartesianX", "cartesianY", "cartesianZ")
 _SPHERICAL = ("sphericalRange", "sphericalAzimuth", "sphericalElevation")
@@ -83,8 +90,6 @@ class E57Scan:
 
 def _open(path: Path):
     """The file opened by pye57, or one line naming what libE57Format found wrong."""
-    import pye57
-
     try:
         return pye57.E57(str(path))
     except Exception as exc:  # libe57 raises its own E57Exception (and RuntimeError on bad XML)
@@ -98,9 +103,7 @@ def _first_line(exc: BaseException) -> str:
 
 def _child(node, name: str):
     """The typed child ``name`` of a libe57 structure node, or None when absent."""
-    from pye57.utils import get_node
-
-    return get_node(node, name) if node.isDefined(name) else None
+    return pye57_utils.get_node(node, name) if node.isDefined(name) else None
 
 
 def _value(node, name: str, default=None):
@@ -110,8 +113,6 @@ def _value(node, name: str, default=None):
 
 def _pose(node) -> tuple[np.ndarray, np.ndarray]:
     """``(R, t)`` of a node's ``pose`` (R takes the node's frame into the file's frame); identity without one."""
-    from scipy.spatial.transform import Rotation
-
     pose = _child(node, "pose")
     R, t = np.eye(3), np.zeros(3)
     if pose is None:
@@ -122,7 +123,7 @@ def _pose(node) -> tuple[np.ndarray, np.ndarray]:
         q = np.array([x, y, z, w])
         if not np.all(np.isfinite(q)) or np.linalg.norm(q) < 1e-9:
             raise InputError(f"E57 pose of {node.pathName()} has an invalid rotation quaternion {q.tolist()}")
-        R = Rotation.from_quat(q / np.linalg.norm(q)).as_matrix()
+        R = transform.Rotation.from_quat(q / np.linalg.norm(q)).as_matrix()
     if tr is not None:
         t = np.array([float(_value(tr, k, 0.0)) for k in ("x", "y", "z")])
         if not np.all(np.isfinite(t)):
@@ -187,9 +188,7 @@ def _read_station(e, i: int) -> E57Station:
     has_color, has_int = set(_COLORS) <= fields, "intensity" in fields
     data = e.read_scan(i, colors=has_color, intensity=has_int, ignore_missing_fields=True, transform=False)
     if coords == "spherical":
-        from pye57.utils import convert_spherical_to_cartesian
-
-        local = convert_spherical_to_cartesian(np.stack([data[k] for k in _SPHERICAL], axis=1).astype(np.float64))
+        local = pye57_utils.convert_spherical_to_cartesian(np.stack([data[k] for k in _SPHERICAL], axis=1).astype(np.float64))
     else:
         local = np.stack([data[k] for k in _CARTESIAN], axis=1).astype(np.float64)
     R, t = _pose(node)
@@ -257,8 +256,7 @@ def e57_images(path: str | os.PathLike) -> list[E57Image]:
 
 
 def _read_image(raw, i: int, path: Path) -> E57Image:
-    from pye57 import libe57
-
+    """Image ``i`` of ``images2D``: a full spherical image with its data, or one with a note why it is skipped."""
     node = libe57.StructureNode(raw)
     name = str(_value(node, "name", f"image{i}"))
     R, t = _pose(node) if node.isDefined("pose") else (None, None)
@@ -295,8 +293,6 @@ def _read_image(raw, i: int, path: Path) -> E57Image:
 
 def _decodes(data: bytes) -> bool:
     """Whether an image file's bytes decode (OpenCV)."""
-    import cv2
-
     return cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_REDUCED_COLOR_8) is not None
 
 
@@ -330,15 +326,13 @@ class ImageToWrite:
 
 
 def _quat_wxyz(R: np.ndarray) -> np.ndarray:
-    from scipy.spatial.transform import Rotation
-
-    x, y, z, w = Rotation.from_matrix(np.asarray(R, dtype=np.float64)).as_quat()
+    """The unit quaternion (w, x, y, z) of rotation matrix ``R``."""
+    x, y, z, w = transform.Rotation.from_matrix(np.asarray(R, dtype=np.float64)).as_quat()
     return np.array([w, x, y, z])
 
 
 def _pose_node(imf, R: np.ndarray, t: np.ndarray):
-    from pye57 import libe57
-
+    """An E57 ``pose`` node: rotation ``R`` (as a quaternion) and translation ``t``."""
     pose, rot, tr = libe57.StructureNode(imf), libe57.StructureNode(imf), libe57.StructureNode(imf)
     for k, v in zip("wxyz", _quat_wxyz(R)):
         rot.set(k, libe57.FloatNode(imf, float(v)))
@@ -350,8 +344,7 @@ def _pose_node(imf, R: np.ndarray, t: np.ndarray):
 
 
 def _write_station(imf, data3d, st: StationToWrite, index: int) -> None:
-    from pye57 import libe57
-
+    """Append station ``st`` to ``data3D``: its pose, point prototype, limits and points."""
     P = np.asarray(st.points, dtype=np.float64)
     node = libe57.StructureNode(imf)
     node.set("guid", libe57.StringNode(imf, "{%s}" % uuid.uuid4()))
@@ -395,8 +388,7 @@ def _write_station(imf, data3d, st: StationToWrite, index: int) -> None:
 
 
 def _write_image(imf, images2d, im: ImageToWrite) -> None:
-    from pye57 import libe57
-
+    """Append image ``im`` to ``images2D``: its pose, a spherical or pinhole representation and its JPEG."""
     node = libe57.StructureNode(imf)
     node.set("guid", libe57.StringNode(imf, "{%s}" % uuid.uuid4()))
     node.set("name", libe57.StringNode(imf, im.name))
@@ -424,10 +416,6 @@ def _write_image(imf, images2d, im: ImageToWrite) -> None:
 
 def write_e57(path: str | os.PathLike, stations: list[StationToWrite], images: list[ImageToWrite] = ()) -> Path:
     """Write stations (and images) as an E57 file, atomically."""
-    import pye57
-
-    from ldlmap.core.errors import atomic_file
-
     target = Path(path)
     with atomic_file(target) as tmp:
         e = pye57.E57(str(tmp), mode="w")

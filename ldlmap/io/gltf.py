@@ -13,13 +13,18 @@ Axes: glTF 2.0 defines +Y as up (the specification's "Coordinate System and Unit
 
 from __future__ import annotations
 
+import json
 import os
 from pathlib import Path
 
 import numpy as np
 
 from ldlmap.core.errors import InputError, atomic_file, require_file
+from ldlmap.core.lazy import lazy_module
 from ldlmap.io.cloud import PointCloud
+
+pil_image = lazy_module("PIL.Image")
+trimesh = lazy_module("trimesh")
 
 GLTF_SUFFIXES: tuple[str, ...] = (".glb", ".gltf")
 Z_UP_FROM_GLTF = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])  # glTF +Y up -> our +Z up
@@ -27,10 +32,7 @@ AXES_NOTE = "glTF: +Y up by the glTF 2.0 specification, turned into z-up ((x, y,
 
 
 def _load_scene(p: Path):
-    import json
-
-    import trimesh
-
+    """The file's scene loaded by trimesh, or one line saying where it breaks."""
     if p.suffix.lower() == ".gltf":  # a JSON file: say where it breaks rather than trimesh's internal message
         try:
             json.loads(p.read_text(encoding="utf-8"))
@@ -46,8 +48,6 @@ def _load_scene(p: Path):
 
 def _world_meshes(scene) -> list:
     """Each triangle mesh of the scene with its node's world transform applied (glTF axes)."""
-    import trimesh
-
     out = []
     for node in sorted(scene.graph.nodes_geometry):  # sorted: the same samples whatever the dict order
         matrix, name = scene.graph[node]
@@ -61,8 +61,6 @@ def _world_meshes(scene) -> list:
 
 def _sample_colors(mesh, faces: np.ndarray, bary: np.ndarray) -> np.ndarray | None:
     """(n, 3) uint8 colours of samples ``bary`` on ``faces`` of ``mesh``: texture, vertex colours or None."""
-    import trimesh
-
     vis = mesh.visual
     corners = mesh.faces[faces]  # (n, 3) vertex indices
     if isinstance(vis, trimesh.visual.TextureVisuals) and vis.uv is not None and len(vis.uv) == len(mesh.vertices):
@@ -124,15 +122,12 @@ def write_glb(path: str | os.PathLike, vertices: np.ndarray, triangles: np.ndarr
               texture: np.ndarray | None = None) -> Path:
     """Write a z-up triangle mesh as GLB (turned to glTF's y-up), with an RGB ``texture`` image and
     per-corner texture coordinates ``tri_uvs`` (F, 3, 2; OBJ convention, v up) when given; atomically."""
-    import trimesh
-    from PIL import Image
-
     V = np.asarray(vertices, dtype=np.float64) @ Z_UP_FROM_GLTF  # inverse rotation: our z-up -> glTF y-up
     F = np.asarray(triangles, dtype=np.int64)
     if tri_uvs is not None and texture is not None:
         corners = V[F].reshape(-1, 3)  # one vertex per corner: texture seams need their own coordinates
         material = trimesh.visual.material.PBRMaterial(
-            baseColorTexture=Image.fromarray(np.asarray(texture, dtype=np.uint8)), baseColorFactor=[255, 255, 255, 255],
+            baseColorTexture=pil_image.fromarray(np.asarray(texture, dtype=np.uint8)), baseColorFactor=[255, 255, 255, 255],
             metallicFactor=0.0, roughnessFactor=1.0)
         visual = trimesh.visual.TextureVisuals(uv=np.asarray(tri_uvs, dtype=np.float64).reshape(-1, 2), material=material)
         mesh = trimesh.Trimesh(corners, np.arange(len(corners)).reshape(-1, 3), visual=visual, process=False)

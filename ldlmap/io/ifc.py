@@ -20,6 +20,17 @@ from pathlib import Path
 import numpy as np
 
 from ldlmap.core.errors import InputError, require_file
+from ldlmap.core.lazy import lazy_module
+
+IFC_INSTALL_HINT = "pip install 'ldl-toolkit[bim]' (make install adds it)"
+# ifcopenshell is the optional `bim` extra; open_ifc reports it missing before these are used.
+ifc_element = lazy_module("ifcopenshell.util.element", hint=IFC_INSTALL_HINT)
+ifc_geom = lazy_module("ifcopenshell.geom", hint=IFC_INSTALL_HINT)
+ifc_placement = lazy_module("ifcopenshell.util.placement", hint=IFC_INSTALL_HINT)
+ifc_schema = lazy_module("ifcopenshell.ifcopenshell_wrapper", hint=IFC_INSTALL_HINT)
+ifc_unit = lazy_module("ifcopenshell.util.unit", hint=IFC_INSTALL_HINT)
+shapely_geometry = lazy_module("shapely.geometry", hint=IFC_INSTALL_HINT)
+shapely_ops = lazy_module("shapely.ops", hint=IFC_INSTALL_HINT)
 
 DEFAULT_CLASSES: tuple[str, ...] = ("IfcWall", "IfcCurtainWall", "IfcSlab", "IfcCovering", "IfcColumn", "IfcDoor",
                                     "IfcWindow")
@@ -41,9 +52,9 @@ class IfcStorey:
 def open_ifc(path: str | os.PathLike):
     """The model opened by ifcopenshell, or one line saying why it cannot be read."""
     try:
-        import ifcopenshell
+        import ifcopenshell  # here, where a missing `bim` extra becomes one line naming it
     except ImportError:
-        raise InputError("IFC models need ifcopenshell: pip install 'ldl-toolkit[bim]' (make install adds it)") from None
+        raise InputError(f"IFC models need ifcopenshell: {IFC_INSTALL_HINT}") from None
 
     p = require_file(path, "IFC model")
     try:
@@ -59,11 +70,10 @@ def storey_names(model) -> list[str]:
 
 
 def _storeys(model) -> list[tuple[str, object]]:
-    import ifcopenshell.util.placement
-
+    """``(name, storey)`` of the model's storeys by elevation (unnamed ones as ``storey<i>``)."""
     out = []
     for i, s in enumerate(model.by_type("IfcBuildingStorey")):
-        z = ifcopenshell.util.placement.get_local_placement(s.ObjectPlacement)[2, 3] if s.ObjectPlacement else 0.0
+        z = ifc_placement.get_local_placement(s.ObjectPlacement)[2, 3] if s.ObjectPlacement else 0.0
         out.append((float(z), s.GlobalId, s.Name or f"storey{i}", s))
     out.sort(key=lambda r: (r[0], r[1]))  # by elevation, then GlobalId: no dependence on file order
     return [(name, s) for _, _, name, s in out]
@@ -71,9 +81,7 @@ def _storeys(model) -> list[tuple[str, object]]:
 
 def _check_include(model, include: tuple[str, ...]) -> tuple[str, ...]:
     """The IFC classes to keep; unknown class names (not in the model's schema) refused."""
-    import ifcopenshell.ifcopenshell_wrapper as w
-
-    schema = w.schema_by_name(model.schema_identifier if hasattr(model, "schema_identifier") else model.schema)
+    schema = ifc_schema.schema_by_name(model.schema_identifier if hasattr(model, "schema_identifier") else model.schema)
     for name in include:
         try:
             schema.declaration_by_name(name)
@@ -85,23 +93,20 @@ def _check_include(model, include: tuple[str, ...]) -> tuple[str, ...]:
 
 def _storey_of(element):
     """The storey that contains ``element`` (walking up containers and aggregates), or None."""
-    import ifcopenshell.util.element as ue
-
     seen = 0
     e = element
     while e is not None and seen < 16:
         if e.is_a("IfcBuildingStorey"):
             return e
-        e = ue.get_container(e) or ue.get_aggregate(e)
+        e = ifc_element.get_container(e) or ifc_element.get_aggregate(e)
         seen += 1
     return None
 
 
-def _shape(settings, element):
-    import ifcopenshell.geom
-
+def _shape(settings, element) -> tuple[np.ndarray, np.ndarray] | None:
+    """The element's triangles ``(V, F)`` from IfcOpenShell's geometry engine, None when it has none."""
     try:
-        sh = ifcopenshell.geom.create_shape(settings, element)
+        sh = ifc_geom.create_shape(settings, element)
     except Exception:  # an element whose geometry IfcOpenShell cannot build: left out, counted by the caller
         return None
     V = np.asarray(sh.geometry.verts, dtype=np.float64).reshape(-1, 3)
@@ -111,13 +116,10 @@ def _shape(settings, element):
 
 def _footprint(V: np.ndarray, F: np.ndarray) -> np.ndarray | None:
     """The xy outline of a space's floor: the union of its downward-facing triangles."""
-    from shapely.geometry import Polygon
-    from shapely.ops import unary_union
-
     n = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
     down = F[n[:, 2] < -1e-9 * np.maximum(np.linalg.norm(n, axis=1), 1e-300)]
-    tris = [Polygon(V[t, :2]) for t in down]
-    shape = unary_union([t for t in tris if t.area > 1e-12]).buffer(0)
+    tris = [shapely_geometry.Polygon(V[t, :2]) for t in down]
+    shape = shapely_ops.unary_union([t for t in tris if t.area > 1e-12]).buffer(0)
     if shape.is_empty:
         return None
     biggest = max(getattr(shape, "geoms", [shape]), key=lambda g: g.area)
@@ -129,9 +131,6 @@ def read_ifc(path: str | os.PathLike, storey: str | None = None, include: tuple[
     """The storeys of an IFC model (one when ``storey`` names it) with their elements of the kept
     classes; and a note (unit, storeys, classes). One-line :class:`InputError` for an unreadable
     model, one without storeys, an unknown storey or class, or a storey with no kept element."""
-    import ifcopenshell.geom
-    import ifcopenshell.util.unit
-
     p = Path(path)
     model = open_ifc(p)
     storeys = _storeys(model)
@@ -143,9 +142,9 @@ def read_ifc(path: str | os.PathLike, storey: str | None = None, include: tuple[
             raise InputError(f"--storey {storey!r}: no such storey in {p} (storeys: {', '.join(names)})")
         storeys = [s for s in storeys if s[0] == storey]
     classes = _check_include(model, tuple(include))
-    settings = ifcopenshell.geom.settings()
+    settings = ifc_geom.settings()
     settings.set("use-world-coords", True)
-    scale = ifcopenshell.util.unit.calculate_unit_scale(model)
+    scale = ifc_unit.calculate_unit_scale(model)
     wanted = {s.id(): i for i, (_, s) in enumerate(storeys)}
     parts: dict[int, list] = {i: [] for i in range(len(storeys))}
     counts: dict[int, dict[str, int]] = {i: {} for i in range(len(storeys))}
@@ -177,9 +176,7 @@ def read_ifc(path: str | os.PathLike, storey: str | None = None, include: tuple[
         V = np.concatenate([V for V, _ in parts[i]])
         F = np.concatenate([F + b for (_, F), b in zip(parts[i], base)])
         part = np.repeat(np.arange(len(parts[i])), [len(F) for _, F in parts[i]])
-        import ifcopenshell.util.placement
-
-        z = ifcopenshell.util.placement.get_local_placement(s.ObjectPlacement)[2, 3] * scale if s.ObjectPlacement else 0.0
+        z = ifc_placement.get_local_placement(s.ObjectPlacement)[2, 3] * scale if s.ObjectPlacement else 0.0
         out.append(IfcStorey(name, float(z), V, F, part, counts[i], spaces[i]))
     unit = {1.0: "metres", 0.001: "millimetres", 0.3048: "feet"}.get(round(scale, 6), f"{scale:g} m per unit")
     note = (f"IFC {model.schema}: length unit {unit} (converted to metres), {len(names)} storey(s) "

@@ -16,15 +16,16 @@ from pathlib import Path
 import numpy as np
 
 from ldlmap.core.errors import InputError, atomic_file, require_file
+from ldlmap.core.lazy import lazy_module
 from ldlmap.io.cloud import PointCloud
+
+laspy = lazy_module("laspy")
 
 LAS_SUFFIXES: tuple[str, ...] = (".las", ".laz")
 
 
 def read_las(path: str | os.PathLike) -> tuple[PointCloud, str]:
     """The cloud of a LAS/LAZ file and a one-line note (points, colour, CRS units when stated)."""
-    import laspy
-
     p = require_file(path, "LAS file")
     try:
         las = laspy.read(str(p))
@@ -53,8 +54,6 @@ def write_las(path: str | os.PathLike, cloud: PointCloud, scale: float = 0.001,
               offset: np.ndarray | None = None, sixteen_bit: bool = True) -> Path:
     """Write ``cloud`` as LAS 1.2 (point format 2 with colour, 0 without); ``.laz`` is compressed.
     ``offset``: the header offset (default: the cloud's minimum, rounded to metres)."""
-    import laspy
-
     target = Path(path)
     if target.suffix.lower() not in LAS_SUFFIXES:
         raise InputError(f"cannot write {target.suffix or '(none)'} as LAS: use .las or .laz")

@@ -1,4 +1,4 @@
-"""3D line segment files (DESIGN.md section 4 "Line files").
+"""3D line segment files (docs/formats.md, "3D line files").
 
 All readers return, and all writers take, float64 arrays of shape (N, 2, 3): (start, end).
 

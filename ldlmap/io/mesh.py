@@ -8,6 +8,7 @@ interpolated at the sample's position; a mesh with neither gives a cloud without
 from __future__ import annotations
 
 import os
+import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
@@ -15,7 +16,11 @@ from typing import Literal
 import numpy as np
 
 from ldlmap.core.errors import InputError, require_file
+from ldlmap.core.lazy import lazy_module
 from ldlmap.io.cloud import PointCloud
+from ldlmap.io.ply import ply_header
+
+pymeshlab = lazy_module("pymeshlab")
 
 MESH_FORMATS: tuple[str, ...] = (".obj", ".ply", ".off", ".stl")
 
@@ -37,8 +42,6 @@ def sample_mesh(path: str | os.PathLike, num_points: int, sampling: MeshSampling
     :class:`InputError` for a missing or unreadable mesh, a mesh without faces, or a texture
     image that the mesh references but that cannot be found.
     """
-    import pymeshlab
-
     cfg = sampling or MeshSampling()
     p = require_file(path, "mesh")
     if p.suffix.lower() not in MESH_FORMATS:
@@ -46,8 +49,6 @@ def sample_mesh(path: str | os.PathLike, num_points: int, sampling: MeshSampling
     if num_points <= 0:
         raise InputError(f"number of mesh samples must be positive, got {num_points}")
     if p.suffix.lower() == ".ply":
-        from ldlmap.io.ply import ply_header
-
         ply_header(p)  # counts the file cannot hold are refused before pymeshlab allocates them
     if cfg.method not in ("montecarlo", "poisson"):
         raise InputError(f"unknown mesh sampling method {cfg.method!r}; choose montecarlo or poisson")
@@ -102,8 +103,6 @@ def _sample_triangles(vertices: np.ndarray, faces: np.ndarray, num: int, seed: i
 
 def _check_material_libraries(path: Path) -> None:
     """An ``.obj`` whose ``mtllib`` is missing would silently lose its texture: reject it."""
-    import re
-
     with open(path, "rb") as f:
         data = f.read()
     for lib in re.findall(rb"^[ \t]*mtllib[ \t]+(.+?)[ \t]*\r?$", data, flags=re.M):

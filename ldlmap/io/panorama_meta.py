@@ -22,6 +22,7 @@ from __future__ import annotations
 import os
 import re
 import struct
+import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from datetime import datetime, timedelta
 from pathlib import Path
@@ -124,8 +125,6 @@ def _parse_time(text: str, path: Path) -> datetime:
 
 def _xmp_values(packet: bytes, path: Path) -> dict[tuple[str, str], str]:
     """``(namespace, name) -> text`` of the XMP packet's rdf:Description attributes and simple elements."""
-    import xml.etree.ElementTree as ET
-
     try:
         root = ET.fromstring(packet.decode("utf-8", "replace").strip().strip("\x00"))
     except ET.ParseError as exc:

@@ -16,8 +16,12 @@ from pathlib import Path
 import numpy as np
 
 from ldlmap.core.errors import InputError, atomic_file, require_file
-from ldlmap.io.cloud import DEFAULT_MESH_SAMPLES, MESH_SUFFIXES, PointCloud, SUPPORTED_SUFFIXES, WRITE_SUFFIXES
+from ldlmap.core.lazy import lazy_module
+from ldlmap.io.cloud import DEFAULT_MESH_SAMPLES, MESH_SUFFIXES, SUPPORTED_SUFFIXES, WRITE_SUFFIXES, PointCloud
+from ldlmap.io.mesh import sample_mesh
 from ldlmap.io.ply import ply_face_count, ply_header
+
+o3d = lazy_module("open3d")
 
 
 def read_point_cloud(path: str | os.PathLike, mesh_samples: int = DEFAULT_MESH_SAMPLES) -> PointCloud:
@@ -32,8 +36,6 @@ def read_point_cloud(path: str | os.PathLike, mesh_samples: int = DEFAULT_MESH_S
         raise InputError(f"unsupported point cloud format {p.suffix or '(none)'} for {p}; "
                          f"supported: {', '.join(SUPPORTED_SUFFIXES)}")
     if suffix in MESH_SUFFIXES or (suffix == ".ply" and ply_face_count(p) > 0):
-        from ldlmap.io.mesh import sample_mesh
-
         return sample_mesh(p, mesh_samples)
     if suffix in (".txt", ".xyz", ".pts"):
         pc = _read_text(p)
@@ -124,8 +126,7 @@ def _read_ply(path: Path) -> PointCloud:
 
 
 def _read_open3d(path: Path) -> PointCloud:
-    import open3d as o3d
-
+    """A cloud read by open3d (``.pcd`` and unusual PLY layouts); one line when it holds no points."""
     with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
         cloud = o3d.io.read_point_cloud(str(path))
     pts = np.asarray(cloud.points, dtype=np.float64)

@@ -61,6 +61,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterable
@@ -68,6 +69,7 @@ from typing import Any, Iterable
 import numpy as np
 
 from ldlmap.core.errors import InputError
+from ldlmap.core.polygon import self_intersection, signed_area
 
 ZIND_JSON = "zind_data.json"
 ELEMENT_KINDS: tuple[str, ...] = ("doors", "windows", "openings")
@@ -188,8 +190,7 @@ class ZindHome:
 
 
 def _natural_key(text: str) -> tuple:
-    import re
-
+    """Sort key that orders embedded integers numerically (``pano_2`` before ``pano_10``)."""
     return tuple(int(p) if p.isdigit() else p for p in re.split(r"(\d+)", text))
 
 
@@ -317,8 +318,6 @@ def read_zind_home(folder: str | Path) -> ZindHome:
 def _layout_problem(poly: np.ndarray) -> str | None:
     """Why a room polygon cannot be a room (fewer than 3 corners, its boundary crossing itself, no
     area), or None. Nearly collinear or repeated corners, common in annotations, are accepted."""
-    from ldlmap.core.polygon import self_intersection, signed_area
-
     if len(poly) < 3:
         return f"has {len(poly)} vertices"
     crossing = self_intersection(poly)

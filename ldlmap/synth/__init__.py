@@ -1,4 +1,4 @@
-"""Synthetic indoor scenes with ground-truth poses (DESIGN.md section 7).
+"""Synthetic indoor scenes with ground-truth poses (docs/synthetic.md).
 
 Pipeline: a TOML spec (:mod:`.spec`) -> textured triangle mesh (:mod:`.scene`) -> panoramas
 ray-cast with open3d (:mod:`.render`) at sampled poses (:mod:`.poses`), a scanner-like colored

@@ -37,18 +37,28 @@ import math
 import time
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
 from ldlmap.core.errors import InputError
+from ldlmap.datasets.omniscenes import SYNTH_GENERATOR
+from ldlmap.io.linefiles import write_lines
+from ldlmap.synth.capture import (BASE_SPLITS, GENERATOR_VERSION, ILLUMINATION_SPLITS, CaptureSettings, DatasetSummary,
+                                  ProgressTicks, capture_settings, dataset_output, list_generated, read_dataset_meta)
+from ldlmap.synth.multiroom import CapturedRoom, capture_room, lift_mesh, translate_spec, write_union
+from ldlmap.synth.presets import door_keep_out, place_object
+from ldlmap.synth.scene import build_scene
+from ldlmap.synth.spec import (FRAME_WIDTH, CaptureSpec, ObjectSpec, OpeningSpec, PosterSpec, ScanSpec, SceneSpec,
+                               dump_spec_toml, load_spec, validate_spec)
+from ldlmap.synth.types import SceneMesh
 
 KINDS = ("office", "hotel", "room", "corridor", "stairwell")
 
 # Building presets (data, like ``presets.PRESETS``): fields of BuildingParams.
 BUILDING_PRESETS: dict[str, dict[str, Any]] = {
     # 3 floors of 12 rooms (6 identical offices, 3 identical hotel rooms, 3 of their own) plus a
-    # corridor and a stairwell each: the 36-room building of issue 21.
+    # corridor and a stairwell each: the 36-room building of bench/bench_building.py.
     "building": {"floors": 3, "offices": 6, "suites": 3, "rooms": 3},
     # 2 floors of 3 rooms (2 identical offices, 1 of its own), corridor and stairwell: the tests'.
     "building_small": {"floors": 2, "offices": 2, "suites": 0, "rooms": 1, "scan_density": 600.0},
@@ -90,7 +100,7 @@ class PlannedRoom:
     floor: int
     kind: str  # one of KINDS
     group: str | None  # identical group (equal ``spec``), None for a room of its own
-    spec: Any  # SceneSpec, footprint from (0, 0)
+    spec: SceneSpec  # footprint from (0, 0)
     offset: tuple[float, float, float]  # m, where the spec's origin stands in the world
     doors: tuple[tuple[int, str], ...] = ()  # (opening index, id of the room behind that door)
 
@@ -140,18 +150,14 @@ def floor_scene(floor: int) -> str:
 # ------------------------------------------------------------------------------------ rooms
 
 
-def _capture(p: BuildingParams) -> Any:
-    from ldlmap.synth.spec import CaptureSpec
-
+def _capture(p: BuildingParams) -> CaptureSpec:
     c = CaptureSpec(width=p.width, height=p.width // 2)
     n = int(p.views)
     return replace(c, robot=replace(c.robot, count=n), handheld=replace(c.handheld, count=n),
                    extreme=replace(c.extreme, count=n), change=replace(c.change, count=n))
 
 
-def _scan(p: BuildingParams, footprint: np.ndarray) -> Any:
-    from ldlmap.synth.spec import ScanSpec
-
+def _scan(p: BuildingParams, footprint: np.ndarray) -> ScanSpec:
     # One station per ~2.5 m of the room's length (docs/measurements.md#scan-stations), at least 4.
     extent = float(np.ptp(footprint, axis=0).max())
     return ScanSpec(density=float(p.scan_density), stations=max(4, int(math.ceil(extent / 2.5))))
@@ -167,10 +173,8 @@ def _materials(rng: np.random.Generator) -> dict[str, str]:
 
 
 def _posters(rng: np.random.Generator, fp: np.ndarray, walls: list[int], count: int, ceiling: float,
-             taken: dict[int, list[tuple[float, float]]]) -> list[Any]:
+             taken: dict[int, list[tuple[float, float]]]) -> list[PosterSpec]:
     """Up to ``count`` posters on ``walls``, clear of the spans in ``taken`` (wall -> [(a, b)])."""
-    from ldlmap.synth.spec import PosterSpec
-
     lengths = np.linalg.norm(np.roll(fp, -1, axis=0) - fp, axis=1)
     out = []
     for _ in range(count):
@@ -189,12 +193,21 @@ def _posters(rng: np.random.Generator, fp: np.ndarray, walls: list[int], count: 
     return out
 
 
-def _furnished(rng: np.random.Generator, name: str, p: BuildingParams, door_wall: int, window_wall: int,
-               kinds: tuple[str, ...]) -> Any:
-    """A rectangular room with a door, a window, posters on the side walls and ``kinds`` furniture."""
-    from ldlmap.synth.presets import door_keep_out, place_object
-    from ldlmap.synth.spec import FRAME_WIDTH, OpeningSpec, SceneSpec, validate_spec
+def _furniture(rng: np.random.Generator, kinds: tuple[str, ...], fp: np.ndarray, ceiling: float,
+               openings: list[OpeningSpec]) -> list[ObjectSpec]:
+    """One object of each of ``kinds`` where it fits in footprint ``fp``, clear of the doors' swing."""
+    keep_out = door_keep_out(fp, openings)
+    objects: list[ObjectSpec] = []
+    for kind in kinds:
+        obj = place_object(rng, kind, fp, ceiling, objects, keep_out)
+        if obj is not None:
+            objects.append(obj)
+    return objects
 
+
+def _furnished(rng: np.random.Generator, name: str, p: BuildingParams, door_wall: int, window_wall: int,
+               kinds: tuple[str, ...]) -> SceneSpec:
+    """A rectangular room with a door, a window, posters on the side walls and ``kinds`` furniture."""
     w, d, h = p.room_width, p.room_depth, p.ceiling
     fp = _rect(w, d)
     door = OpeningSpec("door", door_wall, round(float(rng.uniform(0.3, w - 0.9 - 0.3)), 3), 0.9, 2.1, 0.0)
@@ -203,12 +216,7 @@ def _furnished(rng: np.random.Generator, name: str, p: BuildingParams, door_wall
     openings = [door, window]
     taken = {o.wall: [(o.offset - FRAME_WIDTH, o.offset + o.width + FRAME_WIDTH)] for o in openings}
     posters = _posters(rng, fp, [1, 3], int(rng.integers(1, 3)), h, taken)
-    keep_out = door_keep_out(fp, openings)
-    objects: list[Any] = []
-    for kind in kinds:
-        obj = place_object(rng, kind, fp, h, objects, keep_out)
-        if obj is not None:
-            objects.append(obj)
+    objects = _furniture(rng, kinds, fp, h, openings)
     spec = SceneSpec(name=name, footprint=tuple(map(tuple, fp)), ceiling_height=h, objects=tuple(objects),
                      openings=tuple(openings), posters=tuple(posters), seed=int(rng.integers(0, 2**31 - 1)),
                      **_materials(rng), capture=_capture(p), scan=_scan(p, fp))
@@ -216,12 +224,10 @@ def _furnished(rng: np.random.Generator, name: str, p: BuildingParams, door_wall
     return spec
 
 
-def _stairwell(rng: np.random.Generator, p: BuildingParams) -> Any:
+def _stairwell(rng: np.random.Generator, p: BuildingParams) -> SceneSpec:
     """The stairwell of every floor: a door in the west wall (centred), a flight of steps up the
     north wall to a landing along the east wall, and the next flight down the south wall until
     the ceiling cuts it; its change adds one object and moves nothing (the steps stay)."""
-    from ldlmap.synth.spec import ObjectSpec, OpeningSpec, SceneSpec, validate_spec
-
     W, D, h = p.stair_width, p.stair_depth, p.ceiling
     fp = _rect(W, D)
     flight, tread, margin = 1.1, 0.28, 0.02  # m: flight width, step depth, clearance from the walls
@@ -254,7 +260,7 @@ def _stairwell(rng: np.random.Generator, p: BuildingParams) -> Any:
     return spec
 
 
-def _door_segment(spec: Any, offset: np.ndarray, j: int) -> tuple[np.ndarray, np.ndarray]:
+def _door_segment(spec: SceneSpec, offset: np.ndarray, j: int) -> tuple[np.ndarray, np.ndarray]:
     """World xy end points of opening ``j`` of ``spec`` standing at ``offset``."""
     fp = np.asarray(spec.footprint, dtype=np.float64) + offset[:2]
     op = spec.openings[j]
@@ -263,10 +269,8 @@ def _door_segment(spec: Any, offset: np.ndarray, j: int) -> tuple[np.ndarray, np
     return a + t * op.offset, a + t * (op.offset + op.width)
 
 
-def _matching_door(fp_world: np.ndarray, wall: int, seg: tuple[np.ndarray, np.ndarray]) -> Any:
+def _matching_door(fp_world: np.ndarray, wall: int, seg: tuple[np.ndarray, np.ndarray]) -> OpeningSpec:
     """The door on wall ``wall`` of a footprint (world xy) facing the door segment ``seg``."""
-    from ldlmap.synth.spec import OpeningSpec
-
     a, b = fp_world[wall], fp_world[(wall + 1) % len(fp_world)]
     t = (b - a) / np.linalg.norm(b - a)
     s0, s1 = sorted(float(np.dot(q - a, t)) for q in seg)
@@ -274,12 +278,9 @@ def _matching_door(fp_world: np.ndarray, wall: int, seg: tuple[np.ndarray, np.nd
 
 
 def _corridor(rng: np.random.Generator, p: BuildingParams, floor: int, length: float, offset: np.ndarray,
-              neighbours: list[tuple[str, Any, np.ndarray, int, int]]) -> tuple[Any, tuple]:
+              neighbours: list[tuple[str, SceneSpec, np.ndarray, int, int]]) -> tuple[SceneSpec, tuple]:
     """The corridor of ``floor``: a door facing each neighbour's door (``(id, spec, offset,
     opening, corridor wall)``), a window in the west wall, posters and a cabinet or two."""
-    from ldlmap.synth.presets import door_keep_out, place_object
-    from ldlmap.synth.spec import FRAME_WIDTH, OpeningSpec, SceneSpec, validate_spec
-
     fp = _rect(length, p.corridor_width)
     world = fp + offset[:2]
     openings, doors = [], []
@@ -292,12 +293,7 @@ def _corridor(rng: np.random.Generator, p: BuildingParams, floor: int, length: f
     for o in openings:
         taken.setdefault(o.wall, []).append((o.offset - FRAME_WIDTH, o.offset + o.width + FRAME_WIDTH))
     posters = _posters(rng, fp, [0, 2], max(2, int(length / 4)), p.ceiling, taken)
-    keep_out = door_keep_out(fp, openings)
-    objects: list[Any] = []
-    for kind in ("cabinet", "shelf"):
-        obj = place_object(rng, kind, fp, p.ceiling, objects, keep_out)
-        if obj is not None:
-            objects.append(obj)
+    objects = _furniture(rng, ("cabinet", "shelf"), fp, p.ceiling, openings)
     spec = SceneSpec(name=f"corridor{floor}", footprint=tuple(map(tuple, fp)), ceiling_height=p.ceiling,
                      objects=tuple(objects), openings=tuple(openings), posters=tuple(posters),
                      seed=int(rng.integers(0, 2**31 - 1)), **_materials(rng), capture=_capture(p), scan=_scan(p, fp))
@@ -361,21 +357,12 @@ def plan_building(seed: int, p: BuildingParams = BuildingParams()) -> list[list[
 
 def generate_building(out: Path, preset: str = "building", seed: int = 0, overwrite: bool = False,
                       progress: bool = True, illumination: bool = True, width: int | None = None,
-                      per_split: int | None = None, params: BuildingParams | None = None) -> Any:
+                      per_split: int | None = None, params: BuildingParams | None = None) -> DatasetSummary:
     """Generate a building dataset into ``out`` (atomically); returns a ``DatasetSummary``.
 
     ``params`` (default: the preset's) is the plan; ``width`` and ``per_split`` (panoramas per
     split *per room*) override it. Same seed, same bytes.
     """
-    from ldlmap.datasets.omniscenes import SYNTH_GENERATOR
-    from ldlmap.io.linefiles import write_lines
-    from ldlmap.synth.capture import (BASE_SPLITS, GENERATOR_VERSION, ILLUMINATION_SPLITS, DatasetSummary,
-                                      ProgressTicks, capture_settings, dataset_output, list_generated)
-    from ldlmap.synth.meshio import write_textured_obj
-    from ldlmap.synth.multiroom import capture_room, merge_meshes, translate_spec
-    from ldlmap.synth.scan import write_ply, write_txt
-    from ldlmap.synth.spec import dump_spec_toml
-
     start = time.perf_counter()
     out = Path(out)
     params = params or building_params(preset)
@@ -386,63 +373,16 @@ def generate_building(out: Path, preset: str = "building", seed: int = 0, overwr
     splits = list(BASE_SPLITS) + [v for v in ILLUMINATION_SPLITS if v in cap0.illumination]
     split_counts = {s: 0 for s in splits}
     total = sum(3 + sum(settings[id(r)].counts.values()) for r in all_rooms) + len(plan)
-    copies: dict[Any, int] = {}
+    copies: dict[SceneSpec, int] = {}
     for r in all_rooms:
         copies[r.spec] = copies.get(r.spec, 0) + 1
-    cache: dict = {}  # built rooms of the identical groups, shared by their copies
-    scenes, points, idx = [], {}, 0
-
+    run = _FloorRun(seed=int(seed), settings=settings, split_counts=split_counts,
+                    shared={spec for spec, n in copies.items() if n > 1})
+    scenes = []
     with dataset_output(out, overwrite) as tmp, ProgressTicks(progress, total) as tick:
         (tmp / "specs").mkdir(parents=True)
         for f, rooms in enumerate(plan):
-            name = floor_scene(f)
-            meshes, edges, clouds, colors, infos = [], [], [], [], []
-            first = {s: 0 for s in BASE_SPLITS}
-            n_points = 0
-            for r in rooms:
-                idx += 1
-                off = np.asarray(r.offset, dtype=np.float64)
-                got = capture_room(tmp, name, r.spec, idx, settings[id(r)], seed, tick, first, split_counts,
-                                   offset=off, label=r.id, cache=cache if copies[r.spec] > 1 else None)
-                for split in BASE_SPLITS:
-                    first[split] += len(got.queries.get(split, []))
-                stem = f"specs/{name}_{r.id}"
-                world = translate_spec(replace(r.spec, name=r.id), off[:2])
-                (tmp / f"{stem}.toml").write_text(dump_spec_toml(world))
-                (tmp / f"{stem}_scene_2.toml").write_text(
-                    dump_spec_toml(translate_spec(replace(got.changed, name=r.id), off[:2])))
-                fp = np.asarray(world.footprint, dtype=np.float64)
-                infos.append({
-                    "id": r.id, "index": idx, "floor": f, "kind": r.kind, "group": r.group,
-                    "spec": f"{stem}.toml", "changed_spec": f"{stem}_scene_2.toml",
-                    "offset": [float(x) for x in off],
-                    "bounds_min": [float(x) for x in fp.min(0)] + [float(off[2])],
-                    "bounds_max": [float(x) for x in fp.max(0)] + [float(off[2] + r.spec.ceiling_height)],
-                    "doors": [{"opening": j, "wall": int(r.spec.openings[j].wall), "to": to} for j, to in r.doors],
-                    "points": [n_points, n_points + int(len(got.points))], "triangles": int(got.mesh.num_triangles),
-                    "gt_lines": int(len(got.edges)), "queries": got.queries})
-                n_points += int(len(got.points))
-                meshes.append(got.mesh)
-                edges.append(got.edges)
-                clouds.append(got.points)
-                colors.append(got.colors)
-            tick(f"{name}: writing the floor")
-            P, C = np.concatenate(clouds), np.concatenate(colors)
-            (tmp / "pcd").mkdir(exist_ok=True)
-            write_ply(tmp / "pcd" / f"{name}.ply", P, C)
-            write_txt(tmp / "pcd" / f"{name}.txt", P, C)
-            (tmp / "mesh").mkdir(exist_ok=True)
-            union = merge_meshes(meshes, name)
-            write_textured_obj(union, tmp / "mesh" / f"{name}.obj")
-            segs = np.concatenate(edges)
-            (tmp / "gt_lines").mkdir(exist_ok=True)
-            write_lines(tmp / "gt_lines" / f"{name}.obj", segs)
-            write_lines(tmp / "gt_lines" / f"{name}.txt", segs)
-            points[name] = int(len(P))
-            z = f * params.storey
-            scenes.append({"name": name, "floor": f, "z_floor": round(z, 6), "z_ceiling": round(z + params.ceiling, 6),
-                           "points": int(len(P)), "triangles": int(union.num_triangles), "gt_lines": int(len(segs)),
-                           "width": cap0.width, "height": cap0.height, "rooms": infos})
+            scenes.append(_write_floor(tmp, f, rooms, params, cap0, run, tick))
         meta = {"generator": SYNTH_GENERATOR, "version": GENERATOR_VERSION, "seed": int(seed), "preset": preset,
                 "building": asdict(params), "illumination": sorted(cap0.illumination),
                 "layout": "omniscenes", "scenes": scenes,
@@ -450,7 +390,64 @@ def generate_building(out: Path, preset: str = "building", seed: int = 0, overwr
         (tmp / "dataset.json").write_text(json.dumps(list_generated(tmp, meta), indent=2) + "\n")
 
     return DatasetSummary(out=out, seed=int(seed), scenes=[s["name"] for s in scenes], splits=split_counts,
-                          points=points, width=cap0.width, height=cap0.height, seconds=time.perf_counter() - start)
+                          points={s["name"]: s["points"] for s in scenes}, width=cap0.width, height=cap0.height,
+                          seconds=time.perf_counter() - start)
+
+
+@dataclass
+class _FloorRun:
+    """What the floors of one :func:`generate_building` call share while they are written."""
+
+    seed: int
+    settings: dict[int, CaptureSettings]  # id(PlannedRoom) -> its capture settings
+    split_counts: dict[str, int]  # split -> images written so far (grows in place)
+    shared: set[SceneSpec]  # specs of the identical groups (built once for all their copies)
+    cache: dict = field(default_factory=dict)  # spec -> built room, for the shared specs
+    rooms_done: int = 0  # rooms captured so far: the next room's index is one more
+
+
+def _write_floor(tmp: Path, f: int, rooms: list[PlannedRoom], params: BuildingParams, cap0: CaptureSettings,
+                 run: _FloorRun, tick: Callable[[str], None]) -> dict:
+    """Capture the rooms of floor ``f`` and write its scene (scan, mesh, true lines); its ``dataset.json`` entry."""
+    name = floor_scene(f)
+    captured, infos = [], []
+    first = {s: 0 for s in BASE_SPLITS}
+    n_points = 0
+    for r in rooms:
+        run.rooms_done += 1
+        idx = run.rooms_done
+        off = np.asarray(r.offset, dtype=np.float64)
+        got = capture_room(tmp, name, r.spec, idx, run.settings[id(r)], run.seed, tick, first, run.split_counts,
+                           offset=off, label=r.id, cache=run.cache if r.spec in run.shared else None)
+        for split in BASE_SPLITS:
+            first[split] += len(got.queries.get(split, []))
+        infos.append(_write_room_specs(tmp, name, f, r, idx, off, got, n_points))
+        n_points += int(len(got.points))
+        captured.append(got)
+    tick(f"{name}: writing the floor")
+    points, union, segs = write_union(tmp, name, captured)
+    z = f * params.storey
+    return {"name": name, "floor": f, "z_floor": round(z, 6), "z_ceiling": round(z + params.ceiling, 6),
+            "points": points, "triangles": int(union.num_triangles), "gt_lines": int(len(segs)),
+            "width": cap0.width, "height": cap0.height, "rooms": infos}
+
+
+def _write_room_specs(tmp: Path, name: str, f: int, r: PlannedRoom, idx: int, off: np.ndarray, got: CapturedRoom,
+                      n_points: int) -> dict:
+    """Write room ``r``'s specs in world xy (unchanged and changed); its ``dataset.json`` entry."""
+    stem = f"specs/{name}_{r.id}"
+    world = translate_spec(replace(r.spec, name=r.id), off[:2])
+    (tmp / f"{stem}.toml").write_text(dump_spec_toml(world))
+    (tmp / f"{stem}_scene_2.toml").write_text(dump_spec_toml(translate_spec(replace(got.changed, name=r.id), off[:2])))
+    fp = np.asarray(world.footprint, dtype=np.float64)
+    return {"id": r.id, "index": idx, "floor": f, "kind": r.kind, "group": r.group,
+            "spec": f"{stem}.toml", "changed_spec": f"{stem}_scene_2.toml",
+            "offset": [float(x) for x in off],
+            "bounds_min": [float(x) for x in fp.min(0)] + [float(off[2])],
+            "bounds_max": [float(x) for x in fp.max(0)] + [float(off[2] + r.spec.ceiling_height)],
+            "doors": [{"opening": j, "wall": int(r.spec.openings[j].wall), "to": to} for j, to in r.doors],
+            "points": [n_points, n_points + int(len(got.points))], "triangles": int(got.mesh.num_triangles),
+            "gt_lines": int(len(got.edges)), "queries": got.queries}
 
 
 # ---------------------------------------------------------------------------------- reading
@@ -458,8 +455,6 @@ def generate_building(out: Path, preset: str = "building", seed: int = 0, overwr
 
 def read_building(root: str | Path) -> list[BuildingRoom]:
     """The rooms of a generated building (from its ``dataset.json``), floor by floor."""
-    from ldlmap.synth.capture import read_dataset_meta
-
     root = Path(root)
     meta = read_dataset_meta(root)
     if "building" not in meta:
@@ -482,11 +477,7 @@ def room_at(rooms: list[BuildingRoom], xyz: Any) -> BuildingRoom | None:
     return None
 
 
-def room_mesh(room: BuildingRoom, changed: bool = False) -> Any:
+def room_mesh(room: BuildingRoom, changed: bool = False) -> SceneMesh:
     """The room's mesh in the world frame, rebuilt from its written spec (``changed``: scene_2)."""
-    from ldlmap.synth.multiroom import lift_mesh
-    from ldlmap.synth.scene import build_scene
-    from ldlmap.synth.spec import load_spec
-
     mesh = build_scene(load_spec(room.changed_spec if changed else room.spec))
     return lift_mesh(mesh, (0.0, 0.0, float(room.offset[2])))

@@ -6,18 +6,24 @@ safety checks before a dataset folder is replaced.
 from __future__ import annotations
 
 import json
+import os
+import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Mapping
+from typing import Callable, Mapping
 
 import numpy as np
 
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+from ldlmap.core.cli_common import err_console
 from ldlmap.core.errors import InputError, LdlError, atomic_dir
 from ldlmap.datasets.omniscenes import written_by_synth
+from ldlmap.io.imagefile import write_image
 from ldlmap.synth.poses import sample_poses
 from ldlmap.synth.render import Renderer, apply_illumination
 from ldlmap.synth.spec import MAX_COUNT as MAX_PER_SPLIT
-from ldlmap.synth.spec import MAX_WIDTH, MIN_WIDTH, SEED_LIMIT
+from ldlmap.synth.spec import MAX_WIDTH, MIN_WIDTH, SEED_LIMIT, CaptureSpec, SceneSpec
 
 
 GENERATOR_VERSION = "1.0"
@@ -59,12 +65,10 @@ class DatasetSummary:
         return int(sum(self.splits.values()))
 
 
-def capture_settings(capture: Any, width: int | None = None, per_split: int | None = None,
+def capture_settings(capture: CaptureSpec | None, width: int | None = None, per_split: int | None = None,
                      illumination: bool = True) -> CaptureSettings:
     """Resolve a spec's ``CaptureSpec`` (``None``: defaults) with the command-line overrides."""
     if capture is None:
-        from ldlmap.synth.spec import CaptureSpec
-
         capture = CaptureSpec()
     views = {"robot": capture.robot, "handheld": capture.handheld, "extreme": capture.extreme}
     counts = {s: int(views[s].count) for s in views}
@@ -90,16 +94,14 @@ def capture_settings(capture: Any, width: int | None = None, per_split: int | No
     return CaptureSettings(width=W, height=H, counts=counts, blur_px=blur, illumination=variants)
 
 
-def stream_rng(seed: int, spec: Any, scene: int, stage: str) -> np.random.Generator:
+def stream_rng(seed: int, spec: SceneSpec, scene: int, stage: str) -> np.random.Generator:
+    """The random stream of one stage (scan, change or a split) of room ``scene`` of a dataset."""
     return np.random.default_rng([int(seed) & 0xFFFFFFFF, int(spec.seed) & 0xFFFFFFFF, int(scene), _STREAM[stage]])
 
 
 def _write_jpeg(path: Path, rgb: np.ndarray) -> None:
-    import cv2
-
     path.parent.mkdir(parents=True, exist_ok=True)
-    if not cv2.imwrite(str(path), np.ascontiguousarray(rgb[..., ::-1]), [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY]):
-        raise OSError(f"cannot write image {path}")
+    write_image(path, rgb[..., ::-1], quality=JPEG_QUALITY)
 
 
 def _write_pose(path: Path, R: np.ndarray, t: np.ndarray) -> None:
@@ -107,7 +109,7 @@ def _write_pose(path: Path, R: np.ndarray, t: np.ndarray) -> None:
     np.savetxt(path, np.hstack([np.asarray(R, np.float64), np.asarray(t, np.float64).reshape(3, 1)]))
 
 
-def write_split_panoramas(tmp: Path, name: str, spec: Any, idx: int, cap: CaptureSettings, seed: int,
+def write_split_panoramas(tmp: Path, name: str, spec: SceneSpec, idx: int, cap: CaptureSettings, seed: int,
                           renderer: Renderer, changed_renderer: Renderer, split_counts: dict[str, int],
                           tick: Callable[[str], None] = lambda description="": None,
                           first_stem: Mapping[str, int] | None = None,
@@ -233,9 +235,6 @@ def _replace_generated(tmp: Path, out: Path) -> None:
     others stay. ``dataset.json`` is replaced last, so a run killed midway leaves the old list (the
     next ``--overwrite`` still knows what it wrote). A user's file where a new one would go is
     refused before anything moves."""
-    import os
-    import shutil
-
     old = generated_files(out)
     new = sorted(p.relative_to(tmp).as_posix() for p in tmp.rglob("*") if p.is_file())
     clash = [f for f in new if f not in old and (out / f).exists()]
@@ -267,10 +266,6 @@ class ProgressTicks:
     def __enter__(self):
         if not self.enabled:
             return lambda description="": None
-        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
-
-        from ldlmap.core.cli_common import err_console
-
         self._bar = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
                              TimeElapsedColumn(), console=err_console, transient=True)
         self._bar.__enter__()

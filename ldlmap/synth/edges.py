@@ -25,7 +25,12 @@ from __future__ import annotations
 import numpy as np
 
 from ldlmap.core.errors import InputError
+from ldlmap.core.lazy import lazy_module
 from ldlmap.synth.types import SceneMesh
+
+o3d = lazy_module("open3d")
+sparse = lazy_module("scipy.sparse")
+csgraph = lazy_module("scipy.sparse.csgraph")
 
 
 def _weld(vertices: np.ndarray, tol: float = 1e-6) -> np.ndarray:
@@ -36,17 +41,15 @@ def _weld(vertices: np.ndarray, tol: float = 1e-6) -> np.ndarray:
 
 
 def _parts(mesh: SceneMesh, weld: np.ndarray) -> np.ndarray:
+    """Part index (F,) of each triangle: ``mesh.tri_part``, else the connected components of the welded mesh."""
     if getattr(mesh, "tri_part", None) is not None:
         return np.asarray(mesh.tri_part, dtype=np.int64)
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
     tri = weld[np.asarray(mesh.triangles)]
     n = int(weld.max()) + 1
     rows = np.concatenate([tri[:, 0], tri[:, 1]])
     cols = np.concatenate([tri[:, 1], tri[:, 2]])
-    graph = coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(n, n))
-    _, labels = connected_components(graph, directed=False)
+    graph = sparse.coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(n, n))
+    _, labels = csgraph.connected_components(graph, directed=False)
     return labels[tri[:, 0]]
 
 
@@ -54,8 +57,6 @@ def _flush(mesh: SceneMesh, mid: np.ndarray, out_dir: np.ndarray, normal: np.nda
            eps: float = 0.005, tol: float = 5e-4) -> np.ndarray:
     """Mask: just beyond the edge midpoints ``mid``, across the edge in a face's plane
     (``out_dir``), the mesh surface continues that face (a point on a face of equal normal)."""
-    import open3d as o3d
-
     rs = o3d.t.geometry.RaycastingScene()
     rs.add_triangles(o3d.core.Tensor(np.asarray(mesh.vertices, np.float32)),
                      o3d.core.Tensor(np.asarray(mesh.triangles, np.uint32)))

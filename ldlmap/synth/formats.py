@@ -20,6 +20,7 @@ from ldlmap.core.geometry import rotation_from_axis_angle
 from ldlmap.io.cloud import PointCloud
 from ldlmap.io.e57 import ImageToWrite, StationToWrite, write_e57
 from ldlmap.io.gltf import write_glb
+from ldlmap.io.imagefile import encode_image
 from ldlmap.io.las import write_las
 from ldlmap.io.pointcloud import write_point_cloud
 from ldlmap.synth.ifc import StoreyToWrite, write_ifc
@@ -62,12 +63,11 @@ def room_capture(spec, density: float = 3000.0, stations: int = 2, pano_width: i
 
 
 def _jpeg(rgb: np.ndarray) -> bytes:
-    import cv2
-
-    ok, buf = cv2.imencode(".jpg", np.ascontiguousarray(rgb[..., ::-1]), [cv2.IMWRITE_JPEG_QUALITY, 95])
-    if not ok:
-        raise InputError("cannot encode a panorama as JPEG")
-    return buf.tobytes()
+    """An RGB panorama as JPEG file bytes (quality 95)."""
+    try:
+        return encode_image(rgb[..., ::-1], ".jpg", quality=95)
+    except ValueError:
+        raise InputError("cannot encode a panorama as JPEG") from None
 
 
 def write_e57_room(path: str | os.PathLike, cap: RoomCapture, spherical_second: bool = True,

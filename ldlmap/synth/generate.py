@@ -1,4 +1,4 @@
-"""Write a synthetic dataset in the OmniScenes layout (DESIGN.md sections 4 and 7).
+"""Write a synthetic dataset in the OmniScenes layout (docs/synthetic.md, docs/datasets.md).
 
 For each scene ``<room>_<n>`` (``synthroom_1``, ``synthroom_2``, ...)::
 
@@ -29,25 +29,33 @@ import json
 import re
 import time
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Callable, Sequence
 
 from ldlmap.datasets.omniscenes import SYNTH_GENERATOR
-from ldlmap.synth.capture import (BASE_SPLITS, DatasetSummary, dataset_output, list_generated, GENERATOR_VERSION, ILLUMINATION_SPLITS, capture_settings,
-                                  check_dataset_seed, write_split_panoramas, ProgressTicks, stream_rng)
+from ldlmap.io.linefiles import write_lines
+from ldlmap.synth import scan  # through the module: tests replace scan.sample_scan to fail midway
+from ldlmap.synth.building import generate_building, is_building_preset
+from ldlmap.synth.capture import (BASE_SPLITS, GENERATOR_VERSION, ILLUMINATION_SPLITS, CaptureSettings, DatasetSummary,
+                                  ProgressTicks, check_dataset_seed, capture_settings, dataset_output, list_generated,
+                                  stream_rng, write_split_panoramas)
+from ldlmap.synth.edges import mesh_edges
+from ldlmap.synth.meshio import write_textured_obj
+from ldlmap.synth.multiroom import generate_multiroom, is_multiroom_preset
+from ldlmap.synth.presets import changed_spec, get_preset, random_spec
 from ldlmap.synth.render import Renderer
+from ldlmap.synth.scene import build_scene
+from ldlmap.synth.shapes import classify_room
+from ldlmap.synth.spec import SceneSpec, dump_spec_toml, load_spec
 
 
-def _room_name(spec: Any) -> str:
+def _room_name(spec: SceneSpec) -> str:
     name = re.sub(r"[^A-Za-z0-9]", "", str(getattr(spec, "name", "") or ""))
     return name or "synthroom"
 
 
-def load_specs(preset: str | None, spec_paths: Sequence[Path], seed: int) -> list[tuple[str, Any]]:
+def load_specs(preset: str | None, spec_paths: Sequence[Path], seed: int) -> list[tuple[str, SceneSpec]]:
     """``(room name, spec)`` pairs: the spec files when given (room = the spec's name), else
     ``random_spec(preset, seed, i)`` for the preset's scenes (room ``synthroom``)."""
-    from ldlmap.synth.presets import get_preset, random_spec
-    from ldlmap.synth.spec import load_spec
-
     if spec_paths:
         return [(_room_name(s), s) for s in (load_spec(Path(p)) for p in spec_paths)]
     preset = preset or "demo"
@@ -66,9 +74,6 @@ def generate_dataset(out: Path, preset: str | None = "demo", spec_paths: Sequenc
     ``building_small``: floors of rooms, one scene per floor) by
     :func:`ldlmap.synth.building.generate_building`.
     """
-    from ldlmap.synth.building import generate_building, is_building_preset
-    from ldlmap.synth.multiroom import generate_multiroom, is_multiroom_preset
-
     check_dataset_seed(seed)
     if not spec_paths and is_building_preset(preset):
         return generate_building(out, preset, seed, overwrite=overwrite, progress=progress,
@@ -76,15 +81,6 @@ def generate_dataset(out: Path, preset: str | None = "demo", spec_paths: Sequenc
     if not spec_paths and is_multiroom_preset(preset):
         return generate_multiroom(out, preset, seed, overwrite=overwrite, progress=progress,
                                   illumination=illumination, width=width, per_split=per_split)
-    from ldlmap.synth.edges import mesh_edges
-    from ldlmap.synth.meshio import write_textured_obj
-    from ldlmap.synth.scan import sample_scan, write_ply, write_txt
-    from ldlmap.synth.scene import build_scene
-    from ldlmap.synth.presets import changed_spec
-    from ldlmap.synth.shapes import classify_room
-    from ldlmap.synth.spec import dump_spec_toml
-    from ldlmap.io.linefiles import write_lines
-
     start = time.perf_counter()
     out = Path(out)
     named = load_specs(preset, list(spec_paths), seed)  # bad specs fail before anything is written
@@ -93,41 +89,11 @@ def generate_dataset(out: Path, preset: str | None = "demo", spec_paths: Sequenc
     settings = [capture_settings(s.capture, width, per_split, illumination) for s in specs]
     splits = list(BASE_SPLITS) + [v for v in ILLUMINATION_SPLITS if any(v in c.illumination for c in settings)]
     split_counts = {s: 0 for s in splits}
-    points: dict[str, int] = {}
-    scene_info = []
     total = sum(4 + sum(c.counts.values()) for c in settings)
 
     with dataset_output(out, overwrite) as tmp, ProgressTicks(progress, total) as tick:
-        for idx, (spec, cap, name) in enumerate(zip(specs, settings, names), start=1):
-            W, H = cap.width, cap.height
-            mesh = build_scene(spec)
-            renderer = Renderer(mesh)
-            (tmp / "specs").mkdir(parents=True, exist_ok=True)
-            (tmp / "specs" / f"{name}.toml").write_text(dump_spec_toml(spec))
-            tick(f"{name}: mesh")
-            (tmp / "mesh").mkdir(exist_ok=True)
-            write_textured_obj(mesh, tmp / "mesh" / f"{name}.obj")
-            segs = mesh_edges(mesh)
-            (tmp / "gt_lines").mkdir(exist_ok=True)
-            write_lines(tmp / "gt_lines" / f"{name}.obj", segs)
-            write_lines(tmp / "gt_lines" / f"{name}.txt", segs)
-            tick(f"{name}: scan")
-            pts, cols = sample_scan(mesh, spec.scan, stream_rng(seed, spec, idx, "scan"), renderer=renderer)
-            (tmp / "pcd").mkdir(exist_ok=True)
-            write_ply(tmp / "pcd" / f"{name}.ply", pts, cols)
-            write_txt(tmp / "pcd" / f"{name}.txt", pts, cols)
-            points[name] = int(len(pts))
-            tick(f"{name}: changed scene")
-            changed = changed_spec(spec, stream_rng(seed, spec, idx, "change"))
-            (tmp / "specs" / f"{name}_scene_2.toml").write_text(dump_spec_toml(changed))
-            changed_renderer = Renderer(build_scene(changed))
-            tick(f"{name}: panoramas")
-
-            write_split_panoramas(tmp, name, spec, idx, cap, seed, renderer, changed_renderer, split_counts,
-                                  tick)
-            scene_info.append({"name": name, "spec": f"specs/{name}.toml", "changed_spec": f"specs/{name}_scene_2.toml",
-                               "points": points[name], "triangles": int(mesh.num_triangles),
-                               "gt_lines": int(len(segs)), "width": W, "height": H, "kind": classify_room(spec)})
+        scene_info = [_write_scene(tmp, name, spec, idx, cap, seed, split_counts, tick)
+                      for idx, (spec, cap, name) in enumerate(zip(specs, settings, names), start=1)]
         meta = {"generator": SYNTH_GENERATOR, "version": GENERATOR_VERSION, "seed": int(seed),
                 "preset": None if spec_paths else (preset or "demo"),
                 "illumination": sorted({v for c in settings for v in c.illumination}),
@@ -135,7 +101,39 @@ def generate_dataset(out: Path, preset: str | None = "demo", spec_paths: Sequenc
                 "splits": {s: {"images": split_counts[s]} for s in splits}}
         (tmp / "dataset.json").write_text(json.dumps(list_generated(tmp, meta), indent=2) + "\n")
 
-    return DatasetSummary(out=out, seed=int(seed), scenes=names, splits=split_counts, points=points,
+    return DatasetSummary(out=out, seed=int(seed), scenes=names, splits=split_counts,
+                          points={s["name"]: s["points"] for s in scene_info},
                           width=settings[0].width if settings else 0,
                           height=settings[0].height if settings else 0,
                           seconds=time.perf_counter() - start)
+
+
+def _write_scene(tmp: Path, name: str, spec: SceneSpec, idx: int, cap: CaptureSettings, seed: int,
+                 split_counts: dict[str, int], tick: Callable[[str], None]) -> dict:
+    """Write scene ``name`` of one room: spec, mesh, true lines, scan, changed spec and the panoramas
+    of every split (``split_counts`` grows in place); returns its ``dataset.json`` entry."""
+    mesh = build_scene(spec)
+    renderer = Renderer(mesh)
+    (tmp / "specs").mkdir(parents=True, exist_ok=True)
+    (tmp / "specs" / f"{name}.toml").write_text(dump_spec_toml(spec))
+    tick(f"{name}: mesh")
+    (tmp / "mesh").mkdir(exist_ok=True)
+    write_textured_obj(mesh, tmp / "mesh" / f"{name}.obj")
+    segs = mesh_edges(mesh)
+    (tmp / "gt_lines").mkdir(exist_ok=True)
+    write_lines(tmp / "gt_lines" / f"{name}.obj", segs)
+    write_lines(tmp / "gt_lines" / f"{name}.txt", segs)
+    tick(f"{name}: scan")
+    pts, cols = scan.sample_scan(mesh, spec.scan, stream_rng(seed, spec, idx, "scan"), renderer=renderer)
+    (tmp / "pcd").mkdir(exist_ok=True)
+    scan.write_ply(tmp / "pcd" / f"{name}.ply", pts, cols)
+    scan.write_txt(tmp / "pcd" / f"{name}.txt", pts, cols)
+    tick(f"{name}: changed scene")
+    changed = changed_spec(spec, stream_rng(seed, spec, idx, "change"))
+    (tmp / "specs" / f"{name}_scene_2.toml").write_text(dump_spec_toml(changed))
+    changed_renderer = Renderer(build_scene(changed))
+    tick(f"{name}: panoramas")
+    write_split_panoramas(tmp, name, spec, idx, cap, seed, renderer, changed_renderer, split_counts, tick)
+    return {"name": name, "spec": f"specs/{name}.toml", "changed_spec": f"specs/{name}_scene_2.toml",
+            "points": int(len(pts)), "triangles": int(mesh.num_triangles),
+            "gt_lines": int(len(segs)), "width": cap.width, "height": cap.height, "kind": classify_room(spec)}

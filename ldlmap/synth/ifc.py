@@ -21,7 +21,12 @@ from pathlib import Path
 import numpy as np
 
 from ldlmap.core.errors import InputError, atomic_file
-from ldlmap.synth.spec import FRAME_DEPTH, FRAME_WIDTH
+from ldlmap.core.lazy import lazy_module
+from ldlmap.io.ifc import IFC_INSTALL_HINT
+from ldlmap.synth.multiroom import translate_spec
+from ldlmap.synth.spec import FRAME_DEPTH, FRAME_WIDTH, SceneSpec
+
+ifc_api = lazy_module("ifcopenshell.api", hint=IFC_INSTALL_HINT)
 
 WALL_THICKNESS = 0.2  # m
 SLAB_DEPTH = 0.2  # m, floor slab under z = 0 of the storey
@@ -51,10 +56,8 @@ class _Writer:
     """The file being written, its body context and its helpers (one call of :func:`write_ifc`)."""
 
     def __init__(self, units: str):
-        import ifcopenshell.api
-
-        self.api = ifcopenshell.api
-        self.f = ifcopenshell.api.run("project.create_file", version="IFC4")
+        self.api = ifc_api
+        self.f = ifc_api.run("project.create_file", version="IFC4")
         self.project = self.run("root.create_entity", ifc_class="IfcProject", name="ldlmap synthetic")
         if units == "foot":
             foot = self.run("unit.add_conversion_based_unit", name="foot")
@@ -113,7 +116,9 @@ def _frame_rep(w: _Writer, kind: str, width: float, height: float):
     return left
 
 
-def _room(w: _Writer, spec, storey, z0: float, tag: str) -> None:
+def _room(w: _Writer, spec: SceneSpec, storey, z0: float, tag: str) -> None:
+    """Room ``spec`` on ``storey`` (floor at ``z0``): walls voided by openings and filled by their frames,
+    floor slab, ceiling covering, space and furniture boxes."""
     fp = np.asarray(spec.footprint, dtype=np.float64)
     h = float(spec.ceiling_height)
     if spec.ceiling.kind != "flat":
@@ -163,8 +168,6 @@ def _room(w: _Writer, spec, storey, z0: float, tag: str) -> None:
 def write_ifc(path: str | os.PathLike, storeys: list[StoreyToWrite], units: str = "metre") -> Path:
     """Write the storeys' rooms as an IFC4 model (module docstring), atomically. An empty
     ``storeys`` list writes a model with a building and no storey (for tests of that error)."""
-    from ldlmap.synth.multiroom import translate_spec
-
     w = _Writer(units)
     for s in storeys:
         storey = w.entity("IfcBuildingStorey", s.name, w.building)

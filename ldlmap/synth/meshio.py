@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from ldlmap.core.errors import LdlError, atomic_file
+from ldlmap.io.imagefile import write_image
 from ldlmap.synth.types import SceneMesh
 
 
@@ -16,8 +17,6 @@ def write_textured_obj(mesh: SceneMesh, path_obj: str | os.PathLike) -> Path:
 
     Texture coordinates are written per triangle corner (``vt``), faces as ``f v/vt``.
     """
-    import cv2
-
     path = Path(path_obj)
     stem = path.stem
     mtl_path, png_path = path.with_suffix(".mtl"), path.with_suffix(".png")
@@ -25,8 +24,10 @@ def write_textured_obj(mesh: SceneMesh, path_obj: str | os.PathLike) -> Path:
     F = np.asarray(mesh.triangles, dtype=np.int64)
     uv = np.asarray(mesh.tri_uvs, dtype=np.float64).reshape(-1, 2)
     with atomic_file(png_path) as tmp:
-        if not cv2.imwrite(str(tmp), np.ascontiguousarray(mesh.atlas[..., ::-1])):
-            raise LdlError(f"cannot write texture {png_path}")
+        try:
+            write_image(tmp, mesh.atlas[..., ::-1], suffix=".png")
+        except ValueError:
+            raise LdlError(f"cannot write texture {png_path}") from None
     with atomic_file(mtl_path) as tmp:
         tmp.write_text(f"newmtl {stem}\nKa 1.000 1.000 1.000\nKd 1.000 1.000 1.000\nKs 0.000 0.000 0.000\n"
                        f"d 1.0\nillum 1\nmap_Kd {png_path.name}\n")

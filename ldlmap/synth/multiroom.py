@@ -35,11 +35,24 @@ import math
 import time
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
 from ldlmap.core.errors import InputError
+from ldlmap.datasets.omniscenes import SYNTH_GENERATOR
+from ldlmap.io.linefiles import write_lines
+from ldlmap.synth import scan  # through the module: tests replace scan.sample_scan to fail midway
+from ldlmap.synth.capture import (BASE_SPLITS, GENERATOR_VERSION, ILLUMINATION_SPLITS, CaptureSettings, DatasetSummary,
+                                  ProgressTicks, capture_settings, dataset_output, list_generated, read_dataset_meta,
+                                  stream_rng, write_split_panoramas)
+from ldlmap.synth.edges import mesh_edges
+from ldlmap.synth.meshio import write_textured_obj
+from ldlmap.synth.presets import changed_spec, random_spec
+from ldlmap.synth.render import Renderer
+from ldlmap.synth.scene import build_scene
+from ldlmap.synth.spec import SceneSpec, dump_spec_toml, load_spec, validate_spec
+from ldlmap.synth.types import SceneMesh
 
 SCENE = "multiroom_1"
 
@@ -93,7 +106,7 @@ def multiroom_params(preset: str = "multiroom", rooms: int | None = None) -> Mul
     return params if rooms is None else replace(params, rooms=int(rooms))
 
 
-def translate_spec(spec: Any, offset: tuple[float, float]) -> Any:
+def translate_spec(spec: SceneSpec, offset: tuple[float, float]) -> SceneSpec:
     """``spec`` moved by ``offset`` (dx, dy) in metres: footprint vertices and object centres.
 
     Openings and posters are placed along walls (relative to the footprint) and move with it;
@@ -132,11 +145,8 @@ def layout_offsets(footprints: list[np.ndarray], gap: float, columns: int = 0) -
     return np.round(out, 6)
 
 
-def multiroom_specs(seed: int, params: MultiRoomParams = MultiRoomParams()) -> tuple[list[Any], np.ndarray]:
+def multiroom_specs(seed: int, params: MultiRoomParams = MultiRoomParams()) -> tuple[list[SceneSpec], np.ndarray]:
     """The rooms' specs in world coordinates (named ``room<i>``) and their (N, 2) offsets."""
-    from ldlmap.synth.presets import random_spec
-    from ldlmap.synth.spec import validate_spec
-
     if params.rooms < 1:
         raise InputError(f"a multi-room scene needs at least 1 room, got {params.rooms}")
     rooms = [random_spec(params.room_preset, seed, i) for i in range(1, params.rooms + 1)]
@@ -151,15 +161,13 @@ def multiroom_specs(seed: int, params: MultiRoomParams = MultiRoomParams()) -> t
     return specs, offsets
 
 
-def merge_meshes(meshes: list[Any], name: str = SCENE) -> Any:
+def merge_meshes(meshes: list[SceneMesh], name: str = SCENE) -> SceneMesh:
     """One :class:`SceneMesh` holding all ``meshes`` (for the union OBJ).
 
     Atlases are stacked vertically (left-aligned, zero padding) and texture coordinates remapped
     into the stack; object and part indices are offset so that they stay unique. The footprint
     of the union is the bounding rectangle of the rooms' footprints, the ceiling the highest.
     """
-    from ldlmap.synth.types import SceneMesh
-
     if not meshes:
         raise InputError("no mesh to merge")
     Wt = max(m.atlas.shape[1] for m in meshes)
@@ -195,7 +203,7 @@ def merge_meshes(meshes: list[Any], name: str = SCENE) -> Any:
                      object_boxes=boxes, tri_part=np.concatenate(parts))
 
 
-def lift_mesh(mesh: Any, offset: Any) -> Any:
+def lift_mesh(mesh: SceneMesh, offset: Any) -> SceneMesh:
     """``mesh`` moved by ``offset`` (dx, dy, dz) metres: vertices, footprint and object boxes.
 
     ``ceiling_height`` becomes the world height of the ceiling (``dz`` + the room's height): the
@@ -214,16 +222,17 @@ def lift_mesh(mesh: Any, offset: Any) -> Any:
 class CapturedRoom:
     """What :func:`capture_room` made of one room, in the world frame."""
 
-    mesh: Any  # SceneMesh moved by the room's offset
+    mesh: SceneMesh  # moved by the room's offset
     edges: np.ndarray  # (E, 2, 3) true 3D edges
     points: np.ndarray  # (N, 3) scan points
     colors: np.ndarray  # (N, 3) uint8
-    changed: Any  # the changed spec (change_* splits), in the spec's own frame
+    changed: SceneSpec  # the changed spec (change_* splits), in the spec's own frame
     queries: dict[str, list[str]]  # split -> image stems written
 
 
-def capture_room(tmp: Path, scene: str, spec: Any, idx: int, cap: Any, seed: int, tick: Any,
-                 first_stem: dict[str, int], split_counts: dict[str, int], offset: Any = (0.0, 0.0, 0.0),
+def capture_room(tmp: Path, scene: str, spec: SceneSpec, idx: int, cap: CaptureSettings, seed: int,
+                 tick: Callable[[str], None], first_stem: dict[str, int], split_counts: dict[str, int],
+                 offset: Any = (0.0, 0.0, 0.0),
                  label: str = "room", cache: dict | None = None) -> CapturedRoom:
     """Scan one room and write its panoramas into the scene ``scene`` (numbered on from
     ``first_stem``; ``split_counts`` grows in place), with the room's own random streams (``idx``).
@@ -233,13 +242,6 @@ def capture_room(tmp: Path, scene: str, spec: Any, idx: int, cap: Any, seed: int
     ``cache`` (spec -> mesh, renderer, edges), when given, holds built rooms for identical rooms
     to share: equal specs give equal meshes and textures.
     """
-    from ldlmap.synth.capture import stream_rng, write_split_panoramas
-    from ldlmap.synth.edges import mesh_edges
-    from ldlmap.synth.presets import changed_spec
-    from ldlmap.synth.render import Renderer
-    from ldlmap.synth.scan import sample_scan
-    from ldlmap.synth.scene import build_scene
-
     off = np.asarray(offset, dtype=np.float64).reshape(3)
     built = cache.get(spec) if cache is not None else None
     if built is None:
@@ -249,7 +251,7 @@ def capture_room(tmp: Path, scene: str, spec: Any, idx: int, cap: Any, seed: int
             cache[spec] = built
     mesh, renderer, edges = built
     tick(f"{label}: scan")
-    pts, cols = sample_scan(mesh, spec.scan, stream_rng(seed, spec, idx, "scan"), renderer=renderer)
+    pts, cols = scan.sample_scan(mesh, spec.scan, stream_rng(seed, spec, idx, "scan"), renderer=renderer)
     tick(f"{label}: changed room")
     changed = changed_spec(spec, stream_rng(seed, spec, idx, "change"))
     changed_renderer = Renderer(build_scene(changed))
@@ -260,24 +262,33 @@ def capture_room(tmp: Path, scene: str, spec: Any, idx: int, cap: Any, seed: int
                         points=pts + off, colors=cols, changed=changed, queries=stems)
 
 
+def write_union(tmp: Path, name: str, rooms: list[CapturedRoom]) -> tuple[int, SceneMesh, np.ndarray]:
+    """Write scene ``name``'s scan, mesh and true lines: the union of ``rooms`` (in their order).
+    Returns the scan's point count, the merged mesh and the (E, 2, 3) lines."""
+    points, colors = np.concatenate([r.points for r in rooms]), np.concatenate([r.colors for r in rooms])
+    (tmp / "pcd").mkdir(exist_ok=True)
+    scan.write_ply(tmp / "pcd" / f"{name}.ply", points, colors)
+    scan.write_txt(tmp / "pcd" / f"{name}.txt", points, colors)
+    (tmp / "mesh").mkdir(exist_ok=True)
+    union = merge_meshes([r.mesh for r in rooms], name)
+    write_textured_obj(union, tmp / "mesh" / f"{name}.obj")
+    segs = np.concatenate([r.edges for r in rooms])
+    (tmp / "gt_lines").mkdir(exist_ok=True)
+    write_lines(tmp / "gt_lines" / f"{name}.obj", segs)
+    write_lines(tmp / "gt_lines" / f"{name}.txt", segs)
+    return int(len(points)), union, segs
+
+
 def generate_multiroom(out: Path, preset: str = "multiroom", seed: int = 0, rooms: int | None = None,
                        overwrite: bool = False, progress: bool = True, illumination: bool = True,
                        width: int | None = None, per_split: int | None = None,
-                       params: MultiRoomParams | None = None) -> Any:
+                       params: MultiRoomParams | None = None) -> DatasetSummary:
     """Generate a multi-room dataset into ``out`` (atomically); returns a ``DatasetSummary``.
 
     ``params`` (default: the preset's, with ``rooms`` overriding its room count) places the
     rooms; ``width`` and ``per_split`` (panoramas per split *per room*) override the specs.
     Same seed, same bytes.
     """
-    from ldlmap.io.linefiles import write_lines
-    from ldlmap.datasets.omniscenes import SYNTH_GENERATOR
-    from ldlmap.synth.capture import (BASE_SPLITS, GENERATOR_VERSION, ILLUMINATION_SPLITS, DatasetSummary,
-                                      ProgressTicks, capture_settings, dataset_output, list_generated)
-    from ldlmap.synth.meshio import write_textured_obj
-    from ldlmap.synth.scan import write_ply, write_txt
-    from ldlmap.synth.spec import dump_spec_toml
-
     start = time.perf_counter()
     out = Path(out)
     if params is None:
@@ -292,7 +303,7 @@ def generate_multiroom(out: Path, preset: str = "multiroom", seed: int = 0, room
     split_counts = {s: 0 for s in splits}
     total = sum(3 + sum(c.counts.values()) for c in settings) + 1
     name = SCENE
-    meshes, edges, clouds, colors, rooms_info = [], [], [], [], []
+    captured, rooms_info = [], []
     first = {s: 0 for s in BASE_SPLITS}  # next image number of each split in the shared scene folder
     n_points = 0
 
@@ -304,10 +315,7 @@ def generate_multiroom(out: Path, preset: str = "multiroom", seed: int = 0, room
             # Every split is numbered on from the previous rooms' images (one stem, one image).
             got = capture_room(tmp, name, spec, idx, cap, seed, tick, first, split_counts, label=f"room {idx}")
             (tmp / "specs" / f"{room}_scene_2.toml").write_text(dump_spec_toml(got.changed))
-            meshes.append(got.mesh)
-            edges.append(got.edges)
-            clouds.append(got.points)
-            colors.append(got.colors)
+            captured.append(got)
             for split in BASE_SPLITS:
                 first[split] += len(got.queries.get(split, []))
             z_top = float(spec.ceiling_height)
@@ -321,19 +329,9 @@ def generate_multiroom(out: Path, preset: str = "multiroom", seed: int = 0, room
                 "gt_lines": int(len(got.edges)), "queries": got.queries})
             n_points += int(len(got.points))
         tick(f"{name}: writing the union")
-        P, C = np.concatenate(clouds), np.concatenate(colors)
-        (tmp / "pcd").mkdir()
-        write_ply(tmp / "pcd" / f"{name}.ply", P, C)
-        write_txt(tmp / "pcd" / f"{name}.txt", P, C)
-        (tmp / "mesh").mkdir()
-        union = merge_meshes(meshes, name)
-        write_textured_obj(union, tmp / "mesh" / f"{name}.obj")
-        segs = np.concatenate(edges)
-        (tmp / "gt_lines").mkdir()
-        write_lines(tmp / "gt_lines" / f"{name}.obj", segs)
-        write_lines(tmp / "gt_lines" / f"{name}.txt", segs)
+        points, union, segs = write_union(tmp, name, captured)
         W, H = settings[0].width, settings[0].height
-        scene_info = {"name": name, "points": int(len(P)), "triangles": int(union.num_triangles),
+        scene_info = {"name": name, "points": points, "triangles": int(union.num_triangles),
                       "gt_lines": int(len(segs)), "width": W, "height": H, "rooms": rooms_info}
         meta = {"generator": SYNTH_GENERATOR, "version": GENERATOR_VERSION, "seed": int(seed), "preset": preset,
                 "multiroom": asdict(params),
@@ -342,14 +340,12 @@ def generate_multiroom(out: Path, preset: str = "multiroom", seed: int = 0, room
                 "splits": {s: {"images": split_counts[s]} for s in splits}}
         (tmp / "dataset.json").write_text(json.dumps(list_generated(tmp, meta), indent=2) + "\n")
 
-    return DatasetSummary(out=out, seed=int(seed), scenes=[name], splits=split_counts, points={name: int(len(P))},
+    return DatasetSummary(out=out, seed=int(seed), scenes=[name], splits=split_counts, points={name: points},
                           width=W, height=H, seconds=time.perf_counter() - start)
 
 
 def read_layout(root: str | Path, scene: str = SCENE) -> list[RoomInfo]:
     """The rooms of the multi-room ``scene`` of a generated dataset (from its ``dataset.json``)."""
-    from ldlmap.synth.capture import read_dataset_meta
-
     root = Path(root)
     meta = read_dataset_meta(root)
     for s in meta.get("scenes", []):
@@ -366,9 +362,6 @@ def read_layout(root: str | Path, scene: str = SCENE) -> list[RoomInfo]:
     raise InputError(f"no scene {scene} in {root / 'dataset.json'}")
 
 
-def room_meshes(root: str | Path, scene: str = SCENE, changed: bool = False) -> list[Any]:
+def room_meshes(root: str | Path, scene: str = SCENE, changed: bool = False) -> list[SceneMesh]:
     """The rooms' meshes in the world frame, rebuilt from the written specs (``changed``: scene_2)."""
-    from ldlmap.synth.scene import build_scene
-    from ldlmap.synth.spec import load_spec
-
     return [build_scene(load_spec(r.changed_spec if changed else r.spec)) for r in read_layout(root, scene)]

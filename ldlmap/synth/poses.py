@@ -23,9 +23,12 @@ import numpy as np
 
 from ldlmap.core.errors import InputError
 from ldlmap.core.geometry import rotation_from_axis_angle
+from ldlmap.core.lazy import lazy_module
 from ldlmap.core.polygon import points_in_polygon
 from ldlmap.synth.render import Renderer
 from ldlmap.synth.types import SceneMesh
+
+spatial = lazy_module("scipy.spatial")
 
 SPLITS = ("robot", "handheld", "extreme", "change_robot", "change_handheld")
 
@@ -77,13 +80,11 @@ def split_pose_params(split: str, capture: Any = None) -> PoseParams:
 
 def _object_hulls(mesh: SceneMesh) -> list[np.ndarray]:
     """Half-plane equations (E, 3) of the xy convex hull of each object box."""
-    from scipy.spatial import ConvexHull
-
     hulls = []
     for box in mesh.object_boxes:
         xy = np.asarray(box, dtype=np.float64).reshape(-1, 3)[:, :2]
         try:
-            hulls.append(ConvexHull(xy).equations)
+            hulls.append(spatial.ConvexHull(xy).equations)
         except Exception:  # degenerate (flat) box footprint: ignore, the distance test remains
             continue
     return hulls

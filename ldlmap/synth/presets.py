@@ -318,7 +318,7 @@ def changed_spec(spec: SceneSpec, rng: np.random.Generator) -> SceneSpec:
     objects = [o for j, o in enumerate(objects) if j not in remove]
     for _ in range(ch.added):
         obj = place_object(rng, str(rng.choice(["box", "box", "cabinet", "table"])), fp, spec.ceiling_height,
-                            objects, keep_out)
+                           objects, keep_out)
         if obj is not None:
             objects.append(obj)
     out = replace(spec, objects=tuple(objects))

@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from ldlmap.core.errors import InputError, atomic_file
+from ldlmap.synth.poses import sample_positions
 from ldlmap.synth.render import Renderer
 from ldlmap.synth.types import SceneMesh
 
@@ -75,8 +76,6 @@ def _sphere_directions(n: int, rng: np.random.Generator) -> np.ndarray:
 def sample_scan(mesh: SceneMesh, scan_spec: Any = None, rng: np.random.Generator | None = None,
                 renderer: Renderer | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Simulated scan: ``points`` (N, 3) float64 and ``colors`` (N, 3) uint8."""
-    from ldlmap.synth.poses import sample_positions
-
     p = scan_params(scan_spec)
     if p.density <= 0 or p.max_points <= 0 or p.stations <= 0:
         raise InputError("scan needs density > 0, max_points > 0 and stations > 0")

@@ -23,8 +23,15 @@ from pathlib import Path
 
 import numpy as np
 
+from ldlmap.core.lazy import lazy_module
+from ldlmap.core.signals import import_pycolmap
+from ldlmap.io.imagefile import write_image
+from ldlmap.synth.poses import sample_positions
 from ldlmap.synth.render import Renderer
 from ldlmap.synth.types import SceneMesh
+
+cv2 = lazy_module("cv2")
+transform = lazy_module("scipy.spatial.transform")
 
 
 @dataclass(frozen=True)
@@ -79,9 +86,9 @@ def look_rotation(yaw: float, pitch: float, roll: float) -> np.ndarray:
     return np.stack([r, d, f])
 
 
-def _poses(mesh: SceneMesh, renderer: Renderer, cap: SfmCapture, rng: np.random.Generator):
-    from ldlmap.synth.poses import sample_positions
-
+def _poses(mesh: SceneMesh, renderer: Renderer, cap: SfmCapture,
+           rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """World-to-camera rotations (n, 3, 3) and centres (n, 3) of the photos (module docstring)."""
     cand = sample_positions(mesh, 64 * cap.num_images, rng, *cap.camera_height, cap.clearance, renderer=renderer)
     yaws = 2 * np.pi * (np.arange(cap.num_images) + rng.uniform(0, 1, cap.num_images)) / cap.num_images
     Rs, Cs = [], []
@@ -127,8 +134,6 @@ def _render(renderer: Renderer, R: np.ndarray, C: np.ndarray, K: np.ndarray, cap
 
 def _keypoints(rgb: np.ndarray, n: int) -> np.ndarray:
     """SIFT keypoint positions (k, 2), COLMAP pixel coordinates (centre of the first pixel = 0.5)."""
-    import cv2
-
     gray = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
     kps = cv2.SIFT_create(nfeatures=n).detect(gray, None)
     return np.array([k.pt for k in kps], dtype=np.float64).reshape(-1, 2) + 0.5
@@ -151,8 +156,6 @@ def _visible(renderer: Renderer, X: np.ndarray, R: np.ndarray, C: np.ndarray, K:
 
 def write_colmap_workspace(mesh: SceneMesh, out: str | Path, cap: SfmCapture = SfmCapture()) -> SyntheticSfm:
     """Render ``cap.num_images`` photos of ``mesh`` and write a COLMAP workspace into ``out``."""
-    import cv2
-
     rng = np.random.default_rng(cap.seed)
     out = Path(out)
     images_dir, model_dir = out / "images", out / "sparse" / "0"
@@ -165,7 +168,7 @@ def write_colmap_workspace(mesh: SceneMesh, out: str | Path, cap: SfmCapture = S
     photos, pts = [], []
     for R, C, name in zip(Rs, Cs, names):
         rgb, xyz = _render(renderer, R, C, K, cap)
-        cv2.imwrite(str(images_dir / name), rgb[..., ::-1], [cv2.IMWRITE_JPEG_QUALITY, 95])
+        write_image(images_dir / name, rgb[..., ::-1], quality=95)
         photos.append(rgb)
         kp = _keypoints(rgb, cap.keypoints)
         p = xyz[kp[:, 1].astype(int), kp[:, 0].astype(int)]
@@ -201,8 +204,6 @@ def write_colmap_workspace(mesh: SceneMesh, out: str | Path, cap: SfmCapture = S
     rgb = np.concatenate([rgb, rng.integers(0, 256, (n_out, 3))]).astype(np.uint8)
     _write_text_model(model_dir, K, cap, Rs, Cs, names, X, rgb, uv, seen)
     if cap.binary:
-        from ldlmap.core.signals import import_pycolmap
-
         pycolmap = import_pycolmap()
         pycolmap.Reconstruction(str(model_dir)).write_binary(str(model_dir))
         for f in model_dir.glob("*.txt"):
@@ -213,15 +214,13 @@ def write_colmap_workspace(mesh: SceneMesh, out: str | Path, cap: SfmCapture = S
 def _write_text_model(model_dir: Path, K: np.ndarray, cap: SfmCapture, Rs: np.ndarray, Cs: np.ndarray,
                       names: list[str], X: np.ndarray, rgb: np.ndarray, uv: np.ndarray, seen: np.ndarray) -> None:
     """COLMAP text model: one PINHOLE camera, images with their observations, points with tracks."""
-    from scipy.spatial.transform import Rotation
-
     (model_dir / "cameras.txt").write_text(
         f"1 PINHOLE {cap.width} {cap.height} " + " ".join(f"{v:.17g}" for v in K[[0, 1, 0, 1], [0, 1, 2, 2]]) + "\n")
     # Observation index of point j in photo i: its rank among the points that photo sees.
     idx2d = np.cumsum(seen, axis=1) - 1
     img_lines = []
     for i, (R, C, name) in enumerate(zip(Rs, Cs, names)):
-        x, y, z, w = Rotation.from_matrix(R).as_quat()
+        x, y, z, w = transform.Rotation.from_matrix(R).as_quat()
         t = -R @ C
         j = np.flatnonzero(seen[i])
         obs = " ".join(f"{a:.4f} {b:.4f} {p}" for (a, b), p in zip(uv[i, j], j + 1))

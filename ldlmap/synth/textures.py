@@ -13,6 +13,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from ldlmap.core.lazy import lazy_module
+
+cv2 = lazy_module("cv2")
+
 # Base colors (RGB in [0, 1]) per material; a surface picks one and jitters it.
 PALETTES: dict[str, list[tuple[float, float, float]]] = {
     "plaster": [(0.86, 0.83, 0.76), (0.80, 0.84, 0.86), (0.84, 0.86, 0.78), (0.88, 0.80, 0.74)],
@@ -39,8 +43,6 @@ def value_noise(h: int, w: int, cell_px: float, rng: np.random.Generator,
 
     ``aspect`` > 1 stretches features along the rows (x), for grain and brushed metal.
     """
-    import cv2
-
     cell_px = max(float(cell_px), 1.0)
     gh = int(np.ceil(h / cell_px)) + 3
     gw = int(np.ceil(w / (cell_px * aspect))) + 3
