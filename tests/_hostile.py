@@ -1,4 +1,4 @@
-"""Shared checks of the hostile-input tests (issue 11): a bad input or option ends in one line
+"""Shared checks of the hostile-input tests: a bad input or option ends in one line
 ``error: ...``, exit code 1 (never the internal-error code 70, never a traceback) and leaves no
 output behind."""
 

@@ -1,7 +1,7 @@
 """SfM-like 3D line sets from true room edges (test/bench helper, numpy only).
 
-Line3D++ on photos gives a room's or building's edges as many short, noisy pieces (the issue's
-building: 2503 segments, 0.8 % longer than the paper's threshold), plus clutter
+Line3D++ on photos gives a room's or building's edges as many short, noisy pieces (a real
+building's: 2503 segments, 0.8 % longer than the paper's threshold), plus clutter
 (texture, furniture seen from few views) and a few far outliers, in the SfM frame: any rotation,
 any unit, any origin. :func:`sfm_like_lines` makes such a set from metric, z-up true edges (e.g.
 ``tests._room_cloud.box_room`` or a synthetic scene's ``gt_lines``) and returns the truth.

@@ -1,4 +1,4 @@
-"""Issue 23: a room whose walls are not at right angles gets an Atlanta frame, and localizes."""
+"""A room whose walls are not at right angles gets an Atlanta frame, and localizes."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Issue 23: rooms whose walls run in more than two horizontal directions get an Atlanta frame of
+"""Rooms whose walls run in more than two horizontal directions get an Atlanta frame of
 the vertical and all of them (K > 3 principal directions), and localize; boxes keep Manhattan."""
 
 from __future__ import annotations

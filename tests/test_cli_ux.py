@@ -1,4 +1,4 @@
-"""Issue 12, the first ten minutes of a new user: line files given to `ldlmap lines`, picture
+"""The first ten minutes of a new user: line files given to `ldlmap lines`, picture
 formats, `ldlloc localize --gt` and JSON errors, principal directions in `ldlmap info`, and CLI
 modules that import nothing heavy."""
 
@@ -20,7 +20,7 @@ from tests._hostile import error_line
 runner = CliRunner()
 ROOT = Path(__file__).resolve().parents[1]
 
-# One small file per line-file format that `ldlmap lines` must recognise (DESIGN.md section 4).
+# One small file per line-file format that `ldlmap lines` must recognise (docs/formats.md).
 LINE_FILES = {
     "ours.txt": "# ldl lines v1\n0 0 0 1 0 0\n0 0 0 0 1 0\n1 1 0 1 1 2\n",
     "line3dpp.txt": "1 0 0 0 1 0 0 1 0 3 10 10 20 20\n2 0 0 0 0 1 0 0 1 0 0 1 1 0\n",

@@ -163,7 +163,7 @@ def test_identical_copy_takes_the_feature_confidence_away():
     assess_across([a, c], [-100.0, -100.0], ["floor_0", "floor_1"])
     assert a.verdict == "confident" and a.confidence_signals["map_twin"] == 0.0
     # 30 inliers: far fewer, but verified (PnP and lines back it) and as good on the lines: the copy on the floor
-    # above in poor light (the building's extreme_intensity office query was confident in a wrong copy, issue 21)
+    # above in poor light (the building's extreme_intensity office query was once confident in a wrong copy)
     c = _feature_pose(m, R0, CENTRE + [0, 0, 3.0], 30)
     assess(c, m)
     assess_across([a, c], [-100.0, -100.0], ["floor_0", "floor_1"])
@@ -183,8 +183,8 @@ def _options(pairs):
 def test_verified_pnp_pose_is_not_outvoted_by_lines_alone_on_another_map():
     """Two floor maps: on the query's floor the features give a PnP pose (35 inliers, its lines near
     its search's best: verified); on the other floor they give none, and the geometric pose there
-    explains 28 % more of the image's lines in a room that looks alike (the building's missed
-    handheld query, issue 21). The lines-only pose used to win the choice; now the verified PnP pose
+    explains 28 % more of the image's lines in a room that looks alike (a handheld query of the
+    building once missed). The lines-only pose used to win the choice; now the verified PnP pose
     is kept, confident, and the other cannot win (margin -1, the PnP pose named). A PnP pose of 12
     inliers is not verified: the lines judge it as before."""
     from ldlloc.batch.which_map import choose_map
@@ -218,7 +218,7 @@ def test_verified_pnp_pose_is_not_outvoted_by_lines_alone_on_another_map():
 
     # two verified PnP poses in different places, as good on the lines (twins: neither confident); the one of
     # most inliers is kept even where the other's search gap makes it the more confident (a wrong floor's
-    # retrieved pose of 16 inliers beside the right floor's 44, issue 21)
+    # retrieved pose of 16 inliers beside the right floor's 44)
     a = _feature_pose(m, R0, CENTRE, 44)
     b = _feature_pose(m2, R0, CENTRE + shift, 16)
     b.candidates_loss = np.array([-100.0, -40.0])

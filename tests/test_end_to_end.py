@@ -2,7 +2,7 @@
 
 The dataset comes from ``ldlmap synth --preset demo`` and the maps from ``ldlmap prepare`` with
 SIFT (fixture ``demo_dataset``); every query is localized with the library pipeline that
-``ldlloc run`` uses, and the issue's targets are asserted per split.
+``ldlloc run`` uses, and the accuracy targets are asserted per split.
 """
 
 from __future__ import annotations

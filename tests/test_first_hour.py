@@ -1,4 +1,4 @@
-"""Issue 22, the first hour of a new user: one thread by default everywhere, progress that names the
+"""The first hour of a new user: one thread by default everywhere, progress that names the
 running stage, `ldlloc run` before `ldlmap prepare`, messages that name only real options, result
 names that cannot collide, synthetic datasets called synthetic, pictures with a caption and a
 legend, and help pages that read alike."""

@@ -1,4 +1,4 @@
-"""`ldlloc localize` and `ldlloc run` under hostile inputs (issue 11): every numeric option bounded,
+"""`ldlloc localize` and `ldlloc run` under hostile inputs: every numeric option bounded,
 bad panoramas, pose files and query lists are one error line with nothing written; large
 panoramas are resized on reading; inside `run` a bad panorama fails its query only, a picture
 that cannot be written is a warning, --resume retries failed queries; outputs never replace

@@ -1,4 +1,4 @@
-"""Hostile maps (issue 11): every dataset and attribute of a map corrupted in turn, flipped bits and
+"""Hostile maps: every dataset and attribute of a map corrupted in turn, flipped bits and
 truncated files give one line ``error: ...`` and exit 1 from ``ldlmap info`` (and ``ldlloc
 localize``), never a traceback or a silently wrong summary; maps written before checksums still read.
 """

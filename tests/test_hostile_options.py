@@ -1,4 +1,4 @@
-"""Issue 11, options and synthetic specs of the ldlmap commands: every out-of-range number, absurd
+"""Options and synthetic specs of the ldlmap commands: every out-of-range number, absurd
 count or size, bad device and out-of-range seed is refused in one line (exit 1) before any work,
 leaving nothing behind; seeds 1 and 2**32 + 1 no longer give the same dataset."""
 

@@ -1,4 +1,4 @@
-"""Hostile scans and line files (issue 11): malformed clouds, meshes, line files, COLMAP models and
+"""Hostile scans and line files: malformed clouds, meshes, line files, COLMAP models and
 ZInD homes give one line ``error: ...`` and exit 1 from ``ldlmap build`` (no map, no temporary file
 left behind), or an :class:`InputError` from the reader; our own ``.txt`` line format is accepted.
 """

@@ -1,4 +1,4 @@
-"""Results files under hostile conditions (issue 11): malformed files are one error line for
+"""Results files under hostile conditions: malformed files are one error line for
 `report` and `run --resume`; the writer's lock refuses a second run; a kill at any moment leaves a
 JSON and a CSV that agree once the next run opens them; a CSV that cannot be written is a warning;
 --resume refuses other options unless told otherwise."""

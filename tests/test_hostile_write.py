@@ -1,4 +1,4 @@
-"""Issue 11, write paths of the ldlmap commands: an output never replaces an input (nor a file
+"""Write paths of the ldlmap commands: an output never replaces an input (nor a file
 written beside it, nor a folder holding one), an existing file of another kind is replaced only
 with --overwrite, and the temporaries of killed runs are removed by the next run."""
 

@@ -57,7 +57,7 @@ def test_read_written_model(tmp_path: Path, text: bool) -> None:
     want = np.concatenate([xyz, rgb.astype(float)], 1)
     assert np.allclose(_sorted_rows(got), _sorted_rows(want), atol=1e-9 if not text else 1e-6)
     assert scene.dense is None and scene.cloud is scene.points
-    # Each image's down axis (COLMAP +y) in the world is our camera's -z (DESIGN.md conventions).
+    # Each image's down axis (COLMAP +y) in the world is our camera's -z (ldlmap/core/geometry.py).
     for name, down in zip(scene.image_names, scene.camera_down):
         im = rec.find_image_with_name(name)
         R, _ = pose_from_colmap(im.cam_from_world().rotation.matrix(), im.cam_from_world().translation)

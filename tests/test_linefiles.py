@@ -1,4 +1,4 @@
-"""3D line file readers and writers (DESIGN.md section 4)."""
+"""3D line file readers and writers (docs/formats.md, "3D line files")."""
 
 from __future__ import annotations
 

@@ -247,7 +247,7 @@ def test_cli_lines_writes_obj_txt_png(tmp_path):
 @pytest.mark.parametrize("seed", [4, 5])
 def test_extract_lines_synthetic_demo_rooms(seed):
     """Demo rooms of the generator, default scan (~0.55 M points, 5 mm noise), against the true
-    mesh edges (issue 3's metric: an edge is found when 70 % of it lies within 5 cm and 5 degrees
+    mesh edges (an edge is found when 70 % of it lies within 5 cm and 5 degrees
     of extracted segments; recall over the edges longer than the length threshold, precision of
     the kept lines over all true edges): recall and precision >= 0.7, long unbroken lines.
 

@@ -1,4 +1,4 @@
-"""Lines cut to where the planes beside them hold their direction (issue 23): on a floor meeting a
+"""Lines cut to where the planes beside them hold their direction: on a floor meeting a
 curved wall (a fine polygon), chords and tangents of the arc are cut down; straight creases stay
 whole."""
 

@@ -1,4 +1,4 @@
-"""Lines on smooth surfaces (issue 23): facets of a vault give no line; creases, steps and free
+"""Lines on smooth surfaces: facets of a vault give no line; creases, steps and free
 edges stay lines."""
 
 from __future__ import annotations

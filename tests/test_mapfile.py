@@ -159,7 +159,7 @@ def test_camera_height_band_round_trips(tmp_path):
     ({}, True),  # maps from before the Manhattan frame: directions as voted
 ])
 def test_only_manhattan_frames_must_be_orthonormal(tmp_path, config, valid):
-    """Issue 23: an Atlanta frame (vertical and two horizontals 45 deg apart) is a valid map's
+    """An Atlanta frame (vertical and two horizontals 45 deg apart) is a valid map's
     frame; a map that says Manhattan (or an older map that says orthonormal) must be orthonormal."""
     from dataclasses import replace
 

@@ -77,7 +77,7 @@ def test_candidate_rotations_contain_truth(seed):
 
 
 def test_candidate_rotations_of_an_atlanta_frame_contain_truth():
-    """Issue 23: the map's directions are the vertical and two horizontals 45 deg apart (an Atlanta
+    """The map's directions are the vertical and two horizontals 45 deg apart (an Atlanta
     frame); triplets of vanishing points are matched by those angles, not by right angles."""
     rng = np.random.default_rng(11)
     s = np.sqrt(0.5)

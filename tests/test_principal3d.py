@@ -82,7 +82,7 @@ def _angle(a: np.ndarray, b: np.ndarray) -> float:
 
 
 def test_manhattan_frame_is_orthonormal_and_keeps_vertical_and_main_horizontal():
-    """Issue 12: two voted directions 33 deg apart; the frame keeps the vertical and the best
+    """Two voted directions 33 deg apart; the frame keeps the vertical and the best
     supported horizontal pair, and reports how far the votes were from it."""
     rng = np.random.default_rng(3)
     R = rotation_from_axis_angle(rng.normal(size=3), 0.8)
@@ -129,7 +129,7 @@ ANGLED = ((0.0, 0.0), (6.0, 0.0), (8.8, 2.8), (3.5, 2.8), (3.5, 3.5))
 
 
 def test_angled_room_gets_an_atlanta_frame_with_its_wall_directions():
-    """Issue 23: walls at 45 degrees keep their own direction (the Manhattan frame would fold them
+    """Walls at 45 degrees keep their own direction (the Manhattan frame would fold them
     onto a perpendicular pair)."""
     yaw = 17.0
     lines = _room_edges(ANGLED, 2.6, yaw)

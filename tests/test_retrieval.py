@@ -127,7 +127,7 @@ def test_retrieved_pose_in_one_of_two_identical_rooms_has_the_other_as_rival():
 
 
 def test_retrieval_runs_pnp_on_the_views_with_most_matches_not_the_words_best(monkeypatch):
-    """The words rank a room's own view below other rooms' views (a floor of rooms alike, issue 21:
+    """The words rank a room's own view below other rooms' views (a floor of rooms alike:
     own views 8th-25th); PnP on the best word-ranked views alone then finds no pose. With the
     shortlist matched, the view with the most matches gives the pose."""
     from types import SimpleNamespace

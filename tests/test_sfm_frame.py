@@ -1,4 +1,4 @@
-"""SfM maps (issue 12): up axis, scale, input frame, orthonormal directions, length filter.
+"""SfM maps: up axis, scale, input frame, orthonormal directions, length filter.
 
 The SfM-like line sets (``tests._sfm_lines``) are true edges of the synthetic generator's rooms,
 cut into short noisy pieces with clutter and far outliers, under a rotation, a scale and an offset.
@@ -132,8 +132,8 @@ def test_up_axis_from_cameras(room_edges, up):
 
 
 def test_sfm_line_file_build_frame_scale_filter(tmp_path, room_edges):
-    """One SfM-like file in millimetres, up = -y: refused in one line naming --scale 0.001 (issue 11:
-    millimetres are detected before any work), then --scale and --up give a
+    """One SfM-like file in millimetres, up = -y: refused in one line naming --scale 0.001
+    (millimetres are detected before any work), then --scale and --up give a
     metric z-up map whose stored transform maps the input onto it; the length filter keeps a
     sensible number of lines and the query keeps 10 %, not the map's kept fraction."""
     from ldlloc.lines2d import query_keep_ratio
@@ -181,8 +181,8 @@ def test_sfm_line_file_build_frame_scale_filter(tmp_path, room_edges):
 
 
 def test_non_orthogonal_directions_atlanta_frame_or_warn(tmp_path):
-    """Voted directions 33 deg apart (issue 12), the lines running in exactly those directions with no
-    perpendicular wall: the map keeps them as an Atlanta frame (issue 23), which the map file
+    """Voted directions 33 deg apart, the lines running in exactly those directions with no
+    perpendicular wall: the map keeps them as an Atlanta frame, which the map file
     accepts; forced onto the Manhattan frame (``atlanta_frame`` off) it warns how far off they are."""
     from ldlmap.map.build import BuildParams, build_lines_map
 

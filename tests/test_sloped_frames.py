@@ -1,4 +1,4 @@
-"""Issue 23: rooms under sloped ceilings keep the frame of their walls (Manhattan or Atlanta), add
+"""Rooms under sloped ceilings keep the frame of their walls (Manhattan or Atlanta), add
 the slopes' inclined directions, group lines by elevation, and localize."""
 
 from __future__ import annotations

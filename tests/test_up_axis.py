@@ -1,4 +1,4 @@
-"""The automatic up axis (issue 24, item 1): z-up inputs stay upright, turned inputs come back
+"""The automatic up axis: z-up inputs stay upright, turned inputs come back
 upright, and where the lines cannot tell, the build says so.
 
 Rooms are the generator's true edges (``mesh_edges(build_scene(random_spec("demo", seed)))``,

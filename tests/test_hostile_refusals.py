@@ -1,6 +1,7 @@
-"""Issue 24, items 2-5: the ways input still went wrong, each a test (data loss, crashes, wrong
-successes, messages). Small inputs: one small synthetic room (``small``), a lines-only map and a
-SIFT map of it built here, datasets of a few symlinked panoramas."""
+"""Refusals across the commands, each a way input once went wrong: outputs that must not replace
+other files (data loss), crashes, wrong successes and their messages. Small inputs: one small
+synthetic room (``small``), a lines-only map and a SIFT map of it built here, datasets of a few
+symlinked panoramas."""
 
 from __future__ import annotations
 
