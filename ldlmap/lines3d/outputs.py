@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ldlmap.lines3d.params import _check_lines
+from ldlmap.lines3d.params import check_lines
 
 
 def write_line_files(path: str, lines: np.ndarray) -> list:
@@ -14,7 +14,7 @@ def write_line_files(path: str, lines: np.ndarray) -> list:
 
     from ldlmap.io.linefiles import write_lines
 
-    L = _check_lines(lines)
+    L = check_lines(lines)
     base = Path(path)
     targets = [base.with_suffix(".obj"), base.with_suffix(".txt")]
     for t in targets:
@@ -31,8 +31,8 @@ def top_view_image(lines: np.ndarray, size: int = 1000, principal: np.ndarray | 
     """
     import cv2
 
-    L = _check_lines(lines)
-    D = _check_lines(dropped) if dropped is not None else np.zeros((0, 2, 3))
+    L = check_lines(lines)
+    D = check_lines(dropped) if dropped is not None else np.zeros((0, 2, 3))
     allp = np.concatenate([L, D]).reshape(-1, 3)
     img = np.full((size, size, 3), 255, np.uint8)
     if len(allp):

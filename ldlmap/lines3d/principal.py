@@ -23,6 +23,8 @@ import numpy as np
 from ldlmap.core.errors import InputError
 from ldlmap.core.geometry import half_icosphere_points, normalize
 
+HORIZONTAL_DEG = 10.0  # lines and directions this close to horizontal (degrees) count as horizontal
+
 
 @dataclass(frozen=True)
 class Principal3DParams:
@@ -170,7 +172,7 @@ def manhattan_frame(lines: np.ndarray, estimated: np.ndarray, up: np.ndarray = (
 class FrameParams:
     """Parameters of :func:`principal_frame` (docs/measurements.md#atlanta-frame)."""
 
-    horizontal_deg: float = 10.0  # lines this close to horizontal give the horizontal directions
+    horizontal_deg: float = HORIZONTAL_DEG  # lines this close to horizontal give the horizontal directions
     atlanta_deg: float = 10.0  # Atlanta frame when the two main horizontals are more than this from perpendicular
     sloped_share: float = 0.02  # a room is sloped (its ceiling) when more than this share of the line length
     # is inclined (10-80 deg from horizontal); its frame then gets inclined directions
