@@ -183,9 +183,9 @@ def build_map(input_path: str | Path, output: str | Path | None = None, lines_pa
     check_params(params)
     if progress:
         progress("load", 0, 1)
-    tick = time.perf_counter()
+    clock = StageClock({})
     src = load_input(input_path, lines_path, params.mesh_samples, images_path, params.stations)
-    load_seconds = time.perf_counter() - tick
+    load_seconds = clock.lap("load")
     config = {"input": str(input_path), "lines_file": str(lines_path) if lines_path else None}
     if images_path is not None:
         config["images"] = str(images_path)
