@@ -335,7 +335,7 @@ def ray_option():
 
 
 MAX_THREADS = 1024  # --threads above this is a typo (100000 made torch segfault)
-DEFAULT_THREADS = 1  # the work is many small tensor steps: more threads spin and wait (builds 3-4x slower, issue 22)
+DEFAULT_THREADS = 1  # the work is many small tensor steps: more threads spin and wait (docs/measurements.md)
 
 
 def threads_option():

@@ -32,10 +32,13 @@ from __future__ import annotations
 
 import numpy as np
 
+from ldlmap.core.lazy import lazy_module
 from ldlmap.lines3d.metrics import sample_segments
 from ldlmap.lines3d.params import Lines3DParams
 from ldlmap.lines3d.planes import PlaneRegions
 from ldlmap.lines3d.smooth import thin_points
+
+spatial = lazy_module("scipy.spatial")
 
 FACE_BLOCK = 20_000  # samples per block of the local plane fits (bounds memory)
 
@@ -97,15 +100,13 @@ def _faces_turned(x: np.ndarray, u: np.ndarray, reg: PlaneRegions, Q: np.ndarray
 def cut_to_edges(lines: np.ndarray, reg: PlaneRegions, params: Lines3DParams) -> np.ndarray:
     """``lines`` (N, 2, 3) without the runs of ``along_min_run`` or more samples off the edge of the
     planes in ``reg`` (see the module docstring), pieces shorter than ``min_line`` dropped."""
-    from scipy.spatial import cKDTree
-
     if len(lines) == 0 or params.along.min_run <= 0 or len(reg.points) == 0:
         return lines
     Q = thin_points(reg.points, params.along.grid)
     x, seg = sample_segments(lines, params.along.step)
     u = lines[:, 1] - lines[:, 0]
     u = u / np.maximum(np.linalg.norm(u, axis=1), 1e-12)[:, None]
-    off = _off_edge(x, u[seg], reg, Q, cKDTree(reg.points[Q]), params)
+    off = _off_edge(x, u[seg], reg, Q, spatial.cKDTree(reg.points[Q]), params)
     # Runs of equal flags within a line; runs off the edge shorter than along_min_run are kept.
     line_start = np.r_[True, seg[1:] != seg[:-1]]
     new = line_start | np.r_[True, off[1:] != off[:-1]]

@@ -6,9 +6,13 @@ from __future__ import annotations
 
 import numpy as np
 
+from ldlmap.core.frame import check_memory
+from ldlmap.core.lazy import lazy_module
 from ldlmap.lines3d.metrics import sample_segments
 from ldlmap.lines3d.params import Lines3DParams
 from ldlmap.lines3d.planes import PlaneRegions
+
+cv2 = lazy_module("cv2")
 
 
 def _plane_basis(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -20,10 +24,6 @@ def _plane_basis(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def boundary_segments(Q: np.ndarray, c: np.ndarray, n: np.ndarray, params: Lines3DParams) -> np.ndarray:
     """Boundary polygon sides (M, 2, 3) of one planar region's occupancy image."""
-    import cv2
-
-    from ldlmap.core.frame import check_memory
-
     e1, e2 = _plane_basis(n)
     uv = np.stack([(Q - c) @ e1, (Q - c) @ e2], 1)
     cs = params.boundaries.cell_size

@@ -6,9 +6,13 @@ from __future__ import annotations
 
 import numpy as np
 
+from ldlmap.core.lazy import lazy_module
 from ldlmap.lines3d.boundaries import true_runs
 from ldlmap.lines3d.params import Lines3DParams
 from ldlmap.lines3d.planes import PlaneRegions
+
+csgraph = lazy_module("scipy.sparse.csgraph")
+sparse = lazy_module("scipy.sparse")
 
 
 def intersection_segments(reg: PlaneRegions, params: Lines3DParams) -> np.ndarray:
@@ -75,9 +79,6 @@ def linear_segments(reg: PlaneRegions, params: Lines3DParams) -> np.ndarray:
     that lie along each other's axis are linked; each connected cluster gives the segment of its
     principal axis between the 1st and 99th percentile of the projections.
     """
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
     if reg.axes is None or reg.linearity is None:
         return np.zeros((0, 2, 3))
     P, nbr, ax = reg.points, reg.neighbours, reg.axes
@@ -92,8 +93,8 @@ def linear_segments(reg: PlaneRegions, params: Lines3DParams) -> np.ndarray:
     cos_t = np.cos(np.radians(params.linear.normal_angle_deg))
     along = np.linalg.norm(d - np.einsum("ij,ij->i", d, ax[i])[:, None] * ax[i], axis=1)
     ok = lin[j] & (np.abs(np.einsum("ij,ij->i", ax[i], ax[j])) >= cos_t) & (along <= params.linear.linear_tol)
-    g = coo_matrix((np.ones(ok.sum(), np.int8), (i[ok], j[ok])), shape=(n, n))
-    _, comp = connected_components(g, directed=False)
+    g = sparse.coo_matrix((np.ones(ok.sum(), np.int8), (i[ok], j[ok])), shape=(n, n))
+    _, comp = csgraph.connected_components(g, directed=False)
     comp = np.where(lin, comp, -1)
     ids, cnt = np.unique(comp[comp >= 0], return_counts=True)
     out = []

@@ -4,7 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from ldlmap.core.lazy import lazy_module
 from ldlmap.lines3d.params import Lines3DParams, check_lines
+
+csgraph = lazy_module("scipy.sparse.csgraph")
+sparse = lazy_module("scipy.sparse")
 
 
 def merge_collinear(lines: np.ndarray, weights: np.ndarray | None = None, angle_deg: float = 5.0,
@@ -15,9 +19,6 @@ def merge_collinear(lines: np.ndarray, weights: np.ndarray | None = None, angle_
     along the weighted mean direction through the weighted mean midpoint (only the members of
     highest weight place it), spanning the projections of all member endpoints.
     """
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
     L = check_lines(lines)
     n = len(L)
     if n < 2:
@@ -51,8 +52,8 @@ def merge_collinear(lines: np.ndarray, weights: np.ndarray | None = None, angle_
     if not rows:
         return L.copy()
     r, c = np.concatenate(rows), np.concatenate(cols)
-    g = coo_matrix((np.ones(len(r), np.int8), (r, c)), shape=(n, n))
-    n_g, grp = connected_components(g, directed=False)
+    g = sparse.coo_matrix((np.ones(len(r), np.int8), (r, c)), shape=(n, n))
+    n_g, grp = csgraph.connected_components(g, directed=False)
     # Members that place the line: those with the group's highest weight.
     wmax = np.full(n_g, -np.inf)
     np.maximum.at(wmax, grp, w)

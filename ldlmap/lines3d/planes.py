@@ -10,16 +10,21 @@ from functools import cached_property
 import numpy as np
 
 from ldlmap.core.errors import InputError
+from ldlmap.core.geometry import icosphere_points
+from ldlmap.core.lazy import lazy_module
 from ldlmap.lines3d.params import Lines3DParams, check_points
+
+csgraph = lazy_module("scipy.sparse.csgraph")
+ndimage = lazy_module("scipy.ndimage")
+sparse = lazy_module("scipy.sparse")
+spatial = lazy_module("scipy.spatial")
 
 
 def _knn(P: np.ndarray, k: int):
     """k-d tree of ``P`` (scipy ``cKDTree``), and the distances and indices (N, k) of each point's
     ``k`` nearest points, itself first: one query serves normals, the plane graph and later
     look-ups."""
-    from scipy.spatial import cKDTree
-
-    tree = cKDTree(P)
+    tree = spatial.cKDTree(P)
     dist, idx = tree.query(P, k=min(k, len(P)), workers=-1)
     return tree, dist.reshape(len(P), -1), idx.reshape(len(P), -1)
 
@@ -32,10 +37,8 @@ def _normals_and_curvature(P: np.ndarray, knn: np.ndarray) -> tuple[np.ndarray, 
     averaging matrix (first and second moments about the cloud's centroid, which keeps them
     well conditioned for scenes far from the origin).
     """
-    from scipy.sparse import csr_matrix
-
     n, k = knn.shape
-    A = csr_matrix((np.full(n * k, 1.0 / k), knn.ravel(), np.arange(0, n * k + 1, k)), shape=(n, n))
+    A = sparse.csr_matrix((np.full(n * k, 1.0 / k), knn.ravel(), np.arange(0, n * k + 1, k)), shape=(n, n))
     X = P - P.mean(0)
     a, b = np.triu_indices(3)
     M = A @ np.column_stack([X, X[:, a] * X[:, b]])
@@ -85,9 +88,7 @@ class PlaneRegions:
     @cached_property
     def tree(self):
         """k-d tree of the points (scipy ``cKDTree``), built once for every look-up."""
-        from scipy.spatial import cKDTree
-
-        return self.kdtree if self.kdtree is not None else cKDTree(self.points)
+        return self.kdtree if self.kdtree is not None else spatial.cKDTree(self.points)
 
 
 def voxel_cells(P: np.ndarray, v: float) -> tuple[np.ndarray, np.ndarray]:
@@ -163,19 +164,14 @@ def _dominant_orientations(normals: np.ndarray, params: Lines3DParams) -> np.nda
     axis of the normals within ``orient_radius_deg`` of it, those normals are removed, repeat while
     a peak holds ``min_orientation_points`` normals.
     """
-    from scipy.sparse import csr_matrix
-    from scipy.spatial import cKDTree
-
-    from ldlmap.core.geometry import icosphere_points
-
     V = np.asarray(icosphere_points(4))
-    tree = cKDTree(V)
+    tree = spatial.cKDTree(V)
     r = 2.0 * np.sin(np.radians(params.planes.orient_radius_deg) / 2.0)
     pairs = tree.query_pairs(r, output_type="ndarray")
     nv = len(V)
     rows = np.concatenate([pairs[:, 0], pairs[:, 1], np.arange(nv)])
     cols = np.concatenate([pairs[:, 1], pairs[:, 0], np.arange(nv)])
-    S = csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(nv, nv))
+    S = sparse.csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(nv, nv))
     _, vi = tree.query(normals)
     vj = tree.query(-V)[1][vi]  # the vertex nearest to -n: the antipode of n's (the icosphere is symmetric)
     alive = np.ones(len(normals), bool)
@@ -231,8 +227,6 @@ def _claim_planes(off: np.ndarray, voter: np.ndarray, free: np.ndarray, params: 
     ``plane_tol``, becomes a plane (offset: mean of those voters) that claims every free candidate
     within ``plane_tol``; its voters leave the histogram. Returns ``[(offset, claimed index)]``.
     """
-    from scipy.ndimage import gaussian_filter1d
-
     if voter.sum() < params.planes.min_plane_voters:
         return []
     b = params.planes.offset_bin
@@ -246,7 +240,7 @@ def _claim_planes(off: np.ndarray, voter: np.ndarray, free: np.ndarray, params: 
     k = int(round(params.planes.plane_tol / b))
     out = []
     for _ in range(params.planes.max_planes_per_orientation):
-        hs = gaussian_filter1d(h, params.planes.offset_sigma / b)
+        hs = ndimage.gaussian_filter1d(h, params.planes.offset_sigma / b)
         top = int(np.argmax(hs))
         cum = h[max(top - k, 0):top + k + 1].sum()
         if cum < params.planes.min_plane_voters:
@@ -280,9 +274,6 @@ def segment_planes(points: np.ndarray, params: Lines3DParams = Lines3DParams()) 
     into connected pieces (kNN links within ``link_dist``), pieces with fewer than
     ``min_region_points`` points are dropped, and each piece gets its own least-squares plane.
     """
-    from scipy.sparse import csr_matrix
-    from scipy.sparse.csgraph import connected_components
-
     P, v = _downsample(canonical_order(check_points(points)), params)
     if len(P) < max(params.planes.normal_k, 10):
         raise InputError(f"point cloud too small for line extraction ({len(P)} points)")
@@ -311,8 +302,8 @@ def segment_planes(points: np.ndarray, params: Lines3DParams = Lines3DParams()) 
     # Connected pieces of each plane.
     link = (lab[:, None] >= 0) & (lab[:, None] == lab[nbr]) & (dist <= params.planes.link_dist)
     indptr = np.concatenate([[0], np.cumsum(link.sum(1))])
-    g = csr_matrix((np.ones(indptr[-1], np.int8), nbr[link], indptr), shape=(n, n))
-    n_comp, comp = connected_components(g, directed=False)
+    g = sparse.csr_matrix((np.ones(indptr[-1], np.int8), nbr[link], indptr), shape=(n, n))
+    n_comp, comp = csgraph.connected_components(g, directed=False)
     comp = np.where(lab >= 0, comp, -1)
     sizes = np.bincount(comp[comp >= 0], minlength=n_comp)
     big = sizes >= params.planes.min_region_points

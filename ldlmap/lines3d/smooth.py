@@ -6,9 +6,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from ldlmap.core.lazy import lazy_module
 from ldlmap.lines3d.metrics import sample_segments
 from ldlmap.lines3d.params import Lines3DParams
 from ldlmap.lines3d.planes import voxel_cells
+
+spatial = lazy_module("scipy.spatial")
 
 
 def thin_points(P: np.ndarray, v: float) -> np.ndarray:
@@ -54,8 +57,6 @@ def smooth_lines(lines: np.ndarray, points: np.ndarray, params: Lines3DParams) -
     step (a frame standing out of a wall) keeps the sample an edge. Lines with at least half of
     their samples smooth are on a smooth surface.
     """
-    from scipy.spatial import cKDTree
-
     if len(lines) == 0 or params.smooth.crease_deg <= 0:
         return np.zeros(len(lines), bool)
     Q = points[thin_points(points, params.smooth.grid)]
@@ -68,7 +69,7 @@ def smooth_lines(lines: np.ndarray, points: np.ndarray, params: Lines3DParams) -
     e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
     e2 = np.cross(u, e1)
     k = min(params.smooth.neighbours, len(Q))
-    d, j = cKDTree(Q).query(x, k=k, distance_upper_bound=np.hypot(r1, params.smooth.slab), workers=-1)
+    d, j = spatial.cKDTree(Q).query(x, k=k, distance_upper_bound=np.hypot(r1, params.smooth.slab), workers=-1)
     d, j = d.reshape(len(x), -1), j.reshape(len(x), -1)
     R = Q[np.minimum(j, len(Q) - 1)] - x[:, None, :]  # (S, k, 3)
     along = np.einsum("skj,sj->sk", R, u[seg])

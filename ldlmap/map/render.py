@@ -1,6 +1,6 @@
 """Z-buffered point splatting of colored point clouds into equirectangular panoramas.
 
-The map's synthetic views (paper sec. 3.1, DESIGN.md 5.4) are rendered here. Projection follows
+The map's synthetic views (paper sec. 3.1) are rendered here. Projection follows
 :mod:`ldlmap.core.geometry` exactly (``p_cam = R (X - t)``, ``u / W = 1 - (atan2(y, x) + pi) / 2 pi``,
 ``v / H = atan2(hypot(x, y), z) / pi``, integer grid lines are pixel corners), but runs in torch
 so that the same code renders on CPU or CUDA.
