@@ -13,7 +13,7 @@ from ldlmap.lines3d.merge import join_lines, merge_collinear
 from ldlmap.lines3d.metrics import line_precision_recall
 from ldlmap.lines3d.outputs import draw_top_view, top_view_image, write_line_files
 from ldlmap.lines3d.params import (AlongParams, BoundaryParams, IntersectionParams, LinearParams, Lines3DParams,
-                                    MergeParams, PlaneParams, SmoothParams)
+                                   MergeParams, PlaneParams, SmoothParams)
 
 __all__ = ["AlongParams", "BoundaryParams", "IntersectionParams", "LinearParams", "Lines3DParams", "MergeParams",
            "PlaneParams", "SmoothParams", "draw_top_view", "extract_lines", "extract_lines_with_stats", "filter_by_length",

@@ -39,15 +39,15 @@ from typing import Any, Callable
 import numpy as np
 
 from ldlmap.core.errors import InputError
-from ldlmap.core.frame import (apply, check_extent, decompose, is_identity, parse_up, recentring_offset,
-                               scale_warning, similarity)
+from ldlmap.core.frame import (apply, check_extent, decompose, is_identity, parse_up, recentring_offset, scale_warning,
+                               similarity)
 from ldlmap.core.geometry import rotation_error_deg
 from ldlmap.core.timing import StageClock
 from ldlmap.features import available_backends, backend_for
 from ldlmap.features.sphere import check_extraction, default_extraction
 from ldlmap.io.linefiles import _check_segments
 from ldlmap.lines3d import extract_lines, filter_by_length, length_threshold, robust_bounds
-from ldlmap.lines3d.principal import (HORIZONTAL_DEG, FrameParams, assign_line_groups, line_directions,
+from ldlmap.lines3d.principal import (FrameParams, HORIZONTAL_DEG, assign_line_groups, line_directions,
                                       manhattan_frame, principal_directions_3d, principal_frame)
 from ldlmap.map.contents import LdlMap, MapFeatures
 from ldlmap.map.fields3d import FieldParams, compute_fields
