@@ -38,7 +38,7 @@ RETRIES = 3  # Ray re-runs a task (or restarts an actor) this many times when it
 def import_ray():
     """The ``ray`` module, or a one-line error saying how to install it."""
     try:
-        import ray
+        import ray  # here: a missing Ray becomes the one-line error below
     except ImportError:
         raise LdlError("--ray needs Ray: pip install 'ldl-toolkit[ray]' (or pip install 'ray[client]')") from None
     return ray

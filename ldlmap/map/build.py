@@ -45,7 +45,7 @@ from ldlmap.core.geometry import rotation_error_deg
 from ldlmap.core.timing import StageClock
 from ldlmap.features import available_backends, backend_for
 from ldlmap.features.sphere import check_extraction, default_extraction
-from ldlmap.io.linefiles import _check_segments
+from ldlmap.io.linefiles import check_segments
 from ldlmap.lines3d import extract_lines, filter_by_length, length_threshold, robust_bounds
 from ldlmap.lines3d.principal import (FrameParams, HORIZONTAL_DEG, assign_line_groups, line_directions,
                                       manhattan_frame, principal_directions_3d, principal_frame)
@@ -65,47 +65,76 @@ SCALE_RANGE = (1e-6, 1e6)  # --scale: metres per input unit accepted
 
 @dataclass(frozen=True)
 class BuildParams:
-    """Map-building parameters (paper defaults where the paper gives one)."""
+    """Map-building parameters (paper defaults where the paper gives one). Flat: the map stores them as
+    its config attribute (``asdict``), which must stay comparable across versions."""
 
-    lam: float = 0.1  # lambda: 3D length filter ratio
-    min_line_length: float | None = None  # absolute length threshold (m) instead of lambda's; for maps
-    # of several rooms, whose extent makes lambda's threshold longer than most of a room's lines
-    num_translations: int = 800  # N_t (800 OmniScenes, 1700 Stanford 2D-3D-S)
-    translation_method: str = "octree"  # octree (OmniScenes) | grid (Stanford)
-    clearance: float = 0.25  # candidate translations keep this distance (m) from the scan
-    features: str = "sift"  # sift | aliked | disk | xfeat | superpoint | none (ldlmap.features)
-    weights: str | None = None  # SuperPoint checkpoint path (else env var / cache / download)
-    num_views: int = 40  # views rendered for features; each translation uses its nearest view
-    width: int = 1024  # rendered view size (the queries' size)
+    lam: float = 0.1
+    """lambda: the 3D length filter's ratio to the robust extent (paper sec. 3.1)."""
+    min_line_length: float | None = None
+    """Absolute length threshold (m) instead of lambda's: maps of several rooms, whose extent makes lambda's
+    threshold longer than most of a room's lines."""
+    num_translations: int = 800
+    """N_t: candidate translations of a scan (800 OmniScenes, 1700 Stanford 2D-3D-S)."""
+    translation_method: str = "octree"
+    """How a scan's candidates are placed: octree (OmniScenes) | grid (Stanford)."""
+    clearance: float = 0.25
+    """Candidate translations keep this distance (m) from the scan."""
+    features: str = "sift"
+    """Local features: sift | aliked | disk | xfeat | superpoint | none (:mod:`ldlmap.features`)."""
+    weights: str | None = None
+    """SuperPoint checkpoint path (else env var / cache / download)."""
+    num_views: int = 40
+    """Views rendered for features; each translation uses its nearest view."""
+    width: int = 1024
+    """Rendered view width (the queries' size)."""
     height: int = 512
-    max_keypoints: int | None = None  # per rendered view (None: the backend's max_keypoints)
-    feature_extraction: str | None = None  # equirect (the panorama) | cube (its six 90-degree faces;
-    # ldlmap.features.sphere), for the map's views and, as the map records it, the queries; None: the
-    # backend's default (cube for aliked, equirect for the others: ldlmap.features.sphere.default_extraction)
-    stored_cloud_points: int = 200_000  # subsampled colored cloud kept in the map for pictures
-    mesh_samples: int = 1_000_000  # points sampled from a mesh input
-    device: str = "cpu"  # torch device for rendering and SuperPoint
+    """Rendered view height."""
+    max_keypoints: int | None = None
+    """Keypoints per rendered view (None: the backend's max_keypoints)."""
+    feature_extraction: str | None = None
+    """equirect (the panorama) | cube (its six 90-degree faces; :mod:`ldlmap.features.sphere`), for the map's
+    views and, as the map records it, the queries; None: the backend's default (``default_extraction``)."""
+    stored_cloud_points: int = 200_000
+    """Subsampled colored cloud kept in the map for pictures."""
+    mesh_samples: int = 1_000_000
+    """Points sampled from a mesh input."""
+    device: str = "cpu"
+    """Torch device for rendering and SuperPoint."""
     seed: int = 0
-    distance_fields: bool = True  # precompute 3D distance fields (fast pose search, ldlmap.map.fields3d)
-    trans_spacing: float = 0.3  # maps without a scan (layouts, line files): candidate translations on a
-    # lattice this many metres apart (a true camera is then within spacing / sqrt(2) in xy)
-    camera_height: tuple[float, float] | None = None  # camera-height band (metres above the floor) for candidate
-    # translations: a scan's N_t go to its free space in the band (its floor: the robust lowest z); maps without a
-    # scan: world z. None: a scan's free space from floor to ceiling; the layout's band when known
-    up: str = "auto"  # the input's up axis: auto (cameras, else the lines; ldlmap.sfm.gravity) | x | y | z | -x | -y | -z
-    scale: float = 1.0  # input coordinates are multiplied by this first (SfM frames: metres per unit)
-    min_kept_lines: int = 100  # length filter floor: keep at least min(this, half the lines), the longest ...
-    min_kept_length_share: float = 0.6  # ... and the longest holding this share of the total line length
-    # (below what the paper's threshold keeps of a scan, far above an SfM map's: docs/measurements.md#length-share)
-    max_kept_lines: int = 3000  # length filter cap: keep at most this many, the longest
-    orthonormal_directions: bool = True  # principal directions: the nearest Manhattan frame (paper's assumption)
-    atlanta_frame: bool = True  # ... or, when the main horizontals are far from perpendicular, an Atlanta frame
-    # (the vertical and those two; ldlmap.lines3d.principal.principal_frame). False: always Manhattan
-    max_horizontals: int = 4  # Atlanta frames: at most this many horizontal directions, where the walls run
-    # in more than two (FrameParams.max_horizontals; 2: the vertical and the main two only)
-    max_inclined: int = 2  # sloped ceilings: at most this many inclined directions added to the frame
-    # (FrameParams.max_inclined; 0: none)
-    stations: tuple[str, ...] = ()  # E57 input: the scan stations to use, names or 0-based indices (all when empty)
+    """Seed of the view sampling and the stored cloud's subsample."""
+    distance_fields: bool = True
+    """Precompute 3D distance fields (fast pose search, :mod:`ldlmap.map.fields3d`)."""
+    trans_spacing: float = 0.3
+    """Maps without a scan (layouts, line files): candidate translations on a lattice this many metres apart
+    (a true camera is then within spacing / sqrt(2) in xy)."""
+    camera_height: tuple[float, float] | None = None
+    """Camera-height band (metres above the floor) for candidate translations: a scan's N_t go to its free
+    space in the band (its floor: the robust lowest z); maps without a scan: world z. None: a scan's free space
+    from floor to ceiling; the layout's band when known."""
+    up: str = "auto"
+    """The input's up axis: auto (cameras, else the lines; :mod:`ldlmap.sfm.gravity`) | x | y | z | -x | -y | -z."""
+    scale: float = 1.0
+    """Input coordinates are multiplied by this first (SfM frames: metres per unit; :data:`SCALE_RANGE`)."""
+    min_kept_lines: int = 100
+    """Length filter floor: keep at least min(this, half the lines), the longest, ..."""
+    min_kept_length_share: float = 0.6
+    """... and the longest holding this share of the total line length (below what the paper's threshold keeps
+    of a scan, far above an SfM map's: docs/measurements.md#length-share)."""
+    max_kept_lines: int = 3000
+    """Length filter cap: keep at most this many, the longest."""
+    orthonormal_directions: bool = True
+    """Principal directions: the nearest Manhattan frame (paper's assumption), ..."""
+    atlanta_frame: bool = True
+    """... or, when the main horizontals are far from perpendicular, an Atlanta frame (the vertical and those
+    two; :func:`ldlmap.lines3d.principal.principal_frame`). False: always Manhattan."""
+    max_horizontals: int = 4
+    """Atlanta frames: at most this many horizontal directions, where the walls run in more than two
+    (``FrameParams.max_horizontals``; 2: the vertical and the main two only)."""
+    max_inclined: int = 2
+    """Sloped ceilings: at most this many inclined directions added to the frame (``FrameParams.max_inclined``;
+    0: none)."""
+    stations: tuple[str, ...] = ()
+    """E57 input: the scan stations to use, names or 0-based indices (all when empty)."""
 
 
 @dataclass
@@ -203,7 +232,7 @@ def build_lines_map(lines: np.ndarray, output: str | Path, params: BuildParams =
     """
     check_params(params)
     output = Path(output)
-    segs = _check_segments(lines, name or "lines")
+    segs = check_segments(lines, name or "lines")
     src = SceneInput(None, None, segs, None, source, walkable)
     return build_from_input(src, output, params, name or output.stem, progress, {"input": source, "lines_file": None})
 
