@@ -83,7 +83,7 @@ def lines_only_maps(dataset: Path, ds, scene: str, band: tuple[float, float]) ->
     if not scan_obj.exists():
         cloud = read_point_cloud(ds.point_cloud(scene))
         t0 = time.perf_counter()
-        segs = extract_lines(cloud.points, cloud.colors, Lines3DParams())
+        segs = extract_lines(cloud.points, Lines3DParams())
         extract_s = time.perf_counter() - t0
         write_lines(scan_obj, segs)
     sources = {"true_edges": dataset / "gt_lines" / f"{scene}.obj", "scan_lines": scan_obj}

@@ -59,21 +59,21 @@ def observable(edges: np.ndarray, points: np.ndarray, radius: float = 0.03, cove
     """Edges with at least ``cover`` of their length within ``radius`` of a scan point."""
     from scipy.spatial import cKDTree
 
-    from ldlmap.lines3d.metrics import _sample_segments
+    from ldlmap.lines3d.metrics import sample_segments
 
-    x, seg = _sample_segments(edges, 0.01)
+    x, seg = sample_segments(edges, 0.01)
     d, _ = cKDTree(points).query(x, distance_upper_bound=radius, workers=-1)
     return np.bincount(seg, np.isfinite(d), len(edges)) / np.bincount(seg, minlength=len(edges)) >= cover
 
 
 def found_mask(gt: np.ndarray, pred: np.ndarray) -> np.ndarray:
     """Per true edge: found by ``pred`` under the metric of :func:`line_precision_recall`."""
-    from ldlmap.lines3d.metrics import _covered, _sample_segments
+    from ldlmap.lines3d.metrics import covered_samples, sample_segments
 
-    x, seg = _sample_segments(gt, 0.01)
+    x, seg = sample_segments(gt, 0.01)
     d = gt[:, 1] - gt[:, 0]
     d /= np.linalg.norm(d, axis=1, keepdims=True)
-    cov = _covered(x, d[seg], pred, 0.05, np.cos(np.radians(5.0)))
+    cov = covered_samples(x, d[seg], pred, 0.05, np.cos(np.radians(5.0)))
     return np.bincount(seg, cov, len(gt)) / np.bincount(seg, minlength=len(gt)) >= 0.7
 
 

@@ -1,19 +1,51 @@
 """``ldlmap``: the offline side of the LDL toolkit (maps, lines, synthetic data).
 
-The commands only parse arguments and call library functions; heavy imports happen inside the
-commands so that ``ldlmap --help`` answers instantly.
+The commands only parse arguments and call library functions. numpy and the modules that carry
+out a command are named here through :func:`~ldlmap.core.lazy.lazy_module`: they load when a
+command runs, so that ``ldlmap --help`` answers instantly.
 """
 
 from __future__ import annotations
 
+import math
+import os
 from pathlib import Path
 from typing import Optional
 
 import typer
+from rich.table import Table
 
 from ldlmap.core.cli_common import (DATASET_HELP, StageProgress, check_device, check_range, check_threads, console,
-                                    dataset_label, make_app, open_dataset_root, ray_option, refuse_map_level,
-                                    set_threads, threads_option)
+                                    dataset_label, err_console, make_app, open_dataset_root, ray_option,
+                                    refuse_map_level, set_threads, threads_option)
+from ldlmap.core.errors import (InputError, LdlError, check_writable_output, refuse_overwriting_inputs,
+                                refuse_replacing_other_files)
+from ldlmap.core.lazy import lazy_module
+
+np = lazy_module("numpy")
+batch_prepare = lazy_module("ldlmap.batch.prepare")
+core_frame = lazy_module("ldlmap.core.frame")
+core_pictures = lazy_module("ldlmap.core.pictures")
+datasets = lazy_module("ldlmap.datasets")
+features_sphere = lazy_module("ldlmap.features.sphere")
+ifc_maps = lazy_module("ldlmap.map.ifc_maps")
+io_cloud = lazy_module("ldlmap.io.cloud")
+io_e57 = lazy_module("ldlmap.io.e57")
+io_ifc = lazy_module("ldlmap.io.ifc")
+io_linefiles = lazy_module("ldlmap.io.linefiles")
+io_pointcloud = lazy_module("ldlmap.io.pointcloud")
+lines3d = lazy_module("ldlmap.lines3d")
+lines_principal = lazy_module("ldlmap.lines3d.principal")
+map_build = lazy_module("ldlmap.map.build")
+map_inputs = lazy_module("ldlmap.map.inputs")
+map_pictures = lazy_module("ldlmap.map.pictures")
+mapfile = lazy_module("ldlmap.map.mapfile")
+omniscenes = lazy_module("ldlmap.datasets.omniscenes")
+ray_cluster = lazy_module("ldlmap.batch.ray_cluster")
+ray_prepare = lazy_module("ldlmap.batch.ray_prepare")
+scanner_images = lazy_module("ldlmap.datasets.scanner_images")
+synth_capture = lazy_module("ldlmap.synth.capture")
+synth_generate = lazy_module("ldlmap.synth.generate")
 
 app = make_app("ldlmap", "Build LDL maps (3D lines, principal directions, features) and synthetic datasets.")
 
@@ -46,18 +78,14 @@ def info(map_path: Path = typer.Argument(..., metavar="MAP", help="An LDL map (.
 
     The whole map is read and validated first (layout, values, checksums): a damaged map fails
     with one line."""
-    from rich.table import Table
 
-    from ldlmap.core.errors import check_writable_output, refuse_overwriting_inputs
-    from ldlmap.core.pictures import check_picture_path
-    from ldlmap.map.mapfile import read_map, read_map_header
 
     if png is not None:
-        check_picture_path(png, "--png")
+        core_pictures.check_picture_path(png, "--png")
         refuse_overwriting_inputs([map_path], [png])
         check_writable_output(png, "--png")
-    m = read_map(map_path)
-    h = read_map_header(map_path)
+    m = mapfile.read_map(map_path)
+    h = mapfile.read_map_header(map_path)
     table = Table(title=f"LDL map {map_path}", show_header=False)
     table.add_column("field", style="bold")
     table.add_column("value")
@@ -82,9 +110,8 @@ def info(map_path: Path = typer.Argument(..., metavar="MAP", help="An LDL map (.
         table.add_row(k, v)
     console.print(table)
     if png is not None:
-        from ldlmap.map.pictures import map_picture
 
-        map_picture(m, png, name=map_path.name)
+        map_pictures.map_picture(m, png, name=map_path.name)
         console.print(f"wrote {png}", soft_wrap=True)
 
 
@@ -100,8 +127,6 @@ def _scene_name(stored: str, map_path: Path) -> str:
 def _principal_rows(header: dict) -> list[tuple[str, str]]:
     """Table rows: the K principal directions (unit vectors, world frame) with their line counts,
     the angles between them (of the first 3: more are horizontals), and the lines in no group."""
-    import numpy as np
-
     P, counts = np.asarray(header["principal_directions"], dtype=np.float64), header["line_group_counts"]
     vecs = "\n".join(f"d{i} = [{P[i, 0]: .4f}, {P[i, 1]: .4f}, {P[i, 2]: .4f}]"
                      + (f"  {counts[i]} lines" if counts else "") for i in range(len(P)))
@@ -130,9 +155,7 @@ def _translations_summary(header: dict) -> str:
 def parse_band(text: Optional[str], option: str) -> Optional[tuple[float, float]]:
     """``"MIN:MAX"`` as a (min, max) pair of finite heights with 0 <= min <= max, max > 0 (None stays
     None); whether the band meets the scene is checked by the build (``scene_translations``)."""
-    import math
 
-    from ldlmap.core.errors import InputError
 
     if text is None:
         return None
@@ -160,63 +183,49 @@ def lines(
                                    "files (line files written before are replaced without it)."),
 ) -> None:
     """Extract 3D line segments from a point cloud and write them as .obj and .txt."""
-    from ldlmap.core.errors import (LdlError, check_writable_output, refuse_overwriting_inputs,
-                                    refuse_replacing_other_files)
-    from ldlmap.io.cloud import DEFAULT_MESH_SAMPLES
-    from ldlmap.io.linefiles import sniff_line_file
-    from ldlmap.io.pointcloud import read_point_cloud
-    from ldlmap.map.inputs import SCANNER_SUFFIXES, read_scanner_file
-    from ldlmap.lines3d import draw_top_view, extract_lines_with_stats, filter_by_length, write_line_files
-    from ldlmap.core.pictures import check_picture_path
-    from ldlmap.lines3d.principal import principal_directions_3d
-
     check_range(lam, "--lambda", 0.0, 1.0)
     if png is not None:
-        check_picture_path(png, "--png")
+        core_pictures.check_picture_path(png, "--png")
     if output.is_dir():
         raise LdlError(f"output {output} is a folder; give a file name (e.g. {output / 'lines.obj'})")
     line_outputs = [output.with_suffix(".obj"), output.with_suffix(".txt")]
     refuse_overwriting_inputs([input_path], [*line_outputs, png])
     for path in line_outputs:
-        refuse_replacing_other_files(path, lambda p: sniff_line_file(p) is not None, "a 3D line file", overwrite)
+        refuse_replacing_other_files(path, lambda p: io_linefiles.sniff_line_file(p) is not None, "a 3D line file", overwrite)
     for path, option in ((line_outputs[0], "-o"), (png, "--png")):
         if path is not None:
             check_writable_output(path, option)
     _refuse_line_file(input_path)
-    if input_path.suffix.lower() in SCANNER_SUFFIXES:  # E57, LAS/LAZ, glTF (docs/inputs.md)
-        pc, note = read_scanner_file(input_path, DEFAULT_MESH_SAMPLES)
+    if input_path.suffix.lower() in map_inputs.SCANNER_SUFFIXES:  # E57, LAS/LAZ, glTF (docs/inputs.md)
+        pc, note = map_inputs.read_scanner_file(input_path, io_cloud.DEFAULT_MESH_SAMPLES)
         console.print(note, soft_wrap=True, highlight=False)
     else:
-        pc = read_point_cloud(input_path)
+        pc = io_pointcloud.read_point_cloud(input_path)
     _check_scan_extent(pc.points)
-    raw, stats = extract_lines_with_stats(pc.points)
+    raw, stats = lines3d.extract_lines_with_stats(pc.points)
     lo, hi = pc.bounds()
-    kept, mask, thr = filter_by_length(raw, lo, hi, lam=lam)
+    kept, mask, thr = lines3d.filter_by_length(raw, lo, hi, lam=lam)
     out_lines = raw if no_filter else kept
     if len(out_lines) == 0:
         raise LdlError(f"no 3D lines found in {input_path}")
-    paths = write_line_files(output, out_lines)
+    paths = lines3d.write_line_files(output, out_lines)
     console.print(f"{len(pc)} points -> {stats['planes']} planes -> {len(raw)} lines; length threshold "
                   f"{thr:.3f} m keeps {len(kept)} (kept ratio {mask.mean():.3f})"
                   + (" [filter off: all lines written]" if no_filter else ""), soft_wrap=True)
     console.print("wrote " + ", ".join(str(p) for p in paths), soft_wrap=True)
     if png is not None:
-        principal = principal_directions_3d(out_lines) if len(out_lines) else None
-        draw_top_view(out_lines, png, principal=principal, dropped=None if no_filter else raw[~mask])
+        principal = lines_principal.principal_directions_3d(out_lines) if len(out_lines) else None
+        lines3d.draw_top_view(out_lines, png, principal=principal, dropped=None if no_filter else raw[~mask])
         console.print(f"wrote {png}", soft_wrap=True)
 
 
 def _check_scan_extent(points) -> None:
     """Before extracting lines: refuse, as `build` does, a scan whose extent is not in metres
     (millimetres, or an extent whose grids would not fit in memory)."""
-    import numpy as np
 
-    from ldlmap.core.errors import InputError
-    from ldlmap.core.frame import check_extent
-    from ldlmap.lines3d import robust_bounds
 
     try:
-        check_extent(np.subtract(*robust_bounds(points)[::-1]))
+        core_frame.check_extent(np.subtract(*lines3d.robust_bounds(points)[::-1]))
     except InputError as exc:  # `lines` has no --scale: convert the scan, or let `build` scale it
         raise InputError(str(exc).split(" A map must")[0] + " Lines are extracted in metres: convert the scan, or "
                          "build the map with `ldlmap build SCAN --scale 0.001`") from None
@@ -224,12 +233,9 @@ def _check_scan_extent(points) -> None:
 
 def _refuse_line_file(path: Path) -> None:
     """One line saying what to do when `ldlmap lines` is given a 3D line file instead of a scan."""
-    from ldlmap.core.errors import InputError
-    from ldlmap.io.linefiles import LINE_FORMAT_NAMES, sniff_line_file
-
-    kind = sniff_line_file(path) if path.is_file() else None
+    kind = io_linefiles.sniff_line_file(path) if path.is_file() else None
     if kind is not None:
-        raise InputError(f"{path} is a 3D line file ({LINE_FORMAT_NAMES[kind]}), not a scan: it has its lines "
+        raise InputError(f"{path} is a 3D line file ({io_linefiles.LINE_FORMAT_NAMES[kind]}), not a scan: it has its lines "
                          f"already; build a map with `ldlmap build {path}` (lines-only) or "
                          f"`ldlmap build SCAN --lines {path}`")
 
@@ -251,24 +257,18 @@ def synth(
     quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
 ) -> None:
     """Generate a synthetic panoramic dataset: scans, meshes, 3D edges, panoramas with poses."""
-    from rich.table import Table
 
-    from ldlmap.core.errors import InputError, refuse_overwriting_inputs
-    from ldlmap.datasets.omniscenes import written_by_synth
-    from ldlmap.synth.capture import (MAX_PER_SPLIT, MAX_WIDTH, MIN_WIDTH, check_dataset_seed, files_not_generated,
-                                      refuse_replacing_other_dataset)
-    from ldlmap.synth.generate import generate_dataset
 
     if spec and preset:
         raise InputError("use either --preset or --spec, not both")
-    check_dataset_seed(seed)
-    check_range(width, "--width", MIN_WIDTH, MAX_WIDTH, integer=True,
+    synth_capture.check_dataset_seed(seed)
+    check_range(width, "--width", synth_capture.MIN_WIDTH, synth_capture.MAX_WIDTH, integer=True,
                 why="rendering holds about 450 bytes per pixel")
-    check_range(per_split, "--per-split", 0, MAX_PER_SPLIT, integer=True)
+    check_range(per_split, "--per-split", 0, synth_capture.MAX_PER_SPLIT, integer=True)
     refuse_overwriting_inputs(spec or [], [out])
-    refuse_replacing_other_dataset(out, overwrite)
-    kept = files_not_generated(out) if overwrite and written_by_synth(out) else []
-    s = generate_dataset(out, preset=preset, spec_paths=spec or [], seed=seed, overwrite=overwrite,
+    synth_capture.refuse_replacing_other_dataset(out, overwrite)
+    kept = synth_capture.files_not_generated(out) if overwrite and omniscenes.written_by_synth(out) else []
+    s = synth_generate.generate_dataset(out, preset=preset, spec_paths=spec or [], seed=seed, overwrite=overwrite,
                          progress=not quiet, illumination=not no_illumination, width=width, per_split=per_split)
     table = Table(title=f"synthetic dataset {s.out} (seed {s.seed}, {s.width}x{s.height})")
     table.add_column("split")
@@ -327,39 +327,34 @@ def build(
     threads: int = threads_option(),
 ) -> None:
     """Build an LDL map (3D lines, principal directions, translations, features) from a scan."""
-    from rich.table import Table
 
-    from ldlmap.map.build import BuildParams, build_map, params_with
-    from ldlmap.core.errors import check_writable_output, refuse_overwriting_inputs
-    from ldlmap.core.pictures import check_picture_path
-    from ldlmap.batch.prepare import refuse_replacing_non_map
 
     check_build_options(num_trans=num_trans, num_views=num_views, lam=lam, min_length=min_length,
                         trans_spacing=trans_spacing, scale=scale, device=device, extraction=extraction,
                         threads=threads)
     if png is not None:
-        check_picture_path(png, "--png")
+        core_pictures.check_picture_path(png, "--png")
     station_list = _check_input_options(input_path, stations, storey, include, lines_file, images)
     if input_path.suffix.lower() == ".ifc":
         return _build_ifc(input_path, output, storey, include, png, overwrite, threads,
-                          params_with(BuildParams(), num_views=num_views, lam=lam, min_line_length=min_length,
+                          map_build.params_with(map_build.BuildParams(), num_views=num_views, lam=lam, min_line_length=min_length,
                                       device=device, trans_spacing=trans_spacing, up=up, scale=scale,
                                       camera_height=parse_band(camera_height, "--camera-height")))
     output = output if output is not None else input_path.with_suffix(".h5")
     refuse_overwriting_inputs([input_path, lines_file, images, weights], [output, png])
-    refuse_replacing_non_map(output, overwrite)
+    batch_prepare.refuse_replacing_non_map(output, overwrite)
     for path, option in ((output, "-o"), (png, "--png")):
         if path is not None:
             check_writable_output(path, option)
 
-    params = params_with(BuildParams(), features=features, weights=str(weights) if weights else None,
+    params = map_build.params_with(map_build.BuildParams(), features=features, weights=str(weights) if weights else None,
                          feature_extraction=extraction, num_translations=num_trans, translation_method=method,
                          num_views=num_views, lam=lam, min_line_length=min_length, device=device, trans_spacing=trans_spacing,
                          camera_height=parse_band(camera_height, "--camera-height"), up=up, scale=scale,
                          stations=station_list)
     set_threads(threads)
     with StageProgress(console, f"map of {input_path.name}") as bar:
-        report = build_map(input_path, output, lines_file, params, images_path=images,
+        report = map_build.build_map(input_path, output, lines_file, params, images_path=images,
                            progress=lambda stage, done, total: bar.stage(input_path.name, stage, done, total))
     if report.counts.get("note"):
         console.print(report.counts["note"], soft_wrap=True)
@@ -375,18 +370,14 @@ def build(
                   f"({params.features if c['views'] else 'no features'}), {c['size_mb']:.1f} MB", soft_wrap=True)
     _print_notes(report)
     if png is not None:
-        from ldlmap.map.mapfile import read_map
-        from ldlmap.map.pictures import map_picture
 
-        map_picture(read_map(report.path), png, name=Path(report.path).name)
+        map_pictures.map_picture(mapfile.read_map(report.path), png, name=Path(report.path).name)
         console.print(f"wrote {png}", soft_wrap=True)
 
 
 def _check_input_options(input_path: Path, stations: Optional[str], storey: Optional[str], include: Optional[str],
                          lines_file: Optional[Path], images: Optional[Path]) -> Optional[tuple[str, ...]]:
     """The options that go with one kind of input only, before any work; the E57 stations as a tuple."""
-    from ldlmap.core.errors import InputError
-
     suffix = input_path.suffix.lower()
     if stations is not None and suffix != ".e57":
         raise InputError(f"--stations goes with an E57 scan, not {input_path.name}")
@@ -406,15 +397,10 @@ def _check_input_options(input_path: Path, stations: Optional[str], storey: Opti
 def _build_ifc(model: Path, output: Optional[Path], storey: Optional[str], include: Optional[str], png: Optional[Path],
                overwrite: bool, threads: int, params) -> None:
     """`build MODEL.ifc`: one lines-only map per storey (ldlmap/map/ifc_maps.py), or the --storey's."""
-    from ldlmap.batch.prepare import refuse_replacing_non_map
-    from ldlmap.core.errors import InputError, check_writable_output, refuse_overwriting_inputs
-    from ldlmap.io.ifc import open_ifc, storey_names
-    from ldlmap.map.ifc_maps import build_ifc_maps, storey_outputs
-
     classes = tuple(c.strip() for c in include.split(",")) if include is not None else ()
     if include is not None and not all(classes):
         raise InputError(f"--include must be IFC class names separated by commas, got {include!r}")
-    names = storey_names(open_ifc(model))
+    names = io_ifc.storey_names(io_ifc.open_ifc(model))
     if not names:
         raise InputError(f"IFC model has no storeys (IfcBuildingStorey): {model}; maps are built per storey")
     if storey is not None:
@@ -423,14 +409,14 @@ def _build_ifc(model: Path, output: Optional[Path], storey: Optional[str], inclu
         names = [storey]
     if png is not None and len(names) > 1:
         raise InputError("--png draws one map: pick a storey with --storey NAME")
-    outputs = storey_outputs(model, names, output)
+    outputs = ifc_maps.storey_outputs(model, names, output)
     refuse_overwriting_inputs([model], [*outputs.values(), png])
     for path in outputs.values():
-        refuse_replacing_non_map(path, overwrite)
+        batch_prepare.refuse_replacing_non_map(path, overwrite)
         check_writable_output(path, "-o")
     set_threads(threads)
     with StageProgress(console, f"maps of {model.name}", total=len(names), unit="storeys") as bar:
-        reports, note = build_ifc_maps(model, outputs, params, classes,
+        reports, note = ifc_maps.build_ifc_maps(model, outputs, params, classes,
                                        progress=lambda name, stage, done, total: bar.stage(name, stage, done, total))
     console.print(note, soft_wrap=True, highlight=False)
     for r in reports:
@@ -439,10 +425,8 @@ def _build_ifc(model: Path, output: Optional[Path], storey: Optional[str], inclu
                       f"lines-only ({r.seconds['total']:.1f} s)", soft_wrap=True, highlight=False)
         _print_notes(r)
     if png is not None:
-        from ldlmap.map.mapfile import read_map
-        from ldlmap.map.pictures import map_picture
 
-        map_picture(read_map(reports[0].path), png, name=Path(reports[0].path).name)
+        map_pictures.map_picture(mapfile.read_map(reports[0].path), png, name=Path(reports[0].path).name)
         console.print(f"wrote {png}", soft_wrap=True)
 
 
@@ -458,19 +442,15 @@ def e57(
 
     Pinhole and cylindrical images (and spherical ones that do not cover the whole sphere) are
     listed and skipped: the maps are localized with panoramas."""
-    import numpy as np
 
-    from ldlmap.core.errors import refuse_overwriting_inputs
-    from ldlmap.io.e57 import e57_images, station_names
 
-    names = station_names(scan)
-    listed = e57_images(scan)
+    names = io_e57.station_names(scan)
+    listed = io_e57.e57_images(scan)
     done = None
     if images is not None:  # written (or refused in one line) before anything is printed
-        from ldlmap.datasets.scanner_images import write_e57_dataset
 
         refuse_overwriting_inputs([scan], [images])
-        done = write_e57_dataset(scan, images, overwrite)
+        done = scanner_images.write_e57_dataset(scan, images, overwrite)
     console.print(f"{scan}: {len(names)} station(s): " + ", ".join(f"{i}:{n}" for i, n in enumerate(names)),
                   soft_wrap=True, highlight=False)
     for im in listed:
@@ -501,18 +481,16 @@ def check_build_options(num_trans: Optional[int] = None, num_views: Optional[int
     check_range(lam, "--lambda", 0.0, 1.0)
     check_range(min_length, "--min-line-length", 0.0, 1000.0)
     check_range(trans_spacing, "--trans-spacing", 1e-3, 1e6, why="input units between candidate translations")
-    check_range(scale, "--scale", 1e-6, 1e6, why="metres per input unit")
+    if scale is not None:
+        map_build.check_scale(scale)
     check_device(device)
     if extraction is not None:
-        from ldlmap.features.sphere import check_extraction
 
-        check_extraction(extraction)
+        features_sphere.check_extraction(extraction)
 
 
 def _print_notes(report) -> None:
     """The build's notes on stdout and its warnings as ``warning:`` lines on stderr."""
-    from ldlmap.core.cli_common import err_console
-
     for line in report.notes:
         console.print(line, soft_wrap=True, highlight=False)
     for line in report.warnings:
@@ -547,15 +525,10 @@ def prepare(
     """Build one map per scene of a dataset root, skipping maps that are up to date.
 
     With --ray, one Ray task per scene (one GPU each with --device cuda)."""
-    from rich.table import Table
 
-    from ldlmap.map.build import params_with
-    from ldlmap.datasets import MAP_LEVELS
-    from ldlmap.core.errors import InputError
-    from ldlmap.batch.prepare import LINES_ONLY_NOTE, default_params
 
-    if map_level is not None and map_level not in MAP_LEVELS:
-        raise InputError(f"--map-level must be {' or '.join(MAP_LEVELS)}, got {map_level!r}")
+    if map_level is not None and map_level not in datasets.MAP_LEVELS:
+        raise InputError(f"--map-level must be {' or '.join(datasets.MAP_LEVELS)}, got {map_level!r}")
     check_build_options(num_trans=num_trans, num_views=num_views, trans_spacing=trans_spacing, scale=scale,
                         device=device, extraction=extraction, threads=threads)
     band = parse_band(camera_height, "--camera-height")
@@ -575,17 +548,15 @@ def prepare(
         ds.scenes()  # reads and validates every home's zind_data.json before anything is printed
         _print_warnings(w for home in ds.splits() for w in ds.home(home).warnings)
         console.print(f"ZInD: lines-only maps from the room layouts, one per {map_level} (features: none)")
-    params = params_with(default_params(kind), features=features or ("none" if kind == "zind" else "sift"),
+    params = map_build.params_with(batch_prepare.default_params(kind), features=features or ("none" if kind == "zind" else "sift"),
                          weights=str(weights) if weights else None, feature_extraction=extraction,
                          num_translations=num_trans, num_views=num_views,
                          device=device, trans_spacing=trans_spacing, camera_height=band, up=up, scale=scale)
     options = dict(overwrite=overwrite, use_line_files=line_files, scenes=scene or None, map_level=map_level)
     if ray is not None:  # one Ray task per scene (ldlmap/batch/ray_prepare.py)
-        from ldlmap.batch.ray_cluster import ThroughputBar
-        from ldlmap.batch.ray_prepare import prepare_dataset_ray
 
-        with ThroughputBar(console, "scenes") as bar:
-            outcomes = prepare_dataset_ray(root, kind, maps, params, progress=bar, address=ray, threads=threads,
+        with ray_cluster.ThroughputBar(console, "scenes") as bar:
+            outcomes = ray_prepare.prepare_dataset_ray(root, kind, maps, params, progress=bar, address=ray, threads=threads,
                                            **options)
     else:
         set_threads(threads)
@@ -597,7 +568,7 @@ def prepare(
         secs = f"{o.report.seconds['total']:.1f}" if o.report else "-"
         table.add_row(o.scene, o.status, str(o.map_path), secs, o.message)
     console.print(table)
-    lines_only = [o.scene for o in outcomes if o.message == LINES_ONLY_NOTE]
+    lines_only = [o.scene for o in outcomes if o.message == batch_prepare.LINES_ONLY_NOTE]
     if lines_only:
         console.print(f"{len(lines_only)} scene(s) without a scan, lines-only map(s) from their line files (features "
                       f"none): {', '.join(lines_only)}", soft_wrap=True)
@@ -608,8 +579,6 @@ def prepare(
 
 def _print_warnings(lines) -> None:
     """Each line as a ``warning:`` on stderr."""
-    from ldlmap.core.cli_common import err_console
-
     for line in lines:
         err_console.print(f"[bold yellow]warning:[/] {line}", soft_wrap=True, highlight=False)
 
@@ -617,9 +586,7 @@ def _print_warnings(lines) -> None:
 def _check_maps_folder(maps: Path, given: bool) -> None:
     """One line before any work when the maps cannot be written where they would go (a dataset
     folder is often read-only): where to put them instead."""
-    import os
 
-    from ldlmap.core.errors import InputError
 
     existing = next((p for p in (maps, *maps.parents) if p.exists()), Path("."))
     if not (existing.is_dir() and os.access(existing, os.W_OK)):
@@ -632,8 +599,6 @@ def _check_maps_folder(maps: Path, given: bool) -> None:
 def _prepare_with_progress(ds, root: Path, kind: str, maps: Optional[Path], params, scene: Optional[list[str]],
                            options: dict) -> list:
     """``prepare_dataset`` on this machine, showing the scenes done and each build's running stage."""
-    from ldlmap.batch.prepare import prepare_dataset
-
     done_scenes: set[str] = set()
     with StageProgress(console, "maps", total=len(scene or ds.scenes()), unit="scenes") as bar:
         def progress(scene_name: str, stage: str, done: int, total: int) -> None:
@@ -642,7 +607,7 @@ def _prepare_with_progress(ds, root: Path, kind: str, maps: Optional[Path], para
                 done_scenes.add(scene_name)
                 bar.job_done(len(done_scenes))
 
-        return prepare_dataset(root, kind, maps, params, progress=progress, **options)
+        return batch_prepare.prepare_dataset(root, kind, maps, params, progress=progress, **options)
 
 
 if __name__ == "__main__":  # python3 -m ldlmap.cli

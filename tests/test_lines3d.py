@@ -7,7 +7,7 @@ import pytest
 
 from tests._room_cloud import box_room
 from ldlmap.core.errors import InputError
-from ldlmap.lines3d import (Lines3DParams, extract_lines, extract_lines_with_stats, filter_by_length,
+from ldlmap.lines3d import (Lines3DParams, PlaneParams, extract_lines, extract_lines_with_stats, filter_by_length,
                             length_threshold, line_precision_recall, merge_collinear, robust_bounds)
 
 
@@ -213,7 +213,7 @@ def test_extract_lines_bad_input():
     with pytest.raises(InputError):
         extract_lines(P)
     with pytest.raises(InputError):
-        extract_lines(np.zeros((5, 3)), params=Lines3DParams(voxel_size=0))
+        extract_lines(np.zeros((5, 3)), params=Lines3DParams(planes=PlaneParams(voxel_size=0)))
 
 
 # ------------------------------------------------------------------------------------ CLI
@@ -382,13 +382,13 @@ def test_downsample_is_open3d_voxel_grid_in_z_order():
 
     rng = np.random.default_rng(3)
     P = rng.uniform([0, 0, 0], [4, 3, 2.5], (30_000, 3))
-    Q, v = _downsample(P, Lines3DParams(voxel_size=0.1))
+    Q, v = _downsample(P, Lines3DParams(planes=PlaneParams(voxel_size=0.1)))
     ref = np.asarray(o3d.geometry.PointCloud(o3d.utility.Vector3dVector(P)).voxel_down_sample(0.1).points)
     assert v == 0.1 and Q.shape == ref.shape
     assert np.allclose(Q[np.lexsort(Q.T)], ref[np.lexsort(ref.T)], atol=1e-12)
     step = np.linalg.norm(np.diff(Q, axis=0), axis=1)
     assert np.median(step) < 0.25  # vs ~2 m between random voxels
-    small, v2 = _downsample(P, Lines3DParams(voxel_size=0.1, max_points=3000))
+    small, v2 = _downsample(P, Lines3DParams(planes=PlaneParams(voxel_size=0.1, max_points=3000)))
     assert len(small) <= 3000 and v2 > 0.1
 
 
@@ -398,13 +398,13 @@ def test_point_cap_follows_the_footprint():
     from ldlmap.lines3d.planes import _downsample, point_cap
 
     rng = np.random.default_rng(5)
-    p = Lines3DParams(voxel_size=0.05, max_points=2000, max_points_area_m2=50.0)
+    p = Lines3DParams(planes=PlaneParams(voxel_size=0.05, max_points=2000, max_points_area_m2=50.0))
     room = rng.uniform([0, 0, 0], [6, 5, 2.7], (20_000, 3))
     floor = rng.uniform([0, 0, 0], [27, 11, 2.7], (200_000, 3))
     assert point_cap(room, p) == 2000
     assert point_cap(floor, p) == pytest.approx(2000 * 27 * 11 / 50, rel=0.01)  # the samples span ~27 x 11 m
     _, v_floor = _downsample(floor, p)
-    _, v_fixed = _downsample(floor, Lines3DParams(voxel_size=0.05, max_points=2000, max_points_area_m2=1e9))
+    _, v_fixed = _downsample(floor, Lines3DParams(planes=PlaneParams(voxel_size=0.05, max_points=2000, max_points_area_m2=1e9)))
     assert v_floor < 0.6 * v_fixed
 
 

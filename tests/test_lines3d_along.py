@@ -9,7 +9,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from ldlmap.lines3d import Lines3DParams, extract_lines
+from ldlmap.lines3d import AlongParams, Lines3DParams, extract_lines
 from ldlmap.lines3d.along import cut_to_edges
 from ldlmap.lines3d.planes import segment_planes
 from tests._room_cloud import _sample_face
@@ -50,7 +50,7 @@ def test_chord_and_tangent_of_a_curved_crease_are_cut_straight_crease_stays(curv
     """On the floor's crease with the faceted arc: a chord across two facets (each turned 4 deg
     from it, the chord within 2 cm of them) is cut down, a facet's own crease extended along its
     neighbours (turned 8 deg) is cut back to the facet; the straight crease y = 0 stays whole.
-    Without the cut (``along_min_run=0``) all three stay whole."""
+    Without the cut (``along.min_run=0``) all three stay whole."""
     params = Lines3DParams()
     reg = segment_planes(curved, params)
     V = np.c_[_arc(FACETS), np.zeros(FACETS + 1)]
@@ -59,7 +59,7 @@ def test_chord_and_tangent_of_a_curved_crease_are_cut_straight_crease_stays(curv
     tangent = np.stack([V[4] - 0.8 * f, V[5] + 0.8 * f])
     straight = np.array([[0.1, 0.0, 0.0], [0.9, 0.0, 0.0]])
     lines = np.stack([straight, chord, tangent])
-    assert len(cut_to_edges(lines, reg, replace(params, along_min_run=0))) == 3
+    assert len(cut_to_edges(lines, reg, replace(params, along=AlongParams(min_run=0)))) == 3
     # A chord across three facets, 5 cm off the arc in its middle: the local plane fits cut it
     # (the floor's plane piece and the wall's, fitted across the facets, both hold it).
     chord3 = np.stack([V[2], V[5]])

@@ -8,7 +8,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from ldlmap.lines3d import Lines3DParams, extract_lines
+from ldlmap.lines3d import Lines3DParams, SmoothParams, extract_lines
 from ldlmap.lines3d.smooth import smooth_lines
 from tests._room_cloud import _sample_face
 
@@ -63,8 +63,8 @@ def test_smooth_lines_tells_facets_from_creases_steps_and_free_edges(vault):
     got = smooth_lines(lines, vault, params)
     assert got.tolist() == [True] * 4 + [False] * 6
     # A crease angle below the facets' bend keeps the facets' lines too; 0 turns the check off.
-    assert not smooth_lines(lines, vault, replace(params, smooth_crease_deg=5.0))[:3].any()
-    assert not smooth_lines(lines, vault, replace(params, smooth_crease_deg=0.0)).any()
+    assert not smooth_lines(lines, vault, replace(params, smooth=SmoothParams(crease_deg=5.0)))[:3].any()
+    assert not smooth_lines(lines, vault, replace(params, smooth=SmoothParams(crease_deg=0.0))).any()
 
 
 def _near(lines: np.ndarray, x: float, z: float, tol: float = 0.04) -> np.ndarray:
@@ -78,7 +78,7 @@ def _near(lines: np.ndarray, x: float, z: float, tol: float = 0.04) -> np.ndarra
 
 def test_extracted_vault_has_lines_only_at_creases_and_steps(vault):
     """The whole extractor: with the check, no long line along the vault between its springing
-    lines; without it (``smooth_crease_deg=0``), the facets' meeting lines come out."""
+    lines; without it (``smooth.crease_deg=0``), the facets' meeting lines come out."""
 
     def on_vault(lines: np.ndarray) -> int:
         mid = lines.mean(axis=1)
@@ -94,5 +94,5 @@ def test_extracted_vault_has_lines_only_at_creases_and_steps(vault):
     for x, z in (_vault_point(30.0)[[0, 2]], _vault_point(150.0)[[0, 2]], (4.0, 0.0)):
         assert _near(lines, x, z).any(), (x, z)  # the creases
     assert _near(lines, 3.99, 0.8).any() and _near(lines, 3.99, 1.4).any()  # the board's step edges
-    before = extract_lines(vault, params=replace(Lines3DParams(), smooth_crease_deg=0.0))
+    before = extract_lines(vault, params=Lines3DParams(smooth=SmoothParams(crease_deg=0.0)))
     assert on_vault(before) >= 2

@@ -166,12 +166,12 @@ def scan_lines() -> dict[str, np.ndarray]:
     from ldlmap.synth.scene import build_scene
 
     spec = random_spec("standard", 3, 0)
-    pts, col = sample_scan(build_scene(spec), spec.scan, np.random.default_rng(3))
+    pts, _ = sample_scan(build_scene(spec), spec.scan, np.random.default_rng(3))
     out = {}
     for n, draws in ((100_000, 1), (60_000, 2), (30_000, 2)):
         for draw in range(draws):
             pick = np.random.default_rng(draw).choice(len(pts), n, replace=False)
-            out[f"{n // 1000}k/{draw}"] = extract_lines(pts[pick], col[pick], Lines3DParams())
+            out[f"{n // 1000}k/{draw}"] = extract_lines(pts[pick], Lines3DParams())
     return out
 
 

@@ -23,13 +23,16 @@ is newer than the home's ``zind_data.json`` and used the same parameters.
 
 from __future__ import annotations
 
+import json
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Callable
 
+from ldlmap.core.errors import InputError, LdlError, refuse_overwriting_inputs, refuse_replacing_other_files
+from ldlmap.datasets import open_dataset
+from ldlmap.io.linefiles import read_lines
 from ldlmap.map.build import BuildParams, BuildReport, build_lines_map, build_map
-from ldlmap.core.errors import InputError, LdlError, refuse_overwriting_inputs, \
-    refuse_replacing_other_files
+from ldlmap.map.mapfile import is_map_file, read_map_header
 
 # Paper hyperparameters per dataset (supplementary): N_t and the translation sampling.
 DATASET_DEFAULTS = {
@@ -54,8 +57,6 @@ class SceneOutcome:
 def refuse_replacing_non_map(output: Path, overwrite: bool = False) -> None:
     """An existing ``output`` is replaced by a build only when it is a map built before
     (:func:`ldlmap.map.mapfile.is_map_file`), or with ``overwrite``; a folder never."""
-    from ldlmap.map.mapfile import is_map_file
-
     refuse_replacing_other_files(output, is_map_file, "an LDL map", overwrite)
 
 
@@ -65,8 +66,6 @@ def default_params(kind: str, base: BuildParams = BuildParams()) -> BuildParams:
 
 
 def _comparable(config: dict) -> dict:
-    import json
-
     keys = set(asdict(BuildParams())) - {"device"}
     return json.loads(json.dumps({k: config.get(k) for k in sorted(keys)}))  # tuples as lists
 
@@ -74,8 +73,6 @@ def _comparable(config: dict) -> dict:
 def is_up_to_date(map_path: Path, sources: list[Path], params: BuildParams, inputs: dict | None = None) -> bool:
     """True when ``map_path`` exists, is newer than every source and used the same parameters
     (and the same ``inputs``: build-config entries such as the line file it was built with)."""
-    from ldlmap.map.mapfile import read_map_header
-
     if not map_path.exists():
         return False
     newest = max(s.stat().st_mtime for s in sources if s is not None and s.exists())
@@ -101,8 +98,6 @@ def prepare_dataset(root: str | Path, kind: str | None, maps_dir: str | Path | N
     ``progress(scene, stage, done, total)`` is called as work advances. ``map_level``: ZInD's
     scenes (``room`` or ``floor``), ignored for other datasets.
     """
-    from ldlmap.datasets import open_dataset
-
     ds = open_dataset(root, kind, map_level=map_level)
     kind = ds.kind
     params = params or default_params(kind)
@@ -177,8 +172,6 @@ def _scene_build(ds, scene: str, use_line_files: bool,
                                                                                   progress=progress), ""
 
     def build_lines_only(target: Path, p: BuildParams, name: str, progress) -> BuildReport:
-        from ldlmap.io.linefiles import read_lines
-
         return build_lines_map(read_lines(lines), target, p, name=name, source=f"lines:{lines}", progress=progress)
 
     return [lines], replace(params, features="none"), build_lines_only, LINES_ONLY_NOTE

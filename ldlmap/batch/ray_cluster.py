@@ -23,7 +23,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Iterator
 
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
 from ldlmap.core.errors import InputError, LdlError
+from ldlmap.core.lazy import lazy_module
+
+ray = lazy_module("ray")
 
 ADDRESS_HELP = ("local (start a Ray cluster on this machine with all its cores), local:N (N CPUs), auto (join "
                 "the cluster started here with `ray start`), HOST:PORT (its head node) or ray://HOST:PORT (Ray Client)")
@@ -33,7 +38,7 @@ RETRIES = 3  # Ray re-runs a task (or restarts an actor) this many times when it
 def import_ray():
     """The ``ray`` module, or a one-line error saying how to install it."""
     try:
-        import ray
+        import ray  # here: a missing Ray becomes the one-line error below
     except ImportError:
         raise LdlError("--ray needs Ray: pip install 'ldl-toolkit[ray]' (or pip install 'ray[client]')") from None
     return ray
@@ -142,8 +147,6 @@ def enter_folder(cwd: str) -> None:
 
 def current_worker() -> WorkerInfo:
     """This worker process (call inside a task or an actor)."""
-    import ray
-
     return WorkerInfo(ray.util.get_node_ip_address(), os.getpid())
 
 
@@ -151,8 +154,6 @@ def as_completed(refs: list, poll_s: float = 0.5) -> Iterator[list[tuple[Any, An
     """Batches of ``(ref, value, None)`` or ``(ref, None, error)`` as tasks finish, each batch
     holding everything that finished since the last one. Polls every ``poll_s`` so that Ctrl-C
     is seen promptly."""
-    import ray
-
     pending = list(refs)
     while pending:
         ready, pending = ray.wait(pending, num_returns=1, timeout=poll_s)
@@ -172,8 +173,6 @@ def as_completed(refs: list, poll_s: float = 0.5) -> Iterator[list[tuple[Any, An
 
 def failure_reason(exc: BaseException) -> str:
     """One line for a task that raised (its own exception) or whose worker died past its retries."""
-    import ray
-
     if isinstance(exc, ray.exceptions.RayTaskError):
         cause = exc.cause if exc.cause is not None else exc
         return f"{type(cause).__name__}: {_one_line(cause)}"
@@ -185,8 +184,6 @@ def failure_reason(exc: BaseException) -> str:
 def stop(refs: list, actors: list = (), grace_s: float = 5.0) -> None:
     """Cancel ``refs`` (a running task gets KeyboardInterrupt, so its temporary files go), wait up
     to ``grace_s`` for them, then kill ``actors``."""
-    import ray
-
     for ref in refs:
         with contextlib.suppress(Exception):
             ray.cancel(ref)
@@ -212,8 +209,6 @@ class ThroughputBar:
     over all tasks, its line below listing each worker's finished tasks and rate."""
 
     def __init__(self, console, what: str, show_workers: int = 4):
-        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
-
         self.what, self.show = what, show_workers
         self.progress = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
                                  TimeElapsedColumn(), TextColumn("{task.fields[workers]}"), console=console,

@@ -18,19 +18,19 @@ import os
 from pathlib import Path
 from typing import Any, Callable
 
-from ldlmap.map.build import BuildParams
-from ldlmap.batch.ray_cluster import RETRIES, TaskDone, WorkerInfo, as_completed, check_resources, current_worker, \
-    enter_folder, failure_reason, ray_session, stop
-from ldlmap.core.errors import InputError
 from ldlmap.batch.prepare import SceneOutcome, prepare_dataset
+from ldlmap.batch.ray_cluster import (RETRIES, TaskDone, WorkerInfo, as_completed, check_resources, current_worker,
+                                      enter_folder, failure_reason, ray_session, stop)
+from ldlmap.core.cli_common import set_threads
+from ldlmap.core.errors import InputError
+from ldlmap.datasets import open_dataset
+from ldlmap.map.build import BuildParams
 
 
 def build_scene(cwd: str, root: str, kind: str, maps_dir: str | None, params: BuildParams | None, scene: str,
                 options: dict[str, Any], threads: int = 1) -> tuple[SceneOutcome, WorkerInfo]:
     """The Ray task: build (or skip) one scene's map with the plain path, in the driver's folder
     ``cwd``, with ``threads`` CPU threads (0: one per core); where it ran."""
-    from ldlmap.core.cli_common import set_threads
-
     enter_folder(cwd)
     set_threads(threads)
     (outcome,) = prepare_dataset(root, kind, maps_dir, params, scenes=[scene], **options)
@@ -46,8 +46,6 @@ def prepare_dataset_ray(root: str | Path, kind: str | None, maps_dir: str | Path
     ``prepare_dataset`` (``overwrite``, ``use_line_files``, ``map_level``, ...). Outcomes come back
     in the plain path's scene order; ``progress`` gets a :class:`TaskDone` per finished scene.
     ``threads``: CPU threads (and Ray CPUs) per task, as ``--threads`` (0: one per core, one Ray CPU)."""
-    from ldlmap.datasets import open_dataset
-
     ds = open_dataset(root, kind, **({"map_level": options["map_level"]} if "map_level" in options else {}))
     todo = list(scenes) if scenes else ds.scenes()
     unknown = sorted(set(todo) - set(ds.scenes()))

@@ -11,14 +11,31 @@ installed version.
 
 from __future__ import annotations
 
+import gc
+import importlib
 import io
+import json
+import math
 import os
+import re
 import sys
+import typing
+from importlib.metadata import PackageNotFoundError, version
 
 import click
 import typer
 from rich.console import Console
+from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 from typer.core import TyperCommand, TyperGroup
+
+from ldlmap.core.errors import InputError, LdlError
+from ldlmap.core.lazy import lazy_module
+from ldlmap.core.signals import Terminated, sigterm_as_interrupt
+
+cv2 = lazy_module("cv2")
+datasets = lazy_module("ldlmap.datasets")
+threadpoolctl = lazy_module("threadpoolctl")
+torch = lazy_module("torch")
 
 INTERNAL_ERROR = 70  # EX_SOFTWARE: an exception no check of ours anticipated (a bug to report)
 BROKEN_PIPE = 141  # 128 + SIGPIPE: what the shell reports for a program whose reader left (`| head`)
@@ -51,8 +68,6 @@ def fail(message: str, code: int = 1, as_json: bool = False) -> None:
     """Print ``error: message`` as one line on stderr (or ``{"error": message}`` on stdout when
     ``as_json``) and exit with ``code``."""
     if as_json:
-        import json
-
         typer.echo(json.dumps({"error": message}))
     else:
         err_console.print(f"[bold red]error:[/] {message}", highlight=False, soft_wrap=True)
@@ -93,8 +108,6 @@ _TYPE_METAVARS = {"str": "TEXT", "int": "INTEGER", "float": "FLOAT", "Path": "PA
 
 def _value_type_name(param) -> str:
     """The Python (typer 0.16+) or click type name of a parameter's value (a list's element)."""
-    import typing
-
     desc = getattr(param, "type_descriptor", None)
     if desc is None:  # pragma: no cover - older typer: click parameter types
         return getattr(getattr(param, "type", None), "name", "text")
@@ -161,12 +174,8 @@ class _ErrorHandlingGroup(TyperGroup):
             exit_broken_pipe()
 
     def invoke(self, ctx: click.Context):  # noqa: D401 - click API
-        from ldlmap.core.errors import LdlError
-
         as_json = _wants_json([*getattr(ctx, "_protected_args", []), *ctx.args])
         debug = os.environ.get("LDL_DEBUG") == "1"
-        from ldlmap.core.signals import Terminated, sigterm_as_interrupt
-
         try:
             with sigterm_as_interrupt():  # SIGTERM: as Ctrl-C, then "terminated" (exit 143)
                 return super().invoke(ctx)
@@ -225,8 +234,6 @@ class _ScriptApp(typer.Typer):
         try:
             return super().__call__(*args, **kwargs)
         finally:
-            import gc
-
             gc.freeze()
             try:  # what is still buffered, now: at interpreter exit a broken pipe would print a warning
                 sys.stdout.flush()
@@ -239,9 +246,6 @@ def import_heavy(*modules: str) -> None:
     allocates about a million objects and would trigger full collections over them
     (docs/measurements.md#gc-freeze). In a CLI process the objects are then frozen (``gc.freeze``),
     so later collections skip them too; under CliRunner (tests) nothing is frozen."""
-    import gc
-    import importlib
-
     was_enabled = gc.isenabled()
     gc.disable()
     try:
@@ -256,8 +260,6 @@ def import_heavy(*modules: str) -> None:
 
 def package_version() -> str:
     """The installed toolkit's version (its distribution's metadata), or "unknown" when it is not installed."""
-    from importlib.metadata import PackageNotFoundError, version
-
     try:
         return version(DISTRIBUTION)
     except PackageNotFoundError:
@@ -287,10 +289,6 @@ def check_range(value: float | int | None, option: str, lo: float, hi: float, in
     """Raise a one-line :class:`~ldlmap.core.errors.InputError` unless ``value`` (None passes) is a finite
     number in ``[lo, hi]`` (``why``: what the bound protects, appended to the message); call it
     before any work is done."""
-    import math
-
-    from ldlmap.core.errors import InputError
-
     if value is None:
         return
     if not math.isfinite(value) or not lo <= value <= hi:
@@ -303,18 +301,12 @@ def check_range(value: float | int | None, option: str, lo: float, hi: float, in
 def check_device(device: str, option: str = "--device", local: bool = True) -> str:
     """``cpu``, or ``cuda`` / ``cuda:N`` (checked before any work); with ``local`` (the work runs
     here, not on a Ray cluster) torch must see that GPU."""
-    import re
-
-    from ldlmap.core.errors import InputError
-
     m = re.fullmatch(r"cuda(?::(\d{1,3}))?", device)
     if device == "cpu" or (m is not None and not local):
         return device
     if m is None:
         raise InputError(f"{option} must be cpu, cuda or cuda:N, got {device!r}")
     import_heavy("torch")
-    import torch
-
     count = torch.cuda.device_count() if torch.cuda.is_available() else 0
     index = int(m.group(1) or 0)
     if index >= count:
@@ -335,7 +327,7 @@ def ray_option():
 
 
 MAX_THREADS = 1024  # --threads above this is a typo (100000 made torch segfault)
-DEFAULT_THREADS = 1  # the work is many small tensor steps: more threads spin and wait (builds 3-4x slower, issue 22)
+DEFAULT_THREADS = 1  # the work is many small tensor steps: more threads spin and wait (docs/measurements.md)
 
 
 def threads_option():
@@ -356,13 +348,9 @@ def set_threads(threads: int) -> None:
     scipy use (0: their defaults, one per core)."""
     if check_threads(threads):
         import_heavy("torch", "cv2")
-        import cv2
-        import torch
-        from threadpoolctl import threadpool_limits
-
         torch.set_num_threads(threads)
         cv2.setNumThreads(threads)
-        threadpool_limits(threads)  # numpy's and scipy's BLAS and OpenMP pools (else one thread per core)
+        threadpoolctl.threadpool_limits(threads)  # numpy's and scipy's BLAS and OpenMP pools (else one thread per core)
 
 
 # What the screen says while a build stage runs (stages of ldlmap.map.build), and what its steps count.
@@ -378,8 +366,6 @@ class StageProgress:
     the stages that count them, its steps (distance fields: translations; features: views)."""
 
     def __init__(self, out: Console, title: str, total: int | None = None, unit: str = ""):
-        from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
-
         self.bar = Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.fields[count]}"),
                             TimeElapsedColumn(), console=out, transient=True)
         self.title, self.total, self.unit = title, total, unit
@@ -425,26 +411,21 @@ def open_dataset_root(root, dataset: str | None, give_root: str, **kwargs):
     reader (the layout `ldlmap synth` writes); without a root the kind's default folder is used,
     and when it is not there one line says how to give one (``give_root``: ``ldlmap prepare
     ROOT``, ``ldlloc run --root ROOT``)."""
-    from ldlmap.core.errors import InputError
-    from ldlmap.datasets import DATASET_KINDS, DEFAULT_ROOTS, open_dataset
-
-    if dataset is not None and dataset not in (*DATASET_KINDS, "synthetic"):
-        raise InputError(f"unknown --dataset {dataset!r}; choose one of {', '.join((*DATASET_KINDS, 'synthetic'))}")
+    if dataset is not None and dataset not in (*datasets.DATASET_KINDS, "synthetic"):
+        raise InputError(f"unknown --dataset {dataset!r}; choose one of {', '.join((*datasets.DATASET_KINDS, 'synthetic'))}")
     kind = "omniscenes" if dataset == "synthetic" else dataset
     if root is None:
         kind = kind or "omniscenes"
-        default = DEFAULT_ROOTS[kind]
+        default = datasets.DEFAULT_ROOTS[kind]
         if not default.exists():
             raise InputError(f"no dataset root given and the default one, {default}, is not there: give it as "
                              f"`{give_root}` (see datasets/README.md)")
-    return open_dataset(root, kind, **kwargs)
+    return datasets.open_dataset(root, kind, **kwargs)
 
 
 def refuse_map_level(map_level: str | None, kind: str, label: str, root) -> None:
     """One line when ``--map-level`` is given for a dataset other than ZInD (the only one with
     map levels), instead of ignoring it."""
-    from ldlmap.core.errors import InputError
-
     if map_level is not None and kind != "zind":
         raise InputError(f"--map-level is for ZInD roots (room or floor maps); {root} is a {label} root, with one "
                          "map per scene: leave --map-level out")

@@ -1,4 +1,4 @@
-"""The map frame and the input frame (DESIGN.md section 11: SfM frames are neither z-up nor metric).
+"""The map frame and the input frame (SfM frames are neither z-up nor metric: docs/inputs.md).
 
 A map is metric and z-up. ``ldlmap build`` maps its input (cloud, lines, camera centres) once into
 that frame by a similarity ``X_map = s R X_input + t``, stored in the map as the 4x4 matrix
@@ -6,10 +6,12 @@ that frame by a similarity ``X_map = s R X_input + t``, stored in the map as the
 :mod:`ldlmap.sfm.gravity`; ``t``: 0, or the shift that recentres a scan far from the origin, e.g. in
 UTM coordinates, :func:`recentring_offset`). Poses found in the map frame are given back in the input frame
 with :func:`pose_to_input`; ground-truth poses of the input frame go the other way with
-:func:`pose_to_map`. Poses follow DESIGN.md: ``p_cam = R (X - t)``, ``t`` the camera centre.
+:func:`pose_to_map`. Poses follow docs/formats.md: ``p_cam = R (X - t)``, ``t`` the camera centre.
 """
 
 from __future__ import annotations
+
+import os
 
 import numpy as np
 
@@ -141,8 +143,6 @@ def check_extent(extent_sides: np.ndarray) -> None:
 def check_memory(what: str, nbytes: float, hint: str) -> None:
     """Refuse (one line, with the estimate) to allocate ``nbytes`` for ``what`` when that exceeds
     half of this machine's available memory; called before grids sized by the input are built."""
-    import os
-
     try:
         available = os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
     except (ValueError, OSError, AttributeError):

@@ -12,10 +12,13 @@ import numpy as np
 
 from ldlmap.core.errors import InputError, atomic_file
 from ldlmap.core.geometry import cam_from_world, normalize, pixel_from_bearing
+from ldlmap.core.lazy import lazy_module
 from ldlmap.io.imagefile import encode_image, image_comment
 
+cv2 = lazy_module("cv2")
+
 GROUP_COLORS_BGR = {0: (40, 40, 230), 1: (40, 180, 40), 2: (230, 90, 40), -1: (150, 150, 150),
-                    # Atlanta frames of more than 3 directions (issue 23): further horizontals
+                    # Atlanta frames of more than 3 directions: further horizontals
                     3: (30, 200, 230), 4: (200, 60, 200), 5: (200, 200, 40), 6: (20, 110, 240)}
 
 
@@ -52,8 +55,6 @@ def caption_band(width: int, caption: str, items: list[tuple[tuple[int, int, int
     """A dark BGR band ``width`` pixels wide to put under a picture: ``caption`` on the first row,
     then a colour swatch and label per legend entry of ``items``, then ``note``; what does not fit
     in a row goes to the next."""
-    import cv2
-
     font, size, thick = cv2.FONT_HERSHEY_SIMPLEX, 0.55 * scale, max(1, int(round(1.2 * scale)))
     pad, gap, swatch = int(8 * scale), int(18 * scale), int(26 * scale)
     caption, note = drawable_text(caption), drawable_text(note)
@@ -119,8 +120,6 @@ def arc_polylines(arcs_cam: np.ndarray, width: int, height: int, samples: int = 
 def draw_arcs(image_bgr: np.ndarray, arcs_cam: np.ndarray, groups: np.ndarray | None = None,
               thickness: int = 2, color: tuple[int, int, int] | None = None) -> np.ndarray:
     """Draw arcs (camera frame) on a copy of an equirectangular BGR image."""
-    import cv2
-
     img = np.ascontiguousarray(image_bgr).copy()
     h, w = img.shape[:2]
     groups = np.full(len(arcs_cam), -1) if groups is None else np.asarray(groups)

@@ -50,7 +50,7 @@ def restore_sigterm() -> None:
 
 def import_pycolmap():
     """``import pycolmap`` without its SIGTERM stack dump (see the module docstring)."""
-    import pycolmap
+    import pycolmap  # here: the handler it installs is replaced right after the import
 
     restore_sigterm()
     return pycolmap

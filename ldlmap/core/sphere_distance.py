@@ -17,11 +17,14 @@ Degenerate arcs (``|s x e| < 1e-9``) use the endpoint branch only. Empty line se
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, Sequence
+from typing import Sequence, TYPE_CHECKING
 
 import numpy as np
 
 from ldlmap.core.errors import InputError
+from ldlmap.core.lazy import lazy_module
+
+torch = lazy_module("torch")
 
 if TYPE_CHECKING:  # pragma: no cover
     import torch
@@ -32,8 +35,6 @@ DEGENERATE_EPS = 1e-9  # |s x e| below this: the arc's great circle is undefined
 
 def as_tensor(a, device=None, dtype=None) -> "torch.Tensor":
     """``a`` as a torch tensor on ``device``; numpy input becomes float32 unless ``dtype`` is given."""
-    import torch
-
     if isinstance(a, torch.Tensor):
         t = a
         if dtype is not None and t.dtype != dtype:
@@ -47,8 +48,6 @@ def as_tensor(a, device=None, dtype=None) -> "torch.Tensor":
 
 def check_finite(name: str, t: "torch.Tensor") -> None:
     """Raise InputError when ``t`` holds NaN or infinite values."""
-    import torch
-
     if t.numel() and not bool(torch.isfinite(t).all()):
         raise InputError(f"{name} contains NaN or infinite values")
 
@@ -71,8 +70,6 @@ def point_arc_distance(x, s, e) -> "torch.Tensor":
     Returns:
         (..., Q, L) distances in [0, pi].
     """
-    import torch
-
     x = as_tensor(x)
     s = as_tensor(s, x.device, x.dtype)
     e = as_tensor(e, x.device, x.dtype)
@@ -104,8 +101,6 @@ def project_lines(lines: "torch.Tensor", centers: "torch.Tensor") -> tuple["torc
     Returns:
         ``s, e``: (c, L, 3) arc starts and ends, ``normalize(X - t)``.
     """
-    import torch
-
     s = lines[None, :, 0, :] - centers[:, None, :]
     e = lines[None, :, 1, :] - centers[:, None, :]
     s = s / torch.linalg.vector_norm(s, dim=-1, keepdim=True).clamp_min(1e-12)
@@ -117,8 +112,6 @@ def arc_products(s: "torch.Tensor", e: "torch.Tensor", bounds: Sequence[int]) ->
     """The five vectors of :func:`grouped_min_distance` per group, ``(s, e, n, n x s, e x n)``
     stacked as (c, 5 k, 3) (None for an empty group): what one set of arcs needs for any number
     of point batches, so that a caller sampling many batches against the same arcs makes it once."""
-    import torch
-
     n = torch.linalg.cross(s, e, dim=-1)
     nn = torch.linalg.vector_norm(n, dim=-1, keepdim=True)
     n = torch.where(nn > DEGENERATE_EPS, n / nn.clamp_min(DEGENERATE_EPS), torch.zeros_like(n))
@@ -151,8 +144,6 @@ def grouped_min_distance(x: "torch.Tensor", s: "torch.Tensor", e: "torch.Tensor"
     behind walls) are left out of the minimum. ``products``: :func:`arc_products` of ``s, e``,
     when the caller made them already.
     """
-    import torch
-
     if products is None:
         products = arc_products(s, e, bounds)
     c = s.shape[0]
@@ -181,8 +172,6 @@ def grouped_min_distance(x: "torch.Tensor", s: "torch.Tensor", e: "torch.Tensor"
 
 def group_order(groups: "torch.Tensor", num_groups: int) -> tuple["torch.Tensor", list[int]]:
     """Indices of the lines of groups 0..G-1 sorted by group (stable), and the G + 1 slice bounds."""
-    import torch
-
     keep = torch.nonzero((groups >= 0) & (groups < num_groups)).reshape(-1)
     index = keep[torch.argsort(groups[keep], stable=True)]
     grp = groups[index]

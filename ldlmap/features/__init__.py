@@ -13,6 +13,7 @@ from importlib import import_module
 
 from ldlmap.core.errors import InputError
 from ldlmap.features.base import FeatureBackend, Features, mutual_nn_match
+from ldlmap.features.sphere import for_panoramas
 
 # name -> (module, class): imported on demand.
 _BACKENDS: dict[str, tuple[str, str]] = {
@@ -47,8 +48,6 @@ def backend_for(name: str, weights: str | None = None, device: str = "cpu",
     """The backend ``name`` as the map builder and the localizer use it: on ``device``, with the
     user's ``weights`` for SuperPoint (the other backends take none), run on the panoramas'
     ``extraction`` (equirect | cube, :mod:`ldlmap.features.sphere`)."""
-    from ldlmap.features.sphere import for_panoramas
-
     key = str(name).strip().lower()
     opts: dict = {"device": device}
     if key == "superpoint":

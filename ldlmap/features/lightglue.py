@@ -14,11 +14,17 @@ Two paths, chosen by device (the CPU timings behind the choice: docs/measurement
 from __future__ import annotations
 
 from functools import lru_cache
-from typing import TYPE_CHECKING, Sequence
+from typing import Sequence, TYPE_CHECKING
 
 import numpy as np
 
 from ldlmap.core.errors import InputError
+from ldlmap.core.lazy import lazy_module
+from ldlmap.features.weights import load_strict, packaged_weights, read_checkpoint
+
+F = lazy_module("torch.nn.functional")
+kornia_feature = lazy_module("kornia.feature")
+torch = lazy_module("torch")
 
 if TYPE_CHECKING:  # pragma: no cover
     import torch
@@ -39,8 +45,6 @@ _PAD_LOGIT = -1e4  # similarity of a padded map keypoint: never a row's maximum,
 
 def _state_dict(name: str, n_layers: int, path: str | None = None) -> dict:
     """The LightGlue weights of ``name`` (packaged, or the file ``path``) with kornia's parameter names."""
-    from ldlmap.features.weights import packaged_weights, read_checkpoint
-
     path = path or packaged_weights(f"{name}_lightglue")
     state = read_checkpoint(path, "LightGlue")
     if name == "xfeat":  # the file holds the extractor too; the matcher is under "matcher."
@@ -59,19 +63,14 @@ def _state_dict(name: str, n_layers: int, path: str | None = None) -> dict:
 
 @lru_cache(maxsize=None)
 def load_lightglue(name: str, device: str = "cpu", path: str | None = None) -> "LightGlueMatcher":
-    """The LightGlue matcher of detector ``name`` on ``device`` (weights packaged, or from the file
+    """The kornia_feature.LightGlue matcher of detector ``name`` on ``device`` (weights packaged, or from the file
     ``path``: SuperPoint's), loaded once per process."""
-    import torch
-    from kornia.feature import LightGlue
-
-    from ldlmap.features.weights import load_strict
-
     if name not in _CONFIGS:
-        raise InputError(f"no LightGlue weights for {name!r}; known: {', '.join(sorted(_CONFIGS))}")
+        raise InputError(f"no kornia_feature.LightGlue weights for {name!r}; known: {', '.join(sorted(_CONFIGS))}")
     conf = _CONFIGS[name]
     depth, width = _ADAPTIVE[name]
-    net = LightGlue(None, **conf, flash=False, depth_confidence=depth, width_confidence=width)
-    load_strict(net, _state_dict(name, conf["n_layers"], path), f"{name} LightGlue",
+    net = kornia_feature.LightGlue(None, **conf, flash=False, depth_confidence=depth, width_confidence=width)
+    load_strict(net, _state_dict(name, conf["n_layers"], path), f"{name} kornia_feature.LightGlue",
                 derived=("confidence_thresholds",))
     return LightGlueMatcher(net.eval().to(torch.device(device)))
 
@@ -94,8 +93,6 @@ class LightGlueMatcher:
     def match_batched(self, query: "Features", query_size: tuple[int, int], views: Sequence["Features"],
                       view_size: tuple[int, int], filter_threshold: float = 0.1, batch: int = 8) -> list[np.ndarray]:
         """:meth:`match_views` with ``batch`` views per forward pass, all layers run (any device)."""
-        import torch
-
         out: list[np.ndarray] = [np.zeros((0, 2), np.int64)] * len(views)
         if len(query) == 0:
             return out
@@ -123,8 +120,6 @@ class LightGlueMatcher:
     def match_pair(self, a: "Features", size_a: tuple[int, int], b: "Features", size_b: tuple[int, int],
                    filter_threshold: float = 0.1) -> np.ndarray:
         """Matches (M, 2) ``(i in a, j in b)`` of one pair, with early stopping and point pruning."""
-        import torch
-
         if len(a) == 0 or len(b) == 0:
             return np.zeros((0, 2), np.int64)
         dev = next(self.net.parameters()).device
@@ -144,9 +139,6 @@ class LightGlueMatcher:
     def _forward(self, kq, dq, kv, dv, valid, th: float) -> list[np.ndarray]:
         """Query (1, M, .) against views (B, N, .) with ``valid`` (B, N): the network's layers with
         the padding masked, then the dual-softmax assignment and the mutual check."""
-        import torch
-        import torch.nn.functional as F
-
         net, B = self.net, len(kv)
         enc_q = net.posenc(kq)  # (2, 1, 1, M, head_dim): cosines and sines, one head axis
         enc_q = enc_q.expand(enc_q.shape[0], B, *enc_q.shape[2:])
@@ -179,8 +171,6 @@ class LightGlueMatcher:
 def _normalized(uv: np.ndarray, size: tuple[int, int], dev) -> "torch.Tensor":
     """Our pixel coordinates (centre +0.5) to LightGlue's normalised ones: the detectors' pixel
     centres are integers, scaled by ``max(W, H) / 2`` about the image centre."""
-    import torch
-
     w, h = float(size[0]), float(size[1])
     k = torch.from_numpy(np.clip(np.asarray(uv, np.float32) - 0.5, 0.0, [w, h]).astype(np.float32)).to(dev)
     return (k - torch.tensor([w / 2, h / 2], device=dev)) / (max(w, h) / 2)

@@ -10,7 +10,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ldlmap.core.imageproc import stretch_contrast
+from ldlmap.core.lazy import lazy_module
 from ldlmap.features.base import DescriptorMatching, Features, backend_config, check_image, mutual_nn_match, top_k
+
+cv2 = lazy_module("cv2")
 
 
 @dataclass(frozen=True)
@@ -39,15 +43,11 @@ class SiftBackend(DescriptorMatching):
     def extract(self, image_rgb: np.ndarray, mask: np.ndarray | None = None,
                 max_keypoints: int | None = None) -> Features:
         """Detect and describe; keypoints in continuous pixel coordinates (centre = +0.5)."""
-        import cv2
-
         img, mask = check_image(image_rgb, mask)
         c = self.config
         k = c.max_keypoints if max_keypoints is None else max_keypoints
         gray = cv2.cvtColor(np.ascontiguousarray(img), cv2.COLOR_RGB2GRAY)
         if c.normalize_contrast:
-            from ldlmap.core.imageproc import stretch_contrast
-
             gray = stretch_contrast(gray)
         sift = cv2.SIFT_create(nfeatures=0, nOctaveLayers=c.n_octave_layers,
                                contrastThreshold=c.contrast_threshold, edgeThreshold=c.edge_threshold)

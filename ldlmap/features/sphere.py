@@ -19,8 +19,12 @@ from functools import lru_cache
 
 import numpy as np
 
-from ldlmap.features.base import Features, check_image, top_k
+from ldlmap.core.errors import InputError
 from ldlmap.core.geometry import bearing_from_pixel, pixel_centers, pixel_from_bearing
+from ldlmap.core.lazy import lazy_module
+from ldlmap.features.base import Features, check_image, top_k
+
+cv2 = lazy_module("cv2")
 
 
 def _remap_maps(uv: np.ndarray, height: int) -> tuple[np.ndarray, np.ndarray]:
@@ -39,8 +43,6 @@ def _pixel_bearings(width: int, height: int) -> np.ndarray:
 def rotate_panorama(image: np.ndarray, rot_cam_from_world: np.ndarray) -> np.ndarray:
     """The panorama ``image`` (taken with rotation ``R``) as seen with the identity rotation:
     the output pixel of world bearing ``d`` samples the input at ``R d`` (bilinear, wrapping in u)."""
-    import cv2
-
     H, W = image.shape[:2]
     uv = pixel_from_bearing(_pixel_bearings(W, H) @ np.asarray(rot_cam_from_world, dtype=np.float64).T, W, H)
     mx, my = _remap_maps(uv.reshape(H, W, 2), H)
@@ -120,8 +122,6 @@ class CubeFaces:
     def extract(self, image_rgb: np.ndarray, mask: np.ndarray | None = None,
                 max_keypoints: int | None = None) -> Features:
         """Features of the panorama ``image_rgb`` (H, 2H, 3) from its cube faces (``mask``: (H, W))."""
-        import cv2
-
         img, mask = check_image(image_rgb, mask)
         if max_keypoints is None:  # the backend's budget for one image holds for the whole panorama
             max_keypoints = getattr(getattr(self.inner, "config", None), "max_keypoints", None)
@@ -151,8 +151,6 @@ class CubeFaces:
 def check_extraction(extraction: str) -> str:
     """``extraction`` when it names a panorama feature extraction, else a one-line InputError."""
     if extraction not in PANORAMA_EXTRACTIONS:
-        from ldlmap.core.errors import InputError
-
         raise InputError(f"unknown feature extraction {extraction!r}; valid: {', '.join(PANORAMA_EXTRACTIONS)}")
     return extraction
 

@@ -14,8 +14,15 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ldlmap.core.errors import InputError
+from ldlmap.core.lazy import lazy_module
 from ldlmap.features.base import DescriptorMatching, Features, backend_config, check_image, mutual_nn_match
-from ldlmap.features.weights import key_diff, read_checkpoint
+from ldlmap.features.lightglue import load_lightglue
+from ldlmap.features.weights import key_diff, read_checkpoint, resolve_weights
+
+F = lazy_module("torch.nn.functional")
+cv2 = lazy_module("cv2")
+nn = lazy_module("torch.nn")
+torch = lazy_module("torch")
 
 if TYPE_CHECKING:  # pragma: no cover
     import torch
@@ -32,9 +39,6 @@ def nms_keep(scores: "torch.Tensor", radius: int) -> "torch.Tensor":
     Equal maxima within a window are resolved by keeping the one with the largest linear index,
     so no two kept pixels are closer than ``radius + 1`` in the max norm.
     """
-    import torch
-    import torch.nn.functional as F
-
     k, r = 2 * radius + 1, radius
     pooled = F.max_pool2d(scores[:, None], k, stride=1, padding=r)[:, 0]
     cand = (scores == pooled) & (scores > 0)
@@ -52,9 +56,6 @@ def sample_descriptors(desc_map: "torch.Tensor", uv: "torch.Tensor") -> "torch.T
     continuous coordinates; grid_sample with ``align_corners=True`` addresses cell centres.
     Returns (K, D) unit vectors.
     """
-    import torch
-    import torch.nn.functional as F
-
     _, _, hc, wc = desc_map.shape
     gx = (uv[:, 0] / CELL - 0.5) / max(wc - 1, 1) * 2.0 - 1.0
     gy = (uv[:, 1] / CELL - 0.5) / max(hc - 1, 1) * 2.0 - 1.0
@@ -68,9 +69,6 @@ def sample_descriptors(desc_map: "torch.Tensor", uv: "torch.Tensor") -> "torch.T
 
 def _superpoint_net():
     """Build the network class lazily (keeps torch out of import time)."""
-    import torch.nn as nn
-    import torch.nn.functional as F
-
     class SuperPointNet(nn.Module):
         """Shared VGG encoder + detector head (65 channels) + descriptor head (256 channels).
 
@@ -118,8 +116,6 @@ def build_superpoint() -> "torch.nn.Module":
 
 def load_superpoint(path: str | Path, device: str = "cpu") -> "torch.nn.Module":
     """SuperPoint with the checkpoint at ``path`` loaded strictly, in eval mode, on ``device``."""
-    import torch
-
     path = Path(path)
     state = read_checkpoint(path, "SuperPoint")
     if isinstance(state, dict) and "state_dict" in state and isinstance(state["state_dict"], dict):
@@ -174,8 +170,6 @@ class SuperPointBackend(DescriptorMatching):
 
     def __init__(self, config: SuperPointConfig | dict | None = None, *, net: "torch.nn.Module | None" = None,
                  **opts) -> None:
-        from ldlmap.features.weights import resolve_weights
-
         self.config = c = backend_config(SuperPointConfig, config, opts, "SuperPoint")
         if net is not None:
             self.weights_path = None
@@ -187,8 +181,6 @@ class SuperPointBackend(DescriptorMatching):
         # optional: absent, nearest neighbours match; named by path or environment but missing, an error
         lg_path = resolve_weights("superpoint_lightglue", c.lightglue_weights, allow_download=False, required=False)
         if lg_path is not None:
-            from ldlmap.features.lightglue import load_lightglue
-
             self.matcher = load_lightglue("superpoint", c.device, str(lg_path))
 
     @property
@@ -205,10 +197,6 @@ class SuperPointBackend(DescriptorMatching):
     def extract(self, image_rgb: np.ndarray, mask: np.ndarray | None = None,
                 max_keypoints: int | None = None) -> Features:
         """Detect and describe; keypoints at pixel centres (continuous coordinates, +0.5)."""
-        import cv2
-        import torch
-        import torch.nn.functional as F
-
         img, mask = check_image(image_rgb, mask)
         c = self.config
         k = c.max_keypoints if max_keypoints is None else max_keypoints

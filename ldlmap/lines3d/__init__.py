@@ -1,4 +1,4 @@
-"""3D line segments from scans, by stage (DESIGN.md 5.1, paper sec. 3.1).
+"""3D line segments from scans, by stage (paper sec. 3.1).
 
 ``params`` (parameters, input checks) -> ``planes`` (planar regions) -> ``boundaries`` (plane
 outlines) and ``intersections`` (plane-plane creases) -> ``merge`` (collinear pieces) ->
@@ -12,8 +12,10 @@ from ldlmap.lines3d.filter import filter_by_length, length_threshold, robust_bou
 from ldlmap.lines3d.merge import join_lines, merge_collinear
 from ldlmap.lines3d.metrics import line_precision_recall
 from ldlmap.lines3d.outputs import draw_top_view, top_view_image, write_line_files
-from ldlmap.lines3d.params import Lines3DParams
+from ldlmap.lines3d.params import (AlongParams, BoundaryParams, IntersectionParams, LinearParams, Lines3DParams,
+                                   MergeParams, PlaneParams, SmoothParams)
 
-__all__ = ["Lines3DParams", "draw_top_view", "extract_lines", "extract_lines_with_stats", "filter_by_length",
+__all__ = ["AlongParams", "BoundaryParams", "IntersectionParams", "LinearParams", "Lines3DParams", "MergeParams",
+           "PlaneParams", "SmoothParams", "draw_top_view", "extract_lines", "extract_lines_with_stats", "filter_by_length",
            "join_lines", "length_threshold", "line_precision_recall", "merge_collinear", "robust_bounds",
            "top_view_image", "write_line_files"]

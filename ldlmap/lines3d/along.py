@@ -32,10 +32,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from ldlmap.lines3d.metrics import _sample_segments
+from ldlmap.core.lazy import lazy_module
+from ldlmap.lines3d.metrics import sample_segments
 from ldlmap.lines3d.params import Lines3DParams
 from ldlmap.lines3d.planes import PlaneRegions
-from ldlmap.lines3d.smooth import _thin
+from ldlmap.lines3d.smooth import thin_points
+
+spatial = lazy_module("scipy.spatial")
 
 FACE_BLOCK = 20_000  # samples per block of the local plane fits (bounds memory)
 
@@ -43,22 +46,22 @@ FACE_BLOCK = 20_000  # samples per block of the local plane fits (bounds memory)
 def _off_edge(x: np.ndarray, u: np.ndarray, reg: PlaneRegions, Q: np.ndarray, tree, params: Lines3DParams) -> np.ndarray:
     """Per sample point ``x`` (S, 3) on a line of direction ``u`` (S, 3): do the planes of the near
     points ``Q`` (indices into ``reg.points``) turn away from the line (see the module docstring)?"""
-    k = min(params.along_neighbours, len(Q))
-    d, j = tree.query(x, k=k, distance_upper_bound=np.hypot(params.along_near, params.along_slab), workers=-1)
+    k = min(params.along.neighbours, len(Q))
+    d, j = tree.query(x, k=k, distance_upper_bound=np.hypot(params.along.near, params.along.slab), workers=-1)
     d, j = d.reshape(len(x), -1), j.reshape(len(x), -1)
     found = np.isfinite(d)
     q = Q[np.minimum(j, len(Q) - 1)]
     R = reg.points[q] - x[:, None, :]
     along = np.einsum("skj,sj->sk", R, u)
     across = np.linalg.norm(R - along[..., None] * u[:, None, :], axis=2)
-    near = found & (np.abs(along) <= params.along_slab) & (across <= params.along_near)
+    near = found & (np.abs(along) <= params.along.slab) & (across <= params.along.near)
     lab = reg.labels[q]
     on_plane = near & (lab >= 0)
     cos_n = np.abs(np.einsum("skj,sj->sk", reg.normals[np.maximum(lab, 0)], u))
-    turned = on_plane & (cos_n > np.sin(np.radians(params.along_angle_deg)))
+    turned = on_plane & (cos_n > np.sin(np.radians(params.along.angle_deg)))
     n_turned, n_on = turned.sum(1), on_plane.sum(1)
-    off = (n_turned >= params.along_min_points) & (n_turned >= params.along_share * np.maximum(n_on, 1))
-    if params.along_face_reach > 0:
+    off = (n_turned >= params.along.min_points) & (n_turned >= params.along.share * np.maximum(n_on, 1))
+    if params.along.face_reach > 0:
         # In blocks of samples: a building's lines have 10^5 samples, each with up to 300 neighbours.
         for b in range(0, len(x), FACE_BLOCK):
             off[b:b + FACE_BLOCK] |= _faces_turned(x[b:b + FACE_BLOCK], u[b:b + FACE_BLOCK], reg, Q, tree, params)
@@ -68,15 +71,15 @@ def _off_edge(x: np.ndarray, u: np.ndarray, reg: PlaneRegions, Q: np.ndarray, tr
 def _faces_turned(x: np.ndarray, u: np.ndarray, reg: PlaneRegions, Q: np.ndarray, tree, params: Lines3DParams) -> np.ndarray:
     """Per sample: does a plane piece near the line, fitted locally with a plane of its own, turn
     from the line (see the module docstring)? Per (sample, plane piece): moments, then eigh."""
-    k = min(params.along_face_neighbours, len(Q))
-    d, j = tree.query(x, k=k, distance_upper_bound=np.hypot(params.along_face_reach, params.along_face_slab), workers=-1)
+    k = min(params.along.face_neighbours, len(Q))
+    d, j = tree.query(x, k=k, distance_upper_bound=np.hypot(params.along.face_reach, params.along.face_slab), workers=-1)
     d, j = d.reshape(len(x), -1), j.reshape(len(x), -1)
     q = Q[np.minimum(j, len(Q) - 1)]
     R = reg.points[q] - x[:, None, :]
     along = np.einsum("skj,sj->sk", R, u)
     across = np.linalg.norm(R - along[..., None] * u[:, None, :], axis=2)
     lab = reg.labels[q]
-    m = np.isfinite(d) & (np.abs(along) <= params.along_face_slab) & (across <= params.along_face_reach) & (lab >= 0)
+    m = np.isfinite(d) & (np.abs(along) <= params.along.face_slab) & (across <= params.along.face_reach) & (lab >= 0)
     n_lab = len(reg.normals)
     cell = (np.arange(len(x))[:, None] * n_lab + np.maximum(lab, 0))[m]
     used, cell = np.unique(cell, return_inverse=True)
@@ -90,29 +93,27 @@ def _faces_turned(x: np.ndarray, u: np.ndarray, reg: PlaneRegions, Q: np.ndarray
     nrm = np.linalg.eigh(C)[1][:, :, 0]  # smallest eigenvector: the local plane's normal
     s = used // n_lab
     tilt = np.abs(np.einsum("gj,gj->g", nrm, u[s]))
-    bad = (cnt >= params.along_face_points) & (tilt > np.sin(np.radians(params.along_face_deg)))
+    bad = (cnt >= params.along.face_points) & (tilt > np.sin(np.radians(params.along.face_deg)))
     return np.bincount(s[bad], minlength=len(x)) > 0
 
 
 def cut_to_edges(lines: np.ndarray, reg: PlaneRegions, params: Lines3DParams) -> np.ndarray:
     """``lines`` (N, 2, 3) without the runs of ``along_min_run`` or more samples off the edge of the
     planes in ``reg`` (see the module docstring), pieces shorter than ``min_line`` dropped."""
-    from scipy.spatial import cKDTree
-
-    if len(lines) == 0 or params.along_min_run <= 0 or len(reg.points) == 0:
+    if len(lines) == 0 or params.along.min_run <= 0 or len(reg.points) == 0:
         return lines
-    Q = _thin(reg.points, params.along_grid)
-    x, seg = _sample_segments(lines, params.along_step)
+    Q = thin_points(reg.points, params.along.grid)
+    x, seg = sample_segments(lines, params.along.step)
     u = lines[:, 1] - lines[:, 0]
     u = u / np.maximum(np.linalg.norm(u, axis=1), 1e-12)[:, None]
-    off = _off_edge(x, u[seg], reg, Q, cKDTree(reg.points[Q]), params)
+    off = _off_edge(x, u[seg], reg, Q, spatial.cKDTree(reg.points[Q]), params)
     # Runs of equal flags within a line; runs off the edge shorter than along_min_run are kept.
     line_start = np.r_[True, seg[1:] != seg[:-1]]
     new = line_start | np.r_[True, off[1:] != off[:-1]]
     run = np.cumsum(new) - 1
     start = np.flatnonzero(new)
     count = np.diff(np.r_[start, len(x)])
-    keep = ~(off[start] & (count >= params.along_min_run))[run]
+    keep = ~(off[start] & (count >= params.along.min_run))[run]
     # Pieces: maximal runs of kept samples within a line, each sample standing for an equal share of it.
     i0 = np.flatnonzero(keep & (line_start | ~np.r_[True, keep[:-1]]))
     i1 = np.flatnonzero(keep & (np.r_[line_start[1:], True] | ~np.r_[keep[1:], True]))
@@ -122,4 +123,4 @@ def cut_to_edges(lines: np.ndarray, reg: PlaneRegions, params: Lines3DParams) ->
     f0, f1 = (i0 - first[s]) / n_s[s], (i1 + 1 - first[s]) / n_s[s]
     d = lines[s, 1] - lines[s, 0]
     out = np.stack([lines[s, 0] + f0[:, None] * d, lines[s, 0] + f1[:, None] * d], axis=1)
-    return out[np.linalg.norm(out[:, 1] - out[:, 0], axis=1) >= max(params.min_line, params.min_segment)]
+    return out[np.linalg.norm(out[:, 1] - out[:, 0], axis=1) >= max(params.merge.min_line, params.merge.min_segment)]

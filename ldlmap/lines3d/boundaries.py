@@ -6,9 +6,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from ldlmap.lines3d.metrics import _sample_segments
+from ldlmap.core.frame import check_memory
+from ldlmap.core.lazy import lazy_module
+from ldlmap.lines3d.metrics import sample_segments
 from ldlmap.lines3d.params import Lines3DParams
 from ldlmap.lines3d.planes import PlaneRegions
+
+cv2 = lazy_module("cv2")
 
 
 def _plane_basis(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -18,16 +22,12 @@ def _plane_basis(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return e1, np.cross(n, e1)
 
 
-def _boundary_segments(Q: np.ndarray, c: np.ndarray, n: np.ndarray, params: Lines3DParams) -> np.ndarray:
+def boundary_segments(Q: np.ndarray, c: np.ndarray, n: np.ndarray, params: Lines3DParams) -> np.ndarray:
     """Boundary polygon sides (M, 2, 3) of one planar region's occupancy image."""
-    import cv2
-
-    from ldlmap.core.frame import check_memory
-
     e1, e2 = _plane_basis(n)
     uv = np.stack([(Q - c) @ e1, (Q - c) @ e2], 1)
-    cs = params.cell_size
-    pad = params.close_cells + 2
+    cs = params.boundaries.cell_size
+    pad = params.boundaries.close_cells + 2
     lo = uv.min(0) - pad * cs
     h, w = (np.floor((uv.max(0) - lo) / cs)[::-1] + pad + 1).astype(np.float64)
     check_memory(f"the occupancy image of a {w * cs:.3g} x {h * cs:.3g} plane", h * w * 3,
@@ -36,13 +36,13 @@ def _boundary_segments(Q: np.ndarray, c: np.ndarray, n: np.ndarray, params: Line
     h, w = ij[:, 1].max() + pad + 1, ij[:, 0].max() + pad + 1
     img = np.zeros((h, w), np.uint8)
     img[ij[:, 1], ij[:, 0]] = 255
-    r = params.close_cells
+    r = params.boundaries.close_cells
     ker = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
     img = cv2.morphologyEx(img, cv2.MORPH_CLOSE, ker)
     img = cv2.morphologyEx(img, cv2.MORPH_OPEN, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (3, 3)))
     contours, _ = cv2.findContours(img, cv2.RETR_LIST, cv2.CHAIN_APPROX_NONE)
     segs = []
-    eps = params.poly_eps / cs
+    eps = params.boundaries.poly_eps / cs
     for cnt in contours:
         if len(cnt) < 4:
             continue
@@ -56,10 +56,10 @@ def _boundary_segments(Q: np.ndarray, c: np.ndarray, n: np.ndarray, params: Line
     S = np.concatenate(segs)  # pixel (col, row) of boundary pixel centres
     S2 = lo + (S + 0.5) * cs
     S3 = c + S2[..., :1] * e1 + S2[..., 1:] * e2
-    return S3[np.linalg.norm(S3[:, 1] - S3[:, 0], axis=1) >= params.min_segment]
+    return S3[np.linalg.norm(S3[:, 1] - S3[:, 0], axis=1) >= params.merge.min_segment]
 
 
-def _strips(reg: PlaneRegions, params: Lines3DParams) -> tuple[np.ndarray, np.ndarray]:
+def find_strips(reg: PlaneRegions, params: Lines3DParams) -> tuple[np.ndarray, np.ndarray]:
     """Narrow plane pieces as rectangles (M, 4, 3): centre, long axis, across axis, normal; and
     their plane labels (M,).
 
@@ -78,7 +78,7 @@ def _strips(reg: PlaneRegions, params: Lines3DParams) -> tuple[np.ndarray, np.nd
         u, v = Vt[0], Vt[1]
         a0, a1 = np.percentile(X @ u, [1, 99])
         b0, b1 = np.percentile(X @ v, [2, 98])
-        if b1 - b0 > params.strip_width or a1 - a0 < max(params.min_segment, 3 * (b1 - b0)):
+        if b1 - b0 > params.boundaries.strip_width or a1 - a0 < max(params.merge.min_segment, 3 * (b1 - b0)):
             continue
         c = Q.mean(0) + (a0 + a1) / 2 * u + (b0 + b1) / 2 * v
         out.append([c, (a1 - a0) / 2 * u, (b1 - b0) / 2 * v, n])
@@ -86,21 +86,21 @@ def _strips(reg: PlaneRegions, params: Lines3DParams) -> tuple[np.ndarray, np.nd
     return np.asarray(out, dtype=np.float64).reshape(-1, 4, 3), np.asarray(owner, dtype=np.int64)
 
 
-def _strip_sides(strips: np.ndarray, owner: np.ndarray, reg: PlaneRegions, params: Lines3DParams) -> np.ndarray:
-    """The long sides (M, 2, 3) of the strips of :func:`_strips` that are edges.
+def strip_sides(strips: np.ndarray, owner: np.ndarray, reg: PlaneRegions, params: Lines3DParams) -> np.ndarray:
+    """The long sides (M, 2, 3) of the strips of :func:`find_strips` that are edges.
 
     The long sides of a thin object's face are edges of the object even where the adjacent face
     is never scanned (the underside of a board, the hidden face of a leg), which is where the
-    boundary test of :func:`_edge_supported` cannot tell them from occlusion rims; and a raster
+    boundary test of :func:`edge_supported` cannot tell them from occlusion rims; and a raster
     boundary is coarse across a strip a few cells wide. Sides across which the surface goes on
-    smoothly (:func:`_smooth_continuation`: facets of a curved wall) are dropped.
+    smoothly (:func:`smooth_continuation`: facets of a curved wall) are dropped.
     """
     if len(strips) == 0:
         return np.zeros((0, 2, 3))
     c, a, b = strips[:, 0], strips[:, 1], strips[:, 2]
     sides = np.stack([np.stack([c + s * b - a, c + s * b + a], 1) for s in (-1.0, 1.0)], 1).reshape(-1, 2, 3)
     owner2 = np.repeat(owner, 2)
-    return sides[~_smooth_continuation(sides, owner2, reg, params)]
+    return sides[~smooth_continuation(sides, owner2, reg, params)]
 
 
 def _across(segs: np.ndarray, normals: np.ndarray) -> np.ndarray:
@@ -109,7 +109,7 @@ def _across(segs: np.ndarray, normals: np.ndarray) -> np.ndarray:
     return w / np.maximum(np.linalg.norm(w, axis=1, keepdims=True), 1e-12)
 
 
-def _smooth_continuation(segs: np.ndarray, owner: np.ndarray, reg: PlaneRegions, params: Lines3DParams) -> np.ndarray:
+def smooth_continuation(segs: np.ndarray, owner: np.ndarray, reg: PlaneRegions, params: Lines3DParams) -> np.ndarray:
     """Mask of segments on plane ``owner`` across which the surface goes on in nearly the same
     plane: along most of the segment, 2 cm beyond it on either side within the owner's plane, a
     point of another plane lies within 1.5 cm of the owner's plane and that plane's normal is
@@ -121,8 +121,8 @@ def _smooth_continuation(segs: np.ndarray, owner: np.ndarray, reg: PlaneRegions,
         return np.zeros(0, bool)
     n = reg.normals[owner]
     w = _across(segs, n)
-    x, seg = _sample_segments(segs, 0.05)
-    cos_t = np.cos(np.radians(params.min_plane_angle_deg))
+    x, seg = sample_segments(segs, 0.05)
+    cos_t = np.cos(np.radians(params.intersections.min_plane_angle_deg))
     smooth = np.zeros(len(x), bool)
     for sgn in (-1.0, 1.0):
         dist, idx = reg.tree.query(x + sgn * 0.02 * w[seg], distance_upper_bound=0.015, workers=-1)
@@ -135,7 +135,7 @@ def _smooth_continuation(segs: np.ndarray, owner: np.ndarray, reg: PlaneRegions,
     return np.bincount(seg, smooth, len(segs)) / np.bincount(seg, minlength=len(segs)) >= 0.5
 
 
-def _inside_strips(lines: np.ndarray, strips: np.ndarray, margin: float = 0.01, off_plane: float = 0.025) -> np.ndarray:
+def inside_strips(lines: np.ndarray, strips: np.ndarray, margin: float = 0.01, off_plane: float = 0.025) -> np.ndarray:
     """Mask of lines whose both endpoints lie inside a strip (``margin`` in from its long sides).
 
     Such lines (raster boundary pieces across a narrow face, intersections placed mid-face) would
@@ -157,14 +157,14 @@ def _inside_strips(lines: np.ndarray, strips: np.ndarray, margin: float = 0.01, 
     return out
 
 
-def _runs(mask: np.ndarray) -> np.ndarray:
+def true_runs(mask: np.ndarray) -> np.ndarray:
     """(R, 2) start / end (exclusive) indices of True runs of a 1D boolean array."""
     m = np.concatenate([[False], mask, [False]]).astype(np.int8)
     d = np.diff(m)
     return np.stack([np.flatnonzero(d == 1), np.flatnonzero(d == -1)], 1)
 
 
-def _edge_supported(segs: np.ndarray, owner: np.ndarray, reg: PlaneRegions, params: Lines3DParams) -> np.ndarray:
+def edge_supported(segs: np.ndarray, owner: np.ndarray, reg: PlaneRegions, params: Lines3DParams) -> np.ndarray:
     """Mask of boundary sides that lie on a real edge of the scene.
 
     A side of a plane's boundary polygon is either a fold or free edge of the geometry (another
@@ -176,17 +176,17 @@ def _edge_supported(segs: np.ndarray, owner: np.ndarray, reg: PlaneRegions, para
     """
     if len(segs) == 0:
         return np.zeros(0, bool)
-    x, seg = _sample_segments(segs, params.edge_radius)
+    x, seg = sample_segments(segs, params.boundaries.edge_radius)
     k = 32
-    d, idx = reg.tree.query(x, k=min(k, len(reg.points)), distance_upper_bound=params.edge_radius, workers=-1)
+    d, idx = reg.tree.query(x, k=min(k, len(reg.points)), distance_upper_bound=params.boundaries.edge_radius, workers=-1)
     hit = np.isfinite(d)
     lab = np.where(hit, reg.labels[np.minimum(idx, len(reg.points) - 1)], -2)
     foreign = np.any(hit & (lab != owner[seg][:, None]), axis=1)
     frac = np.bincount(seg, foreign, len(segs)) / np.bincount(seg, minlength=len(segs))
-    return frac >= params.edge_support
+    return frac >= params.boundaries.edge_support
 
 
-def _extend_sides(segs: np.ndarray, owner: np.ndarray, reg: PlaneRegions, step: float = 0.02,
+def extend_sides(segs: np.ndarray, owner: np.ndarray, reg: PlaneRegions, step: float = 0.02,
                   reach: float = 0.15, radius: float = 0.02, min_length: float = 0.2) -> np.ndarray:
     """Boundary sides (M, 2, 3) lengthened at each end while their plane's boundary goes on.
 
@@ -231,7 +231,7 @@ def _extend_sides(segs: np.ndarray, owner: np.ndarray, reg: PlaneRegions, step: 
     return out
 
 
-def _seen_past(segs: np.ndarray, owner: np.ndarray, reg: PlaneRegions, reach: float = 4.0,
+def seen_past(segs: np.ndarray, owner: np.ndarray, reg: PlaneRegions, reach: float = 4.0,
                radius: float = 0.04) -> np.ndarray:
     """Mask of boundary sides past which the scene was scanned on both sides of their plane.
 
@@ -248,7 +248,7 @@ def _seen_past(segs: np.ndarray, owner: np.ndarray, reg: PlaneRegions, reach: fl
     P, lab, tree = reg.points, reg.labels, reg.tree
     n = reg.normals[owner]
     w = _across(segs, n)
-    x, seg = _sample_segments(segs, 0.1)
+    x, seg = sample_segments(segs, 0.1)
     # Outward: the side of the segment where the owner plane has no point.
     _, j = tree.query(x + 0.03 * w[seg], distance_upper_bound=0.02, workers=-1)
     own = (j < len(P)) & (lab[np.minimum(j, len(P) - 1)] == owner[seg])

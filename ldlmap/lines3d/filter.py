@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from ldlmap.core.errors import InputError
-from ldlmap.lines3d.params import _check_lines, _check_points
+from ldlmap.lines3d.params import check_lines, check_points
 
 
 def robust_bounds(points: np.ndarray, percentiles: tuple[float, float] = (2.0, 98.0),
@@ -18,7 +18,7 @@ def robust_bounds(points: np.ndarray, percentiles: tuple[float, float] = (2.0, 9
     A scan or line map has its walls at the extremes, so a clean one gets its full bounding box
     (the paper's); a few far outlier points or segments (SfM) fall outside and are ignored.
     """
-    P = _check_points(points)
+    P = check_points(points)
     lo, hi = np.percentile(P, percentiles, axis=0)
     pad = margin * (hi - lo)
     inside = np.all((P >= lo - pad) & (P <= hi + pad), axis=1)
@@ -45,7 +45,7 @@ def filter_by_length(lines: np.ndarray, bounds_min: np.ndarray, bounds_max: np.n
     kept length. Returns ``(kept_lines (M, 2, 3), kept_mask (N,) bool, threshold)``; the kept
     ratio that the 2D filter matches is ``kept_mask.mean()``.
     """
-    L = _check_lines(lines)
+    L = check_lines(lines)
     thr = length_threshold(bounds_min, bounds_max, lam)
     length = np.linalg.norm(L[:, 1] - L[:, 0], axis=1)
     mask = length >= thr

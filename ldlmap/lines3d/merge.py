@@ -4,7 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from ldlmap.lines3d.params import Lines3DParams, _check_lines
+from ldlmap.core.lazy import lazy_module
+from ldlmap.lines3d.params import Lines3DParams, check_lines
+
+csgraph = lazy_module("scipy.sparse.csgraph")
+sparse = lazy_module("scipy.sparse")
 
 
 def merge_collinear(lines: np.ndarray, weights: np.ndarray | None = None, angle_deg: float = 5.0,
@@ -15,10 +19,7 @@ def merge_collinear(lines: np.ndarray, weights: np.ndarray | None = None, angle_
     along the weighted mean direction through the weighted mean midpoint (only the members of
     highest weight place it), spanning the projections of all member endpoints.
     """
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
-    L = _check_lines(lines)
+    L = check_lines(lines)
     n = len(L)
     if n < 2:
         return L.copy()
@@ -51,8 +52,8 @@ def merge_collinear(lines: np.ndarray, weights: np.ndarray | None = None, angle_
     if not rows:
         return L.copy()
     r, c = np.concatenate(rows), np.concatenate(cols)
-    g = coo_matrix((np.ones(len(r), np.int8), (r, c)), shape=(n, n))
-    n_g, grp = connected_components(g, directed=False)
+    g = sparse.coo_matrix((np.ones(len(r), np.int8), (r, c)), shape=(n, n))
+    n_g, grp = csgraph.connected_components(g, directed=False)
     # Members that place the line: those with the group's highest weight.
     wmax = np.full(n_g, -np.inf)
     np.maximum.at(wmax, grp, w)
@@ -86,9 +87,9 @@ def join_lines(lines: np.ndarray, params: Lines3DParams = Lines3DParams()) -> np
     ``join_gap`` are merged (:func:`merge_collinear`, longer pieces place the line); joined lines
     shorter than ``min_line`` are dropped, as a line detector would not report them.
     """
-    L = _check_lines(lines)
+    L = check_lines(lines)
     if len(L) == 0:
         return L.copy()
     length = np.linalg.norm(L[:, 1] - L[:, 0], axis=1)
-    out = merge_collinear(L, length, params.join_angle_deg, params.join_dist, params.join_gap)
-    return out[np.linalg.norm(out[:, 1] - out[:, 0], axis=1) >= max(params.min_line, params.min_segment)]
+    out = merge_collinear(L, length, params.merge.join_angle_deg, params.merge.join_dist, params.merge.join_gap)
+    return out[np.linalg.norm(out[:, 1] - out[:, 0], axis=1) >= max(params.merge.min_line, params.merge.min_segment)]

@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from ldlmap.lines3d.params import _check_lines
+from ldlmap.lines3d.params import check_lines
 
 
-def _sample_segments(L: np.ndarray, step: float) -> tuple[np.ndarray, np.ndarray]:
+def sample_segments(L: np.ndarray, step: float) -> tuple[np.ndarray, np.ndarray]:
     """Points along each segment every ``step`` (at least 2 per segment) and their segment index."""
     length = np.linalg.norm(L[:, 1] - L[:, 0], axis=1)
     k = np.maximum(2, np.ceil(length / step).astype(np.int64) + 1)
@@ -17,7 +17,7 @@ def _sample_segments(L: np.ndarray, step: float) -> tuple[np.ndarray, np.ndarray
     return L[seg, 0] + f[:, None] * (L[seg, 1] - L[seg, 0]), seg
 
 
-def _covered(samples: np.ndarray, sdir: np.ndarray, ref: np.ndarray, dist: float, cos_t: float) -> np.ndarray:
+def covered_samples(samples: np.ndarray, sdir: np.ndarray, ref: np.ndarray, dist: float, cos_t: float) -> np.ndarray:
     """For each sample point: is there a reference segment within ``dist`` and the angle?"""
     a, b = ref[:, 0], ref[:, 1]
     v = b - a
@@ -43,17 +43,17 @@ def line_precision_recall(pred: np.ndarray, gt: np.ndarray, dist: float = 0.05, 
     same with the roles swapped. Lengths are measured by sampling points every ``step``.
     Returns ``(precision, recall)``; an empty set scores 0 (1 when both are empty).
     """
-    P, G = _check_lines(pred), _check_lines(gt)
+    P, G = check_lines(pred), check_lines(gt)
     if len(P) == 0 or len(G) == 0:
         both_empty = float(len(P) == 0 and len(G) == 0)
         return both_empty, both_empty
     cos_t = np.cos(np.radians(angle_deg))
 
     def frac(A: np.ndarray, B: np.ndarray) -> np.ndarray:
-        x, seg = _sample_segments(A, step)
+        x, seg = sample_segments(A, step)
         da = A[:, 1] - A[:, 0]
         da = da / np.maximum(np.linalg.norm(da, axis=1, keepdims=True), 1e-12)
-        cov = _covered(x, da[seg], B, dist, cos_t)
+        cov = covered_samples(x, da[seg], B, dist, cos_t)
         return np.bincount(seg, cov, len(A)) / np.bincount(seg, minlength=len(A))
 
     precision = float(np.mean(frac(P, G) >= min_cover))

@@ -2,19 +2,23 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 
-from ldlmap.lines3d.params import _check_lines
+from ldlmap.core.lazy import lazy_module
+from ldlmap.core.pictures import write_picture
+from ldlmap.io.linefiles import write_lines
+from ldlmap.lines3d.params import check_lines
+from ldlmap.lines3d.principal import assign_line_groups
+
+cv2 = lazy_module("cv2")
 
 
 def write_line_files(path: str, lines: np.ndarray) -> list:
     """Write ``lines`` as ``.obj`` and ``.txt`` (same stem as ``path``, via
     :func:`ldlmap.io.linefiles.write_lines`, atomically); returns the two paths."""
-    from pathlib import Path
-
-    from ldlmap.io.linefiles import write_lines
-
-    L = _check_lines(lines)
+    L = check_lines(lines)
     base = Path(path)
     targets = [base.with_suffix(".obj"), base.with_suffix(".txt")]
     for t in targets:
@@ -29,10 +33,8 @@ def top_view_image(lines: np.ndarray, size: int = 1000, principal: np.ndarray | 
     Lines of the three principal groups are red, green and blue, others grey; ``dropped`` lines
     (e.g. removed by the length filter) are drawn thin and light.
     """
-    import cv2
-
-    L = _check_lines(lines)
-    D = _check_lines(dropped) if dropped is not None else np.zeros((0, 2, 3))
+    L = check_lines(lines)
+    D = check_lines(dropped) if dropped is not None else np.zeros((0, 2, 3))
     allp = np.concatenate([L, D]).reshape(-1, 3)
     img = np.full((size, size, 3), 255, np.uint8)
     if len(allp):
@@ -48,8 +50,6 @@ def top_view_image(lines: np.ndarray, size: int = 1000, principal: np.ndarray | 
             cv2.line(img, tuple(map(int, a)), tuple(map(int, b)), (200, 200, 200), 1, cv2.LINE_AA)
         groups = np.full(len(L), -1)
         if principal is not None and len(L):
-            from ldlmap.lines3d.principal import assign_line_groups
-
             v = L[:, 1] - L[:, 0]
             groups = assign_line_groups(v, principal)
         colors = {0: (40, 40, 220), 1: (40, 170, 40), 2: (220, 80, 40), 3: (30, 200, 230), 4: (200, 60, 200),
@@ -62,6 +62,4 @@ def top_view_image(lines: np.ndarray, size: int = 1000, principal: np.ndarray | 
 def draw_top_view(lines: np.ndarray, path: str, size: int = 1000, principal: np.ndarray | None = None,
                   dropped: np.ndarray | None = None) -> None:
     """Write :func:`top_view_image` atomically, in the format of ``path``'s extension."""
-    from ldlmap.core.pictures import write_picture
-
     write_picture(path, top_view_image(lines, size, principal, dropped))

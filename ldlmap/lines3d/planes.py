@@ -10,16 +10,21 @@ from functools import cached_property
 import numpy as np
 
 from ldlmap.core.errors import InputError
-from ldlmap.lines3d.params import Lines3DParams, _check_points
+from ldlmap.core.geometry import icosphere_points
+from ldlmap.core.lazy import lazy_module
+from ldlmap.lines3d.params import Lines3DParams, check_points
+
+csgraph = lazy_module("scipy.sparse.csgraph")
+ndimage = lazy_module("scipy.ndimage")
+sparse = lazy_module("scipy.sparse")
+spatial = lazy_module("scipy.spatial")
 
 
 def _knn(P: np.ndarray, k: int):
     """k-d tree of ``P`` (scipy ``cKDTree``), and the distances and indices (N, k) of each point's
     ``k`` nearest points, itself first: one query serves normals, the plane graph and later
     look-ups."""
-    from scipy.spatial import cKDTree
-
-    tree = cKDTree(P)
+    tree = spatial.cKDTree(P)
     dist, idx = tree.query(P, k=min(k, len(P)), workers=-1)
     return tree, dist.reshape(len(P), -1), idx.reshape(len(P), -1)
 
@@ -32,10 +37,8 @@ def _normals_and_curvature(P: np.ndarray, knn: np.ndarray) -> tuple[np.ndarray, 
     averaging matrix (first and second moments about the cloud's centroid, which keeps them
     well conditioned for scenes far from the origin).
     """
-    from scipy.sparse import csr_matrix
-
     n, k = knn.shape
-    A = csr_matrix((np.full(n * k, 1.0 / k), knn.ravel(), np.arange(0, n * k + 1, k)), shape=(n, n))
+    A = sparse.csr_matrix((np.full(n * k, 1.0 / k), knn.ravel(), np.arange(0, n * k + 1, k)), shape=(n, n))
     X = P - P.mean(0)
     a, b = np.triu_indices(3)
     M = A @ np.column_stack([X, X[:, a] * X[:, b]])
@@ -85,12 +88,10 @@ class PlaneRegions:
     @cached_property
     def tree(self):
         """k-d tree of the points (scipy ``cKDTree``), built once for every look-up."""
-        from scipy.spatial import cKDTree
-
-        return self.kdtree if self.kdtree is not None else cKDTree(self.points)
+        return self.kdtree if self.kdtree is not None else spatial.cKDTree(self.points)
 
 
-def _voxels(P: np.ndarray, v: float) -> tuple[np.ndarray, np.ndarray]:
+def voxel_cells(P: np.ndarray, v: float) -> tuple[np.ndarray, np.ndarray]:
     """Grid cells (integer (N, 3)) of the points on a ``v`` grid anchored half a cell below the
     cloud's minimum (open3d's ``voxel_down_sample`` grid), and a number per cell (ordered as the
     cells' (x, y, z))."""
@@ -124,27 +125,27 @@ def point_cap(P: np.ndarray, params: Lines3DParams) -> int:
     the scan's footprint (the product of its two largest extents), never fewer than ``max_points``:
     a room keeps the cap, a building floor of 300 m2 six times it."""
     if len(P) == 0:
-        return int(params.max_points)
+        return int(params.planes.max_points)
     e = np.sort(P.max(0) - P.min(0))
     area = float(e[1] * e[2])
-    return int(params.max_points * max(1.0, area / max(params.max_points_area_m2, 1e-9)))
+    return int(params.planes.max_points * max(1.0, area / max(params.planes.max_points_area_m2, 1e-9)))
 
 
 def _downsample(P: np.ndarray, params: Lines3DParams) -> tuple[np.ndarray, float]:
     """Voxel-grid downsampling to at most :func:`point_cap` points: the mean of each occupied
     voxel (as open3d's ``voxel_down_sample``), in Z-order of the voxels; returns (points, voxel)."""
-    if params.voxel_size <= 0:
+    if params.planes.voxel_size <= 0:
         return P, 0.0
-    v = params.voxel_size
+    v = params.planes.voxel_size
     cap = point_cap(P, params)
-    q, key = _voxels(P, v)
+    q, key = voxel_cells(P, v)
     for _ in range(4):
         srt = np.sort(key)
         nv = 1 + int(np.count_nonzero(srt[1:] != srt[:-1]))  # occupied voxels
         if nv <= cap:
             break
         v *= 1.03 * np.sqrt(nv / cap)
-        q, key = _voxels(P, v)
+        q, key = voxel_cells(P, v)
     _, inv = np.unique(key, return_inverse=True)
     inv = inv.reshape(-1)
     nv = int(inv.max()) + 1
@@ -163,19 +164,14 @@ def _dominant_orientations(normals: np.ndarray, params: Lines3DParams) -> np.nda
     axis of the normals within ``orient_radius_deg`` of it, those normals are removed, repeat while
     a peak holds ``min_orientation_points`` normals.
     """
-    from scipy.sparse import csr_matrix
-    from scipy.spatial import cKDTree
-
-    from ldlmap.core.geometry import icosphere_points
-
     V = np.asarray(icosphere_points(4))
-    tree = cKDTree(V)
-    r = 2.0 * np.sin(np.radians(params.orient_radius_deg) / 2.0)
+    tree = spatial.cKDTree(V)
+    r = 2.0 * np.sin(np.radians(params.planes.orient_radius_deg) / 2.0)
     pairs = tree.query_pairs(r, output_type="ndarray")
     nv = len(V)
     rows = np.concatenate([pairs[:, 0], pairs[:, 1], np.arange(nv)])
     cols = np.concatenate([pairs[:, 1], pairs[:, 0], np.arange(nv)])
-    S = csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(nv, nv))
+    S = sparse.csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(nv, nv))
     _, vi = tree.query(normals)
     vj = tree.query(-V)[1][vi]  # the vertex nearest to -n: the antipode of n's (the icosphere is symmetric)
     alive = np.ones(len(normals), bool)
@@ -198,13 +194,13 @@ def _dominant_orientations(normals: np.ndarray, params: Lines3DParams) -> np.nda
         alive[idx] = False
         votes0[:] -= np.bincount(vi[idx], minlength=nv) + np.bincount(vj[idx], minlength=nv)
 
-    cos_r = np.cos(np.radians(params.orient_radius_deg))
-    cos_c = np.cos(np.radians(params.orient_cone_deg))
+    cos_r = np.cos(np.radians(params.planes.orient_radius_deg))
+    cos_c = np.cos(np.radians(params.planes.orient_cone_deg))
     out: list[np.ndarray] = []
-    for _ in range(params.max_orientations):
+    for _ in range(params.planes.max_orientations):
         votes = S @ votes0.astype(np.float64)
         top = int(np.argmax(votes))
-        if votes[top] / 2.0 < params.min_orientation_points:
+        if votes[top] / 2.0 < params.planes.min_orientation_points:
             break
         d = V[top]
         for _ in range(2):  # refine: principal axis of the normals near the peak
@@ -213,7 +209,7 @@ def _dominant_orientations(normals: np.ndarray, params: Lines3DParams) -> np.nda
                 break
             w, U = np.linalg.eigh(normals[sel].T @ normals[sel])
             d = U[:, 2]
-        if len(near(d, cos_r)) < params.min_orientation_points:
+        if len(near(d, cos_r)) < params.planes.min_orientation_points:
             drop(near(V[top], cos_r))
             continue
         out.append(d)
@@ -231,11 +227,9 @@ def _claim_planes(off: np.ndarray, voter: np.ndarray, free: np.ndarray, params: 
     ``plane_tol``, becomes a plane (offset: mean of those voters) that claims every free candidate
     within ``plane_tol``; its voters leave the histogram. Returns ``[(offset, claimed index)]``.
     """
-    from scipy.ndimage import gaussian_filter1d
-
-    if voter.sum() < params.min_plane_voters:
+    if voter.sum() < params.planes.min_plane_voters:
         return []
-    b = params.offset_bin
+    b = params.planes.offset_bin
     lo = off.min() - 5 * b
     bins = np.floor((off - lo) / b).astype(np.int64)
     nb = int(bins.max()) + 6
@@ -243,21 +237,21 @@ def _claim_planes(off: np.ndarray, voter: np.ndarray, free: np.ndarray, params: 
     srt = off[order]
     live = voter & free
     h = np.bincount(bins[live], minlength=nb).astype(np.float64)
-    k = int(round(params.plane_tol / b))
+    k = int(round(params.planes.plane_tol / b))
     out = []
-    for _ in range(params.max_planes_per_orientation):
-        hs = gaussian_filter1d(h, params.offset_sigma / b)
+    for _ in range(params.planes.max_planes_per_orientation):
+        hs = ndimage.gaussian_filter1d(h, params.planes.offset_sigma / b)
         top = int(np.argmax(hs))
         cum = h[max(top - k, 0):top + k + 1].sum()
-        if cum < params.min_plane_voters:
+        if cum < params.planes.min_plane_voters:
             break
         c = lo + (top + 0.5) * b
-        i0, i1 = np.searchsorted(srt, [c - params.plane_tol / 2, c + params.plane_tol / 2])
+        i0, i1 = np.searchsorted(srt, [c - params.planes.plane_tol / 2, c + params.planes.plane_tol / 2])
         idx = order[i0:i1]
         idx = idx[live[idx]]
         if len(idx):
             c = float(off[idx].mean())
-        i0, i1 = np.searchsorted(srt, [c - params.plane_tol, c + params.plane_tol])
+        i0, i1 = np.searchsorted(srt, [c - params.planes.plane_tol, c + params.planes.plane_tol])
         idx = order[i0:i1]
         idx = idx[free[idx]]
         gone = idx[live[idx]]
@@ -280,21 +274,18 @@ def segment_planes(points: np.ndarray, params: Lines3DParams = Lines3DParams()) 
     into connected pieces (kNN links within ``link_dist``), pieces with fewer than
     ``min_region_points`` points are dropped, and each piece gets its own least-squares plane.
     """
-    from scipy.sparse import csr_matrix
-    from scipy.sparse.csgraph import connected_components
-
-    P, v = _downsample(canonical_order(_check_points(points)), params)
-    if len(P) < max(params.normal_k, 10):
+    P, v = _downsample(canonical_order(check_points(points)), params)
+    if len(P) < max(params.planes.normal_k, 10):
         raise InputError(f"point cloud too small for line extraction ({len(P)} points)")
-    tree, dist, knn = _knn(P, max(params.normal_k, params.graph_k + 1))
-    normals, curv, axes, linearity = _normals_and_curvature(P, knn[:, :params.normal_k])
-    nbr, dist = knn[:, 1:params.graph_k + 1], dist[:, 1:params.graph_k + 1]
-    flat = curv <= params.max_curvature
+    tree, dist, knn = _knn(P, max(params.planes.normal_k, params.planes.graph_k + 1))
+    normals, curv, axes, linearity = _normals_and_curvature(P, knn[:, :params.planes.normal_k])
+    nbr, dist = knn[:, 1:params.planes.graph_k + 1], dist[:, 1:params.planes.graph_k + 1]
+    flat = curv <= params.planes.max_curvature
     D = _dominant_orientations(normals[flat], params)
     n = len(P)
     lab = np.full(n, -1)
-    cos_peak = np.cos(np.radians(params.orient_cone_deg))
-    cos_assign = np.cos(np.radians(params.assign_angle_deg))
+    cos_peak = np.cos(np.radians(params.planes.orient_cone_deg))
+    cos_assign = np.cos(np.radians(params.planes.assign_angle_deg))
     free = np.ones(n, bool)
     n_planes = 0
     for d in D:
@@ -309,13 +300,13 @@ def segment_planes(points: np.ndarray, params: Lines3DParams = Lines3DParams()) 
             n_planes += 1
         free[cand] = sub_free
     # Connected pieces of each plane.
-    link = (lab[:, None] >= 0) & (lab[:, None] == lab[nbr]) & (dist <= params.link_dist)
+    link = (lab[:, None] >= 0) & (lab[:, None] == lab[nbr]) & (dist <= params.planes.link_dist)
     indptr = np.concatenate([[0], np.cumsum(link.sum(1))])
-    g = csr_matrix((np.ones(indptr[-1], np.int8), nbr[link], indptr), shape=(n, n))
-    n_comp, comp = connected_components(g, directed=False)
+    g = sparse.csr_matrix((np.ones(indptr[-1], np.int8), nbr[link], indptr), shape=(n, n))
+    n_comp, comp = csgraph.connected_components(g, directed=False)
     comp = np.where(lab >= 0, comp, -1)
     sizes = np.bincount(comp[comp >= 0], minlength=n_comp)
-    big = sizes >= params.min_region_points
+    big = sizes >= params.planes.min_region_points
     remap = np.where(big, np.cumsum(big) - 1, -1)
     labels = np.where(comp >= 0, remap[np.maximum(comp, 0)], -1)
     L = int(big.sum())
@@ -323,7 +314,7 @@ def segment_planes(points: np.ndarray, params: Lines3DParams = Lines3DParams()) 
         return PlaneRegions(P, labels, np.zeros((0, 3)), np.zeros((0, 3)), nbr, v, axes, linearity, tree)
     sel = labels >= 0
     c, nrm, rms, _ = _plane_fits(P[sel], labels[sel], L)
-    good = rms <= params.max_plane_rms
+    good = rms <= params.planes.max_plane_rms
     remap = np.where(good, np.cumsum(good) - 1, -1)
     labels = np.where(labels >= 0, remap[np.maximum(labels, 0)], -1)
     return PlaneRegions(P, labels, c[good], nrm[good], nbr, v, axes, linearity, tree)

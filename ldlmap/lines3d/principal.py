@@ -1,4 +1,4 @@
-"""Principal 3D directions of a line map by voting (DESIGN.md 5.2, paper supp. "Principal
+"""Principal 3D directions of a line map by voting (paper supp. "Principal
 Direction Computation").
 
 Every line votes for the bins of a half icosphere (level 5: 5121 directions, ~2.2 degrees apart)
@@ -22,6 +22,11 @@ import numpy as np
 
 from ldlmap.core.errors import InputError
 from ldlmap.core.geometry import half_icosphere_points, normalize
+from ldlmap.core.lazy import lazy_module
+
+hierarchy = lazy_module("scipy.cluster.hierarchy")
+
+HORIZONTAL_DEG = 10.0  # lines and directions this close to horizontal (degrees) count as horizontal
 
 
 @dataclass(frozen=True)
@@ -170,7 +175,7 @@ def manhattan_frame(lines: np.ndarray, estimated: np.ndarray, up: np.ndarray = (
 class FrameParams:
     """Parameters of :func:`principal_frame` (docs/measurements.md#atlanta-frame)."""
 
-    horizontal_deg: float = 10.0  # lines this close to horizontal give the horizontal directions
+    horizontal_deg: float = HORIZONTAL_DEG  # lines this close to horizontal give the horizontal directions
     atlanta_deg: float = 10.0  # Atlanta frame when the two main horizontals are more than this from perpendicular
     sloped_share: float = 0.02  # a room is sloped (its ceiling) when more than this share of the line length
     # is inclined (10-80 deg from horizontal); its frame then gets inclined directions
@@ -322,16 +327,14 @@ def horizontal_directions(lines: np.ndarray, v: np.ndarray, params: FrameParams 
 def longest_crease(lines: np.ndarray, direction: np.ndarray, gap_m: float) -> float:
     """The summed length of the largest set of ``lines`` (n, 2, 3), all about along ``direction``,
     that lie on one axis: their midpoints, seen along ``direction``, within ``gap_m`` of each other
-    (single linkage). One crease broken into pieces sums up; parallel pieces side by side do not."""
-    from scipy.cluster.hierarchy import fcluster, linkage
-
+    (single hierarchy.linkage). One crease broken into pieces sums up; parallel pieces side by side do not."""
     p = normalize(np.asarray(direction, dtype=np.float64)[None])[0]
     length = np.linalg.norm(lines[:, 1] - lines[:, 0], axis=1)
     if len(lines) < 2:
         return float(length.sum())
     mids = lines.mean(axis=1)
     across = mids - np.outer(mids @ p, p)  # where each line's axis meets the plane perpendicular to the direction
-    labels = fcluster(linkage(across, "single"), gap_m, "distance")
+    labels = hierarchy.fcluster(hierarchy.linkage(across, "single"), gap_m, "distance")
     return float(np.bincount(labels, length).max())
 
 

@@ -6,14 +6,17 @@ from __future__ import annotations
 
 import numpy as np
 
-from ldlmap.lines3d.metrics import _sample_segments
+from ldlmap.core.lazy import lazy_module
+from ldlmap.lines3d.metrics import sample_segments
 from ldlmap.lines3d.params import Lines3DParams
-from ldlmap.lines3d.planes import _voxels
+from ldlmap.lines3d.planes import voxel_cells
+
+spatial = lazy_module("scipy.spatial")
 
 
-def _thin(P: np.ndarray, v: float) -> np.ndarray:
+def thin_points(P: np.ndarray, v: float) -> np.ndarray:
     """Indices of one point per occupied ``v`` grid cell (the first): an even, sparser surface."""
-    return np.unique(_voxels(P, v)[1], return_index=True)[1]
+    return np.unique(voxel_cells(P, v)[1], return_index=True)[1]
 
 
 def _moments(a: np.ndarray, b: np.ndarray, m: np.ndarray) -> tuple[np.ndarray, ...]:
@@ -54,27 +57,25 @@ def smooth_lines(lines: np.ndarray, points: np.ndarray, params: Lines3DParams) -
     step (a frame standing out of a wall) keeps the sample an edge. Lines with at least half of
     their samples smooth are on a smooth surface.
     """
-    from scipy.spatial import cKDTree
-
-    if len(lines) == 0 or params.smooth_crease_deg <= 0:
+    if len(lines) == 0 or params.smooth.crease_deg <= 0:
         return np.zeros(len(lines), bool)
-    Q = points[_thin(points, params.smooth_grid)]
-    r0, r1 = params.smooth_reach
-    x, seg = _sample_segments(lines, 0.05)
+    Q = points[thin_points(points, params.smooth.grid)]
+    r0, r1 = params.smooth.reach
+    x, seg = sample_segments(lines, 0.05)
     u = lines[:, 1] - lines[:, 0]
     u /= np.maximum(np.linalg.norm(u, axis=1, keepdims=True), 1e-12)
     a = np.eye(3)[np.argmin(np.abs(u), axis=1)]
     e1 = np.cross(u, a)
     e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
     e2 = np.cross(u, e1)
-    k = min(params.smooth_neighbours, len(Q))
-    d, j = cKDTree(Q).query(x, k=k, distance_upper_bound=np.hypot(r1, params.smooth_slab), workers=-1)
+    k = min(params.smooth.neighbours, len(Q))
+    d, j = spatial.cKDTree(Q).query(x, k=k, distance_upper_bound=np.hypot(r1, params.smooth.slab), workers=-1)
     d, j = d.reshape(len(x), -1), j.reshape(len(x), -1)
     R = Q[np.minimum(j, len(Q) - 1)] - x[:, None, :]  # (S, k, 3)
     along = np.einsum("skj,sj->sk", R, u[seg])
     pa, pb = np.einsum("skj,sj->sk", R, e1[seg]), np.einsum("skj,sj->sk", R, e2[seg])
     rad = np.hypot(pa, pb)
-    m = np.isfinite(d) & (np.abs(along) <= params.smooth_slab) & (rad >= r0) & (rad <= r1)
+    m = np.isfinite(d) & (np.abs(along) <= params.smooth.slab) & (rad >= r0) & (rad <= r1)
     # The main direction of the cross-section through the line (second moments about the line).
     saa, sbb, sab = (pa * pa * m).sum(1), (pb * pb * m).sum(1), (pa * pb * m).sum(1)
     ang = 0.5 * np.arctan2(2 * sab, saa - sbb)
@@ -86,8 +87,8 @@ def smooth_lines(lines: np.ndarray, points: np.ndarray, params: Lines3DParams) -
         v, rms = _line_fit(caa, cbb, cab)
         nrm.append(v)
         off.append(ma * v[:, 0] + mb * v[:, 1])  # signed distance of the side's surface from the line
-        ok &= (n >= params.smooth_min_points) & (rms <= params.smooth_rms) & (np.abs(off[-1]) <= params.smooth_on)
+        ok &= (n >= params.smooth.min_points) & (rms <= params.smooth.rms) & (np.abs(off[-1]) <= params.smooth.on)
     bend_cos = np.einsum("ij,ij->i", nrm[0], nrm[1])
     step = np.abs(off[0] - np.sign(bend_cos) * off[1])  # the two surfaces' offsets, with their normals aligned
-    smooth = ok & (np.abs(bend_cos) >= np.cos(np.radians(params.smooth_crease_deg))) & (step <= params.smooth_step)
-    return np.bincount(seg, smooth, len(lines)) / np.bincount(seg, minlength=len(lines)) >= params.smooth_share
+    smooth = ok & (np.abs(bend_cos) >= np.cos(np.radians(params.smooth.crease_deg))) & (step <= params.smooth.step)
+    return np.bincount(seg, smooth, len(lines)) / np.bincount(seg, minlength=len(lines)) >= params.smooth.share

@@ -1,6 +1,6 @@
 """Build one LDL map from a scan: ``build_map(input, output, params) -> Path``.
 
-Stages (paper section 3.1, DESIGN.md 5.1-5.4), each timed:
+Stages (paper section 3.1), each timed, in the order :func:`build_from_input` calls them:
 
 1. ``load``: a colored point cloud (.ply/.pcd/.txt), a mesh (sampled with its texture colors),
    a COLMAP model folder (dense ``fused.ply`` when present, else 3D lines from its photos for a
@@ -31,7 +31,7 @@ Stages (paper section 3.1, DESIGN.md 5.1-5.4), each timed:
 
 from __future__ import annotations
 
-import time
+import math
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any, Callable
@@ -39,52 +39,102 @@ from typing import Any, Callable
 import numpy as np
 
 from ldlmap.core.errors import InputError
+from ldlmap.core.frame import (apply, check_extent, decompose, is_identity, parse_up, recentring_offset, scale_warning,
+                               similarity)
+from ldlmap.core.geometry import rotation_error_deg
+from ldlmap.core.timing import StageClock
+from ldlmap.features import available_backends, backend_for
+from ldlmap.features.sphere import check_extraction, default_extraction
+from ldlmap.io.linefiles import check_segments
+from ldlmap.lines3d import extract_lines, filter_by_length, length_threshold, robust_bounds
+from ldlmap.lines3d.principal import (FrameParams, HORIZONTAL_DEG, assign_line_groups, line_directions,
+                                      manhattan_frame, principal_directions_3d, principal_frame)
+from ldlmap.map.contents import LdlMap, MapFeatures
+from ldlmap.map.fields3d import FieldParams, compute_fields
 from ldlmap.map.inputs import SceneInput, load_input
+from ldlmap.map.keypoints3d import view_features
+from ldlmap.map.mapfile import write_map
+from ldlmap.map.render import PointRenderer, RenderParams
+from ldlmap.map.translations import (SPARSE_SPACING_M, TranslationParams, candidate_spacing, candidate_translations,
+                                     spaced_translations)
+from ldlmap.map.visibility import coverage_fields, line_visibility, room_surfaces
+from ldlmap.sfm.gravity import estimate_up, map_rotation
+
+SCALE_RANGE = (1e-6, 1e6)  # --scale: metres per input unit accepted
 
 
 @dataclass(frozen=True)
 class BuildParams:
-    """Map-building parameters (paper defaults where the paper gives one)."""
+    """Map-building parameters (paper defaults where the paper gives one). Flat: the map stores them as
+    its config attribute (``asdict``), which must stay comparable across versions."""
 
-    lam: float = 0.1  # lambda: 3D length filter ratio
-    min_line_length: float | None = None  # absolute length threshold (m) instead of lambda's; for maps
-    # of several rooms, whose extent makes lambda's threshold longer than most of a room's lines
-    num_translations: int = 800  # N_t (800 OmniScenes, 1700 Stanford 2D-3D-S)
-    translation_method: str = "octree"  # octree (OmniScenes) | grid (Stanford)
-    clearance: float = 0.25  # candidate translations keep this distance (m) from the scan
-    features: str = "sift"  # sift | aliked | disk | xfeat | superpoint | none (ldlmap.features)
-    weights: str | None = None  # SuperPoint checkpoint path (else env var / cache / download)
-    num_views: int = 40  # views rendered for features; each translation uses its nearest view
-    width: int = 1024  # rendered view size (the queries' size)
+    lam: float = 0.1
+    """lambda: the 3D length filter's ratio to the robust extent (paper sec. 3.1)."""
+    min_line_length: float | None = None
+    """Absolute length threshold (m) instead of lambda's: maps of several rooms, whose extent makes lambda's
+    threshold longer than most of a room's lines."""
+    num_translations: int = 800
+    """N_t: candidate translations of a scan (800 OmniScenes, 1700 Stanford 2D-3D-S)."""
+    translation_method: str = "octree"
+    """How a scan's candidates are placed: octree (OmniScenes) | grid (Stanford)."""
+    clearance: float = 0.25
+    """Candidate translations keep this distance (m) from the scan."""
+    features: str = "sift"
+    """Local features: sift | aliked | disk | xfeat | superpoint | none (:mod:`ldlmap.features`)."""
+    weights: str | None = None
+    """SuperPoint checkpoint path (else env var / cache / download)."""
+    num_views: int = 40
+    """Views rendered for features; each translation uses its nearest view."""
+    width: int = 1024
+    """Rendered view width (the queries' size)."""
     height: int = 512
-    max_keypoints: int | None = None  # per rendered view (None: the backend's max_keypoints)
-    feature_extraction: str | None = None  # equirect (the panorama) | cube (its six 90-degree faces;
-    # ldlmap.features.sphere), for the map's views and, as the map records it, the queries; None: the
-    # backend's default (cube for aliked, equirect for the others: ldlmap.features.sphere.default_extraction)
-    stored_cloud_points: int = 200_000  # subsampled colored cloud kept in the map for pictures
-    mesh_samples: int = 1_000_000  # points sampled from a mesh input
-    device: str = "cpu"  # torch device for rendering and SuperPoint
+    """Rendered view height."""
+    max_keypoints: int | None = None
+    """Keypoints per rendered view (None: the backend's max_keypoints)."""
+    feature_extraction: str | None = None
+    """equirect (the panorama) | cube (its six 90-degree faces; :mod:`ldlmap.features.sphere`), for the map's
+    views and, as the map records it, the queries; None: the backend's default (``default_extraction``)."""
+    stored_cloud_points: int = 200_000
+    """Subsampled colored cloud kept in the map for pictures."""
+    mesh_samples: int = 1_000_000
+    """Points sampled from a mesh input."""
+    device: str = "cpu"
+    """Torch device for rendering and SuperPoint."""
     seed: int = 0
-    distance_fields: bool = True  # precompute 3D distance fields (fast pose search, ldlmap.map.fields3d)
-    trans_spacing: float = 0.3  # maps without a scan (layouts, line files): candidate translations on a
-    # lattice this many metres apart (a true camera is then within spacing / sqrt(2) in xy)
-    camera_height: tuple[float, float] | None = None  # camera-height band (metres above the floor) for candidate
-    # translations: a scan's N_t go to its free space in the band (its floor: the robust lowest z); maps without a
-    # scan: world z. None: a scan's free space from floor to ceiling; the layout's band when known
-    up: str = "auto"  # the input's up axis: auto (cameras, else the lines; ldlmap.sfm.gravity) | x | y | z | -x | -y | -z
-    scale: float = 1.0  # input coordinates are multiplied by this first (SfM frames: metres per unit)
-    min_kept_lines: int = 100  # length filter floor: keep at least min(this, half the lines), the longest ...
-    min_kept_length_share: float = 0.6  # ... and the longest holding this share of the total line length
-    # (below what the paper's threshold keeps of a scan, far above an SfM map's: docs/measurements.md#length-share)
-    max_kept_lines: int = 3000  # length filter cap: keep at most this many, the longest
-    orthonormal_directions: bool = True  # principal directions: the nearest Manhattan frame (paper's assumption)
-    atlanta_frame: bool = True  # ... or, when the main horizontals are far from perpendicular, an Atlanta frame
-    # (the vertical and those two; ldlmap.lines3d.principal.principal_frame). False: always Manhattan
-    max_horizontals: int = 4  # Atlanta frames: at most this many horizontal directions, where the walls run
-    # in more than two (FrameParams.max_horizontals; 2: the vertical and the main two only)
-    max_inclined: int = 2  # sloped ceilings: at most this many inclined directions added to the frame
-    # (FrameParams.max_inclined; 0: none)
-    stations: tuple[str, ...] = ()  # E57 input: the scan stations to use, names or 0-based indices (all when empty)
+    """Seed of the view sampling and the stored cloud's subsample."""
+    distance_fields: bool = True
+    """Precompute 3D distance fields (fast pose search, :mod:`ldlmap.map.fields3d`)."""
+    trans_spacing: float = 0.3
+    """Maps without a scan (layouts, line files): candidate translations on a lattice this many metres apart
+    (a true camera is then within spacing / sqrt(2) in xy)."""
+    camera_height: tuple[float, float] | None = None
+    """Camera-height band (metres above the floor) for candidate translations: a scan's N_t go to its free
+    space in the band (its floor: the robust lowest z); maps without a scan: world z. None: a scan's free space
+    from floor to ceiling; the layout's band when known."""
+    up: str = "auto"
+    """The input's up axis: auto (cameras, else the lines; :mod:`ldlmap.sfm.gravity`) | x | y | z | -x | -y | -z."""
+    scale: float = 1.0
+    """Input coordinates are multiplied by this first (SfM frames: metres per unit; :data:`SCALE_RANGE`)."""
+    min_kept_lines: int = 100
+    """Length filter floor: keep at least min(this, half the lines), the longest, ..."""
+    min_kept_length_share: float = 0.6
+    """... and the longest holding this share of the total line length (below what the paper's threshold keeps
+    of a scan, far above an SfM map's: docs/measurements.md#length-share)."""
+    max_kept_lines: int = 3000
+    """Length filter cap: keep at most this many, the longest."""
+    orthonormal_directions: bool = True
+    """Principal directions: the nearest Manhattan frame (paper's assumption), ..."""
+    atlanta_frame: bool = True
+    """... or, when the main horizontals are far from perpendicular, an Atlanta frame (the vertical and those
+    two; :func:`ldlmap.lines3d.principal.principal_frame`). False: always Manhattan."""
+    max_horizontals: int = 4
+    """Atlanta frames: at most this many horizontal directions, where the walls run in more than two
+    (``FrameParams.max_horizontals``; 2: the vertical and the main two only)."""
+    max_inclined: int = 2
+    """Sloped ceilings: at most this many inclined directions added to the frame (``FrameParams.max_inclined``;
+    0: none)."""
+    stations: tuple[str, ...] = ()
+    """E57 input: the scan stations to use, names or 0-based indices (all when empty)."""
 
 
 @dataclass
@@ -115,13 +165,6 @@ def _farthest_point_indices(P: np.ndarray, k: int, seed: int) -> np.ndarray:
 def compute_features(points: np.ndarray, colors: np.ndarray, translations: np.ndarray, params: BuildParams,
                      progress: Callable[[int, int], None] | None = None):
     """Render ``num_views`` views, extract and lift features; returns a MapFeatures."""
-    from ldlmap.features import backend_for
-    from ldlmap.map.keypoints3d import view_features
-    from ldlmap.map.contents import MapFeatures
-    from ldlmap.map.render import PointRenderer, RenderParams
-
-    from ldlmap.features.sphere import default_extraction
-
     extraction = params.feature_extraction or default_extraction(params.features)
     backend = backend_for(params.features, params.weights, params.device, extraction)
     renderer = PointRenderer(points, colors, RenderParams(width=params.width, height=params.height),
@@ -166,12 +209,12 @@ def build_map(input_path: str | Path, output: str | Path | None = None, lines_pa
     """
     input_path = Path(input_path)
     output = Path(output) if output is not None else input_path.with_suffix(".h5")
-    _check_params(params)
+    check_params(params)
     if progress:
         progress("load", 0, 1)
-    tick = time.perf_counter()
+    clock = StageClock({})
     src = load_input(input_path, lines_path, params.mesh_samples, images_path, params.stations)
-    load_seconds = time.perf_counter() - tick
+    load_seconds = clock.lap("load")
     config = {"input": str(input_path), "lines_file": str(lines_path) if lines_path else None}
     if images_path is not None:
         config["images"] = str(images_path)
@@ -187,31 +230,23 @@ def build_lines_map(lines: np.ndarray, output: str | Path, params: BuildParams =
     ``walkable`` (:class:`ldlmap.map.translations.Walkable`) says where cameras can stand; without it
     candidate translations fill the free space of the lines.
     """
-    from ldlmap.io.linefiles import _check_segments
-
-    _check_params(params)
+    check_params(params)
     output = Path(output)
-    segs = _check_segments(lines, name or "lines")
+    segs = check_segments(lines, name or "lines")
     src = SceneInput(None, None, segs, None, source, walkable)
     return build_from_input(src, output, params, name or output.stem, progress, {"input": source, "lines_file": None})
 
 
-def _check_params(params: BuildParams) -> None:
-    from ldlmap.features import available_backends
-
+def check_params(params: BuildParams) -> None:
+    """Refuse (one line) parameters no build can use, before any work."""
     if params.features not in (*available_backends(), "none"):
         raise InputError(f"unknown feature backend {params.features!r}; valid: {', '.join(available_backends())}, none")
-    from ldlmap.features.sphere import check_extraction
-
     if params.feature_extraction is not None:
         check_extraction(params.feature_extraction)
     if params.min_line_length is not None and not params.min_line_length > 0:
         raise InputError(f"minimum line length must be > 0 m, got {params.min_line_length}")
-    from ldlmap.core.frame import parse_up
-
     parse_up(params.up)
-    if not (np.isfinite(params.scale) and params.scale > 0):
-        raise InputError(f"--scale must be > 0, got {params.scale}")
+    check_scale(params.scale)
     if params.min_kept_lines < 0 or params.max_kept_lines < 1 or not 0 <= params.min_kept_length_share <= 1:
         raise InputError(f"kept-line bounds must be >= 0, >= 1 and a share in [0, 1], got {params.min_kept_lines}, "
                          f"{params.max_kept_lines}, {params.min_kept_length_share}")
@@ -222,6 +257,13 @@ def _check_params(params: BuildParams) -> None:
         raise InputError(f"camera-height band must be MIN:MAX with MIN <= MAX, got {ch}")
 
 
+def check_scale(scale: float) -> None:
+    """Refuse a ``scale`` (metres per input unit) outside :data:`SCALE_RANGE` (one line, the CLI's option named)."""
+    lo, hi = SCALE_RANGE
+    if not (math.isfinite(scale) and lo <= scale <= hi):
+        raise InputError(f"--scale must be a number in [{lo:g}, {hi:g}], got {scale:g} (metres per input unit)")
+
+
 def scene_translations(src: SceneInput, lines: np.ndarray, lines_raw: np.ndarray,
                        params: BuildParams) -> tuple[np.ndarray, dict]:
     """Candidate translations of a scene and how they were chosen (stored in the map's config).
@@ -230,8 +272,6 @@ def scene_translations(src: SceneInput, lines: np.ndarray, lines_raw: np.ndarray
     its floor when given. Without one: a lattice of ``trans_spacing`` over where cameras stand
     (:func:`ldlmap.map.translations.spaced_translations`).
     """
-    from ldlmap.map.translations import (TranslationParams, candidate_spacing, candidate_translations,
-                                         spaced_translations)
 
     if src.points is not None:
         band = params.camera_height
@@ -267,8 +307,6 @@ def _check_band_meets_scene(band: tuple[float, float] | None, lines: np.ndarray)
 
 def _transformed(src: SceneInput, lines: np.ndarray | None, A: np.ndarray) -> tuple[SceneInput, np.ndarray | None]:
     """``src`` and ``lines`` mapped by the similarity ``A`` (camera down axes rotated only)."""
-    from ldlmap.core.frame import apply, decompose, is_identity
-
     if is_identity(A):
         return src, lines
     _, R, _ = decompose(A)
@@ -290,9 +328,6 @@ def map_frame(src: SceneInput, lines_raw: np.ndarray, params: BuildParams) -> tu
     """The rotation input -> map (z up) of an already scaled input, its record for the map's
     config, a one-line note for the user ("" when the input frame is kept without doubt) and
     whether the note is a warning (the lines barely told the up axis, or leaned elsewhere)."""
-    from ldlmap.core.frame import parse_up
-    from ldlmap.sfm.gravity import estimate_up, map_rotation
-
     up = parse_up(params.up)
     if src.walkable is not None:  # room layouts are built metric and z-up
         if up is not None and not np.allclose(up, [0, 0, 1]):
@@ -300,7 +335,7 @@ def map_frame(src: SceneInput, lines_raw: np.ndarray, params: BuildParams) -> tu
         return np.eye(3), {"up_source": "layout", "rotation_deg": 0.0}, "", False
     est, principal = estimate_up(lines_raw, up, src.camera_down)
     R = map_rotation(est, principal)
-    deg = float(np.degrees(np.arccos(np.clip((np.trace(R) - 1) / 2, -1.0, 1.0))))
+    deg = rotation_error_deg(R, np.eye(3))  # the rotation's angle
     info = {"up_source": est.source, "up_input": [round(float(x), 6) for x in est.up], "rotation_deg": deg,
             "snapped_deg": est.snapped_deg, "camera_agreement": est.camera_agreement, "sign_share": est.sign_share,
             "kept_z": est.kept_z}
@@ -326,100 +361,163 @@ def known_up(frame_info: dict, rot: np.ndarray) -> np.ndarray | None:
 
 def _azimuths(principal: np.ndarray) -> str:
     """The azimuths (degrees modulo 180, ascending) of the horizontal rows of a z-up frame, for notes."""
-    horizontal = principal[np.abs(principal[:, 2]) < np.sin(np.radians(10.0))]
+    horizontal = principal[np.abs(principal[:, 2]) < np.sin(np.radians(HORIZONTAL_DEG))]
     return ", ".join(f"{a:.0f}" for a in sorted(round(float(np.degrees(np.arctan2(h[1], h[0]))) % 180.0)
                                                for h in horizontal))
 
 
-def _frame_notes(report: BuildReport, principal: np.ndarray, deviation: np.ndarray, frame_kind: str) -> None:
-    """The build's note on a frame that is not the plain Manhattan one (Atlanta, sloped), and its
-    warning when the voted directions were far from the frame the map uses."""
+FRAME_WORDS = {"manhattan": "the nearest orthogonal (Manhattan) frame",
+               "sloped": "the frame of the vertical and the main horizontal directions",
+               "atlanta": "the frame of the vertical and the two main horizontal directions (Atlanta)"}
+
+
+def frame_note(principal: np.ndarray, frame_kind: str) -> str | None:
+    """The build's note on a frame that is not the plain Manhattan one (Atlanta, sloped); None for that one."""
     if frame_kind == "atlanta" and len(principal) == 3:
         pair = np.degrees(np.arccos(np.abs(principal @ principal.T)[np.triu_indices(3, 1)].max()))
-        report.notes.append(f"principal directions: an Atlanta frame (the vertical and the two main horizontal "
-                            f"directions, {pair:.0f} deg apart: walls not at right angles)")
-    elif frame_kind == "atlanta":
-        report.notes.append(f"principal directions: an Atlanta frame of {len(principal)} (the vertical and "
-                            f"{len(principal) - 1} horizontal directions, at azimuths "
-                            f"{_azimuths(principal)} deg: walls in more than two directions)")
-    elif frame_kind == "sloped":
+        return (f"principal directions: an Atlanta frame (the vertical and the two main horizontal "
+                f"directions, {pair:.0f} deg apart: walls not at right angles)")
+    if frame_kind == "atlanta":
+        return (f"principal directions: an Atlanta frame of {len(principal)} (the vertical and "
+                f"{len(principal) - 1} horizontal directions, at azimuths "
+                f"{_azimuths(principal)} deg: walls in more than two directions)")
+    if frame_kind == "sloped":
         rise = np.degrees(np.arcsin(np.minimum(np.abs(principal[:, 2]), 1.0)))  # each row's elevation
-        tilted = [f"{a:.0f}" for a in rise if 10.0 < a < 80.0]
-        level = f"the vertical, {int((rise <= 10.0).sum())} horizontal at azimuths {_azimuths(principal)} deg"
-        report.notes.append(f"principal directions: {len(principal)} ({level} and {len(tilted)} inclined at "
-                            f"{', '.join(tilted)} deg: a sloped ceiling)" if tilted else
-                            f"principal directions: {len(principal)} ({level}); the inclined lines form no direction "
-                            "of their own (too short or too few for a sloped ceiling's edges)")
+        tilted = [f"{a:.0f}" for a in rise if HORIZONTAL_DEG < a < 90.0 - HORIZONTAL_DEG]
+        level = f"the vertical, {int((rise <= HORIZONTAL_DEG).sum())} horizontal at azimuths {_azimuths(principal)} deg"
+        return (f"principal directions: {len(principal)} ({level} and {len(tilted)} inclined at "
+                f"{', '.join(tilted)} deg: a sloped ceiling)" if tilted else
+                f"principal directions: {len(principal)} ({level}); the inclined lines form no direction "
+                "of their own (too short or too few for a sloped ceiling's edges)")
+    return None
+
+
+def _frame_notes(report: BuildReport, principal: np.ndarray, deviation: np.ndarray, frame_kind: str) -> None:
+    """The build's note on a frame that is not the plain Manhattan one, and its warning when the
+    voted directions were far from the frame the map uses."""
+    note = frame_note(principal, frame_kind)
+    if note is not None:
+        report.notes.append(note)
     if deviation.max() > 5.0:
-        frame_words = {"manhattan": "the nearest orthogonal (Manhattan) frame",
-                       "sloped": "the frame of the vertical and the main horizontal directions",
-                       "atlanta": "the frame of the vertical and the two main horizontal directions (Atlanta)"}
         report.warnings.append(
-            f"the lines' principal directions are up to {deviation.max():.0f} deg off {frame_words[frame_kind]}, "
+            f"the lines' principal directions are up to {deviation.max():.0f} deg off {FRAME_WORDS[frame_kind]}, "
             "which the map uses: noisy lines or a building of other shapes")
 
 
-def build_from_input(src: SceneInput, output: Path, params: BuildParams, name: str,
-                     progress: Callable[[str, int, int], None] | None = None, config: dict | None = None,
-                     load_seconds: float = 0.0) -> BuildReport:
-    """Build and write the map of a loaded :class:`SceneInput` (the stages after ``load``)."""
-    from ldlmap.core.frame import check_extent, recentring_offset, scale_warning, similarity
-    from ldlmap.lines3d import Lines3DParams, extract_lines, filter_by_length, length_threshold, robust_bounds
-    from ldlmap.map.contents import LdlMap
-    from ldlmap.map.mapfile import write_map
-    from ldlmap.lines3d.principal import (FrameParams, assign_line_groups, line_directions, manhattan_frame,
-                                          principal_directions_3d, principal_frame)
+class BuildStages:
+    """The build's stage clock and progress: ``start(name)`` shows stage ``name`` running,
+    ``end(name)`` stores its seconds in the report and shows it done."""
 
-    report = BuildReport(output)
-    report.seconds["load"] = load_seconds
-    if progress:
-        progress("load", 1, 1)
-    tick = time.perf_counter()
+    def __init__(self, seconds: dict[str, float], progress: Callable[[str, int, int], None] | None):
+        self.clock, self.progress = StageClock(seconds), progress
 
-    def start(name_: str, total: int = 1) -> None:
-        """Say that stage ``name_`` (of ``total`` steps) begins: the screen shows it running."""
-        if progress:
-            progress(name_, 0, total)
+    def start(self, name: str, total: int = 1) -> None:
+        """Stage ``name`` (of ``total`` steps) begins: the screen shows it running."""
+        if self.progress:
+            self.progress(name, 0, total)
 
-    def stage(name_: str, total: int = 1) -> None:
-        """Stage ``name_`` ended: its seconds, and the screen's next step."""
-        nonlocal tick
-        now = time.perf_counter()
-        report.seconds[name_] = now - tick
-        tick = now
-        if progress:
-            progress(name_, total, total)
+    def end(self, name: str, total: int = 1) -> None:
+        """Stage ``name`` ended: its seconds, and the screen's next step."""
+        self.clock.lap(name)
+        if self.progress:
+            self.progress(name, total, total)
 
-    start("lines")
+    def steps(self, name: str) -> Callable[[int, int], None] | None:
+        """The progress callback of a stage that counts its steps (None without progress)."""
+        return (lambda d, t: self.progress(name, d, t)) if self.progress else None
 
+
+@dataclass
+class MapFrame:
+    """The input's placement in the map: the similarity input -> map and the frame's record."""
+
+    src: SceneInput  # the input, scaled, recentred and rotated into z-up
+    lines_raw: np.ndarray  # the 3D lines before the length filter, in the map frame
+    rotation: np.ndarray  # the rotation input -> map
+    info: dict  # the frame's record in the map's config
+    input_to_map: np.ndarray  # the similarity X_map = R (s X_input - offset)
+
+
+@dataclass
+class LengthFilter:
+    """The paper's length filter applied to the raw lines, and its record."""
+
+    lines: np.ndarray  # the kept lines
+    kept: np.ndarray  # (N_raw,) bool: which raw lines were kept
+    threshold: float  # the length threshold applied (m)
+    lam: float  # its ratio to the robust extent
+    lambda_threshold: float  # the paper's threshold lambda * extent
+    bmin: np.ndarray  # robust bounds of the scan (or the lines)
+    bmax: np.ndarray
+    extent: float  # mean robust extent (m)
+
+    def config(self) -> dict:
+        """The filter's record in the map's config."""
+        rule = "threshold" if self.threshold == self.lambda_threshold else (
+            "floor" if self.threshold < self.lambda_threshold else "cap")
+        return {"rule": rule, "threshold": float(self.threshold), "lambda_threshold": self.lambda_threshold,
+                "robust_extent": self.extent}
+
+
+@dataclass
+class Directions:
+    """The map's principal directions and the lines' groups."""
+
+    principal: np.ndarray  # (K, 3)
+    deviation: np.ndarray  # the voted directions' angles (deg) from the frame used
+    kind: str  # voted | manhattan | atlanta | sloped
+    groups: np.ndarray  # (N,) each kept line's direction, -1 for none
+
+
+def check_scene_input(src: SceneInput, params: BuildParams) -> None:
+    """Refuse, before the long stages, a cloud too small to build on or without the colors features need."""
     if src.points is not None and len(src.points) < 100:
         raise InputError(f"point cloud has only {len(src.points)} points: too few to build a map")
-    if params.features != "none" and src.points is not None and src.colors is None:  # before the long stages
+    if params.features != "none" and src.points is not None and src.colors is None:
         raise InputError("the point cloud has no colors: features need a colored cloud (or use --features none)")
+
+
+def scaled_and_centred(src: SceneInput, params: BuildParams, report: BuildReport) -> tuple[SceneInput, np.ndarray | None]:
+    """The input multiplied by ``scale`` and, when far from the origin (UTM), moved to its centre
+    (the offset is returned, None when kept); its extent is checked before any grid is sized."""
     if params.scale != 1.0:
         if src.walkable is not None:
             raise InputError("--scale does not apply to room layouts (already metric)")
         src, _ = _transformed(src, None, similarity(params.scale))
     where = _input_points(src)
-    check_extent(np.subtract(*robust_bounds(where)[::-1]))  # before any grid is sized
+    check_extent(np.subtract(*robust_bounds(where)[::-1]))
     offset = recentring_offset(where) if src.walkable is None else None
-    if offset is not None:  # far from the origin (UTM): work and store relative to the scan's centre
+    if offset is not None:  # work and store relative to the scan's centre
         src, _ = _transformed(src, None, similarity(1.0, None, -offset))
         report.notes.append(f"frame: the input lies far from the origin; the map is centred on "
                             f"({offset[0]:.0f}, {offset[1]:.0f}, {offset[2]:.0f}) (poses in the input frame "
                             f"are given too)")
-    if src.lines is not None:
-        lines_raw = src.lines
-    else:
-        lines_raw = extract_lines(src.points, src.colors, Lines3DParams(lam=params.lam))
+    return src, offset
+
+
+def raw_lines(src: SceneInput) -> np.ndarray:
+    """The input's 3D lines: the line file's, else those extracted from the cloud."""
+    lines_raw = src.lines if src.lines is not None else extract_lines(src.points)
     if len(lines_raw) == 0:
         raise InputError("no 3D lines found in the input")
+    return lines_raw
+
+
+def into_map_frame(src: SceneInput, lines_raw: np.ndarray, offset: np.ndarray | None, params: BuildParams,
+                   report: BuildReport) -> MapFrame:
+    """The input and its lines rotated into z-up (:func:`map_frame`), with the frame's note."""
     rot, frame_info, note, weak = map_frame(src, lines_raw, params)
     shift = np.zeros(3) if offset is None else offset
     input_to_map = similarity(params.scale, rot, -(rot @ shift))  # X_map = R (s X_input - offset)
     src, lines_raw = _transformed(src, lines_raw, similarity(1.0, rot))
     if note:
         (report.warnings if weak else report.notes).append(note)
+    return MapFrame(src, lines_raw, rot, frame_info, input_to_map)
+
+
+def length_filter(src: SceneInput, lines_raw: np.ndarray, params: BuildParams, report: BuildReport) -> LengthFilter:
+    """The paper's length filter ``lambda`` times the robust extent (or the user's absolute length),
+    with a floor and a cap on the kept count; warns when the extent is not in metres."""
     pts_for_bounds = src.points if src.points is not None else lines_raw.reshape(-1, 3)
     bmin, bmax = robust_bounds(pts_for_bounds)  # far outliers do not stretch thresholds
     extent = float(np.mean(bmax - bmin))
@@ -432,13 +530,15 @@ def build_from_input(src: SceneInput, output: Path, params: BuildParams, name: s
                                               max_keep=params.max_kept_lines, min_length_share=share)
     if len(lines) == 0:
         raise InputError(f"no 3D line is longer than the length threshold {threshold:.3f} m")
-    paper_threshold = length_threshold(bmin, bmax, lam)
-    rule = "threshold" if threshold == paper_threshold else ("floor" if threshold < paper_threshold else "cap")
-    stage("lines")
-    start("principal")
+    return LengthFilter(lines, kept, threshold, lam, length_threshold(bmin, bmax, lam), bmin, bmax, extent)
+
+
+def principal_stage(lines: np.ndarray, frame: MapFrame, params: BuildParams, report: BuildReport) -> Directions:
+    """The principal directions by voting, snapped to the map's frame (Manhattan, Atlanta or
+    sloped), and each line's group; notes on the frame."""
     principal = principal_directions_3d(lines)
     deviation, frame_kind = np.zeros(3), "voted"
-    up = known_up(frame_info, rot)
+    up = known_up(frame.info, frame.rotation)
     gravity = {"up": (0.0, 0.0, 1.0) if up is None else up, "up_known": up is not None}
     if params.orthonormal_directions and params.atlanta_frame:
         principal, deviation, frame_kind = principal_frame(lines, principal,
@@ -451,91 +551,146 @@ def build_from_input(src: SceneInput, output: Path, params: BuildParams, name: s
     # under a sloped ceiling, lines join only directions of about their own elevation (the map frame's up is z)
     groups = assign_line_groups(line_directions(lines)[0], principal,
                                 up=(0.0, 0.0, 1.0) if frame_kind == "sloped" else None)
-    stage("principal")
-    start("translations")
+    return Directions(principal, deviation, frame_kind, groups)
+
+
+def translations_stage(src: SceneInput, lines: np.ndarray, lines_raw: np.ndarray, params: BuildParams,
+                       report: BuildReport) -> tuple[np.ndarray, dict]:
+    """The candidate translations (:func:`scene_translations`), with a warning when they stand sparse."""
     translations, trans_info = scene_translations(src, lines, lines_raw, params)
     if len(translations) == 0:
         raise InputError("no candidate translation found in the free space of the scan")
-    from ldlmap.map.translations import SPARSE_SPACING_M
-
     spacing = trans_info.get("median_spacing_m", 0.0)  # a scan's candidates only (a lattice has its own spacing)
     if spacing > SPARSE_SPACING_M:
         report.warnings.append(
             f"the {len(translations)} candidate translations stand a median {spacing:.2f} m apart, so cameras "
             "between them may be missed (a scan of a whole floor?): more with --num-trans, nearer the cameras "
             "with --camera-height MIN:MAX (e.g. 0.9:1.7)")
-    stage("translations")
-    visibility = coverage = None
+    return translations, trans_info
+
+
+def visibility_stage(src: SceneInput, lines: np.ndarray, translations: np.ndarray,
+                     stages: BuildStages) -> tuple[np.ndarray | None, Any]:
+    """Room layouts: which lines each translation sees through the walls, and the rooms' surface
+    coverage when every room has a ceiling height; (None, None) without walls."""
     walls = getattr(src.walkable, "walls", None)
-    if walls is not None and len(walls):
-        from ldlmap.map.visibility import line_visibility
+    if walls is None or not len(walls):
+        return None, None
+    coverage = None
+    stages.start("visibility")
+    visibility = line_visibility(lines, translations, walls)
+    if len(src.walkable.ceiling_heights) == len(src.walkable.polygons):
+        coverage = coverage_fields(translations, *room_surfaces(walls, src.walkable.polygons,
+                                                                src.walkable.ceiling_heights))
+    stages.end("visibility")
+    return visibility, coverage
 
-        start("visibility")
-        visibility = line_visibility(lines, translations, walls)
-        if len(src.walkable.ceiling_heights) == len(src.walkable.polygons):
-            from ldlmap.map.visibility import coverage_fields, room_surfaces
 
-            coverage = coverage_fields(translations, *room_surfaces(walls, src.walkable.polygons,
-                                                                    src.walkable.ceiling_heights))
-        stage("visibility")
+def fields_stage(lines: np.ndarray, directions: Directions, translations: np.ndarray,
+                 visibility: np.ndarray | None, params: BuildParams, stages: BuildStages) -> tuple[dict, dict]:
+    """The 3D distance fields of every translation (empty when ``distance_fields`` is off)."""
     fields, fields_attrs = {}, {}
     n_t = len(translations) if params.distance_fields else 1
-    start("fields", n_t)
+    stages.start("fields", n_t)
     if params.distance_fields:
-        from ldlmap.map.fields3d import FieldParams, compute_fields
-
-        cb = (lambda d, t: progress("fields", d, t)) if progress else None  # per chunk of translations
-        dist, fields_attrs = compute_fields(lines, groups, translations, FieldParams(num_groups=len(principal)),
+        dist, fields_attrs = compute_fields(lines, directions.groups, translations,
+                                            FieldParams(num_groups=len(directions.principal)),
                                             device=params.device, visibility=visibility,
-                                            progress=cb)
+                                            progress=stages.steps("fields"))  # per chunk of translations
         fields = {"distances": dist}
-    stage("fields", n_t)
+    stages.end("fields", n_t)
+    return fields, fields_attrs
+
+
+def features_stage(src: SceneInput, translations: np.ndarray, params: BuildParams, stages: BuildStages):
+    """The map's local features (a MapFeatures), None without a colored scan or with ``features = none``."""
     features = None
     with_features = params.features != "none" and src.points is not None
     n_views = min(max(1, params.num_views), len(translations)) if with_features else 1
-    start("features", n_views)
+    stages.start("features", n_views)
     if with_features:
-        cb = (lambda d, t: progress("features", d, t)) if progress else None
-        features = compute_features(src.points, src.colors, translations, params, cb)
-    stage("features", n_views)
-    cloud_pts = cloud_cols = None
-    if src.points is not None:
-        rng = np.random.default_rng(params.seed)
-        keep = rng.permutation(len(src.points))[: params.stored_cloud_points]
-        keep.sort()
-        cloud_pts = src.points[keep]
-        cloud_cols = src.colors[keep] if src.colors is not None else None
-    config = {**asdict(params), **(config or {}), "source": src.source, "translations": trans_info,
-              "frame": frame_info,
-              "length_filter": {"rule": rule, "threshold": float(threshold), "lambda_threshold": paper_threshold,
-                                "robust_extent": extent},
-              "principal_deviation_deg": [round(float(x), 3) for x in deviation], "principal_frame": frame_kind}
+        features = compute_features(src.points, src.colors, translations, params, stages.steps("features"))
+    stages.end("features", n_views)
+    return features
+
+
+def stored_cloud(src: SceneInput, params: BuildParams) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """The subsampled colored cloud kept in the map for pictures (None, None without a scan)."""
+    if src.points is None:
+        return None, None
+    rng = np.random.default_rng(params.seed)
+    keep = rng.permutation(len(src.points))[: params.stored_cloud_points]
+    keep.sort()
+    return src.points[keep], (src.colors[keep] if src.colors is not None else None)
+
+
+def map_config(params: BuildParams, config: dict | None, src: SceneInput, trans_info: dict, frame: MapFrame,
+               filt: LengthFilter, directions: Directions) -> dict:
+    """The build's record stored in the map: the parameters, the input and what each stage decided."""
+    out = {**asdict(params), **(config or {}), "source": src.source, "translations": trans_info,
+           "frame": frame.info, "length_filter": filt.config(),
+           "principal_deviation_deg": [round(float(x), 3) for x in directions.deviation],
+           "principal_frame": directions.kind}
     if params.features == "none" or src.points is None:
-        config["features"] = "none"
-    m = LdlMap(
-        name=name,
-        bounds_min=bmin, bounds_max=bmax,
-        lines_raw=lines_raw, lines=lines, line_groups=groups,
-        length_threshold=threshold, kept_ratio=float(kept.mean()), line_lambda=lam,
-        principal_directions=principal, translations=translations,
-        cloud_points=cloud_pts, cloud_colors=cloud_cols, features=features, config=config,
-        fields=fields, fields_attrs=fields_attrs, visibility=visibility, coverage=coverage,
-        input_to_map=input_to_map,
-    )
-    start("write")
-    write_map(output, m)
-    stage("write")
-    report.seconds["total"] = sum(report.seconds.values())
-    report.counts = {
-        "lines_raw": int(len(lines_raw)), "lines": int(len(lines)), "kept_ratio": float(kept.mean()),
-        "translations": int(len(translations)),
-        "visible_lines": float(visibility.sum(1).mean()) if visibility is not None else float(len(lines)),
-        "views": features.num_views if features else 0,
-        "keypoints": int(len(features.xyz)) if features else 0,
+        out["features"] = "none"
+    return out
+
+
+def build_counts(m: LdlMap, filt: LengthFilter, src: SceneInput, output: Path, params: BuildParams) -> dict:
+    """The report's counts of a written map."""
+    return {
+        "lines_raw": int(len(m.lines_raw)), "lines": int(len(m.lines)), "kept_ratio": float(filt.kept.mean()),
+        "translations": int(len(m.translations)),
+        "visible_lines": float(m.visibility.sum(1).mean()) if m.visibility is not None else float(len(m.lines)),
+        "views": m.features.num_views if m.features else 0,
+        "keypoints": int(len(m.features.xyz)) if m.features else 0,
         "size_mb": output.stat().st_size / 1e6,
         "note": src.note,
-        "frame_rotation_deg": frame_info["rotation_deg"], "scale": float(params.scale),
+        "frame_rotation_deg": m.config["frame"]["rotation_deg"], "scale": float(params.scale),
     }
+
+
+def build_from_input(src: SceneInput, output: Path, params: BuildParams, name: str,
+                     progress: Callable[[str, int, int], None] | None = None, config: dict | None = None,
+                     load_seconds: float = 0.0) -> BuildReport:
+    """Build and write the map of a loaded :class:`SceneInput` (the stages after ``load``)."""
+    report = BuildReport(output)
+    report.seconds["load"] = load_seconds
+    if progress:
+        progress("load", 1, 1)
+    stages = BuildStages(report.seconds, progress)
+    stages.start("lines")
+    check_scene_input(src, params)
+    src, offset = scaled_and_centred(src, params, report)
+    frame = into_map_frame(src, raw_lines(src), offset, params, report)
+    src, lines_raw = frame.src, frame.lines_raw
+    filt = length_filter(src, lines_raw, params, report)
+    stages.end("lines")
+    stages.start("principal")
+    directions = principal_stage(filt.lines, frame, params, report)
+    stages.end("principal")
+    stages.start("translations")
+    translations, trans_info = translations_stage(src, filt.lines, lines_raw, params, report)
+    stages.end("translations")
+    visibility, coverage = visibility_stage(src, filt.lines, translations, stages)
+    fields, fields_attrs = fields_stage(filt.lines, directions, translations, visibility, params, stages)
+    features = features_stage(src, translations, params, stages)
+    cloud_pts, cloud_cols = stored_cloud(src, params)
+    m = LdlMap(
+        name=name, bounds_min=filt.bmin, bounds_max=filt.bmax,
+        lines_raw=lines_raw, lines=filt.lines, line_groups=directions.groups,
+        length_threshold=filt.threshold, kept_ratio=float(filt.kept.mean()), line_lambda=filt.lam,
+        principal_directions=directions.principal, translations=translations,
+        cloud_points=cloud_pts, cloud_colors=cloud_cols, features=features,
+        config=map_config(params, config, src, trans_info, frame, filt, directions),
+        fields=fields, fields_attrs=fields_attrs, visibility=visibility, coverage=coverage,
+        input_to_map=frame.input_to_map,
+    )
+    stages.start("write")
+    write_map(output, m)
+    stages.end("write")
+    report.seconds["total"] = sum(report.seconds.values())
+    report.counts = build_counts(m, filt, src, output, params)
     return report
 
 

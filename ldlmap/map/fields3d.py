@@ -1,4 +1,4 @@
-"""Precomputed 3D line distance fields (DESIGN.md 5.7, issue 5): the map-build side.
+"""Precomputed 3D line distance fields (docs/method.md): the map-build side.
 
 Rotation invariance gives ``f3D_g(q; R, t) = f3D_g(R^T q; I, t)``: the decomposed 3D distance
 function of principal group ``g`` seen from a candidate translation ``t`` is one fixed function on
@@ -39,6 +39,10 @@ from typing import Any, Callable
 import numpy as np
 
 from ldlmap.core.errors import InputError
+from ldlmap.core.lazy import lazy_module
+from ldlmap.core.sphere_distance import arc_products, group_order, grouped_min_distance, project_lines
+
+torch = lazy_module("torch")
 
 FIELD_KIND = "equirect_nodes"
 FIELD_VERSION = 1
@@ -83,10 +87,6 @@ def compute_fields(lines: np.ndarray, groups: np.ndarray, translations: np.ndarr
         ``distances`` (N_t, G_groups, G + 1, 2G) in ``params.dtype`` and the attrs to store with
         them (see the module docstring).
     """
-    import torch
-
-    from ldlmap.core.sphere_distance import arc_products, group_order, grouped_min_distance, project_lines
-
     lines = np.asarray(lines, dtype=np.float64)
     T = np.asarray(translations, dtype=np.float64)
     if lines.ndim != 3 or lines.shape[1:] != (2, 3):

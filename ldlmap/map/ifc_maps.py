@@ -22,10 +22,14 @@ from typing import Callable
 import numpy as np
 
 from ldlmap.core.errors import InputError
+from ldlmap.core.lazy import lazy_module
 from ldlmap.io.ifc import read_ifc, storey_file_name
 from ldlmap.map.build import BuildParams, BuildReport, build_lines_map
 from ldlmap.map.translations import Walkable
 from ldlmap.synth.edges import mesh_edges
+
+shapely_geometry = lazy_module("shapely.geometry")
+shapely = lazy_module("shapely")
 
 DEFAULT_BAND = (0.8, 1.8)  # metres above the storey's floor: tripods, robots and hand-held 360 cameras
 SPACE_MARGIN = 0.05  # metres: with spaces, segments whose middle lies farther outside all of them are left out
@@ -40,13 +44,10 @@ def storey_lines(storey) -> np.ndarray:
     keep = lines[:, :, 2].max(axis=1) >= storey.elevation - BELOW_FLOOR
     lines = _clip_z(lines, storey.elevation, True)  # a corner line merged with the slab's edge stops at the floor
     if storey.spaces:  # the outer faces of walls and what lies beyond them face no space: no camera sees them
-        from shapely import contains_xy
-        from shapely.geometry import Polygon
-
         mid = lines.mean(axis=1)
         near = np.zeros(len(lines), dtype=bool)
         for fp, zlo, zhi in storey.spaces:
-            inside = contains_xy(Polygon(fp).buffer(SPACE_MARGIN), mid[:, 0], mid[:, 1])
+            inside = shapely.contains_xy(shapely_geometry.Polygon(fp).buffer(SPACE_MARGIN), mid[:, 0], mid[:, 1])
             near |= inside & (mid[:, 2] >= zlo - SPACE_MARGIN / 2) & (mid[:, 2] <= zhi + SPACE_MARGIN / 2)
         keep &= near
         top = max(zhi for _, _, zhi in storey.spaces)  # ... and with the ceiling's edge, at the spaces' top

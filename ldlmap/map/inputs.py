@@ -23,6 +23,14 @@ from typing import Any
 import numpy as np
 
 from ldlmap.core.errors import InputError
+from ldlmap.io.cloud import PointCloud, SUPPORTED_SUFFIXES
+from ldlmap.io.colmap import find_images_dir, is_colmap_model, read_colmap_model, read_colmap_views, resolve_model_dir
+from ldlmap.io.e57 import read_e57
+from ldlmap.io.gltf import read_gltf
+from ldlmap.io.las import read_las
+from ldlmap.io.linefiles import LINE_FORMAT_NAMES, read_lines, sniff_line_file
+from ldlmap.io.pointcloud import read_point_cloud
+from ldlmap.sfm.photo_lines import SfmLinesParams, reconstruct_lines
 
 
 @dataclass
@@ -44,11 +52,6 @@ def load_input(path: str | Path, lines_path: str | Path | None, mesh_samples: in
     """Read any supported input (cloud, mesh, scanner/phone format, COLMAP model, or a line file
     alone); ``images``: a COLMAP model's photos (:mod:`ldlmap.map.inputs`); ``stations``: an E57's
     stations to use (names or indices; all when empty)."""
-    from ldlmap.io.colmap import is_colmap_model, resolve_model_dir
-    from ldlmap.io.linefiles import LINE_FORMAT_NAMES, read_lines, sniff_line_file
-    from ldlmap.io.cloud import SUPPORTED_SUFFIXES
-    from ldlmap.io.pointcloud import read_point_cloud
-
     p = Path(path)
     if not p.exists():
         raise InputError(f"input not found: {p}")
@@ -89,25 +92,15 @@ def read_scanner_file(path: Path, mesh_samples: int, stations=()):
     """``(PointCloud, note)`` of an E57 scan, a LAS/LAZ cloud or a glTF/GLB mesh (sampled, z-up)."""
     suffix = path.suffix.lower()
     if suffix == ".e57":
-        from ldlmap.io.cloud import PointCloud
-        from ldlmap.io.e57 import read_e57
-
         scan = read_e57(path, list(stations) or None)
         return PointCloud(scan.points, scan.colors), "; ".join(scan.notes)
     if suffix in (".las", ".laz"):
-        from ldlmap.io.las import read_las
-
         return read_las(path)
-    from ldlmap.io.gltf import read_gltf
-
     return read_gltf(path, mesh_samples)
 
 
 def colmap_scene_input(model_dir: str | Path, lines=None, images: str | Path | None = None, params=None):
     """The :class:`SceneInput` of a COLMAP model folder (see the module docstring)."""
-    from ldlmap.io.colmap import find_images_dir, read_colmap_model, read_colmap_views
-    from ldlmap.sfm.photo_lines import SfmLinesParams, reconstruct_lines
-
     model_dir = Path(model_dir)
     scene = read_colmap_model(model_dir)
     source = f"colmap:{model_dir}"

@@ -12,6 +12,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from ldlmap.core.errors import InputError
+from ldlmap.core.lazy import lazy_module
+from ldlmap.map.render import PointRenderer, RenderParams
+
+cv2 = lazy_module("cv2")
 
 
 @dataclass(frozen=True)
@@ -82,12 +86,8 @@ def view_features(points: np.ndarray, colors: np.ndarray, center: np.ndarray, ba
     (``points`` and ``colors`` are then ignored). Keypoints within ``mask_erosion_px`` pixels of
     empty pixels, or on them, are dropped.
     """
-    from ldlmap.map.render import PointRenderer, RenderParams
-
     if renderer is None:
         renderer = PointRenderer(points, colors, RenderParams(width=int(width), height=int(height)), device=device)
-    import cv2
-
     view = renderer.render(np.eye(3), center)
     # Keypoints only well inside rendered content: not on the rim of holes (unscanned areas).
     valid_px = cv2.erode(np.isfinite(view.depth).astype(np.uint8), np.ones((3, 3), np.uint8),

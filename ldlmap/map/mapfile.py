@@ -2,7 +2,7 @@
 
 Schema (``FORMAT_VERSION`` 2; a map with 3 principal directions is written as version 1, the
 layout every reader since version 1 knows; one with more, an Atlanta frame of several horizontal
-directions, as version 2, which older readers refuse as newer). World frame metric, z up (DESIGN.md section 2). All groups and
+directions, as version 2, which older readers refuse as newer). World frame metric, z up (docs/formats.md). All groups and
 datasets are readable with plain h5py::
 
     /                       attrs: format_version (int), name (str), created_with (str),
@@ -51,6 +51,7 @@ and is enough for pose search without refinement.
 
 from __future__ import annotations
 
+import importlib.metadata as md
 import json
 import zlib
 from pathlib import Path
@@ -58,9 +59,12 @@ from typing import Any
 
 import numpy as np
 
-from ldlmap.core.errors import FormatVersionError, InputError, atomic_file, require_file
+from ldlmap.core.errors import FormatVersionError, HDF5_SIGNATURE, InputError, atomic_file, require_file, starts_with
+from ldlmap.core.lazy import lazy_module
 from ldlmap.map.contents import LdlMap, MapFeatures
-from ldlmap.map.validate import KIND_NAMES, KINDS, check_line_header, is_int, manhattan_map, validate_map
+from ldlmap.map.validate import KINDS, KIND_NAMES, check_line_header, is_int, manhattan_map, validate_map
+
+h5py = lazy_module("h5py")
 
 
 FORMAT_VERSION = 2  # the newest version this code reads and writes (it reads every version from 1)
@@ -68,8 +72,6 @@ _VERSION_3_DIRECTIONS = 1  # what maps of 3 principal directions are written as 
 _COMPRESS = dict(compression="gzip", compression_opts=4, shuffle=True)
 
 def _library_versions() -> dict[str, str]:
-    import importlib.metadata as md
-
     out = {}
     for pkg in ("ldl-toolkit", "numpy", "torch", "open3d", "opencv-python-headless", "h5py", "pycolmap"):
         try:
@@ -87,8 +89,6 @@ def map_format_version(m: LdlMap) -> int:
 
 def write_map(path: str | Path, m: LdlMap) -> Path:
     """Validate ``m`` and write it to ``path`` atomically (temporary file, then rename)."""
-    import h5py
-
     validate_map(m)
     path = Path(path)
     with atomic_file(path) as tmp:
@@ -196,8 +196,6 @@ _MAX_EXPANSION = 1000  # a dataset may hold at most this many times its file's s
 
 def _dataset_items(h5) -> list[tuple[str, Any]]:
     """Every dataset of the file as ``(path, dataset)``, sorted by path."""
-    import h5py
-
     out: list[tuple[str, Any]] = []
     h5.visititems(lambda name, obj: out.append((name, obj)) if isinstance(obj, h5py.Dataset) else None)
     return sorted(out, key=lambda item: item[0])
@@ -307,12 +305,8 @@ def _attr_value(obj, key: str, kind: str, path: Path, default: Any = None) -> An
 def is_map_file(path: str | Path) -> bool:
     """Whether ``path`` is an HDF5 file written as an LDL map (``format_version`` and ``lines``), of
     any version: the files a build may replace without ``--overwrite`` (never a user's other HDF5)."""
-    from ldlmap.core.errors import HDF5_SIGNATURE, starts_with
-
     if not starts_with(path, HDF5_SIGNATURE):
         return False
-    import h5py
-
     try:
         with h5py.File(path, "r") as h5:
             return "format_version" in h5.attrs and isinstance(h5.get("lines"), h5py.Group)
@@ -321,8 +315,6 @@ def is_map_file(path: str | Path) -> bool:
 
 
 def _open(path: Path):
-    import h5py
-
     try:
         return h5py.File(path, "r")
     except _H5_ERRORS:
@@ -342,8 +334,6 @@ def _check_version(h5, path: Path) -> int:
         raise FormatVersionError(
             f"map {path} has format version {v}, this ldl-toolkit reads versions 1 to {FORMAT_VERSION} "
             f"({newer} version wrote it): rebuild it with `ldlmap build`")
-    import h5py
-
     ds = h5.get("principal/directions")
     shape = ds.shape if isinstance(ds, h5py.Dataset) else None
     k = shape[0] if shape is not None and len(shape) == 2 and shape[1] == 3 else 3  # other shapes: _check_schema
@@ -355,8 +345,6 @@ def _check_version(h5, path: Path) -> int:
 
 def _check_schema(h5, path: Path) -> None:
     """Every required dataset present, each known one with its kind and a shape consistent with the others."""
-    import h5py
-
     required = list(_REQUIRED) + (list(_FEATURE_DATASETS) if "features" in h5 else [])
     required += ["cloud/points"] if "cloud/colors" in h5 else []
     for name in required:

@@ -8,9 +8,12 @@ from pathlib import Path
 
 import numpy as np
 
+from ldlmap.core.lazy import lazy_module
 from ldlmap.core.pictures import draw_arcs, group_legend, project_lines, with_caption, write_picture
 from ldlmap.lines3d import top_view_image
 from ldlmap.map.render import render_points_panorama
+
+cv2 = lazy_module("cv2")
 
 DROPPED_BGR = (200, 200, 200)  # top_view_image's colour of the lines the length filter dropped
 
@@ -27,8 +30,6 @@ def map_picture(ldl_map, path: str | Path, width: int = 1024, name: str | None =
 
     The panorama is rendered at the candidate translation closest to the cloud's centre.
     """
-    import cv2
-
     height = width // 2
     centre = (ldl_map.bounds_min + ldl_map.bounds_max) / 2
     t = ldl_map.translations[int(ldl_map.nearest_translation(centre))]

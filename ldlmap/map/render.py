@@ -1,6 +1,6 @@
 """Z-buffered point splatting of colored point clouds into equirectangular panoramas.
 
-The map's synthetic views (paper sec. 3.1, DESIGN.md 5.4) are rendered here. Projection follows
+The map's synthetic views (paper sec. 3.1) are rendered here. Projection follows
 :mod:`ldlmap.core.geometry` exactly (``p_cam = R (X - t)``, ``u / W = 1 - (atan2(y, x) + pi) / 2 pi``,
 ``v / H = atan2(hypot(x, y), z) / pi``, integer grid lines are pixel corners), but runs in torch
 so that the same code renders on CPU or CUDA.
@@ -29,14 +29,15 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Iterator
+from typing import Iterator
 
 import numpy as np
 
 from ldlmap.core.errors import InputError
+from ldlmap.core.lazy import lazy_module
 
-if TYPE_CHECKING:  # pragma: no cover
-    import torch
+torch = lazy_module("torch")
+spatial = lazy_module("scipy.spatial")
 
 _EMPTY_KEY = (1 << 63) - 1  # int64 max: "no point" in the z-buffer
 
@@ -106,15 +107,13 @@ def estimate_point_spacing(points: np.ndarray, sample: int = 20000, seed: int = 
     Computed on a random subsample of ``s`` points (nearest-neighbour median) and scaled by
     ``sqrt(s / N)``: on a 2D surface the spacing grows with ``1 / sqrt(density)``.
     """
-    from scipy.spatial import cKDTree
-
     pts = np.asarray(points, dtype=np.float64)
     n = len(pts)
     if n < 2:
         return 0.01
     s = min(n, sample)
     sub = pts[np.random.default_rng(seed).choice(n, s, replace=False)] if s < n else pts
-    d, _ = cKDTree(sub).query(sub, k=2)
+    d, _ = spatial.cKDTree(sub).query(sub, k=2)
     nn = d[:, 1]
     nn = nn[nn > 0]
     if len(nn) == 0:
@@ -154,8 +153,6 @@ class PointRenderer:
 
     def __init__(self, points: np.ndarray, colors: np.ndarray, params: RenderParams = RenderParams(),
                  device: str = "cpu") -> None:
-        import torch
-
         points, colors = _check_cloud(points, colors)
         if params.width != 2 * params.height or params.height < 2:
             raise InputError(f"panorama size must be W = 2 H, got {params.width} x {params.height}")
@@ -176,88 +173,19 @@ class PointRenderer:
 
     def render(self, rot_cam_from_world: np.ndarray, center: np.ndarray) -> RenderedView:
         """Render the panorama seen from pose ``(R, t)`` (``R`` world -> camera, ``t`` centre)."""
-        import torch
-
         R, t = _check_pose(rot_cam_from_world, center)
         p = self.params
         W, H = p.width, p.height
         dev = self.device
-        Rt = torch.from_numpy(R.astype(np.float32)).to(dev)
-        tc = torch.from_numpy((t - self.origin).astype(np.float32)).to(dev)
         with torch.no_grad():
-            cam = (self.points - tc) @ Rt.T
-            rng = torch.linalg.vector_norm(cam, dim=1)
-            keep = rng > p.min_range_m
-            if bool(keep.all()):
-                idx = torch.arange(len(rng), device=dev)
-            else:
-                idx = torch.nonzero(keep).squeeze(1)
-                cam, rng = cam[idx], rng[idx]
-            x, y, z = cam.unbind(1)
-            # Same maths as geometry.pixel_from_bearing.
-            u = W * (1.0 - (torch.atan2(y, x) + math.pi) / (2.0 * math.pi))
-            rho = torch.hypot(x, y)
-            theta = torch.atan2(rho, z)
-            v = H * theta / math.pi
-            col = torch.floor(u).long().remainder(W)
-            row = torch.floor(v).long().clamp_(0, H - 1)
-
+            idx, rng, u, v, theta, row, col = self._project(R, t)
             # Packed z-buffer keys: range bits (monotone for non-negative float32) | position in
             # ``idx``. Pass 1: every point into its own pixel.
             n = len(idx)
             key = (rng.view(torch.int32).long() << 32) | torch.arange(n, device=dev)
             zbuf = torch.full((H * W,), _EMPTY_KEY, dtype=torch.int64, device=dev)
             zbuf.scatter_reduce_(0, row * W + col, key, reduce="amin", include_self=True)
-
-            # Pass 2: the winner of each pixel is splatted to its footprint: the pixels touched by
-            # a square of the angular size of splat_scale sample spacings, centred on the
-            # projection, u widened by 1 / sin(theta). Points that lost their own pixel lie behind
-            # a winner there; where the cloud is denser than the image (the costly case) the
-            # winners' footprints already cover theirs, so only winners are expanded.
-            win = zbuf[zbuf != _EMPTY_KEY] & 0xFFFFFFFF
-            px_per_rad = H / math.pi
-            w_min = 2.0 * p.point_radius_px + 1.0 if p.point_radius_px > 0 else 0.0
-            spacing = (self.spacing if self.point_spacing is None
-                       else self.point_spacing.index_select(0, idx.index_select(0, win)))
-            w_max = 2.0 * p.max_radius_px + 1.0
-            w_v = (p.splat_scale * spacing * px_per_rad / rng.index_select(0, win)).clamp(w_min, w_max)
-            # Near the poles every pixel of a row has its own winner: cap the u stretch at 2x.
-            w_u = (w_v / torch.sin(theta.index_select(0, win)).clamp_min(1e-6)).clamp_max(2.0 * w_max)
-            # Sub-pixel footprints stay in the point's own pixel (no straddling of pixel borders).
-            w_v = torch.where(w_v < 1.0, torch.zeros_like(w_v), w_v)
-            w_u = torch.where(w_u < 1.0, torch.zeros_like(w_u), w_u)
-            uw, vw = u.index_select(0, win), v.index_select(0, win)
-            v0 = torch.floor(vw - 0.5 * w_v).long()
-            u0 = torch.floor(uw - 0.5 * w_u).long()
-            nv = torch.floor(vw + 0.5 * w_v).long() - v0 + 1
-            nu = torch.floor(uw + 0.5 * w_u).long() - u0 + 1
-            big = torch.nonzero(nu * nv > 1).squeeze(1)
-            if len(big):
-                # Expanded in two steps, footprint rows then their pixels, with no integer
-                # division: one entry per footprint pixel, (row, col, key of its owner).
-                nv_b, nu_b = nv.index_select(0, big), nu.index_select(0, big)
-                rows_b = torch.cumsum(nv_b, 0) - nv_b
-                n_rows = int(nv_b.sum())
-                in_fp = torch.arange(n_rows, device=dev) - torch.repeat_interleave(rows_b, nv_b)
-                # Rows beyond a pole are clamped onto the pole row (they are near it).
-                rr_r = (torch.repeat_interleave(v0.index_select(0, big), nv_b) + in_fp).clamp_(0, H - 1)
-                nu_r = torch.repeat_interleave(nu_b, nv_b)
-                key_r = torch.repeat_interleave(key.index_select(0, win.index_select(0, big)), nv_b)
-                # Column of pixel j of the expansion: u0 + (j - first pixel of its row).
-                first_r = torch.cumsum(nu_r, 0) - nu_r
-                base_r = torch.repeat_interleave(u0.index_select(0, big), nv_b) - first_r
-                cc = torch.repeat_interleave(base_r, nu_r) + torch.arange(int(nu_r.sum()), device=dev)
-                if W > 2.0 * w_max + 2.0:  # footprints overhang u by less than W: one wrap each way
-                    cc = torch.where(cc < 0, cc + W, cc)
-                    cc = torch.where(cc >= W, cc - W, cc)
-                else:
-                    cc = cc.remainder(W)
-                rr = torch.repeat_interleave(rr_r, nu_r)
-                key2 = torch.repeat_interleave(key_r, nu_r)
-                zbuf.scatter_reduce_(0, rr * W + cc, key2, reduce="amin", include_self=True)
-                extra = (rr, cc, key2 & 0xFFFFFFFF)
-            else:
-                extra = None
+            extra = self._splat_winners(zbuf, key, idx, rng, u, v, theta)
             if p.depth_tolerance > 0:
                 zbuf = self._select_surface_points(zbuf, rng, u, v, (row, col), extra)
             zbuf = zbuf.view(H, W)
@@ -277,6 +205,86 @@ class PointRenderer:
         return RenderedView(rgb=rgb.cpu().numpy(), xyz=xyz_np.astype(np.float32), depth=depth.cpu().numpy(),
                             center=t, rot_cam_from_world=R)
 
+    def _project(self, R: np.ndarray, t: np.ndarray) -> tuple:
+        """The points beyond ``min_range_m`` seen from pose ``(R, t)``: their indices, ranges,
+        panorama coordinates ``u, v``, polar angles and own pixels ``(row, col)``."""
+        p = self.params
+        W, H = p.width, p.height
+        dev = self.device
+        Rt = torch.from_numpy(R.astype(np.float32)).to(dev)
+        tc = torch.from_numpy((t - self.origin).astype(np.float32)).to(dev)
+        cam = (self.points - tc) @ Rt.T
+        rng = torch.linalg.vector_norm(cam, dim=1)
+        keep = rng > p.min_range_m
+        if bool(keep.all()):
+            idx = torch.arange(len(rng), device=dev)
+        else:
+            idx = torch.nonzero(keep).squeeze(1)
+            cam, rng = cam[idx], rng[idx]
+        x, y, z = cam.unbind(1)
+        # Same maths as geometry.pixel_from_bearing.
+        u = W * (1.0 - (torch.atan2(y, x) + math.pi) / (2.0 * math.pi))
+        rho = torch.hypot(x, y)
+        theta = torch.atan2(rho, z)
+        v = H * theta / math.pi
+        col = torch.floor(u).long().remainder(W)
+        row = torch.floor(v).long().clamp_(0, H - 1)
+        return idx, rng, u, v, theta, row, col
+
+    def _splat_winners(self, zbuf: "torch.Tensor", key: "torch.Tensor", idx: "torch.Tensor", rng: "torch.Tensor",
+                       u: "torch.Tensor", v: "torch.Tensor", theta: "torch.Tensor") -> tuple | None:
+        """Pass 2 of the z-buffer (in place): the winner of each pixel is splatted to its footprint:
+        the pixels touched by a square of the angular size of splat_scale sample spacings, centred
+        on the projection, u widened by 1 / sin(theta). Points that lost their own pixel lie behind
+        a winner there; where the cloud is denser than the image (the costly case) the winners'
+        footprints already cover theirs, so only winners are expanded. Returns the footprint
+        pixels (row, col, point), or None when every footprint is one pixel."""
+        p = self.params
+        W, H = p.width, p.height
+        win = zbuf[zbuf != _EMPTY_KEY] & 0xFFFFFFFF
+        px_per_rad = H / math.pi
+        w_min = 2.0 * p.point_radius_px + 1.0 if p.point_radius_px > 0 else 0.0
+        spacing = (self.spacing if self.point_spacing is None
+                   else self.point_spacing.index_select(0, idx.index_select(0, win)))
+        w_max = 2.0 * p.max_radius_px + 1.0
+        w_v = (p.splat_scale * spacing * px_per_rad / rng.index_select(0, win)).clamp(w_min, w_max)
+        # Near the poles every pixel of a row has its own winner: cap the u stretch at 2x.
+        w_u = (w_v / torch.sin(theta.index_select(0, win)).clamp_min(1e-6)).clamp_max(2.0 * w_max)
+        # Sub-pixel footprints stay in the point's own pixel (no straddling of pixel borders).
+        w_v = torch.where(w_v < 1.0, torch.zeros_like(w_v), w_v)
+        w_u = torch.where(w_u < 1.0, torch.zeros_like(w_u), w_u)
+        uw, vw = u.index_select(0, win), v.index_select(0, win)
+        v0 = torch.floor(vw - 0.5 * w_v).long()
+        u0 = torch.floor(uw - 0.5 * w_u).long()
+        nv = torch.floor(vw + 0.5 * w_v).long() - v0 + 1
+        nu = torch.floor(uw + 0.5 * w_u).long() - u0 + 1
+        big = torch.nonzero(nu * nv > 1).squeeze(1)
+        if not len(big):
+            return None
+        # Expanded in two steps, footprint rows then their pixels, with no integer
+        # division: one entry per footprint pixel, (row, col, key of its owner).
+        nv_b, nu_b = nv.index_select(0, big), nu.index_select(0, big)
+        rows_b = torch.cumsum(nv_b, 0) - nv_b
+        n_rows = int(nv_b.sum())
+        in_fp = torch.arange(n_rows, device=self.device) - torch.repeat_interleave(rows_b, nv_b)
+        # Rows beyond a pole are clamped onto the pole row (they are near it).
+        rr_r = (torch.repeat_interleave(v0.index_select(0, big), nv_b) + in_fp).clamp_(0, H - 1)
+        nu_r = torch.repeat_interleave(nu_b, nv_b)
+        key_r = torch.repeat_interleave(key.index_select(0, win.index_select(0, big)), nv_b)
+        # Column of pixel j of the expansion: u0 + (j - first pixel of its row).
+        first_r = torch.cumsum(nu_r, 0) - nu_r
+        base_r = torch.repeat_interleave(u0.index_select(0, big), nv_b) - first_r
+        cc = torch.repeat_interleave(base_r, nu_r) + torch.arange(int(nu_r.sum()), device=self.device)
+        if W > 2.0 * w_max + 2.0:  # footprints overhang u by less than W: one wrap each way
+            cc = torch.where(cc < 0, cc + W, cc)
+            cc = torch.where(cc >= W, cc - W, cc)
+        else:
+            cc = cc.remainder(W)
+        rr = torch.repeat_interleave(rr_r, nu_r)
+        key2 = torch.repeat_interleave(key_r, nu_r)
+        zbuf.scatter_reduce_(0, rr * W + cc, key2, reduce="amin", include_self=True)
+        return rr, cc, key2 & 0xFFFFFFFF
+
     def _select_surface_points(self, zbuf: "torch.Tensor", rng: "torch.Tensor", u: "torch.Tensor",
                                v: "torch.Tensor", own: tuple, extra: tuple | None) -> "torch.Tensor":
         """Soft z-buffer: per pixel, of the candidates within ``depth_tolerance`` of the nearest
@@ -284,8 +292,6 @@ class PointRenderer:
         on the pixel's ray instead of the nearest footprint's centre). ``own``: (row, col) of every
         point's own pixel; ``extra``: (row, col, point) of the footprint pixels, or None. Returns
         range-keyed keys."""
-        import torch
-
         W = self.params.width
         has = zbuf != _EMPTY_KEY
         min_rng = torch.where(has, zbuf >> 32, torch.zeros_like(zbuf)).int().view(torch.float32)
@@ -310,8 +316,6 @@ class PointRenderer:
 
 def _fill_holes_once(zbuf: "torch.Tensor") -> "torch.Tensor":
     """Empty pixels take the smallest key (nearest point) of their 3x3 neighbourhood."""
-    import torch
-
     H, W = zbuf.shape
     padded = torch.cat([zbuf[:, -1:], zbuf, zbuf[:, :1]], dim=1)  # wrap in u
     edge = torch.full((1, W + 2), _EMPTY_KEY, dtype=zbuf.dtype, device=zbuf.device)

@@ -1,4 +1,4 @@
-"""Candidate translations for pose search (DESIGN.md 5.3, paper supp. "Hyperparameter Setup").
+"""Candidate translations for pose search (paper supp. "Hyperparameter Setup").
 
 Both methods first build the *free space* of the scan on a voxel grid:
 
@@ -31,6 +31,13 @@ from typing import Literal
 import numpy as np
 
 from ldlmap.core.errors import InputError
+from ldlmap.core.frame import check_memory
+from ldlmap.core.lazy import lazy_module
+from ldlmap.core.polygon import distance_to_boundary, points_in_polygon
+from ldlmap.lines3d import robust_bounds
+
+ndimage = lazy_module("scipy.ndimage")
+spatial = lazy_module("scipy.spatial")
 
 
 @dataclass(frozen=True)
@@ -49,10 +56,6 @@ class TranslationParams:
 
 def _free_space(P: np.ndarray, clearance: float, params: TranslationParams):
     """Free voxel mask (X, Y, Z) bool, grid origin (3,) and voxel size."""
-    from scipy import ndimage
-
-    from ldlmap.lines3d import robust_bounds
-
     lo, hi = robust_bounds(P)  # far outliers neither stretch the grid nor occupy it
     P = P[np.all((P >= lo) & (P <= hi), axis=1)]  # the box's own points: all of them unless outliers
     extent = float((hi - lo).max())
@@ -87,8 +90,6 @@ def _free_space(P: np.ndarray, clearance: float, params: TranslationParams):
 
 def points_along_lines(lines: np.ndarray, step: float = 0.05) -> np.ndarray:
     """Points every ``step`` metres along segments (L, 2, 3): stand in for a cloud when only lines are given."""
-    from ldlmap.core.frame import check_memory
-
     v = lines[:, 1] - lines[:, 0]
     per_line = np.ceil(np.linalg.norm(v, axis=1) / step)
     check_memory(f"{per_line.sum():.3g} points every {step:g} m along the lines", float(per_line.sum()) * 24 * 6,
@@ -100,11 +101,9 @@ def points_along_lines(lines: np.ndarray, step: float = 0.05) -> np.ndarray:
 
 
 def _check_clear(C: np.ndarray, P: np.ndarray, clearance: float) -> np.ndarray:
-    from scipy.spatial import cKDTree
-
     if len(C) == 0:
         return C
-    d, _ = cKDTree(P).query(C, k=1, workers=-1)
+    d, _ = spatial.cKDTree(P).query(C, k=1, workers=-1)
     return C[d >= clearance]
 
 
@@ -138,8 +137,6 @@ def _grid(free: np.ndarray, lo: np.ndarray, h: float, num: int) -> np.ndarray:
 
 
 def _octree(free: np.ndarray, lo: np.ndarray, h: float, num: int) -> np.ndarray:
-    from scipy.spatial import cKDTree
-
     depth = int(np.ceil(np.log2(max(free.shape))))
     n = 2 ** depth
     cube = np.zeros((n, n, n), bool)
@@ -204,7 +201,7 @@ def _octree(free: np.ndarray, lo: np.ndarray, h: float, num: int) -> np.ndarray:
     ok = np.all((ci >= 0) & (ci < free.shape), axis=1)
     ok[ok] = free[ci[ok, 0], ci[ok, 1], ci[ok, 2]]
     if (~ok).any():
-        _, j = cKDTree(fidx).query(C[~ok], k=1)
+        _, j = spatial.cKDTree(fidx).query(C[~ok], k=1)
         C[~ok] = fidx[j]
     return lo + (C + 0.5) * h
 
@@ -253,12 +250,10 @@ SPARSE_SPACING_M = 0.45  # median spacing of a scan's candidates above which the
 
 def candidate_spacing(translations: np.ndarray) -> float:
     """Median distance (metres) from each candidate translation to its nearest other one (0 for fewer than 2)."""
-    from scipy.spatial import cKDTree
-
     T = np.asarray(translations, dtype=np.float64).reshape(-1, 3)
     if len(T) < 2:
         return 0.0
-    d, _ = cKDTree(T).query(T, k=2)
+    d, _ = spatial.cKDTree(T).query(T, k=2)
     return float(np.median(d[:, 1]))
 
 
@@ -310,8 +305,6 @@ def _z_levels(z_range: tuple[float, float], spacing: float) -> np.ndarray:
 
 def _centred_lattice(lo: np.ndarray, hi: np.ndarray, spacing: float) -> np.ndarray:
     """(N, 2) square lattice of ``spacing`` over the box [lo, hi], with equal margins on both sides."""
-    from ldlmap.core.frame import check_memory
-
     count = float(np.prod(np.floor((np.asarray(hi) - np.asarray(lo)) / spacing) + 1))
     check_memory(f"a lattice of {count:.3g} candidate translations {spacing:g} m apart", count * 16 * 4,
                  "raise --trans-spacing, or check the input's unit (--scale)")
@@ -325,8 +318,6 @@ def _centred_lattice(lo: np.ndarray, hi: np.ndarray, spacing: float) -> np.ndarr
 
 def _region_interior_point(poly: np.ndarray) -> np.ndarray:
     """A point well inside a polygon: the centroid when inside, else the deepest point of a fine grid."""
-    from ldlmap.core.polygon import distance_to_boundary, points_in_polygon
-
     c = poly.mean(0)
     if points_in_polygon(c[None], poly)[0]:
         return c
@@ -350,8 +341,6 @@ def spaced_translations(lines: np.ndarray, spacing: float = 0.3, walkable: Walka
     closer than ``clearance`` to a 3D line are dropped. Never empty: a region that no lattice
     point falls in (a room smaller than the spacing) gets its interior point.
     """
-    from ldlmap.core.polygon import points_in_polygon
-
     L = np.asarray(lines, dtype=np.float64).reshape(-1, 2, 3)
     if len(L) == 0 or not np.all(np.isfinite(L)):
         raise InputError("candidate translations need finite 3D lines")

@@ -9,6 +9,8 @@ from typing import Any
 import numpy as np
 
 from ldlmap.core.errors import InputError
+from ldlmap.core.frame import MAX_MAP_COORDINATE, decompose
+from ldlmap.features.sphere import PANORAMA_EXTRACTIONS
 from ldlmap.map.contents import LdlMap, MapFeatures
 
 
@@ -33,8 +35,6 @@ _MAX_IMAGE_SIDE = 1 << 15  # rendered views: at most this many pixels on a side
 
 def _check_coordinates(name: str, a: np.ndarray | None) -> None:
     """Coordinates of the map frame within :data:`ldlmap.core.frame.MAX_MAP_COORDINATE` metres."""
-    from ldlmap.core.frame import MAX_MAP_COORDINATE
-
     if a is not None and np.asarray(a).size and np.abs(a).max() > MAX_MAP_COORDINATE:
         raise InputError(f"map field {name} has coordinates of {np.abs(a).max():.3g} m, beyond the "
                          f"{MAX_MAP_COORDINATE:.0e} m of any map (damaged or not in metres)")
@@ -102,8 +102,6 @@ def validate_map(m: LdlMap) -> None:
         if m.coverage.shape[2] != 2 * (m.coverage.shape[1] - 1) or m.coverage.shape[1] < 3:
             raise InputError(f"map field coverage has shape {m.coverage.shape}, expected (N_t, G + 1, 2G)")
     if m.input_to_map is not None:
-        from ldlmap.core.frame import decompose
-
         _check_array("input_to_map", m.input_to_map, (4, 4))
         decompose(m.input_to_map)
     if m.cloud_points is not None:
@@ -164,8 +162,6 @@ def _validate_features(f: MapFeatures, num_translations: int) -> None:
     for side, size in (("width", f.width), ("height", f.height)):
         if not (is_int(size) and 0 < int(size) <= _MAX_IMAGE_SIDE):
             raise InputError(f"map features: {side} {size!r} is not a pixel count in 1..{_MAX_IMAGE_SIDE}")
-    from ldlmap.features.sphere import PANORAMA_EXTRACTIONS
-
     if f.extraction not in PANORAMA_EXTRACTIONS:
         raise InputError(f"map features: extraction {f.extraction!r} is not one of {', '.join(PANORAMA_EXTRACTIONS)}")
     kp = np.asarray(f.keypoints, dtype=np.float64)

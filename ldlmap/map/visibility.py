@@ -26,6 +26,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from ldlmap.core.errors import InputError
+from ldlmap.core.lazy import lazy_module
+from ldlmap.core.polygon import triangulate_polygon
+from ldlmap.map.fields3d import grid_directions
+
+o3d = lazy_module("open3d")
 
 
 @dataclass(frozen=True)
@@ -48,8 +53,6 @@ def wall_triangles(walls: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def _raycasting_scene(verts: np.ndarray, tris: np.ndarray):
     """An open3d ``RaycastingScene`` holding the triangles ``tris`` (T, 3) over ``verts`` (V, 3)."""
-    import open3d as o3d
-
     scene = o3d.t.geometry.RaycastingScene()
     scene.add_triangles(o3d.core.Tensor(np.asarray(verts, np.float32)), o3d.core.Tensor(np.asarray(tris, np.uint32)))
     return scene
@@ -58,8 +61,6 @@ def _raycasting_scene(verts: np.ndarray, tris: np.ndarray):
 def _hits(scene, rays: np.ndarray) -> np.ndarray:
     """``t_hit`` (R,) of rays (R, 6) ``(origin, direction)``: the first hit at origin + t_hit *
     direction (in units of the direction's length), inf when nothing is hit."""
-    import open3d as o3d
-
     return scene.cast_rays(o3d.core.Tensor(np.asarray(rays, dtype=np.float32).reshape(-1, 6)))["t_hit"].numpy()
 
 
@@ -99,8 +100,6 @@ def line_visibility(lines: np.ndarray, translations: np.ndarray, walls: np.ndarr
 def room_surfaces(walls: np.ndarray, polygons, ceiling_heights) -> tuple[np.ndarray, np.ndarray]:
     """Vertices and triangles of a layout's surfaces: wall quads, and each room's floor (z = 0) and
     ceiling (its height) as triangulated polygons."""
-    from ldlmap.core.polygon import triangulate_polygon
-
     verts, tris = wall_triangles(walls)
     vs, ts, off = [verts], [tris], len(verts)
     for poly, h in zip(polygons, ceiling_heights):
@@ -122,8 +121,6 @@ def coverage_fields(translations: np.ndarray, verts: np.ndarray, tris: np.ndarra
     into a room the map does not hold) is not covered: no map line can explain the image there,
     and the pose search does not count it against a pose (:mod:`ldlloc.search.pose_search`).
     """
-    from ldlmap.map.fields3d import grid_directions
-
     T = np.asarray(translations, dtype=np.float64).reshape(-1, 3)
     dirs = grid_directions(rows).reshape(-1, 3)
     out = np.zeros((len(T), len(dirs)), dtype=bool)

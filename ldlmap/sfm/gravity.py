@@ -1,4 +1,4 @@
-"""The input's up axis, and the rotation that makes a map z-up (DESIGN.md sections 11 and 14).
+"""The input's up axis, and the rotation that makes a map z-up (docs/inputs.md).
 
 Sources, first that applies:
 
@@ -14,7 +14,7 @@ Sources, first that applies:
    along it (furniture, doors and windows stand on the floor; the same share gives the sign, a
    guess the build reports).
 
-Scans, meshes and layouts are z-up by convention (DESIGN.md section 14): when a principal
+Scans, meshes and layouts are z-up by convention (docs/inputs.md): when a principal
 direction lies within ``keep_deg`` of the input's z axis, z stays the vertical unless another
 direction, nearly perpendicular to z, beats it by ``override_margin`` with more vertical
 structure *and* a smaller extent (rooms are wider than tall; sloped ceiling edges and beams run
@@ -38,6 +38,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ldlmap.core.errors import InputError
+from ldlmap.core.frame import rotation_to_z
+from ldlmap.lines3d.principal import line_directions, principal_directions_3d
 
 Z = np.array([0.0, 0.0, 1.0])  # the input's z axis: up by the convention of scans, meshes and layouts
 
@@ -123,8 +125,6 @@ def _frame(P: np.ndarray, k: int) -> np.ndarray:
 
 def axis_scores(lines: np.ndarray, principal: np.ndarray, tol_deg: float = 5.0) -> AxisScores:
     """The evidence (:class:`AxisScores`) that each principal direction is the vertical."""
-    from ldlmap.lines3d.principal import line_directions
-
     L = np.asarray(lines, dtype=np.float64).reshape(-1, 2, 3)
     P = np.asarray(principal, dtype=np.float64)
     d, w = line_directions(L)
@@ -220,8 +220,6 @@ def _angle_deg(a: np.ndarray, b: np.ndarray) -> float:
 def estimate_up(lines: np.ndarray, up: np.ndarray | None = None, camera_down: np.ndarray | None = None,
                 params: GravityParams = GravityParams()) -> tuple[UpEstimate, np.ndarray]:
     """The input's up axis (module docstring) and the lines' principal directions (3, 3) it used."""
-    from ldlmap.lines3d.principal import principal_directions_3d
-
     L = _longest(lines, params.max_lines)
     P = principal_directions_3d(L)
     note, agreement = "", None
@@ -251,8 +249,6 @@ def map_rotation(est: UpEstimate, principal: np.ndarray, params: GravityParams =
     """The rotation input -> map: identity when ``est.up`` is within ``keep_deg`` of +z (for lines,
     whose sign is a guess, of either +z or -z), else up to +z with the strongest horizontal
     principal direction to +x (so that walls run along the axes and lattices)."""
-    from ldlmap.core.frame import rotation_to_z
-
     ang = _angle_deg(est.up, Z)
     if ang <= params.keep_deg or (est.source == "lines" and 180.0 - ang <= params.keep_deg):
         return np.eye(3)

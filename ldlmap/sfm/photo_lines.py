@@ -33,13 +33,20 @@ pairs.
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from ldlmap.core.errors import InputError
+from ldlmap.core.imageproc import stretch_contrast
+from ldlmap.core.lazy import lazy_module
+from ldlmap.core.timing import StageClock
+from ldlmap.io.colmap import ColmapViews, read_colmap_views
+from ldlmap.lines3d import merge_collinear
+
+cv2 = lazy_module("cv2")
+sparse = lazy_module("scipy.sparse")
 
 
 @dataclass(frozen=True)
@@ -92,10 +99,6 @@ def read_gray(path: Path, max_size: int, size_hint: int = 0) -> np.ndarray | Non
     """Contrast-stretched grey photo, downscaled so its longer side is at most ``max_size``;
     None when it cannot be read. ``size_hint``: the photo's longer side when known (the camera's):
     a large JPEG is then decoded at a reduced scale directly."""
-    import cv2
-
-    from ldlmap.core.imageproc import stretch_contrast
-
     r = max([k for k in _REDUCED if size_hint >= k * max_size], default=1)
     img = cv2.imread(str(path), getattr(cv2, _REDUCED[r]) if r > 1 else cv2.IMREAD_GRAYSCALE)
     if img is None:
@@ -110,8 +113,6 @@ def detect_segments(gray: np.ndarray, camera_size: tuple[int, int], min_length: 
     """LSD segments (n, 2, 2) of ``gray`` in pixels of a camera of ``camera_size`` (W, H), COLMAP
     convention (OpenCV's pixel centres are integers, COLMAP's at +0.5); shorter than
     ``min_length`` x the diagonal dropped."""
-    import cv2
-
     found = cv2.createLineSegmentDetector(cv2.LSD_REFINE_STD).detect(gray)[0]
     if found is None:
         return np.zeros((0, 2, 2))
@@ -124,8 +125,6 @@ def detect_segments(gray: np.ndarray, camera_size: tuple[int, int], min_length: 
 def join_segments(segs: np.ndarray, angle_deg: float = 1.5, dist_px: float = 1.0, gap_px: float = 4.0) -> np.ndarray:
     """Join LSD's pieces of one image line: collinear within ``angle_deg`` and ``dist_px`` and at
     most ``gap_px`` apart (:func:`ldlmap.lines3d.merge_collinear` on the image plane)."""
-    from ldlmap.lines3d import merge_collinear
-
     if len(segs) < 2:
         return segs
     flat = np.concatenate([segs, np.zeros((len(segs), 2, 1))], axis=2)
@@ -380,11 +379,9 @@ def _depth_bands(view, segs: np.ndarray, points: np.ndarray, params: SfmLinesPar
 
 def _neighbours(views: list, num_points: int, params: SfmLinesParams) -> list[tuple[int, int]]:
     """Ordered photo pairs (i, j): j among the ``max_neighbours`` photos sharing the most points with i."""
-    from scipy.sparse import csr_matrix
-
     rows = np.concatenate([np.full(len(v.obs_point), i) for i, v in enumerate(views)])
     cols = np.concatenate([v.obs_point for v in views])
-    vis = csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(len(views), num_points))
+    vis = sparse.csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(len(views), num_points))
     vis.data[:] = 1
     covis = (vis @ vis.T).toarray()
     np.fill_diagonal(covis, -1)
@@ -466,20 +463,39 @@ def reconstruct_lines(model, images_dir: str | Path, params: SfmLinesParams = Sf
     """3D lines of a COLMAP model (:class:`ldlmap.io.colmap.ColmapViews`, or its folder) from the
     photos in ``images_dir``. Raises :class:`InputError` when fewer than two photos can be read or
     when no line is confirmed."""
-    from ldlmap.io.colmap import ColmapViews, read_colmap_views
-    from ldlmap.lines3d import merge_collinear
-
-    tick = time.perf_counter()
     seconds: dict[str, float] = {}
-
-    def stage(name: str) -> None:
-        nonlocal tick
-        now = time.perf_counter()
-        seconds[name] = now - tick
-        tick = now
-
+    clock = StageClock(seconds)
     cv = model if isinstance(model, ColmapViews) else read_colmap_views(model)
     images_dir = Path(images_dir)
+    views, grays = read_photos(cv, images_dir, params)
+    clock.lap("read")
+    sg, sup_s, sup_p = _collect_segments(views, grays, cv.points, params)
+    clock.lap("segments")
+    seg, pair, X, Y = triangulated_candidates(sg, views, len(cv.points), images_dir, params)
+    clock.lap("triangulate")
+    on_points = _point_evidence(X, seg, sg, sup_s, cv.points[sup_p], params)
+    best, agree = _score(seg, pair, X, sg, on_points, params)
+    if len(best) == 0:
+        raise InputError(f"no 3D line was confirmed by {params.min_evidence} more photos (or sparse points) "
+                         f"among the {len(views)} photos in {images_dir}")
+    lines, evidence, photo, ok = placed_lines(seg, pair, X, Y, sg, best, agree, params)
+    clock.lap("score")
+    ext = robust_extent(cv.points, params.extent_percentiles)
+    merged = merge_collinear(lines, weights=evidence.astype(float), angle_deg=params.merge_angle_deg,
+                             dist=params.merge_dist * ext, gap=params.merge_gap * ext)
+    photos = photos_per_line(merged, lines, photo, params.merge_angle_deg, 2 * params.merge_dist * ext)
+    kept = merged[photos >= params.min_photos]
+    if len(kept) == 0:
+        raise InputError(f"no 3D line was reconstructed from {params.min_photos} of the {len(views)} photos in {images_dir}")
+    clock.lap("merge")
+    counts = {"photos": len(views), "segments": int(len(sg.C)), "candidates": int(len(seg)),
+              "confirmed": int(ok.sum()), "merged": int(len(merged)), "lines": int(len(kept))}
+    return SfmLines(kept, seconds, counts)
+
+
+def read_photos(cv: ColmapViews, images_dir: Path, params: SfmLinesParams) -> tuple[list, list[np.ndarray]]:
+    """The model's perspective views whose photo could be read, and those photos in gray; refuses
+    (one line) fewer than two."""
     perspective = [v for v in cv.views if not _is_spherical(v.camera)]
     views, grays = [], []
     for v in perspective:
@@ -490,11 +506,15 @@ def reconstruct_lines(model, images_dir: str | Path, params: SfmLinesParams = Sf
     if len(views) < 2:
         raise InputError(f"fewer than 2 of the model's {len(cv.views)} registered photos could be read from "
                          f"{images_dir}" + (" (spherical cameras are not supported)" if len(perspective) < len(cv.views) else ""))
-    stage("read")
-    sg, sup_s, sup_p = _collect_segments(views, grays, cv.points, params)
-    stage("segments")
+    return views, grays
+
+
+def triangulated_candidates(sg, views: list, n_points: int, images_dir: Path,
+                            params: SfmLinesParams) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Every candidate 3D line from a segment matched in a neighbouring photo, ordered by segment:
+    its segment, (partner photo, partner segment), its end points and its partner's."""
     seg, pair, X, Y = [], [], [], []  # pair: (partner photo, partner segment) of each candidate
-    for i, j in _neighbours(views, len(cv.points), params):
+    for i, j in _neighbours(views, n_points, params):
         a, b, Xi, Yj = triangulate_pair(sg, i, j, params)
         seg.append(a)
         pair.append(np.column_stack([np.full(len(a), j), b]))
@@ -504,15 +524,15 @@ def reconstruct_lines(model, images_dir: str | Path, params: SfmLinesParams = Sf
         raise InputError(f"no segment of the {len(views)} photos in {images_dir} matches one in another photo")
     seg, pair = np.concatenate(seg), np.concatenate(pair)
     X, Y = np.concatenate(X), np.concatenate(Y)
-    stage("triangulate")
     order = np.argsort(seg, kind="stable")
-    seg, pair, X, Y = seg[order], pair[order], X[order], Y[order]
-    on_points = _point_evidence(X, seg, sg, sup_s, cv.points[sup_p], params)
-    best, agree = _score(seg, pair, X, sg, on_points, params)
-    if len(best) == 0:
-        raise InputError(f"no 3D line was confirmed by {params.min_evidence} more photos (or sparse points) "
-                         f"among the {len(views)} photos in {images_dir}")
-    # Re-place each kept line by its planes: its own, its partner's, and the agreeing partners'.
+    return seg[order], pair[order], X[order], Y[order]
+
+
+def placed_lines(seg: np.ndarray, pair: np.ndarray, X: np.ndarray, Y: np.ndarray, sg, best: np.ndarray,
+                 agree: np.ndarray, params: SfmLinesParams) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The kept candidates ``best`` re-placed by their planes (their own, their partner's and the
+    agreeing partners') and cut to what the confirming photos see: the lines, their evidence
+    (photos), their own photo, and which candidates kept a length."""
     row = np.full(len(seg), -1)
     row[best] = np.arange(len(best))
     members = np.concatenate([best, agree[:, 1]])
@@ -535,16 +555,4 @@ def reconstruct_lines(model, images_dir: str | Path, params: SfmLinesParams = Sf
     ok = hi > lo
     lines = np.stack([P + lo[:, None] * v, P + hi[:, None] * v], 1)[ok]
     evidence = 1 + np.bincount(owner, minlength=len(best))[ok]
-    photo = sg.view[s][ok]
-    stage("score")
-    ext = robust_extent(cv.points, params.extent_percentiles)
-    merged = merge_collinear(lines, weights=evidence.astype(float), angle_deg=params.merge_angle_deg,
-                             dist=params.merge_dist * ext, gap=params.merge_gap * ext)
-    photos = photos_per_line(merged, lines, photo, params.merge_angle_deg, 2 * params.merge_dist * ext)
-    kept = merged[photos >= params.min_photos]
-    if len(kept) == 0:
-        raise InputError(f"no 3D line was reconstructed from {params.min_photos} of the {len(views)} photos in {images_dir}")
-    stage("merge")
-    counts = {"photos": len(views), "segments": int(len(sg.C)), "candidates": int(len(seg)),
-              "confirmed": int(ok.sum()), "merged": int(len(merged)), "lines": int(len(kept))}
-    return SfmLines(kept, seconds, counts)
+    return lines, evidence, sg.view[s][ok], ok
