@@ -31,8 +31,8 @@ from ldlloc.lines2d import Lines2DParams, detect_lines, filter_by_length, query_
 from ldlloc.refine.features import RefineParams, keep_near_lines, refine_by_retrieval, refine_candidates
 from ldlloc.refine.geometric import GeometricParams, map_line_support, refine_and_keep, selection_scores
 from ldlloc.refine.retrieval import RetrievalContext, ViewIndex, accept_retrieved
-from ldlloc.rotation import (PrincipalParams, assign_arcs_to_principal, candidate_rotations, filter_by_tilt,
-                             frame_rows, pair_candidates, rotation_labels, vanishing_points)
+from ldlloc.rotation import (PrincipalParams, RotationCandidates, assign_arcs_to_principal, candidate_rotations,
+                             filter_by_tilt, frame_rows, pair_candidates, rotation_labels, vanishing_points)
 from ldlloc.search.fields import DistanceFields
 from ldlloc.search.pose_search import SearchParams, line_loss, search_map
 
@@ -272,6 +272,16 @@ class SearchNear:
 
 
 @dataclass
+class RotationStage:
+    """:meth:`Localizer.rotation_stage`'s result: what the pose search runs on."""
+
+    arcs: np.ndarray  # the length-filtered arcs the search uses
+    rotations: RotationCandidates  # the candidate rotations (within the tilt bound)
+    labels: np.ndarray  # (N_r, N) principal group of each arc under each candidate rotation
+    translation_index: np.ndarray | None = None  # the map's candidate translations to search (None: all)
+
+
+@dataclass
 class Searched:
     """:meth:`Localizer.search`'s result: the coarse localization and what refinement needs."""
 
@@ -489,10 +499,29 @@ class Localizer:
         lines = QueryLines.detect(img, p) if lines is None else lines
         secs: dict[str, float] = {"lines2d": lines.seconds}
         clock = StageClock(secs)
+        rs = self.rotation_stage(lines, tilt, camera_up, near)
+        arcs, rots, labels = rs.arcs, rs.rotations, rs.labels
+        clock.lap("rotation")
+        res = search_map(arcs, labels, rots.rotations, m, p.search, self.device, self.fields, rs.translation_index)
+        clock.lap("search")
+        best_r, best_t = res.rotations[0], res.centers[0]
+        out = Localization(best_r, best_t, best_r, best_t, res.rotations, res.centers, secs,
+                           num_rotations=len(rots), num_lines=len(arcs), refined=False, arcs=arcs,
+                           arc_groups=labels[res.rotation_index[0]], rotations=rots.rotations,
+                           candidates_loss=np.asarray(res.losses, dtype=np.float64),
+                           rotation_prior=rotation_prior_name(tilt),
+                           input_to_map=None if is_identity(m.input_to_map) else m.input_to_map)
+        return Searched(out, res, arcs, labels)
 
-        arcs_all = lines.arcs
+    def rotation_stage(self, lines: QueryLines, tilt: float | None = None, camera_up: np.ndarray | None = None,
+                       near: SearchNear | None = None) -> RotationStage:
+        """Stage 2 of :meth:`localize`: the query's arcs for this map (the longest fraction, the map's
+        kept ratio within ``Lines2DParams.keep_ratio_bounds``), its candidate rotations within the
+        tilt bound ``tilt`` (degrees, None: free; around ``camera_up`` when given) and the arcs'
+        principal groups under each; with ``near``, only the rotations and translations near it."""
+        p, m = self.params, self.map
         keep = query_keep_ratio(m.kept_ratio, p.lines2d)  # the map's kept ratio within bounds
-        arcs = filter_by_length(arcs_all, keep)
+        arcs = filter_by_length(lines.arcs, keep)
         # Vanishing points from the longest lines first; more (shorter) lines only when those
         # do not give 3 directions that match the map's (within the tilt bound, if any).
         P = m.principal_directions
@@ -519,18 +548,8 @@ class Localizer:
         t_idx = None
         if near is not None:
             rots, t_idx = self._near(rots, near)
-        labels = rotation_labels(arcs, vps, rots, m.principal_directions, p.principal.group_tol)
-        clock.lap("rotation")
-        res = search_map(arcs, labels, rots.rotations, m, p.search, self.device, self.fields, t_idx)
-        clock.lap("search")
-        best_r, best_t = res.rotations[0], res.centers[0]
-        out = Localization(best_r, best_t, best_r, best_t, res.rotations, res.centers, secs,
-                           num_rotations=len(rots), num_lines=len(arcs), refined=False, arcs=arcs,
-                           arc_groups=labels[res.rotation_index[0]], rotations=rots.rotations,
-                           candidates_loss=np.asarray(res.losses, dtype=np.float64),
-                           rotation_prior=rotation_prior_name(tilt),
-                           input_to_map=None if is_identity(m.input_to_map) else m.input_to_map)
-        return Searched(out, res, arcs, labels)
+        labels = rotation_labels(arcs, vps, rots, P, p.principal.group_tol)
+        return RotationStage(arcs, rots, labels, t_idx)
 
     def _near(self, rots, near: SearchNear):
         """The candidate rotations within ``near``'s cone and the indices of the map's candidate
