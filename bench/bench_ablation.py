@@ -8,7 +8,8 @@ needs no features) built with the default :class:`~ldlmap.map.build.BuildParams`
 
 Per query, the 2D lines and candidate rotations are computed once by the product's own stages
 (:meth:`ldlloc.pipeline.Localizer.detect_lines`, :meth:`~ldlloc.pipeline.Localizer.rotation_stage`),
-then :func:`ldlloc.search.pose_search.search_map` (exact path) ranks the N_t x N_r poses under each variant: decomposition on/off with the inlier loss, and the L1, L2,
+then :func:`ldlloc.search.pose_search.search_map` (exact path) ranks the N_t x N_r poses under each
+variant: decomposition on/off with the inlier loss, and the L1, L2,
 Huber and median losses with decomposition. No refinement: the ablation is about ranking.
 Reported per variant: median translation / rotation error of the best candidate, its accuracy
 at 0.1 m / 5 deg and 0.5 m / 10 deg, and the recall of the top K = 20 (the best of the top 20

@@ -15,7 +15,8 @@ The 2D lines, the rotations and the searches are the product's own stages with i
 query's kept ratio within its bounds and the vanishing points' ladder of line ratios included.
 
 Run: ``python bench/bench_search.py [--root DATASET] [--threads N] [--max-queries N]
-[--json out.json]`` (``--threads`` defaults to 1, as ``ldlloc`` runs). Without ``--root`` the demo dataset (seed 1) is generated once under
+[--json out.json]`` (``--threads`` defaults to 1, as ``ldlloc`` runs). Without ``--root`` the demo
+dataset (seed 1) is generated once under
 ``bench/.cache/search/`` and lines-only maps (no rendered features: the search does not use
 them) are built there with the default ``BuildParams`` (distance fields on).
 """

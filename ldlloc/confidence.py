@@ -85,7 +85,7 @@ NO_CONTENDER_MARGIN = 0.5  # ``margin`` when no distinct refined pose came withi
 RIVAL_SHARE = 0.5  # a distinct PnP pose with half the final pose's inliers or more: the features do not single it out
 # A feature pose is verified by the retrieval's acceptance rule (VERIFIED_INLIERS, VERIFIED_LINE_SHARE in
 # ldlloc.refine.retrieval); across maps only verified poses compete with it (docs/measurements.md#verified-across-maps)
-VERIFIED = RetrievalParams()
+VERIFIED_RULE = RetrievalParams()  # its defaults are the rule
 
 
 def effective_signals(signals: dict[str, float]) -> dict[str, float]:
@@ -285,15 +285,16 @@ def assess(loc, ldl_map, support_deg: float = 1.0, model: ConfidenceModel = MODE
 
 
 def verified(loc, loss: float) -> bool:
-    """Whether ``loc`` is a PnP pose the features and the lines both back: ``ldlloc.refine.retrieval.VERIFIED_INLIERS``
-    inliers or more and an exact line loss ``loss`` of at least ``VERIFIED_LINE_SHARE`` of its
-    map's search best (losses are negative inlier counts)."""
+    """Whether ``loc`` is a PnP pose the features and the lines both back: ``VERIFIED_INLIERS`` inliers
+    or more and an exact line loss ``loss`` of at least ``VERIFIED_LINE_SHARE`` of its map's search
+    best (losses are negative inlier counts; the retrieval's acceptance rule,
+    :func:`ldlloc.refine.retrieval.accept_retrieved` with its defaults)."""
     if not str(loc.refine_method).startswith("features"):
         return False
     ret = getattr(loc, "retrieval", None)
     best = float(ret["search_loss"]) if ret else (
         float(np.min(loc.candidates_loss)) if loc.candidates_loss is not None and len(loc.candidates_loss) else np.nan)
-    return bool(np.isfinite(best) and accept_retrieved(loc.num_inliers, loss, best, VERIFIED))
+    return bool(np.isfinite(best) and accept_retrieved(loc.num_inliers, loss, best, VERIFIED_RULE))
 
 
 def assess_across(locs: list, losses: list[float], names: list[str], params=None, model: ConfidenceModel = MODEL) -> None:

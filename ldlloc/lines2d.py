@@ -87,7 +87,7 @@ class Lines2DParams:
     normalize_contrast: bool = True
     """Stretch the grey levels (1st-99th percentile) before LSD: dark or washed-out panoramas keep their gradients."""
     lsd_threads: int = 0
-    """Threads running LSD over the crops; 0: auto (up to 4, at most the CPU count); the result does not depend on it."""
+    """Threads running LSD over the crops (0: up to 4, at most the CPU count); results do not depend on it."""
     nadir_mask_deg: float = 18.0
     """Drop arcs that come this close to camera -z (tripod); 0: off."""
     zenith_mask_deg: float = 0.0

@@ -1,12 +1,13 @@
 """Localize one panorama against an LDL map: ``Localizer(map).localize(image) -> Localization``.
 
-Stages (timed): ``lines2d`` (LSD on crops, arcs, adaptive length filter: the longest
-fraction of the arcs equal to the map's kept ratio within bounds, ``query_keep_ratio``),
-``rotation`` (vanishing points and candidate rotations, then the optional upright prior
-``max_tilt_deg``), ``search`` (line distance functions over N_t x N_r poses, top K),
-``refine`` (query features, matching, spherical PnP), ``confidence`` (how far to trust the pose,
-:mod:`ldlloc.confidence`), ``total``.
-"""
+Stages (timed; each one call, the map-dependent ones taking the map): ``lines2d`` (LSD on crops, arcs:
+:meth:`Localizer.detect_lines`), ``rotation`` (:meth:`Localizer.rotation_stage`: the adaptive
+length filter, the longest fraction of the arcs equal to the map's kept ratio within bounds
+(``query_keep_ratio``); vanishing points and candidate rotations, then the optional upright prior
+``max_tilt_deg``), ``search`` (:func:`ldlloc.search.pose_search.search_map`: line distance functions
+over N_t x N_r poses, top K), ``refine`` (query features, matching, spherical PnP; or lines alone,
+:func:`ldlloc.refine.geometric.refine_and_keep`), ``confidence`` (how far to trust the pose,
+:func:`ldlloc.confidence.assess`), ``total``."""
 
 from __future__ import annotations
 
@@ -70,13 +71,13 @@ class LocalizeParams:
     do_refine: bool = True
     """False: stop after the pose search."""
     refine_mode: str = "auto"
-    """auto (features when the map has them, geometric where they fail; else geometric) | features | geometric | both | none."""
+    """auto (features on a map with them, geometric where they fail) | features | geometric | both | none."""
     geometric: GeometricParams = field(default_factory=GeometricParams)
     """Stage 4, lines alone: the geometric refinement."""
     privacy: bool = False
     """Refine only with query features near principal-direction lines."""
     query_frame: str = "map"
-    """Where query features are extracted: map (rotated upright like the map's views) | image (docs/measurements.md#query-frame)."""
+    """Query features from: map (turned upright like the map's views) | image (docs/measurements.md#query-frame)."""
     max_query_frames: int = 3
     """query_frame map: at most this many frames, for candidates whose up axes lie frame_split_deg apart."""
     frame_split_deg: float = 45.0
@@ -84,7 +85,7 @@ class LocalizeParams:
     max_keypoints: int | None = None
     """Query features (None: the backend's query_keypoints)."""
     vp_keep_ratio: float = 0.2
-    """Vanishing points are voted by the longest max(kept ratio, this) of the 2D lines (docs/measurements.md#vp-keep-ratio)."""
+    """Vanishing points from the longest max(kept ratio, this) of the lines (docs/measurements.md#vp-keep-ratio)."""
     max_tilt_deg: float | None = None
     """Upright prior: candidate rotations whose camera up is within this of the world's (None or >= 180: free)."""
 

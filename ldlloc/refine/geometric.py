@@ -50,7 +50,7 @@ class GeometricParams:
     """Parameters of :func:`refine_poses_geometric`."""
 
     max_poses: int = 20
-    """Refine the best this many of the K search poses; the rest stay coarse (docs/measurements.md#geometric-max-poses)."""
+    """Refine the best this many search poses, the rest stay coarse (docs/measurements.md#geometric-max-poses)."""
     samples: int = 3
     """Points per 2D arc (more cost time, no accuracy: docs/measurements.md#geometric-samples)."""
     rounds: int = 10

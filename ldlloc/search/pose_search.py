@@ -64,7 +64,7 @@ class SearchParams:
     rescore_query_level: int | None = 2
     """Query points of the exact re-scoring (None: query_level); 2 sees door frames that tell twins apart."""
     coverage_cap: float = 2.0
-    """Maps with coverage: the inlier count over the covered directions, divided by their share (at most this; 1: off)."""
+    """Coverage maps: inliers over the covered directions / their share, at most this factor (1: off)."""
     diverse_translation: float = 0.35
     """Top-K diversity: a pose is dropped when a better one is this near (m) and diverse_rotation_deg near (0: off)."""
     diverse_rotation_deg: float = 5.0
