@@ -6,9 +6,10 @@ Dataset: demo-preset rooms with only an extreme split (arbitrary rotations, moti
 ``--per-split`` panoramas per scene (``bench/.cache/ablation_*``); lines-only maps (pose search
 needs no features) built with the default :class:`~ldlmap.map.build.BuildParams` otherwise.
 
-Per query, the 2D lines, vanishing points and candidate rotations are computed once (as
-:class:`ldlloc.pipeline.Localizer` does), then :func:`ldlloc.search.pose_search.search_poses` ranks the
-N_t x N_r poses under each variant: decomposition on/off with the inlier loss, and the L1, L2,
+Per query, the 2D lines and candidate rotations are computed once by the product's own stages
+(:meth:`ldlloc.pipeline.Localizer.detect_lines`, :meth:`~ldlloc.pipeline.Localizer.rotation_stage`),
+then :func:`ldlloc.search.pose_search.search_map` (exact path) ranks the N_t x N_r poses under each
+variant: decomposition on/off with the inlier loss, and the L1, L2,
 Huber and median losses with decomposition. No refinement: the ablation is about ranking.
 Reported per variant: median translation / rotation error of the best candidate, its accuracy
 at 0.1 m / 5 deg and 0.5 m / 10 deg, and the recall of the top K = 20 (the best of the top 20
@@ -54,16 +55,14 @@ def rank_queries(dataset: Path, top_k: int = 20, device: str = "cpu"
     """Errors of the top-K poses of every variant for every extreme query: label -> {t, r} (Q, K);
     per query the rotation error (deg) of the best of its candidate rotations (inf: none); and
     the line counts behind the search (``arcs_2d`` kept per query, ``lines_3d`` per map)."""
-    from ldlloc.lines2d import detect_lines, filter_by_length
-    from ldlloc.pipeline import LocalizeParams, load_image
-    from ldlloc.rotation import candidate_rotations, frame_rows, rotation_labels, vanishing_points
-    from ldlloc.search.pose_search import SearchParams, search_poses
+    from ldlloc.pipeline import LocalizeParams, Localizer, load_image
+    from ldlloc.search.pose_search import SearchParams, search_map
     from ldlmap.datasets import open_dataset
     from ldlmap.core.errors import InputError
     from ldlmap.core.geometry import rotation_error_deg
     from ldlmap.map.mapfile import read_map
 
-    p = LocalizeParams()
+    p = LocalizeParams(do_refine=False, search=SearchParams(use_fields=False))  # the exact search's variants
     ds = open_dataset(dataset, "omniscenes")
     errs: dict[str, dict[str, list]] = {v[0]: {"t": [], "r": []} for v in VARIANTS}
     names: list[str] = []
@@ -75,6 +74,7 @@ def rank_queries(dataset: Path, top_k: int = 20, device: str = "cpu"
         if not queries:
             continue
         m = read_map(common.cached_map(dataset, scene, features="none"), load_cloud=False)
+        loc = Localizer(m, p, device)
         counts["lines_3d"].append(int(len(m.lines)))
         for q in queries:
             nq += 1
@@ -82,14 +82,10 @@ def rank_queries(dataset: Path, top_k: int = 20, device: str = "cpu"
             names.append(q.name)
             try:
                 img = load_image(q.image)
-                arcs = filter_by_length(detect_lines(img, p.lines2d), m.kept_ratio)
+                lines = loc.detect_lines(img)  # the product's stages: 2D lines, then rotations
+                rs = loc.rotation_stage(lines)
+                arcs, rots, labels = rs.arcs, rs.rotations, rs.labels
                 counts["arcs_2d"].append(int(len(arcs)))
-                vps = vanishing_points(arcs, p.principal.k_2d, p.principal)
-                rots = candidate_rotations(vps, m.principal_directions, params=p.principal,
-                                           seed=frame_rows(m.principal_directions))
-                if len(rots) == 0:
-                    raise InputError("no candidate rotation")
-                labels = rotation_labels(arcs, vps, rots, m.principal_directions, p.principal.group_tol)
             except InputError:
                 best_rot.append(np.inf)
                 for label, _, _ in VARIANTS:  # a failed query counts as not localized
@@ -98,9 +94,8 @@ def rank_queries(dataset: Path, top_k: int = 20, device: str = "cpu"
                 continue
             best_rot.append(min(rotation_error_deg(R, q.rot_cam_from_world) for R in rots.rotations))
             for label, decompose, loss in VARIANTS:
-                res = search_poses(arcs, labels, rots.rotations, m.lines, m.line_groups, m.translations,
-                                   SearchParams(top_k=top_k, loss=loss, decompose=decompose), device,
-                                   num_groups=len(m.principal_directions))
+                res = search_map(arcs, labels, rots.rotations, m,
+                                 SearchParams(top_k=top_k, loss=loss, decompose=decompose, use_fields=False), device)
                 t = np.full(top_k, np.inf)
                 r = np.full(top_k, np.inf)
                 k = len(res.centers)
@@ -152,7 +147,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     ap.add_argument("--seed", type=int, default=7)
     ap.add_argument("--device", default="cpu")
     ap.add_argument("--output", type=Path, default=Path(__file__).resolve().parent / "ablation.json")
-    ap.add_argument("--threads", type=int, default=0, help="torch intra-op threads (0: torch default)")
+    ap.add_argument("--threads", type=int, default=1, help="CPU threads of torch and OpenCV (default 1, as ldlloc runs; "
+                    "0: the libraries')")
     args = ap.parse_args(argv)
     common.set_threads(args.threads)
     per = args.per_split or (3 if args.quick else 10)

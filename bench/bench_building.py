@@ -1,4 +1,4 @@
-"""Building-scale maps (issue 21, Build item 3): one map per floor, queries localized without their floor.
+"""Building-scale maps: one map per floor, queries localized without their floor.
 
 Run: ``python bench/bench_building.py [--preset building] [--ray] [--threads 1] [--splits robot,...]
 [--max-queries N] [--rebuild] [--output bench/building.json]``.

@@ -1,4 +1,4 @@
-"""Confidence of a localization, measured (issue 20, item 3): synthetic data and the real ZInD home.
+"""Confidence of a localization, measured: synthetic data and the real ZInD home.
 
 Run: ``python bench/bench_confidence.py [--data ../shared/data] [--real-maps DIR] [--fit]``.
 
@@ -48,7 +48,7 @@ HELD_OUT_SEED = 12  # a second multiroom dataset, never fitted on: the synthetic
 COVERAGES = (50, 70, 80, 90, 100)
 OK_T, OK_R = 0.25, 5.0  # the confidence target: confident poses within 0.25 m / 5 deg
 TIGHT_T, TIGHT_R = 0.1, 5.0
-TARGET_PRECISION = 0.98  # --fit: the threshold keeps >= 98 % of synthetic confident poses right (issue 20's target)
+TARGET_PRECISION = 0.98  # --fit: the threshold keeps >= 98 % of synthetic confident poses right (the confidence's target)
 L2 = 0.1  # --fit: ridge weight on the standardized signals (the logistic must not chase a few queries)
 
 

@@ -1,8 +1,8 @@
-"""Benchmark: geometric refinement from lines alone on synthetic lines-only maps (issue 10).
+"""Benchmark: geometric refinement from lines alone on synthetic lines-only maps.
 
 Run: ``python bench/bench_geometric.py [--quick] [--threads 1] [--no-features] [--seed 1]``.
 
-Issue 10's synthetic requirement: on the extreme, robot and change_robot splits, with lines-only
+The synthetic requirement of lines-only localization: on the extreme, robot and change_robot splits, with lines-only
 maps built from the scan's extracted lines and from the true edges, accuracy at 0.1 m / 5 deg
 >= 0.9. Data: the cached synthetic demo dataset (``common.demo_dataset``: 2 scenes, 3 panoramas
 per split, 1024 x 512). Per scene, two lines-only maps (``features="none"``), cached under
@@ -274,7 +274,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                f"seconds are medians; code {code['commit']}{' (dirty ldlloc/ldlmap)' if code['dirty'] else ''}, "
                f"ldlloc {code['ldlloc_hash']}\n" + common.load_line(machine) + f"; wall {wall:.0f} s")
     title = (f"Geometric refinement on lines-only maps (synthetic demo{', QUICK' if args.quick else ''}; "
-             f"issue 10 target: 0.1m/5 >= 0.9 with geometric)")
+             f"target: 0.1m/5 >= 0.9 with geometric)")
     con.print(table(rows, title, caption))
     result = {"summary": rows, "queries": recs, "maps": maps, "camera_height": bands,
               "camera_height_margin_m": HEIGHT_MARGIN, "trans_spacing_m": SPACING,

@@ -1,4 +1,4 @@
-"""Your own panoramas (``ldlloc run --images``): which map, accuracy and throughput on the real ZInD home (issue 20).
+"""Your own panoramas (``ldlloc run --images``): which map, accuracy and throughput on the real ZInD home.
 
 Run: ``python bench/bench_images.py [--data ../shared/data] [--room-maps DIR] [--floor-map FILE]
 [--top-maps 1,2,3,5] [--throughput 100] [--localize-runs 3] [--threads 1]``.

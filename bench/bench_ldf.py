@@ -1,7 +1,7 @@
 """Benchmark of the ldlloc core: 2D line extraction, vanishing points + rotations, ldf_3d + loss.
 
 Prints a table of median seconds. Run: ``python bench/bench_ldf.py [--device cpu|cuda]``.
-Workload (DESIGN.md 8): N_t = 800 translations, N_r = 30 rotations, |Q| = 42, ~300 3D lines,
+Workload (the paper's runtime setting): N_t = 800 translations, N_r = 30 rotations, |Q| = 42, ~300 3D lines,
 a 1024 x 512 synthetic panorama of a textured box room.
 """
 

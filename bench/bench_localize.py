@@ -30,6 +30,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import common  # noqa: E402
+from ldlmap.core.cli_common import DEFAULT_THREADS  # noqa: E402
 
 STAGES = ("lines2d", "rotation", "search", "refine", "total")
 TARGETS = {"lines2d": 0.15, "rotation": 0.02, "search": None, "refine": None, "total": 1.5}
@@ -122,7 +123,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     ap.add_argument("--root", type=Path, default=None, help="an OmniScenes-layout dataset with the maps of "
                     "`ldlmap prepare` in ROOT/maps, instead of the cached demo (e.g. on a machine that cannot build maps)")
     ap.add_argument("--output", type=Path, default=Path(__file__).resolve().parent / "results.json")
-    ap.add_argument("--threads", type=int, default=0, help="torch intra-op threads (0: torch default)")
+    ap.add_argument("--threads", type=int, default=DEFAULT_THREADS,
+                    help=f"CPU threads of torch and OpenCV (default {DEFAULT_THREADS}, as ldlloc runs; 0: the libraries')")
     args = ap.parse_args(argv)
     common.set_threads(args.threads)
     import torch

@@ -1,4 +1,4 @@
-"""Real panoramas: ZInD homes against lines-only maps of their room layouts (issues 9, 10).
+"""Real panoramas: ZInD homes against lines-only maps of their room layouts.
 
 Run: ``python bench/bench_real.py [--data ../shared/data] [--levels room,floor,rooms] [--threads 1]``.
 
@@ -214,7 +214,7 @@ def print_level(res: dict) -> None:
 def print_summary(results: list[dict]) -> None:
     from rich.table import Table
 
-    t = Table(title="ZInD summary (issue 9's targets in brackets)")
+    t = Table(title="ZInD summary (the real-data targets in brackets)")
     t.add_column("metric")
     for r in results:
         t.add_column(f"{r['level']} level", justify="right")

@@ -1,4 +1,4 @@
-"""Benchmark: SfM-like Line3D++ maps (issue 12): kept lines, principal directions, up axis.
+"""Benchmark: SfM-like Line3D++ maps: kept lines, principal directions, up axis.
 
 Usage: ``python bench/bench_sfm.py [--seeds 0,1,2,3] [--preset demo] [--units 0.37] [--far 8] [--out DIR]
 [--localize ROOT [--queries 5]] [--threads 1]``
@@ -8,7 +8,7 @@ For each seed: the true edges of ``random_spec(preset, seed)`` become an SfM-lik
 outliers; then a random rotation, ``--units`` per metre and an offset), and ``ldlmap build`` runs
 on it (``--scale 1/units``, lines only, no distance fields). Printed per scene, before (the
 paper's filter on the min / max box, voted directions, the input frame kept: what ``build`` did
-before issue 12; with the far outliers in the min / max box it keeps nothing and the build
+before its SfM handling; with the far outliers in the min / max box it keeps nothing and the build
 fails, ``--far 0`` leaves them out) and after (``build`` now): raw and kept lines, the query's kept ratio, the
 smallest angle between two principal directions, the largest angle of a voted direction to the
 orthonormal frame, and the angle of the map's z axis to the true up.
@@ -43,7 +43,7 @@ def _angle(a: np.ndarray, b: np.ndarray) -> float:
 
 
 def before(segs: np.ndarray, scale: float, true_up: np.ndarray) -> dict:
-    """The pipeline before issue 12: scaled input as is, min / max box, paper filter, voted directions."""
+    """The pipeline before the SfM handling: scaled input as is, min / max box, paper filter, voted directions."""
     from ldlloc.lines2d import query_keep_ratio
     from ldlmap.lines3d import filter_by_length
     from ldlmap.lines3d.principal import principal_directions_3d

@@ -1,4 +1,4 @@
-"""Rooms that are not boxes (issue 23): localization per room kind and split.
+"""Rooms that are not boxes: localization per room kind and split.
 
 Run: ``python bench/bench_shapes.py [--scenes 2] [--per-split 3] [--maps edges,scan] [--max-tilt 10]
 [--build field=value]``.

@@ -20,7 +20,7 @@ CPU (user + sys) seconds:
 ``--tree PATH`` times the package in PATH instead of this working tree, ``--baseline PATH`` times
 another tree beside it, run for run (e.g. ``git archive`` of an older commit, to compare before
 and after under the same load); ``--threads N`` passes ``--threads N`` to ``localize`` (default:
-the command's own default). Targets (issue 12): ``--help`` under 0.5 s, one ``localize`` under
+the command's own default). Targets: ``--help`` under 0.5 s, one ``localize`` under
 2 s wall on the 2-core development machine. Writes ``bench/startup.json``.
 """
 

@@ -283,16 +283,17 @@ def machine_info(device: str = "cpu") -> dict[str, Any]:
 
 
 def set_threads(threads: int | None) -> None:
-    """Set torch's intra-op threads when ``threads`` is given (> 0); else keep torch's default.
+    """Threads as the product sets them (:func:`ldlmap.core.cli_common.set_threads`: torch, OpenCV and
+    the BLAS pools) when ``threads`` is given (> 0); else keep the libraries' defaults.
 
     On a shared, oversubscribed machine torch's OpenMP workers spin at every barrier while
     their cores run other processes: the many small ops of the pose search then slow down
-    by an order of magnitude, so benchmarks there should run with ``--threads 1``.
+    by an order of magnitude, which is why ``ldlloc`` and the benchmarks default to 1 thread.
     """
     if threads:
-        import torch
+        from ldlmap.core.cli_common import set_threads as product_set_threads
 
-        torch.set_num_threads(int(threads))
+        product_set_threads(int(threads))
 
 
 def load_line(info: dict[str, Any]) -> str:

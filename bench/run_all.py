@@ -28,11 +28,11 @@ Benchmarks (in this order; names for ``--only``):
 - ``startup``: ``ldlmap --help``, ``ldlloc --help`` and one ``ldlloc localize`` as fresh processes,
   wall and CPU seconds with localize's stages (map read, setup, query, the rest); writes
   ``bench/startup.json`` (bench_startup.py)
-- ``sfm``: SfM-like Line3D++ maps (issue 12): kept lines, principal directions and up axis,
+- ``sfm``: SfM-like Line3D++ maps: kept lines, principal directions and up axis,
   before and after (bench_sfm.py; ``--localize ROOT`` when run alone also localizes)
 - ``results``: writing a run's results file, ms per added query at 30 / 2000 / 3000 records and a
   run of 3000 from an empty file (bench_results_write.py)
-- ``building``: the 36-room building of issue 21, one map per floor, queries localized without
+- ``building``: the 36-room building, one map per floor, queries localized without
   their floor; writes ``bench/building.json`` (bench_building.py; an hour and more on 2 cores the
   first time, so only with ``--only building``)
 - ``inputs``: one room as .ply, .e57, .las, .laz, .glb and .ifc: build time and peak memory per

@@ -43,6 +43,10 @@ from typing import Any
 
 import numpy as np
 
+from ldlmap.core.geometry import angle_from_trace_deg
+from ldlloc.refine.geometric import GeometricParams, map_line_support, selection_scores
+from ldlloc.refine.retrieval import RetrievalParams, accept_retrieved
+
 SAME_T_M = 0.5  # a candidate within 0.5 m and 20 deg of the final pose (or of its start) is that pose
 SAME_R_DEG = 20.0  # (the search keeps its top K 0.35 m / 5 deg apart: nearby ones are one pose's neighbours)
 COMPETITOR_GAP = 0.1  # a distinct candidate whose loss is within 10 % of the final pose's start competes
@@ -59,7 +63,7 @@ class ConfidenceModel:
     bias: float
     weights: dict[str, float]
     confident_at: float
-    failed_below: float = 0.05  # below this 1 of 48 synthetic and real poses was right (6 of 25 up to 0.1): not a candidate
+    failed_below: float = 0.05  # below this, a pose is rarely right: not a candidate (docs/measurements.md#confidence)
 
     def confidence(self, signals: dict[str, float]) -> float:
         signals = effective_signals(signals)
@@ -69,8 +73,8 @@ class ConfidenceModel:
 
 # Fitted by `bench/bench_confidence.py --fit` on the synthetic sets only (256 poses; docs/measurements.md#confidence):
 # a logistic with non-negative weights, L2-regularized on the standardized signals and folded back to raw
-# weights. support and support_gap got 0 next to margin. ``confident_at``: the smallest confidence above
-# which >= 98 % of the synthetic poses are within 0.25 m / 5 deg (issue 20's target).
+# weights. ``confident_at``: the smallest confidence above which >= 98 % of the synthetic poses are within
+# 0.25 m / 5 deg (the confidence's target).
 MODEL = ConfidenceModel(bias=-8.429, weights={"gap": 2.75, "support": 0.0, "support_gap": 0.0, "margin": 24.325,
                                               "features": 8.198, "refined": 5.613}, confident_at=0.602)
 SIGNALS = ("gap", "support", "support_gap", "margin", "features", "refined")
@@ -79,9 +83,9 @@ NO_CONTENDER_MARGIN = 0.5  # ``margin`` when no distinct refined pose came withi
 
 
 RIVAL_SHARE = 0.5  # a distinct PnP pose with half the final pose's inliers or more: the features do not single it out
-VERIFIED_INLIERS = 15  # a feature pose of this many PnP inliers and a line loss at least VERIFIED_LINE_SHARE of its
-VERIFIED_LINE_SHARE = 0.7  # search's best is verified: the retrieval's acceptance (RetrievalParams); across maps only
-# verified poses compete with it (docs/measurements.md#verified-across-maps)
+# A feature pose is verified by the retrieval's acceptance rule (VERIFIED_INLIERS, VERIFIED_LINE_SHARE in
+# ldlloc.refine.retrieval); across maps only verified poses compete with it (docs/measurements.md#verified-across-maps)
+VERIFIED_RULE = RetrievalParams()  # its defaults are the rule
 
 
 def effective_signals(signals: dict[str, float]) -> dict[str, float]:
@@ -102,7 +106,7 @@ def rotation_kind(R_final: np.ndarray, R_other: np.ndarray) -> str:
     """What turns one camera into the other: ``180-degree twin``, ``90-degree rotation``,
     ``N-degree rotation`` (about the world's up axis) or ``other up axis``."""
     M = np.asarray(R_final, float).T @ np.asarray(R_other, float)  # a rotation of the world frame
-    angle = float(np.degrees(np.arccos(np.clip((np.trace(M) - 1) / 2, -1, 1))))
+    angle = float(angle_from_trace_deg(np.trace(M)))
     if angle < SAME_R_DEG:
         return "same rotation"
     axis = np.array([M[2, 1] - M[1, 2], M[0, 2] - M[2, 0], M[1, 0] - M[0, 1]])
@@ -134,8 +138,8 @@ def distinct(R: np.ndarray, t: np.ndarray, Rs: np.ndarray, ts: np.ndarray) -> np
     turned SAME_R_DEG or more."""
     Rs, ts = np.asarray(Rs, float).reshape(-1, 3, 3), np.asarray(ts, float).reshape(-1, 3)
     d = np.linalg.norm(ts - np.asarray(t, float), axis=1)
-    c = (np.einsum("kij,ij->k", Rs, np.asarray(R, float)) - 1) / 2  # trace(R^T Rk) = sum(R * Rk)
-    return (d >= SAME_T_M) | (np.degrees(np.arccos(np.clip(c, -1, 1))) >= SAME_R_DEG)
+    trace = np.einsum("kij,ij->k", Rs, np.asarray(R, float))  # trace(R^T Rk) = sum(R * Rk)
+    return (d >= SAME_T_M) | (angle_from_trace_deg(trace) >= SAME_R_DEG)
 
 
 def own_candidate(loc) -> int:
@@ -181,8 +185,6 @@ def relative_gap(loss_other: float, loss_own: float) -> float:
 
 def confidence_signals(loc, ldl_map, support_deg: float = 1.0) -> tuple[dict[str, float], np.ndarray]:
     """The signals of a localization (module docstring) and its distinct candidates (indices, best first)."""
-    from ldlloc.refine.geometric import map_line_support
-
     others = distinct_candidates(loc)
     losses = None if loc.candidates_loss is None else np.asarray(loc.candidates_loss, float)
     own = own_loss(loc)
@@ -283,15 +285,16 @@ def assess(loc, ldl_map, support_deg: float = 1.0, model: ConfidenceModel = MODE
 
 
 def verified(loc, loss: float) -> bool:
-    """Whether ``loc`` is a PnP pose the features and the lines both back: :data:`VERIFIED_INLIERS`
-    inliers or more and an exact line loss ``loss`` of at least :data:`VERIFIED_LINE_SHARE` of its
-    map's search best (losses are negative inlier counts)."""
-    if not str(loc.refine_method).startswith("features") or loc.num_inliers < VERIFIED_INLIERS:
+    """Whether ``loc`` is a PnP pose the features and the lines both back: ``VERIFIED_INLIERS`` inliers
+    or more and an exact line loss ``loss`` of at least ``VERIFIED_LINE_SHARE`` of its map's search
+    best (losses are negative inlier counts; the retrieval's acceptance rule,
+    :func:`ldlloc.refine.retrieval.accept_retrieved` with its defaults)."""
+    if not str(loc.refine_method).startswith("features"):
         return False
     ret = getattr(loc, "retrieval", None)
     best = float(ret["search_loss"]) if ret else (
         float(np.min(loc.candidates_loss)) if loc.candidates_loss is not None and len(loc.candidates_loss) else np.nan)
-    return bool(np.isfinite(loss) and np.isfinite(best) and loss <= VERIFIED_LINE_SHARE * best)
+    return bool(np.isfinite(best) and accept_retrieved(loc.num_inliers, loss, best, VERIFIED_RULE))
 
 
 def assess_across(locs: list, losses: list[float], names: list[str], params=None, model: ConfidenceModel = MODEL) -> None:
@@ -314,8 +317,6 @@ def assess_across(locs: list, losses: list[float], names: list[str], params=None
     (``map_twin`` 1: an identical room's copy, whatever their inliers) loses its ``features``
     signal and is named with it. Calling it
     again on a subset of the maps recomputes all of this from the in-map assessment."""
-    from ldlloc.refine.geometric import GeometricParams, selection_scores
-
     params = params or GeometricParams()
     support = np.array([float(loc.confidence_signals.get("support", 0.0)) for loc in locs])
     losses = np.asarray(losses, dtype=np.float64)

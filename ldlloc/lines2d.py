@@ -1,4 +1,4 @@
-"""2D line segments of an equirectangular panorama as great-circle arcs (DESIGN.md 5.5).
+"""2D line segments of an equirectangular panorama as great-circle arcs.
 
 LSD (OpenCV) runs on perspective crops that cover the sphere: by default 26 views of 60 degree
 field of view looking at the faces, edges and corners of a cube (neighbouring views are 35-45
@@ -29,12 +29,18 @@ the convention of OpenCV's LSD output; the crop's principal point is ``((S-1)/2,
 
 from __future__ import annotations
 
+import os
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
 
 from ldlmap.core.errors import InputError
+from ldlmap.core.imageproc import stretch_contrast
+from ldlmap.core.lazy import lazy_module
+
+cv2 = lazy_module("cv2")
 
 
 @dataclass(frozen=True)
@@ -64,25 +70,36 @@ class Lines2DParams:
     in (chosen on the real ZInD panoramas: docs/measurements.md#keep-ratio-bounds).
     """
 
-    fov_deg: float = 60.0  # field of view of each perspective crop (authors: 26 views of 60 deg)
-    views: str = "cube26"  # crop directions: cube26 (faces, edges, corners) or cube14 (faces, corners)
-    crop_scale: float = 1.0  # crop pixels per panorama pixel at the crop centre
-    min_length_px: float = 6.0  # drop LSD segments shorter than this (crop pixels)
-    merge_angle_deg: float = 1.0  # great circles closer than this are the same line
-    merge_gap_deg: float = 0.5  # arcs on one circle closer than this along it are joined
-    lsd_refine: int = 1  # cv2.LSD_REFINE_* (0 none, 1 standard, 2 advanced)
-    normalize_contrast: bool = True  # stretch the grey levels (1st-99th percentile) before LSD,
-    # so that washed-out or dark panoramas (gamma, exposure changes) keep their gradients
-    lsd_threads: int = 0  # threads running LSD over the crops (OpenCV releases the GIL); 0: auto
-    # (up to 4, at most the CPU count). The result does not depend on it.
-    nadir_mask_deg: float = 18.0  # drop arcs that come this close to camera -z (tripod); 0: off
-    zenith_mask_deg: float = 0.0  # the same around camera +z; 0: off
-    detect_pole_bands: bool = True  # grow the caps over a dark / flat band found at the image's
-    # bottom or top rows (see pole_band_extents)
-    band_margin_deg: float = 3.0  # a detected band's cap reaches this far beyond the band
-    band_max_deg: float = 45.0  # a flat region reaching farther from the pole is scene, not a band
-    keep_ratio_bounds: tuple[float, float] = (0.1, 0.2)  # the 2D kept ratio is the map's 3D kept
-    # ratio clipped to these bounds (query_keep_ratio)
+    fov_deg: float = 60.0
+    """Field of view of each perspective crop (the authors': 26 views of 60 deg)."""
+    views: str = "cube26"
+    """Crop directions: cube26 (faces, edges, corners) or cube14 (faces, corners)."""
+    crop_scale: float = 1.0
+    """Crop pixels per panorama pixel at the crop centre."""
+    min_length_px: float = 6.0
+    """Drop LSD segments shorter than this (crop pixels)."""
+    merge_angle_deg: float = 1.0
+    """Great circles closer than this are the same line."""
+    merge_gap_deg: float = 0.5
+    """Arcs on one circle closer than this along it are joined."""
+    lsd_refine: int = 1
+    """cv2.LSD_REFINE_* (0 none, 1 standard, 2 advanced)."""
+    normalize_contrast: bool = True
+    """Stretch the grey levels (1st-99th percentile) before LSD: dark or washed-out panoramas keep their gradients."""
+    lsd_threads: int = 0
+    """Threads running LSD over the crops (0: up to 4, at most the CPU count); results do not depend on it."""
+    nadir_mask_deg: float = 18.0
+    """Drop arcs that come this close to camera -z (tripod); 0: off."""
+    zenith_mask_deg: float = 0.0
+    """Drop arcs that come this close to camera +z; 0: off."""
+    detect_pole_bands: bool = True
+    """Grow the caps over a dark or flat band found at the image's bottom or top rows (pole_band_extents)."""
+    band_margin_deg: float = 3.0
+    """A detected band's cap reaches this far beyond the band."""
+    band_max_deg: float = 45.0
+    """A flat region reaching farther from the pole is scene, not a band."""
+    keep_ratio_bounds: tuple[float, float] = (0.1, 0.2)
+    """The 2D kept ratio is the map's 3D kept ratio clipped to these bounds (query_keep_ratio)."""
 
 
 def query_keep_ratio(map_kept_ratio: float, params: Lines2DParams = Lines2DParams()) -> float:
@@ -149,8 +166,6 @@ def _crop_set(width: int, height: int, params: Lines2DParams) -> _CropSet:
     float32 keeps the sample positions within 1e-3 pixel, far below the 1/32 pixel of OpenCV's
     fixed-point maps.
     """
-    import cv2
-
     bases = _view_bases(view_directions(params.views))
     S = _crop_size(width, params)
     focal = (S / 2.0) / np.tan(np.radians(params.fov_deg) / 2.0)
@@ -195,20 +210,14 @@ def _check_image(image: np.ndarray) -> np.ndarray:
 
 def _gray(image_rgb: np.ndarray, params: Lines2DParams) -> np.ndarray:
     """The grey panorama LSD sees (contrast-stretched when ``params.normalize_contrast``)."""
-    import cv2
-
     img = _check_image(image_rgb)
     gray = img if img.ndim == 2 else cv2.cvtColor(img[..., :3], cv2.COLOR_RGB2GRAY)
     if params.normalize_contrast:
-        from ldlmap.core.imageproc import stretch_contrast
-
         gray = stretch_contrast(gray)
     return np.ascontiguousarray(gray)
 
 
 def _crops_of_gray(gray: np.ndarray, params: Lines2DParams) -> np.ndarray:
-    import cv2
-
     h, w = gray.shape
     cs = _crop_set(w, h, params)
     padded = np.concatenate([gray[:, -1:], gray, gray[:, :1]], axis=1)
@@ -243,8 +252,6 @@ def pole_band_extents(gray: np.ndarray, params: Lines2DParams = Lines2DParams())
     untextured floor or ceiling is flat too, but it ends where the walls begin, at rows that
     change around the panorama, and usually farther out. 0 where there is no band.
     """
-    import cv2
-
     g = np.asarray(gray)
     h, w = g.shape[:2]
     ws = min(w, _BAND_WIDTH)
@@ -314,8 +321,6 @@ def _outside_caps(arcs: np.ndarray, nadir_deg: float, zenith_deg: float) -> np.n
 
 
 def _lsd_threads(requested: int) -> int:
-    import os
-
     if requested > 0:
         return int(requested)
     return max(1, min(4, os.cpu_count() or 1))
@@ -323,8 +328,6 @@ def _lsd_threads(requested: int) -> int:
 
 @lru_cache(maxsize=4)
 def _executor(workers: int):
-    from concurrent.futures import ThreadPoolExecutor
-
     return ThreadPoolExecutor(max_workers=workers, thread_name_prefix="ldl-lsd")
 
 
@@ -334,8 +337,6 @@ def _detect_all(views: np.ndarray, refine: int, threads: int) -> list:
     Each thread has its own detector (one crop after another, interleaved so that the threads
     get similar work); OpenCV releases the GIL inside ``detect``.
     """
-    import cv2
-
     def run(k: int) -> list:
         lsd = cv2.createLineSegmentDetector(refine)
         return [lsd.detect(views[v])[0] for v in range(k, len(views), threads)]
@@ -351,8 +352,6 @@ def _detect_all(views: np.ndarray, refine: int, threads: int) -> list:
 
 def _detect_single(views: np.ndarray, refine: int) -> list:
     """LSD on every crop in the calling thread."""
-    import cv2
-
     lsd = cv2.createLineSegmentDetector(refine)
     return [lsd.detect(c)[0] for c in views]
 

@@ -1,27 +1,43 @@
 """Localize one panorama against an LDL map: ``Localizer(map).localize(image) -> Localization``.
 
-Stages (timed): ``lines2d`` (LSD on crops, arcs, adaptive length filter: the longest
-fraction of the arcs equal to the map's kept ratio within bounds, ``query_keep_ratio``),
-``rotation`` (vanishing points and candidate rotations, then the optional upright prior
-``max_tilt_deg``), ``search`` (line distance functions over N_t x N_r poses, top K),
-``refine`` (query features, matching, spherical PnP), ``confidence`` (how far to trust the pose,
-:mod:`ldlloc.confidence`), ``total``.
-"""
+Stages (timed; each one call, the map-dependent ones taking the map): ``lines2d`` (LSD on crops, arcs:
+:meth:`Localizer.detect_lines`), ``rotation`` (:meth:`Localizer.rotation_stage`: the adaptive
+length filter, the longest fraction of the arcs equal to the map's kept ratio within bounds
+(``query_keep_ratio``); vanishing points and candidate rotations, then the optional upright prior
+``max_tilt_deg``), ``search`` (:func:`ldlloc.search.pose_search.search_map`: line distance functions
+over N_t x N_r poses, top K), ``refine`` (query features, matching, spherical PnP; or lines alone,
+:func:`ldlloc.refine.geometric.refine_and_keep`), ``confidence`` (how far to trust the pose,
+:func:`ldlloc.confidence.assess`), ``total``."""
 
 from __future__ import annotations
 
+import os
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from ldlmap.core.errors import InputError
-from ldlloc.refine.geometric import GeometricParams
-from ldlloc.lines2d import Lines2DParams
-from ldlloc.rotation import PrincipalParams
-from ldlloc.refine.features import RefineParams
-from ldlloc.search.pose_search import SearchParams
+from ldlmap.core.errors import InputError, require_file
+from ldlmap.core.frame import is_identity, pose_to_input, pose_to_map
+from ldlmap.core.geometry import half_icosphere_points, rotation_error_deg
+from ldlmap.core.lazy import lazy_module
+from ldlmap.core.signals import import_pycolmap
+from ldlmap.core.timing import StageClock
+from ldlmap.features import backend_for
+from ldlmap.features.sphere import extract_in_map_frame
+from ldlmap.io.imagefile import image_header_size, read_image
+from ldlloc.confidence import NO_CONTENDER_MARGIN, assess, distinct
+from ldlloc.lines2d import Lines2DParams, detect_lines, filter_by_length, query_keep_ratio
+from ldlloc.refine.features import RefineParams, keep_near_lines, refine_by_retrieval, refine_candidates
+from ldlloc.refine.geometric import GeometricParams, map_line_support, refine_and_keep, selection_scores
+from ldlloc.refine.retrieval import RetrievalContext, ViewIndex, accept_retrieved
+from ldlloc.rotation import (PrincipalParams, RotationCandidates, assign_arcs_to_principal, candidate_rotations,
+                             filter_by_tilt, frame_rows, pair_candidates, rotation_labels, vanishing_points)
+from ldlloc.search.fields import DistanceFields
+from ldlloc.search.pose_search import SearchParams, line_loss, search_map
+
+cv2 = lazy_module("cv2")
 
 # Default upright prior (max camera-up tilt, degrees) for queries marked upright (``Query.upright``, ZInD)
 # when no ``--max-tilt`` is given: room for an unlevel tripod and a map a few degrees off, none for a
@@ -41,30 +57,37 @@ class LocalizeParams:
     """All localization parameters (each stage's own dataclass holds the paper's defaults)."""
 
     lines2d: Lines2DParams = field(default_factory=Lines2DParams)
+    """Stage 1: 2D line detection and the query's kept ratio."""
     principal: PrincipalParams = field(default_factory=PrincipalParams)
+    """Stage 2: vanishing points and candidate rotations."""
     search: SearchParams = field(default_factory=SearchParams)
+    """Stage 3: the pose search."""
     refine: RefineParams = field(default_factory=RefineParams)
-    features: str | None = None  # feature backend; None: the map's backend
-    weights: str | None = None  # SuperPoint checkpoint (path)
-    do_refine: bool = True  # False: stop after pose search
-    refine_mode: str = "auto"  # auto: features when the map has them (geometric where they fail), else
-    # geometric | features | geometric (lines alone, ldlloc.refine.geometric) | both (features, then a
-    # geometric polish) | none
+    """Stage 4, features: matching, spherical PnP and the retrieval fallback."""
+    features: str | None = None
+    """Feature backend; None: the map's."""
+    weights: str | None = None
+    """SuperPoint checkpoint (path)."""
+    do_refine: bool = True
+    """False: stop after the pose search."""
+    refine_mode: str = "auto"
+    """auto (features on a map with them, geometric where they fail) | features | geometric | both | none."""
     geometric: GeometricParams = field(default_factory=GeometricParams)
-    privacy: bool = False  # refine only with query features near principal-direction lines
-    query_frame: str = "map"  # where query features are extracted: map (the panorama rotated into the
-    # map's frame by the best candidate rotation, upright like the map's views; ldlmap.features.sphere)
-    # | image (as taken); map: more matches, and rotated queries stay matchable (docs/measurements.md#query-frame)
-    max_query_frames: int = 3  # query_frame map: at most this many frames of distinct candidate up axes ...
-    frame_split_deg: float = 45.0  # ... more than this apart (Localizer._refine_features): a top-1 that is an
-    # upside-down twin must not decide the only frame (docs/measurements.md#query-frames)
-    max_keypoints: int | None = None  # query features (None: the backend's query_keypoints: 8192 for
-    # nearest-neighbour matchers, the map views' count for LightGlue, whose cost grows with its square)
-    vp_keep_ratio: float = 0.2  # vanishing points are voted by the longest max(kept ratio, this)
-    # fraction of the 2D lines (then 0.5, then all, until candidate rotations exist): a small kept ratio can
-    # leave a direction lineless (docs/measurements.md#vp-keep-ratio); the distance functions keep the paper's
-    max_tilt_deg: float | None = None  # upright prior: keep candidate rotations whose camera up
-    # axis is within this many degrees of the world's up (None or >= 180: free, the paper's)
+    """Stage 4, lines alone: the geometric refinement."""
+    privacy: bool = False
+    """Refine only with query features near principal-direction lines."""
+    query_frame: str = "map"
+    """Query features from: map (turned upright like the map's views) | image (docs/measurements.md#query-frame)."""
+    max_query_frames: int = 3
+    """query_frame map: at most this many frames, for candidates whose up axes lie frame_split_deg apart."""
+    frame_split_deg: float = 45.0
+    """Candidate up axes this far apart get frames of their own (docs/measurements.md#query-frames)."""
+    max_keypoints: int | None = None
+    """Query features (None: the backend's query_keypoints)."""
+    vp_keep_ratio: float = 0.2
+    """Vanishing points from the longest max(kept ratio, this) of the lines (docs/measurements.md#vp-keep-ratio)."""
+    max_tilt_deg: float | None = None
+    """Upright prior: candidate rotations whose camera up is within this of the world's (None or >= 180: free)."""
 
 
 @dataclass
@@ -113,8 +136,6 @@ class Localization:
         """The final pose ``(R, t)`` in the map's input frame (SfM maps), None when it is the map's."""
         if self.input_to_map is None:
             return None
-        from ldlmap.core.frame import pose_to_input
-
         return pose_to_input(self.rot_cam_from_world, self.center, self.input_to_map)
 
     def truth_in_map_frame(self, rot_cam_from_input: np.ndarray, center_input: np.ndarray
@@ -124,8 +145,6 @@ class Localization:
         frame (``--up``, ``--scale``), as it is otherwise."""
         if self.input_to_map is None:
             return np.asarray(rot_cam_from_input, dtype=np.float64), np.asarray(center_input, dtype=np.float64)
-        from ldlmap.core.frame import pose_to_map
-
         return pose_to_map(rot_cam_from_input, center_input, self.input_to_map)
 
     def candidate_dicts(self, digits: int | None = None) -> list[dict]:
@@ -157,19 +176,12 @@ def load_image(path: str | Path) -> np.ndarray:
     :data:`WORK_WIDTH` is resized to it (``INTER_AREA``) right after decoding. Grey, 16-bit and
     RGBA images are converted; missing, unreadable, empty, corrupt, truncated, absurdly large or
     tiny images, and those not 2:1, are one-line :class:`InputError`\\ s."""
-    import os
-
-    import cv2
-
-    from ldlmap.core.errors import require_file
-    from ldlmap.io.imagefile import read_image
-
     p = require_file(path, "image")
     if not os.access(p, os.R_OK):
         raise InputError(f"cannot read image (permission denied): {p}")
     if p.stat().st_size == 0:
         raise InputError(f"image file is empty: {p}")
-    header = _image_header_size(p)
+    header = image_header_size(p)
     if header is not None and max(header) > MAX_PANORAMA_WIDTH:  # before decoding it (EXIF may turn it)
         _check_panorama_size(header, p)
     img = read_image(p, cv2.IMREAD_COLOR)  # through Python's open(): any file name (cv2.imread crashes on some)
@@ -183,7 +195,7 @@ def load_image(path: str | Path) -> np.ndarray:
 
 def image_size(path: str | Path) -> tuple[int, int] | None:
     """(width, height) of a PNG or JPEG from its header, without decoding it (None: another format)."""
-    return _image_header_size(Path(path))
+    return image_header_size(Path(path))
 
 
 def _check_panorama_size(size: tuple[int, int], p: Path) -> None:
@@ -196,27 +208,6 @@ def _check_panorama_size(size: tuple[int, int], p: Path) -> None:
         raise InputError(f"not an equirectangular panorama (width must be 2 x height): {p} is {w}x{h}")
     if w < MIN_PANORAMA_WIDTH:
         raise InputError(f"panorama too small: {p} is {w}x{h} (at least {MIN_PANORAMA_WIDTH}x{MIN_PANORAMA_WIDTH // 2})")
-
-
-def _image_header_size(p: Path) -> tuple[int, int] | None:
-    """(width, height) from a PNG or JPEG header, read before decoding (None: another format, or
-    no size found); raises for a JPEG without its end marker (truncated)."""
-    with open(p, "rb") as f:
-        head = f.read(1 << 16)
-        if head.startswith(b"\x89PNG\r\n\x1a\n") and len(head) >= 24 and head[12:16] == b"IHDR":
-            return int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big")
-        if not head.startswith(b"\xff\xd8"):
-            return None
-        f.seek(max(0, p.stat().st_size - 4096))
-        if b"\xff\xd9" not in f.read():
-            raise InputError(f"truncated JPEG (no end marker): {p}")
-    i = 2
-    while i + 9 <= len(head) and head[i] == 0xFF:  # JPEG segments up to the frame header (SOFn)
-        marker, length = head[i + 1], int.from_bytes(head[i + 2:i + 4], "big")
-        if 0xC0 <= marker <= 0xCF and marker not in (0xC4, 0xC8, 0xCC):
-            return int.from_bytes(head[i + 7:i + 9], "big"), int.from_bytes(head[i + 5:i + 7], "big")
-        i += 2 + length
-    return None
 
 
 def query_frame_groups(rotations: np.ndarray, max_frames: int = 3, split_deg: float = 45.0
@@ -255,8 +246,6 @@ class QueryLines:
 
     @classmethod
     def detect(cls, img: np.ndarray, params: LocalizeParams) -> "QueryLines":
-        from ldlloc.lines2d import detect_lines
-
         tick = time.perf_counter()
         arcs = detect_lines(img, params.lines2d)
         if len(arcs) < 3:
@@ -265,9 +254,6 @@ class QueryLines:
 
     def vanishing_points(self, ratio: float, principal: PrincipalParams) -> np.ndarray:
         """The vanishing points of the longest ``ratio`` of the lines (cached: the same for every map)."""
-        from ldlloc.lines2d import filter_by_length
-        from ldlloc.rotation import vanishing_points
-
         key = (float(ratio), principal)
         if key not in self._vps:
             self._vps[key] = vanishing_points(filter_by_length(self.arcs, ratio), principal.k_2d, principal)
@@ -287,6 +273,16 @@ class SearchNear:
 
 
 @dataclass
+class RotationStage:
+    """:meth:`Localizer.rotation_stage`'s result: what the pose search runs on."""
+
+    arcs: np.ndarray  # the length-filtered arcs the search uses
+    rotations: RotationCandidates  # the candidate rotations (within the tilt bound)
+    labels: np.ndarray  # (N_r, N) principal group of each arc under each candidate rotation
+    translation_index: np.ndarray | None = None  # the map's candidate translations to search (None: all)
+
+
+@dataclass
 class Searched:
     """:meth:`Localizer.search`'s result: the coarse localization and what refinement needs."""
 
@@ -299,19 +295,6 @@ class Searched:
     def best_loss(self) -> float:
         """The search's best loss (lower is better): the cheap score of a map for this panorama."""
         return float(self.res.losses[0])
-
-
-class _StageLaps:
-    """Seconds per stage into ``secs``: ``lap(name)`` records the time since the previous lap (or
-    since it was made)."""
-
-    def __init__(self, secs: dict[str, float]):
-        self.secs, self._tick = secs, time.perf_counter()
-
-    def __call__(self, name: str) -> None:
-        now = time.perf_counter()
-        self.secs[name] = now - self._tick
-        self._tick = now
 
 
 class Localizer:
@@ -330,8 +313,6 @@ class Localizer:
         self.fields = None  # the map's distance fields, prepared once for the fast pose search
         self.view_index = None  # the map's view retrieval index (ldlloc.refine.retrieval), built when first needed
         if params.search.use_fields is not False:
-            from ldlloc.search.fields import DistanceFields
-
             self.fields = DistanceFields.from_map(ldl_map, device)
         if params.query_frame not in QUERY_FRAMES:
             raise InputError(f"unknown query frame {params.query_frame!r}; valid: {', '.join(QUERY_FRAMES)}")
@@ -349,65 +330,28 @@ class Localizer:
         self.refine_mode = mode
         self.refine_enabled = mode in ("features", "both")
         if self.refine_enabled:
-            from ldlmap.features import backend_for
-
             self.backend = backend_for(want, params.weights, device, ldl_map.features.extraction)
         self._prepare()
 
     def _prepare(self) -> None:
         """One-time work done here, not in the first query's timed stages: the vanishing points'
         voting sphere and, for feature refinement, pycolmap's import (spherical PnP)."""
-        from ldlmap.core.geometry import half_icosphere_points
-
         half_icosphere_points(self.params.principal.icosphere_level)
         if self.refine_enabled:
-            from ldlmap.core.signals import import_pycolmap
-
             import_pycolmap()
 
     def _refine_and_keep(self, arcs: np.ndarray, rotations: np.ndarray, centers: np.ndarray,
                          translation_index: np.ndarray, n: int, assoc_deg: np.ndarray | None = None):
-        """Refine the first ``n`` of these poses from lines alone and score every pose.
-
-        A refined pose is kept where refinement was accepted and its exact loss (the search's,
-        :func:`ldlloc.search.pose_search.score_poses`) is within ``GeometricParams.keep_within`` of its start's:
-        the inlier loss cannot see a few centimetres (docs/measurements.md#geometric-keep-within).
-        ``assoc_deg`` (n,): each refined pose's first association angle (None: the params'). Returns
-        the :class:`GeometricResult` of the first ``n``, ``kept`` (M,) and each pose's loss (M,) (the
-        better of the two where kept)."""
-        from ldlloc.refine.geometric import refine_poses_geometric
-        from ldlloc.search.pose_search import score_poses
-
-        m, p = self.map, self.params
-        ti = np.asarray(translation_index)
-        vis = m.visibility[ti[:n]] if m.visibility is not None else None
-        g = refine_poses_geometric(arcs, rotations[:n], centers[:n], m.lines, m.line_groups, m.principal_directions,
-                                   vis, p.geometric, m.camera_height_band, assoc_deg)
-        # a refined pose is scored with what is seen from the candidate translation nearest to it
-        # (lines behind walls, mapped directions), not from its start's
-        ti_ref = m.nearest_translation(g.centers)
-        # the starts are scored once each (the wide second refinements repeat the best ones)
-        _, first, back = np.unique(np.concatenate([rotations.reshape(-1, 9), centers], 1), axis=0,
-                                   return_index=True, return_inverse=True)
-        loss = score_poses(arcs, np.concatenate([g.rotations, rotations[first]]),
-                           np.concatenate([g.centers, centers[first]]), m.lines, m.line_groups,
-                           m.principal_directions, np.concatenate([ti_ref, ti[first]]), p.search, m.visibility,
-                           m.coverage, self.device, p.principal.group_tol)
-        refined, start = loss[:n], loss[n:][back.reshape(-1)]
-        kept = np.zeros(len(rotations), dtype=bool)
-        kept[:n] = g.accepted & (refined <= start[:n] + p.geometric.keep_within * np.abs(start[:n]))
-        best = start.copy()
-        best[:n] = np.where(kept[:n], np.minimum(refined, start[:n]), start[:n])
-        return g, kept, best
+        """:func:`ldlloc.refine.geometric.refine_and_keep` of these poses on this localizer's map."""
+        p = self.params
+        return refine_and_keep(arcs, rotations, centers, translation_index, n, self.map, p.geometric, p.search,
+                               self.device, p.principal.group_tol, assoc_deg)
 
     def _refine_geometric(self, out: "Localization", arcs: np.ndarray, res) -> None:
         """Refine the best of the top-K poses from lines alone; the winner has the best loss and
         map-line support together (:func:`ldlloc.refine.geometric.map_line_support`). The best
         ``GeometricParams.wide_poses`` are refined twice, the second time with wider first
         associations (``wide_assoc_deg``); both results compete."""
-        from ldlloc.refine.geometric import map_line_support, selection_scores
-        from ldlloc.rotation import assign_arcs_to_principal
-
         m, p = self.map, self.params
         M = len(res.centers)
         n = max(1, min(M, int(p.geometric.max_poses)))  # the others keep their coarse poses
@@ -432,8 +376,6 @@ class Localizer:
         score = selection_scores(loss, p.geometric, support_of)
         k = int(np.argmax(score))
         c = int(cand[k])
-        from ldlloc.confidence import NO_CONTENDER_MARGIN, distinct
-
         other = distinct(rots[k], centers[k], rots, centers) & np.isfinite(score)
         out.selection_margin = float(score[k] - score[other].max()) if other.any() else NO_CONTENDER_MARGIN
         out.coarse_rot, out.coarse_center = res.rotations[c], res.centers[c]
@@ -451,23 +393,13 @@ class Localizer:
 
     def _line_loss(self, arcs: np.ndarray):
         """``loss(R (M, 3, 3), t (M, 3)) -> (M,)``: the exact line loss of poses, each seen from the
-        candidate translation nearest to it (:func:`ldlloc.search.pose_search.score_poses`)."""
-        from ldlloc.search.pose_search import score_poses
-
-        m, p = self.map, self.params
-
-        def loss(R: np.ndarray, t: np.ndarray) -> np.ndarray:
-            return score_poses(arcs, R, t, m.lines, m.line_groups, m.principal_directions, m.nearest_translation(t),
-                               p.search, m.visibility, m.coverage, self.device, p.principal.group_tol)
-
-        return loss
+        candidate translation nearest to it (:func:`ldlloc.search.pose_search.line_loss`)."""
+        return line_loss(arcs, self.map, self.params.search, self.device, self.params.principal.group_tol)
 
     def _retrieval_context(self, arcs: np.ndarray, res):
         """The retrieval fallback's context (:class:`ldlloc.refine.retrieval.RetrievalContext`): the map's
         view index (built on first use), the exact line loss of poses (:meth:`_line_loss`) and that loss
         of the search's best pose."""
-        from ldlloc.refine.retrieval import RetrievalContext, ViewIndex
-
         if self.view_index is None:
             self.view_index = ViewIndex(self.map.features, self.params.refine.retrieval)
         loss = self._line_loss(arcs)
@@ -487,9 +419,6 @@ class Localizer:
         fallback (:func:`ldlloc.refine.features.refine_by_retrieval`) matches the first frame's
         features with the map's views most like them (its accepted pose replaces a weak one). ``grouped_arcs``: the arcs of principal
         lines (the privacy filter's); ``arcs``: all the search's arcs (the retrieved poses' line loss)."""
-        from ldlloc.refine.features import keep_near_lines, refine_by_retrieval, refine_candidates
-        from ldlmap.features.sphere import extract_in_map_frame
-
         p, m = self.params, self.map
         H, W = img.shape[:2]
         k = self.backend.query_keypoints if p.max_keypoints is None else p.max_keypoints
@@ -524,8 +453,6 @@ class Localizer:
         near the search's best: :func:`ldlloc.refine.retrieval.accept_retrieved`); a weaker one (a few
         inliers in another room of the floor, a pose that explains few of the image's lines) gives way
         to a retrieved pose when there is one (docs/measurements.md#retrieval)."""
-        from ldlloc.refine.retrieval import accept_retrieved
-
         loss = self._line_loss(arcs)
         R = np.stack([np.asarray(ref.rot_cam_from_world), res.rotations[0]])
         own, search = (float(v) for v in loss(R, np.stack([np.asarray(ref.center), res.centers[0]])))
@@ -563,12 +490,6 @@ class Localizer:
         ``camera_up``: the camera's own gravity (world up in the camera frame, from its XMP pose):
         the tilt bound is then around it (:func:`ldlloc.rotation.filter_by_tilt`). ``near``: search
         only near a predicted pose (:class:`SearchNear`); an InputError when no candidate lies there."""
-        from ldlloc.lines2d import filter_by_length, query_keep_ratio
-        from ldlloc.rotation import (candidate_rotations, filter_by_tilt, frame_rows, pair_candidates,
-                                     rotation_labels)
-        from ldlloc.search.pose_search import search_poses
-        from ldlmap.core.frame import is_identity
-
         p, m = self.params, self.map
         img = _check_panorama_array(image_rgb)
         tilt = p.max_tilt_deg if max_tilt_deg is None else float(max_tilt_deg)
@@ -578,11 +499,30 @@ class Localizer:
             tilt = None
         lines = QueryLines.detect(img, p) if lines is None else lines
         secs: dict[str, float] = {"lines2d": lines.seconds}
-        lap = _StageLaps(secs)
+        clock = StageClock(secs)
+        rs = self.rotation_stage(lines, tilt, camera_up, near)
+        arcs, rots, labels = rs.arcs, rs.rotations, rs.labels
+        clock.lap("rotation")
+        res = search_map(arcs, labels, rots.rotations, m, p.search, self.device, self.fields, rs.translation_index)
+        clock.lap("search")
+        best_r, best_t = res.rotations[0], res.centers[0]
+        out = Localization(best_r, best_t, best_r, best_t, res.rotations, res.centers, secs,
+                           num_rotations=len(rots), num_lines=len(arcs), refined=False, arcs=arcs,
+                           arc_groups=labels[res.rotation_index[0]], rotations=rots.rotations,
+                           candidates_loss=np.asarray(res.losses, dtype=np.float64),
+                           rotation_prior=rotation_prior_name(tilt),
+                           input_to_map=None if is_identity(m.input_to_map) else m.input_to_map)
+        return Searched(out, res, arcs, labels)
 
-        arcs_all = lines.arcs
+    def rotation_stage(self, lines: QueryLines, tilt: float | None = None, camera_up: np.ndarray | None = None,
+                       near: SearchNear | None = None) -> RotationStage:
+        """Stage 2 of :meth:`localize`: the query's arcs for this map (the longest fraction, the map's
+        kept ratio within ``Lines2DParams.keep_ratio_bounds``), its candidate rotations within the
+        tilt bound ``tilt`` (degrees, None: free; around ``camera_up`` when given) and the arcs'
+        principal groups under each; with ``near``, only the rotations and translations near it."""
+        p, m = self.params, self.map
         keep = query_keep_ratio(m.kept_ratio, p.lines2d)  # the map's kept ratio within bounds
-        arcs = filter_by_length(arcs_all, keep)
+        arcs = filter_by_length(lines.arcs, keep)
         # Vanishing points from the longest lines first; more (shorter) lines only when those
         # do not give 3 directions that match the map's (within the tilt bound, if any).
         P = m.principal_directions
@@ -609,35 +549,12 @@ class Localizer:
         t_idx = None
         if near is not None:
             rots, t_idx = self._near(rots, near)
-        labels = rotation_labels(arcs, vps, rots, m.principal_directions, p.principal.group_tol)
-        lap("rotation")
-        if t_idx is None:
-            res = search_poses(arcs, labels, rots.rotations, m.lines, m.line_groups, m.translations,
-                               p.search, self.device, fields=self.fields, visibility=m.visibility,
-                               coverage=m.coverage, num_groups=len(m.principal_directions))
-        else:  # the subset's fields, visibility and coverage; indices back into the whole map's
-            sub = lambda a: None if a is None else a[t_idx]  # noqa: E731
-            res = search_poses(arcs, labels, rots.rotations, m.lines, m.line_groups, m.translations[t_idx],
-                               p.search, self.device,
-                               fields=None if self.fields is None else self.fields.subset(t_idx),
-                               visibility=sub(m.visibility), coverage=sub(m.coverage),
-                               num_groups=len(m.principal_directions))
-            res.translation_index = t_idx[res.translation_index]
-        lap("search")
-        best_r, best_t = res.rotations[0], res.centers[0]
-        out = Localization(best_r, best_t, best_r, best_t, res.rotations, res.centers, secs,
-                           num_rotations=len(rots), num_lines=len(arcs), refined=False, arcs=arcs,
-                           arc_groups=labels[res.rotation_index[0]], rotations=rots.rotations,
-                           candidates_loss=np.asarray(res.losses, dtype=np.float64),
-                           rotation_prior=rotation_prior_name(tilt),
-                           input_to_map=None if is_identity(m.input_to_map) else m.input_to_map)
-        return Searched(out, res, arcs, labels)
+        labels = rotation_labels(arcs, vps, rots, P, p.principal.group_tol)
+        return RotationStage(arcs, rots, labels, t_idx)
 
     def _near(self, rots, near: SearchNear):
         """The candidate rotations within ``near``'s cone and the indices of the map's candidate
         translations within its radius (one-line InputErrors when none is)."""
-        from ldlmap.core.geometry import rotation_error_deg
-
         T = np.asarray(self.map.translations, dtype=np.float64)
         t_idx = np.flatnonzero(np.linalg.norm(T - np.asarray(near.center, float), axis=1) <= near.radius_m)
         if len(t_idx) == 0:
@@ -663,7 +580,7 @@ class Localizer:
             searched = self.search(img, max_tilt_deg, lines, camera_up)
         out, res, arcs, labels = searched.out, searched.res, searched.arcs, searched.labels
         secs = out.seconds
-        lap = _StageLaps(out.seconds)
+        clock = StageClock(out.seconds)
 
         if self.refine_enabled:
             ref, out.num_query_features = self._refine_features(img, arcs[out.arc_groups >= 0], res, arcs)
@@ -673,8 +590,6 @@ class Localizer:
             translation = res.translation_index[ref.candidate]
             out.retrieval = ref.retrieved
             if ref.retrieved:  # no candidate of the search is near the pose: its own arc groups and translation
-                from ldlloc.rotation import assign_arcs_to_principal
-
                 dirs = (ref.rot_cam_from_world @ self.map.principal_directions.T).T
                 out.arc_groups = assign_arcs_to_principal(arcs, dirs, self.params.principal.group_tol)
                 translation = int(self.map.nearest_translation(ref.center[None])[0])
@@ -690,10 +605,8 @@ class Localizer:
             self._refine_geometric(out, arcs, res)
         else:
             out.message = "pose search only (no refinement)"
-        lap("refine")
-        from ldlloc.confidence import assess
-
+        clock.lap("refine")
         assess(out, self.map, support_deg=self.params.geometric.support_deg)
-        lap("confidence")
+        clock.lap("confidence")
         secs["total"] = sum(v for k, v in secs.items() if k != "total")
         return out

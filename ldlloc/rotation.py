@@ -1,4 +1,4 @@
-"""2D principal directions (vanishing points) and candidate rotations (paper sec. 3.2, DESIGN 5.6).
+"""2D principal directions (vanishing points) and candidate rotations (paper sec. 3.2).
 
 Vanishing points. Every 2D arc lies on a great circle with unit normal ``n``; the circle passes
 through a sphere point ``d`` (and ``-d``) when ``n . d = 0``. Candidate directions are the
@@ -18,11 +18,11 @@ residual is below ``residual_tol`` are kept, sorted by residual, and near-duplic
 below ``dedup_deg``) are dropped, keeping the lowest residual. For a Manhattan scene every
 physical rotation appears with its 24 relabelings: they are all kept, since the decomposed
 distance functions tell them apart. Nothing here assumes right angles: the triplet's angles are
-the map's own, so an Atlanta frame (the vertical and two horizontals at e.g. 45 degrees, issue
-23) is matched by triplets at those angles, with fewer relabelings (4 per physical rotation
+the map's own, so an Atlanta frame (the vertical and two horizontals at e.g. 45 degrees) is
+matched by triplets at those angles, with fewer relabelings (4 per physical rotation
 when the horizontals are not perpendicular).
 
-More than three map directions (an Atlanta frame of the vertical and 3-6 horizontals, issue 23):
+More than three map directions (an Atlanta frame of the vertical and 3-6 horizontals):
 every triplet of map directions that is not coplanar (the vertical and two horizontals; three
 horizontals fix no tilt from angles alone) is matched as above, the rotations of all are pooled
 and de-duplicated together with the rotations of pairs (any two non-parallel matched directions fix
@@ -54,19 +54,31 @@ from itertools import combinations, permutations, product
 import numpy as np
 
 from ldlmap.core.errors import InputError
+from ldlmap.core.geometry import half_icosphere_points
+from ldlmap.lines3d.principal import FrameParams
+
+ARC_GROUP_TOL = 0.05  # an arc joins the principal group of direction p when |n . p| < this (n: its
+# great circle's normal): the one arc-group tolerance of rotations, pose scoring and geometric refinement
 
 
 @dataclass(frozen=True)
 class PrincipalParams:
     """Parameters of vanishing-point voting and rotation candidates."""
 
-    k_2d: int = 20  # k_2D: number of 2D principal directions (vanishing points)
-    vote_tol: float = 0.05  # |n . d| below this: the arc's great circle passes through d
-    icosphere_level: int = 5  # candidate directions: half icosphere of this level
-    ortho_tol_deg: float = 6.0  # 2D triplet angles must match the 3D triplet's within this
-    residual_tol: float = 0.01  # max mean squared Kabsch residual (chord^2; 0.01 ~ 5.7 deg rms)
-    dedup_deg: float = 2.5  # rotations closer than this are duplicates
-    group_tol: float = 0.05  # arc joins principal group i when |n . p_i| < this (DESIGN 5.7)
+    k_2d: int = 20
+    """k_2D: number of 2D principal directions (vanishing points)."""
+    vote_tol: float = 0.05
+    """|n . d| below this: the arc's great circle passes through d (votes for it)."""
+    icosphere_level: int = 5
+    """Candidate directions: the half icosphere of this level."""
+    ortho_tol_deg: float = 6.0
+    """2D triplet angles must match the 3D triplet's within this."""
+    residual_tol: float = 0.01
+    """Largest mean squared Kabsch residual (chord^2; 0.01 ~ 5.7 deg rms)."""
+    dedup_deg: float = 2.5
+    """Rotations closer than this are duplicates."""
+    group_tol: float = ARC_GROUP_TOL
+    """An arc joins principal group i when |n . p_i| < this."""
 
 
 @dataclass(frozen=True)
@@ -134,8 +146,6 @@ def vanishing_points(arcs: np.ndarray, k: int = 20, params: PrincipalParams = Pr
     Returns (k', 3) with k' <= k (fewer when the arcs run out), ordered by votes; with
     ``return_counts`` also the (k',) weighted vote of each.
     """
-    from ldlmap.core.geometry import half_icosphere_points
-
     normals, length = arc_normals(arcs)
     valid = np.linalg.norm(normals, axis=1) > 0
     normals, weight = normals[valid], length[valid]
@@ -257,7 +267,8 @@ def candidate_rotations(vp2d: np.ndarray, principal3d: np.ndarray,
     return RotationCandidates(R[keep], triplets[keep].astype(np.int64), signs[keep], res[keep])
 
 
-def frame_rows(principal3d: np.ndarray, up: np.ndarray = (0.0, 0.0, 1.0), tol_deg: float = 10.0) -> np.ndarray:
+def frame_rows(principal3d: np.ndarray, up: np.ndarray = (0.0, 0.0, 1.0),
+               tol_deg: float = FrameParams.horizontal_deg) -> np.ndarray:
     """(K,) bool: the map directions within ``tol_deg`` of ``up`` or of horizontal (the map
     frame's up is z): the vertical and the horizontals, not a sloped ceiling's inclined directions."""
     P = np.asarray(principal3d, dtype=np.float64)
@@ -372,8 +383,8 @@ def _matched(R: np.ndarray, res: np.ndarray, vp: np.ndarray, P: np.ndarray, orth
 # ------------------------------------------------------------------------------------- grouping
 
 
-def assign_arcs_to_principal(arcs: np.ndarray, dirs: np.ndarray, tol: float = 0.05) -> np.ndarray:
-    """Principal group of each arc (DESIGN 5.7): (N,) int in {0, 1, 2}, -1 for none.
+def assign_arcs_to_principal(arcs: np.ndarray, dirs: np.ndarray, tol: float = ARC_GROUP_TOL) -> np.ndarray:
+    """Principal group of each arc: (N,) int in {0, 1, 2}, -1 for none.
 
     An arc joins group i when its great circle passes through ``dirs[i]`` (``|n . p_i| < tol``),
     taking the smallest ``|n . p_i|`` of the three.
@@ -389,7 +400,7 @@ def assign_arcs_to_principal(arcs: np.ndarray, dirs: np.ndarray, tol: float = 0.
 
 
 def rotation_labels(arcs: np.ndarray, vp2d: np.ndarray, rots: RotationCandidates, principal3d: np.ndarray,
-                    tol: float = 0.05) -> np.ndarray:
+                    tol: float = ARC_GROUP_TOL) -> np.ndarray:
     """2D group labels per rotation candidate, (N_r, N) int, for the map's K principal directions:
     :func:`labels_for_rotations` with 3 all matched; otherwise arc ``l`` joins group ``j`` when its great
     circle passes (the smallest of the K ``|n . p|``, below ``tol``) through the vanishing point
@@ -410,7 +421,7 @@ def rotation_labels(arcs: np.ndarray, vp2d: np.ndarray, rots: RotationCandidates
 
 
 def labels_for_rotations(arcs: np.ndarray, vp2d: np.ndarray, triplets: np.ndarray,
-                         tol: float = 0.05) -> np.ndarray:
+                         tol: float = ARC_GROUP_TOL) -> np.ndarray:
     """2D group labels per rotation candidate, (N_r, N) int.
 
     ``labels[r, l] = j`` when arc ``l`` passes through ``vp2d[triplets[r, j]]`` (the smallest of

@@ -28,9 +28,11 @@ from typing import Callable
 import numpy as np
 
 from ldlmap.core.errors import InputError, LdlError
+from ldlmap.map.mapfile import read_map
 from ldlloc.confidence import assess_across, verified
 from ldlloc.pipeline import Localization, LocalizeParams, Localizer, Searched
 from ldlloc.refine.geometric import GeometricParams
+from ldlloc.search.pose_search import score_on_map
 
 TOP_MAPS = 5  # --top-maps default: maps refined after the ranking (docs/measurements.md#which-map)
 
@@ -54,8 +56,6 @@ class MapSet:
     def load(cls, maps: str | Path, params: LocalizeParams, device: str = "cpu",
              progress: Callable[[Path], None] | None = None, recursive: bool = True) -> "MapSet":
         """The maps of ``maps`` (:func:`map_files`); one-line error when none of them loads."""
-        from ldlmap.map.mapfile import read_map
-
         files, root = map_files(maps, recursive)
         entries, skipped = [], []
         for f in files:
@@ -168,15 +168,11 @@ def choose_map(options: list[MapOption], params: GeometricParams | None = None) 
 
 
 def final_pose_loss(localizer: Localizer, loc: Localization) -> float:
-    """The exact loss (:func:`ldlloc.search.pose_search.score_poses`) of ``loc``'s final pose on
+    """The exact loss (:func:`ldlloc.search.pose_search.score_on_map`) of ``loc``'s final pose on
     ``localizer``'s map, seen from the candidate translation nearest to it."""
-    from ldlloc.search.pose_search import score_poses
-
-    m, p = localizer.map, localizer.params
-    ti = m.nearest_translation(np.asarray(loc.center)[None])
-    return float(score_poses(loc.arcs, np.asarray(loc.rot_cam_from_world)[None], np.asarray(loc.center)[None],
-                             m.lines, m.line_groups, m.principal_directions, ti, p.search, m.visibility,
-                             m.coverage, localizer.device, p.principal.group_tol)[0])
+    p = localizer.params
+    return float(score_on_map(loc.arcs, np.asarray(loc.rot_cam_from_world)[None], np.asarray(loc.center)[None],
+                              localizer.map, p.search, localizer.device, p.principal.group_tol)[0])
 
 
 def localize_on_maps(img: np.ndarray, maps: MapSet, max_tilt_deg: float | None, top_maps: int = TOP_MAPS,

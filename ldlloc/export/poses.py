@@ -229,10 +229,10 @@ def image_names(images: list[Path], root: Path | None = None) -> tuple[Path, lis
 
 def image_size(path: str | Path) -> tuple[int, int]:
     """(width, height) of an image: from its PNG or JPEG header, else by decoding it."""
-    from ldlloc.pipeline import _image_header_size
+    from ldlmap.io.imagefile import image_header_size
 
     p = require_file(path, "image")
-    size = _image_header_size(p)
+    size = image_header_size(p)
     if size is None:
         import cv2
 

@@ -1,4 +1,4 @@
-"""Refinement of the top-K poses with local features (paper section 3.4, DESIGN.md 5.9-5.10).
+"""Refinement of the top-K poses with local features (paper section 3.4).
 
 For each candidate pose, the map keypoints of the rendered view serving its translation are
 matched with the query's features by the backend's matcher (mutual nearest neighbour + ratio
@@ -25,26 +25,40 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ldlmap.core.geometry import bearing_from_pixel, cam_from_world, normalize, rotation_error_deg
+from ldlmap.core.lazy import lazy_module
+from ldlmap.features import Features
 from ldlloc.confidence import distinct
 from ldlloc.refine.pnp import PnPParams, estimate_pose_spherical
 from ldlloc.refine.retrieval import RetrievalContext, RetrievalParams, accept_retrieved
+from ldlloc.search.ldf import distance_function
+
+torch = lazy_module("torch")
 
 
 @dataclass(frozen=True)
 class RefineParams:
     """Feature-based refinement parameters."""
 
-    ratio: float = 0.8  # Lowe's ratio test
-    support_angle_deg: float = 6.0  # a match supports a candidate when it reprojects this close
-    max_shift_m: float = 1.0  # refined pose further than this from the coarse one: implausible
-    max_turn_deg: float = 30.0  # ... or turned more than this
-    strong_inliers: int = 60  # ... unless PnP has at least this many inliers
-    strong_ratio: float = 0.5  # ... making up at least this fraction of the matches
-    pnp_views: int = 5  # PnP is tried on the matches of this many best-supported distinct views
-    privacy_radius: float = 0.05  # privacy mode: keep features within this (rad) of principal lines
+    ratio: float = 0.8
+    """Lowe's ratio test."""
+    support_angle_deg: float = 6.0
+    """A match supports a candidate when it reprojects this close (deg)."""
+    max_shift_m: float = 1.0
+    """A PnP pose further than this from every candidate is implausible (unless strongly supported)."""
+    max_turn_deg: float = 30.0
+    """A PnP pose turned more than this from every candidate is implausible (unless strongly supported)."""
+    strong_inliers: int = 60
+    """Strong support: at least this many PnP inliers, making up strong_ratio of the matches."""
+    strong_ratio: float = 0.5
+    """Strong support: the share of the matches that the strong_inliers must make up."""
+    pnp_views: int = 5
+    """PnP is tried on the matches of this many best-supported distinct views."""
+    privacy_radius: float = 0.05
+    """Privacy mode: keep features within this (rad) of principal lines."""
     pnp: PnPParams = field(default_factory=PnPParams)
-    retrieval: RetrievalParams = field(default_factory=RetrievalParams)  # fallback: PnP on the views most like
-    # the query, where the candidates' views give no plausible pose (ldlloc.refine.retrieval)
+    """The spherical PnP-RANSAC's settings."""
+    retrieval: RetrievalParams = field(default_factory=RetrievalParams)
+    """Fallback where the candidates' views give no plausible pose: PnP on the views most like the query."""
 
 
 @dataclass
@@ -69,10 +83,6 @@ class Refinement:
 def keep_near_lines(keypoints_uv: np.ndarray, arcs: np.ndarray, width: int, height: int,
                     radius: float = 0.05) -> np.ndarray:
     """Boolean mask of keypoints within ``radius`` radians of any of ``arcs`` (privacy mode)."""
-    import torch
-
-    from ldlloc.search.ldf import distance_function
-
     if len(keypoints_uv) == 0 or len(arcs) == 0:
         return np.zeros(len(keypoints_uv), dtype=bool)
     x = torch.as_tensor(bearing_from_pixel(keypoints_uv, width, height), dtype=torch.float32)
@@ -84,8 +94,6 @@ def _match_distinct_views(query_feats, query_size: tuple[int, int], views: np.nd
                           ratio: float) -> dict[int, np.ndarray]:
     """Matches of the query with each of the map ``views`` in one backend call (learned matchers
     batch them), as ``(query row, map keypoint row)`` pairs indexing the whole map table."""
-    from ldlmap.features import Features
-
     slices = [map_features.view_slice(int(v)) for v in views]
     feats = [Features(map_features.keypoints[sl], map_features.scores[sl], map_features.descriptors[sl])
              for sl in slices]

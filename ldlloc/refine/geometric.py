@@ -26,8 +26,9 @@ re-score), each of the K poses is optimized continuously:
 
 A refinement that moves the pose by more than ``max_move_m`` or ``max_turn_deg`` (FGPL's 1 m and
 60 deg), or that ends with fewer than ``min_points`` matched points, is rejected: that candidate
-keeps its coarse pose, flagged. The caller scores the refined poses with the line distance
-functions and keeps the best (:mod:`ldlloc.pipeline`).
+keeps its coarse pose, flagged. :func:`refine_and_keep` (the refinement stage on a map) then scores
+the refined poses with the search's exact loss and keeps a refined pose only where that loss is
+within ``keep_within`` of its start's; :mod:`ldlloc.pipeline` picks the winner.
 """
 
 from __future__ import annotations
@@ -37,45 +38,65 @@ from dataclasses import dataclass
 import numpy as np
 
 from ldlmap.core.errors import InputError
+from ldlmap.core.lazy import lazy_module
+from ldlloc.rotation import ARC_GROUP_TOL
+from ldlloc.search.pose_search import SearchParams, score_on_map
+
+torch = lazy_module("torch")
 
 
 @dataclass(frozen=True)
 class GeometricParams:
     """Parameters of :func:`refine_poses_geometric`."""
 
-    max_poses: int = 20  # refine the best this many of the K search poses (the rest stay coarse): the
-    # right pose of a symmetric twin can rank near the end (docs/measurements.md#geometric-max-poses)
-    samples: int = 3  # points per 2D arc (more cost time, no accuracy: docs/measurements.md#geometric-samples)
-    rounds: int = 10  # association rounds
-    steps: int = 2  # Gauss-Newton steps per round
-    assoc_deg: float = 12.0  # association angle of the first round ...
-    final_assoc_deg: float = 1.5  # ... shrinking to this one in the last round
-    wide_poses: int = 5  # the best this many poses are refined a second time, starting from ...
-    wide_assoc_deg: float = 20.0  # ... this association angle; both results compete: a far start needs
-    # wide associations, which mislead the other poses (docs/measurements.md#geometric-wide-assoc)
-    huber_deg: float = 0.5  # Huber threshold of the residuals
-    group_tol: float = 0.05  # |n . R p_g| below this: the arc belongs to group g
-    extent_margin_deg: float = 2.0  # a point may lie this far past a projected line's end
-    min_points: int = 20  # fewer matched points: the refinement is rejected
-    max_move_m: float = 1.0  # larger moves are divergence (FGPL)
+    max_poses: int = 20
+    """Refine the best this many search poses, the rest stay coarse (docs/measurements.md#geometric-max-poses)."""
+    samples: int = 3
+    """Points per 2D arc (more cost time, no accuracy: docs/measurements.md#geometric-samples)."""
+    rounds: int = 10
+    """Association rounds."""
+    steps: int = 2
+    """Gauss-Newton steps per round."""
+    assoc_deg: float = 12.0
+    """Association angle of the first round."""
+    final_assoc_deg: float = 1.5
+    """Association angle of the last round (the angle shrinks from assoc_deg to this)."""
+    wide_poses: int = 5
+    """The best this many poses are refined a second time from wide_assoc_deg; both results compete."""
+    wide_assoc_deg: float = 20.0
+    """First association angle of the second refinement (docs/measurements.md#geometric-wide-assoc)."""
+    huber_deg: float = 0.5
+    """Huber threshold of the residuals."""
+    group_tol: float = ARC_GROUP_TOL
+    """|n . R p_g| below this: the arc belongs to group g."""
+    extent_margin_deg: float = 2.0
+    """A point may lie this far past a projected line's end."""
+    min_points: int = 20
+    """Fewer matched points: the refinement is rejected."""
+    max_move_m: float = 1.0
+    """A larger move is divergence (FGPL's bound): rejected."""
     max_turn_deg: float = 60.0
-    damping: float = 1e-3  # Levenberg-Marquardt damping, relative to the mean diagonal
-    fixed_rotation_rounds: int = 5  # the first rounds refine the translation only: the vanishing points'
-    # rotation is good to ~1 deg, and early joint steps turn it (docs/measurements.md#geometric-fixed-rotation)
-    vp_weight: float = 5.0  # weight of each arc's vanishing-point residual (``n . R p_g``), against 1
-    # per matched point: parallel lines keep pointing at their vanishing points while the translation moves
-    support_weight: float = 1.0  # the winner maximizes -loss / max|loss| + this x map-line support
-    support_deg: float = 1.0  # a map line's point is supported within this angle of a query arc
-    support_within: float = 0.25  # only poses whose loss is within this fraction of the best compete
-    # on support (the others cannot win; docs/measurements.md#geometric-support-within)
-    merge_m: float = 0.01  # poses that come within this (and merge_deg) of a better-ranked one during
-    merge_deg: float = 0.2  # refinement share its result from then on (0: never; docs/measurements.md#geometric-merge)
-    height_margin_m: float = 0.0  # with a known camera-height band (the map's, e.g. a ZInD layout's
-    # annotated height), each step keeps the camera within this of it, so the height cannot drift to a
-    # twin's pose (docs/measurements.md#geometric-height-margin)
-    keep_within: float = 0.15  # the caller keeps a refined pose when its exact loss is at most this
-    # fraction worse than its coarse pose's: the inlier loss (tau = 0.1 rad) cannot see a few cm
-    # (docs/measurements.md#geometric-keep-within)
+    """A larger turn is divergence (FGPL's bound): rejected."""
+    damping: float = 1e-3
+    """Levenberg-Marquardt damping, relative to the mean diagonal."""
+    fixed_rotation_rounds: int = 5
+    """The first rounds move the translation only (docs/measurements.md#geometric-fixed-rotation)."""
+    vp_weight: float = 5.0
+    """Weight of each arc's vanishing-point residual ``n . R p_g`` (1 per matched point)."""
+    support_weight: float = 1.0
+    """The winner maximizes -loss / max|loss| + this x map-line support."""
+    support_deg: float = 1.0
+    """A map line's point is supported within this angle of a query arc."""
+    support_within: float = 0.25
+    """Only poses whose loss is within this fraction of the best compete on support."""
+    merge_m: float = 0.01
+    """Poses this near (and merge_deg) a better-ranked one share its refinement from then on (0: never)."""
+    merge_deg: float = 0.2
+    """The angle of merge_m's rule (docs/measurements.md#geometric-merge)."""
+    height_margin_m: float = 0.0
+    """With a known camera-height band, each step keeps the camera within this of it."""
+    keep_within: float = 0.15
+    """A refined pose is kept when its exact loss is at most this fraction worse than its start's."""
 
 
 @dataclass
@@ -91,8 +112,6 @@ class GeometricResult:
 
 def _so3_exp(w):
     """Rotation matrices (..., 3, 3) of rotation vectors (..., 3) (Rodrigues)."""
-    import torch
-
     theta = torch.linalg.vector_norm(w, dim=-1, keepdim=True).clamp_min(1e-12)
     k = w / theta
     K = torch.zeros(w.shape[:-1] + (3, 3), dtype=w.dtype, device=w.device)
@@ -105,8 +124,6 @@ def _so3_exp(w):
 
 def _sample_arcs(arcs, samples: int):
     """(N * S, 3) unit points along the arcs and the (N * S,) arc index of each."""
-    import torch
-
     f = (torch.arange(samples, dtype=arcs.dtype, device=arcs.device) + 0.5) / samples
     P = arcs[:, None, 0] * (1 - f)[None, :, None] + arcs[:, None, 1] * f[None, :, None]
     P = P / torch.linalg.vector_norm(P, dim=-1, keepdim=True).clamp_min(1e-12)
@@ -117,8 +134,6 @@ def _sample_arcs(arcs, samples: int):
 def _line_geometry(R, t, L):
     """Camera-frame unit normals (K, L, 3) of the great circles of the poses' lines (K, L, 2, 3) and
     their projected ends."""
-    import torch
-
     a, b = L[:, :, 0] - t[:, None], L[:, :, 1] - t[:, None]  # (K, L, 3) world, from t
     m = torch.linalg.cross(a, b, dim=-1)
     n = torch.einsum("kij,klj->kli", R, m)
@@ -143,8 +158,6 @@ def refine_poses_geometric(arcs: np.ndarray, rotations: np.ndarray, centers: np.
     centres within ``params.height_margin_m`` of it. ``assoc_deg`` (K,): each pose's first-round
     association angle (None: ``params.assoc_deg`` for all). See the module docstring.
     """
-    import torch
-
     A = np.asarray(arcs, dtype=np.float64)
     if A.ndim != 3 or A.shape[1:] != (2, 3) or not np.isfinite(A).all():
         raise InputError(f"arcs must be finite with shape (N, 2, 3), got {A.shape}")
@@ -219,8 +232,6 @@ def _merge_twins(R, t, merge_m: float, merge_deg: float):
     """Which of the (rank-ordered) poses to keep refining (A,) bool, and for each pose the first one
     within ``merge_m`` and ``merge_deg`` of it (A,) (itself when none is earlier): poses that have
     met go on as one."""
-    import torch
-
     near = torch.cdist(t, t) < merge_m
     cos = (torch.einsum("aij,bij->ab", R, R) - 1) / 2
     near &= cos > np.cos(np.radians(merge_deg))
@@ -231,8 +242,6 @@ def _merge_twins(R, t, merge_m: float, merge_deg: float):
 def _padded_members(member):
     """Indices (B, M) of the True entries of each row of ``member`` (B, N), padded to the largest
     row count M, and which of them are real (B, M)."""
-    import torch
-
     count = member.sum(1)
     order = torch.sort((~member).to(torch.uint8), dim=1, stable=True).indices[:, :max(int(count.max()), 1)]
     return order, torch.arange(order.shape[1], device=member.device)[None] < count[:, None]
@@ -250,8 +259,6 @@ def _associate(R, t, X, arc_of, n2, L, G3, P3, group_tol, margin, thr):
     shifted by the margin; an arc is shorter than 180 deg, so the two planes bound one lune). The
     points carry a homogeneous 1 so the margin, and a large negative value for the padding lines,
     enter as the planes' offsets."""
-    import torch
-
     f = torch.float32
     K, nx, ng = len(R), len(X), len(P3)
     # Group of each arc under each pose: the principal direction its great circle passes through.
@@ -281,8 +288,6 @@ def _associate(R, t, X, arc_of, n2, L, G3, P3, group_tol, margin, thr):
 
 def _skew(v):
     """Cross-product matrices (..., 3, 3) of vectors (..., 3): ``_skew(a) @ b == a x b``."""
-    import torch
-
     z = torch.zeros_like(v[..., 0])
     return torch.stack([z, -v[..., 2], v[..., 1], v[..., 2], z, -v[..., 0], -v[..., 1], v[..., 0], z],
                        -1).reshape(v.shape + (3,))
@@ -297,8 +302,6 @@ def _line_operators(R, t, L):
     ``r = y . m^``, ``dr/dw = m^ x y`` and ``dr/dt = (y - r m^) x d``; both are linear in ``x``, so
     the points matched to one line share one 3 x 6 operator and the normal equations sum over
     lines (:func:`_gauss_newton_step`) instead of over points."""
-    import torch
-
     a, b = L[:, :, 0] - t[:, None], L[:, :, 1] - t[:, None]  # (K, L, 3) world, from t
     m = torch.linalg.cross(a, b, dim=-1)
     norm = torch.linalg.vector_norm(m, dim=-1, keepdim=True).clamp_min(1e-12)
@@ -312,8 +315,6 @@ def _line_operators(R, t, L):
 
 def _point_residuals(n, X, match):
     """Residuals ``x . n_l`` (K, X) of the points to their matched lines' great circles (0: unmatched)."""
-    import torch
-
     j = match.clamp_min(0)
     r = (torch.gather(n, 1, j[..., None].expand(-1, -1, 3)) * X).sum(-1)
     return torch.where(match >= 0, r, torch.zeros_like(r))
@@ -322,8 +323,6 @@ def _point_residuals(n, X, match):
 def _vp_residuals(R, n2, P3, arc_group):
     """Residuals ``n . R p_g`` (K, N) of each arc's great circle to its group's vanishing point and
     their derivatives (K, N, 3) by the rotation update: ``d/dw = p_g x (R^T n)``. No group: 0."""
-    import torch
-
     g = arc_group.clamp_min(0)
     p = P3[g]  # (K, N, 3)
     m = torch.einsum("kji,nj->kni", R, n2)  # R^T n
@@ -335,8 +334,6 @@ def _vp_residuals(R, n2, P3, arc_group):
 
 def _huber_weights(r, huber):
     """Iteratively re-weighted least squares weights of residuals ``r`` for a Huber threshold."""
-    import torch
-
     a = r.abs()
     return torch.where(a < huber, torch.ones_like(a), huber / a.clamp_min(1e-12))
 
@@ -347,8 +344,6 @@ def _gauss_newton_step(R, t, X, XX, L, match, huber, damping, fix_rotation=False
     weight)`` adds the vanishing-point residuals. The normal equations gather the points per line
     (:func:`_line_operators`): ``H = sum_l D_l S_l D_l^T`` and ``b = -sum_l D_l S_l n_l`` with
     ``S_l = sum_x w_x x x^T`` over the points matched to line ``l``."""
-    import torch
-
     n, D = _line_operators(R, t, L)  # (K, L, 3), (K, L, 6, 3)
     K, nl = n.shape[:2]
     r0 = _point_residuals(n, X, match)
@@ -389,8 +384,6 @@ def map_line_support(arcs: np.ndarray, rotations: np.ndarray, centers: np.ndarra
     explains; this counts the map's lines that the query confirms, so a symmetric twin that puts a
     door or window frame where the image shows a plain wall loses support. One float32 matmul per
     pose (the three dot products of the points with each arc's normal and end planes)."""
-    import torch
-
     A = np.asarray(arcs, dtype=np.float64)
     if len(A) == 0:
         return np.zeros(len(rotations))
@@ -434,3 +427,38 @@ def selection_scores(loss: np.ndarray, params: GeometricParams, support_of) -> n
     full = np.full(len(score), -np.inf)
     full[top] = score[top] + params.support_weight * np.asarray(support_of(top), dtype=np.float64)
     return full
+
+
+def refine_and_keep(arcs: np.ndarray, rotations: np.ndarray, centers: np.ndarray, translation_index: np.ndarray,
+                    n: int, ldl_map, params: GeometricParams = GeometricParams(),
+                    search: SearchParams = SearchParams(), device: str = "cpu", group_tol: float = ARC_GROUP_TOL,
+                    assoc_deg: np.ndarray | None = None) -> tuple[GeometricResult, np.ndarray, np.ndarray]:
+    """The geometric refinement stage on a map: refine the first ``n`` of these poses from lines alone
+    and score every pose with the search's exact loss (:func:`ldlloc.search.pose_search.score_on_map`).
+
+    A refined pose is kept where refinement was accepted and its exact loss is within
+    ``params.keep_within`` of its start's: the inlier loss cannot see a few centimetres
+    (docs/measurements.md#geometric-keep-within). ``translation_index`` (M,): each pose's candidate
+    translation (its visible lines); ``assoc_deg`` (n,): each refined pose's first association angle
+    (None: the params'). Returns the :class:`GeometricResult` of the first ``n``, ``kept`` (M,) and
+    each pose's loss (M,) (the better of the two where kept)."""
+    m = ldl_map
+    ti = np.asarray(translation_index)
+    vis = m.visibility[ti[:n]] if m.visibility is not None else None
+    g = refine_poses_geometric(arcs, rotations[:n], centers[:n], m.lines, m.line_groups, m.principal_directions,
+                               vis, params, m.camera_height_band, assoc_deg)
+    # a refined pose is scored with what is seen from the candidate translation nearest to it
+    # (lines behind walls, mapped directions), not from its start's
+    ti_ref = m.nearest_translation(g.centers)
+    # the starts are scored once each (the wide second refinements repeat the best ones)
+    _, first, back = np.unique(np.concatenate([rotations.reshape(-1, 9), centers], 1), axis=0,
+                               return_index=True, return_inverse=True)
+    loss = score_on_map(arcs, np.concatenate([g.rotations, rotations[first]]),
+                        np.concatenate([g.centers, centers[first]]), m, search, device, group_tol,
+                        translation_index=np.concatenate([ti_ref, ti[first]]))
+    refined, start = loss[:n], loss[n:][back.reshape(-1)]
+    kept = np.zeros(len(rotations), dtype=bool)
+    kept[:n] = g.accepted & (refined <= start[:n] + params.keep_within * np.abs(start[:n]))
+    best = start.copy()
+    best[:n] = np.where(kept[:n], np.minimum(refined, start[:n]), start[:n])
+    return g, kept, best

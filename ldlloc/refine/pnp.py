@@ -12,15 +12,19 @@ from dataclasses import dataclass
 import numpy as np
 
 from ldlmap.core.geometry import pose_from_colmap
+from ldlmap.core.signals import import_pycolmap
 
 
 @dataclass(frozen=True)
 class PnPParams:
     """RANSAC settings of the spherical PnP."""
 
-    max_error_px: float = 6.0  # RANSAC inlier threshold in panorama pixels (at the query width)
-    min_inliers: int = 12  # fewer inliers: refinement failed
-    seed: int = 0  # RANSAC seed, for reproducible results
+    max_error_px: float = 6.0
+    """RANSAC inlier threshold in panorama pixels (at the query width)."""
+    min_inliers: int = 12
+    """Fewer inliers: the refinement failed."""
+    seed: int = 0
+    """RANSAC seed, for reproducible results."""
 
 
 @dataclass
@@ -37,8 +41,6 @@ def estimate_pose_spherical(keypoints_uv: np.ndarray, points_world: np.ndarray, 
     ``keypoints_uv`` (M, 2) are continuous image coordinates (pixel centre at +0.5), as everywhere
     in this toolkit; ``points_world`` (M, 3) the matched 3D points.
     """
-    from ldlmap.core.signals import import_pycolmap
-
     pycolmap = import_pycolmap()
     uv = np.ascontiguousarray(keypoints_uv, dtype=np.float64)
     X = np.ascontiguousarray(points_world, dtype=np.float64)

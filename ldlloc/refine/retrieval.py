@@ -20,21 +20,39 @@ from typing import Callable
 
 import numpy as np
 
+from ldlmap.core.lazy import lazy_module
+
+sparse = lazy_module("scipy.sparse")
+
+# The "verified pose" rule: a PnP pose of at least VERIFIED_INLIERS inliers whose line loss is at least
+# VERIFIED_LINE_SHARE of the search's best (losses are negative inlier counts) is backed by the features
+# and the lines both; a pose in the wrong room explains few of the image's lines (docs/measurements.md#retrieval).
+# The retrieval accepts its poses by it (RetrievalParams) and across maps only verified poses compete
+# (ldlloc.confidence.verified).
+VERIFIED_INLIERS = 15
+VERIFIED_LINE_SHARE = 0.7
+
 
 @dataclass(frozen=True)
 class RetrievalParams:
     """Retrieval fallback of the feature refinement (:func:`ldlloc.refine.features.refine_candidates`)."""
 
-    views: int = 5  # PnP on the matches of this many views with the most matches (0: no retrieval)
-    shortlist: int = 20  # ... among this many views most like the query by the words, all matched: the words
-    # rank a room's own views 8th-25th where the match counts rank them first (docs/measurements.md#retrieval)
-    words: int = 1024  # visual words of the map's vocabulary (k-means on its own descriptors)
-    train_descriptors: int = 20000  # k-means runs on at most this many of the map's descriptors (a fixed sample)
-    iterations: int = 10  # k-means iterations
-    min_inliers: int = 15  # a retrieved PnP pose needs this many inliers ...
-    min_line_share: float = 0.7  # ... and a line loss (a negative inlier count) at least this share of the
-    # search's best: a pose in the wrong room explains few of the image's lines (docs/measurements.md#retrieval)
-    seed: int = 0  # k-means seed (reproducible vocabularies)
+    views: int = 5
+    """PnP runs on the matches of this many shortlisted views with the most matches (0: no retrieval)."""
+    shortlist: int = 20
+    """Views most like the query by the words, all matched (docs/measurements.md#retrieval)."""
+    words: int = 1024
+    """Visual words of the map's vocabulary (k-means on its own descriptors)."""
+    train_descriptors: int = 20000
+    """K-means runs on at most this many of the map's descriptors (a fixed sample)."""
+    iterations: int = 10
+    """K-means iterations."""
+    min_inliers: int = VERIFIED_INLIERS
+    """A retrieved PnP pose needs this many inliers (the verified-pose rule)."""
+    min_line_share: float = VERIFIED_LINE_SHARE
+    """And a line loss of at least this share of the search's best (the verified-pose rule)."""
+    seed: int = 0
+    """K-means seed (reproducible vocabularies)."""
 
 
 def descriptor_space(descriptors: np.ndarray) -> np.ndarray:
@@ -48,9 +66,8 @@ def descriptor_space(descriptors: np.ndarray) -> np.ndarray:
 
 def spherical_kmeans(x: np.ndarray, k: int, iterations: int, rng: np.random.Generator) -> np.ndarray:
     """(k, D) unit centres of the unit rows of ``x``: Lloyd's iterations with the assignment by the
-    largest dot product (one matrix product; scipy's ``kmeans2`` took 6 s of CPU for 64 words of a
-    floor map's 20,000 descriptors; this, 0.4 s for 256 words and the whole index), started from ``k`` distinct
-    rows; an emptied centre restarts at a random row."""
+    largest dot product: one matrix product, much faster than scipy's ``kmeans2``), started from ``k``
+    distinct rows; an emptied centre restarts at a random row."""
     k = max(1, min(k, len(x)))
     centres = x[rng.choice(len(x), k, replace=False)].copy()
     for _ in range(iterations):
@@ -64,9 +81,7 @@ def spherical_kmeans(x: np.ndarray, k: int, iterations: int, rng: np.random.Gene
 
 def member_sums(label: np.ndarray, x: np.ndarray, k: int) -> np.ndarray:
     """(k, D) sums of the rows of ``x`` by ``label`` (a sparse one-hot product; ``np.add.at`` is slower)."""
-    from scipy.sparse import csr_matrix
-
-    one_hot = csr_matrix((np.ones(len(label), np.float32), (label, np.arange(len(label)))), shape=(k, len(label)))
+    one_hot = sparse.csr_matrix((np.ones(len(label), np.float32), (label, np.arange(len(label)))), shape=(k, len(label)))
     return np.asarray(one_hot @ x, dtype=np.float32)
 
 

@@ -32,11 +32,10 @@ def read_small(path: str | Path) -> np.ndarray:
     import cv2
 
     from ldlmap.core.errors import InputError, require_file
-    from ldlmap.io.imagefile import read_image
-    from ldlloc.pipeline import _image_header_size
+    from ldlmap.io.imagefile import image_header_size, read_image
 
     p = require_file(path, "image")
-    size = _image_header_size(p)
+    size = image_header_size(p)
     flag = cv2.IMREAD_COLOR
     for factor, reduced in ((8, cv2.IMREAD_REDUCED_COLOR_8), (4, cv2.IMREAD_REDUCED_COLOR_4),
                             (2, cv2.IMREAD_REDUCED_COLOR_2)):

@@ -33,14 +33,15 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, Mapping
+from typing import Any, Mapping
 
 import numpy as np
 
 from ldlmap.core.errors import InputError
+from ldlmap.core.lazy import lazy_module
 
-if TYPE_CHECKING:  # pragma: no cover
-    import torch
+torch = lazy_module("torch")
+F = lazy_module("torch.nn.functional")
 
 FIELD_KIND = "equirect_nodes"  # the only grid kind written by ldlmap.map.fields3d (version 1)
 
@@ -66,8 +67,6 @@ class DistanceFields:
     def from_arrays(cls, distances: np.ndarray, attrs: Mapping[str, Any] | None = None,
                     device: str = "cpu", dtype=None) -> "DistanceFields":
         """Prepare the table from ``/fields/distances`` (N_t, G_groups, G + 1, 2G) and its attrs."""
-        import torch
-
         d = np.asarray(distances)
         attrs = dict(attrs or {})
         kind = str(attrs.get("kind", FIELD_KIND))
@@ -100,8 +99,6 @@ class DistanceFields:
 
     def subset(self, translation_index: np.ndarray) -> "DistanceFields":
         """The fields of these translations only (a restricted search, ``ldlloc.pipeline.SearchNear``)."""
-        import torch
-
         idx = torch.as_tensor(np.asarray(translation_index, dtype=np.int64), device=self.table.device)
         t = self.table.view(self.table.shape[0], self.num_groups, self.num_translations)[:, :, idx]
         return DistanceFields(t.reshape(t.shape[0], -1).contiguous(), self.rows, len(idx), self.num_groups)
@@ -112,8 +109,6 @@ class DistanceFields:
 
     def corners(self, points: "torch.Tensor") -> tuple["torch.Tensor", "torch.Tensor"]:
         """Bilinear corners (P, 4) node indices and weights (P, 4) of unit points (P, 3)."""
-        import torch
-
         G = self.rows
         p = points.to(torch.float32)
         theta = torch.acos(p[:, 2].clamp(-1.0, 1.0))
@@ -137,9 +132,6 @@ class DistanceFields:
 
         Points are in the world-aligned frame; for a pose (R, t) pass ``R^T q``.
         """
-        import torch
-        import torch.nn.functional as F
-
         p = torch.as_tensor(points, device=self.table.device)
         if p.dim() != 2 or p.shape[1] != 3:
             raise InputError(f"look-up points must have shape (P, 3), got {tuple(p.shape)}")
@@ -153,8 +145,6 @@ class DistanceFields:
         The same values as :func:`ldlloc.search.ldf.ldf_3d` (up to the interpolation error) in a
         look-up friendly layout; ``.permute(3, 0, 2, 1)`` gives its (N_t, N_r, G, Q) order.
         """
-        import torch
-
         x = torch.as_tensor(x, dtype=torch.float32, device=self.table.device)
         R = torch.as_tensor(np.asarray(rotations), dtype=torch.float32, device=self.table.device)
         if R.dim() != 3 or R.shape[1:] != (3, 3):
@@ -169,8 +159,6 @@ def inlier_loss_from_fields(f2d: "torch.Tensor", f3d: "torch.Tensor", tau: float
     Equal to ``ldf.pose_loss(f2d, f3d.permute(3, 0, 2, 1), "inlier", tau)`` but reduces over the
     contiguous layout of the look-up (no strided copy).
     """
-    import torch
-
     f3d = f3d.float()  # compare in float32, like the exact path (float16 differences round)
     f2d = f2d.to(device=f3d.device, dtype=f3d.dtype)
     if f2d.dim() == 2:  # one 2D grouping for all rotations

@@ -1,4 +1,4 @@
-"""Line distance functions and pose losses (paper section 3.3, DESIGN.md 5.7-5.8), in torch.
+"""Line distance functions and pose losses (paper section 3.3), in torch.
 
 All functions run on CPU or CUDA, batched, in the dtype of their inputs (float32 by default
 when numpy arrays are given; pass float64 tensors for reference-quality values).
@@ -36,12 +36,11 @@ Shapes used below: ``N_t`` translations, ``N_r`` rotations, ``Q`` query points, 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import TYPE_CHECKING, Literal
-
 import numpy as np
 
 from ldlmap.core.errors import InputError
+from ldlmap.core.geometry import icosphere_points
+from ldlmap.core.lazy import lazy_module
 # Shared with the map side (ldlmap never imports ldlloc): the torch point-arc distance and its
 # helpers live in ldlmap.core.sphere_distance; these names keep ldlloc.search.ldf's public API.
 from ldlmap.core.sphere_distance import (EMPTY_DISTANCE, as_tensor as _as_tensor, check_finite as _check_finite,
@@ -49,32 +48,16 @@ from ldlmap.core.sphere_distance import (EMPTY_DISTANCE, as_tensor as _as_tensor
                                          point_arc_distance, project_lines as _project_lines,
                                          group_order as _group_order)
 
-if TYPE_CHECKING:  # pragma: no cover
-    import torch
+torch = lazy_module("torch")
 
-LossKind = Literal["inlier", "l1", "l2", "huber", "median"]
 LOSS_KINDS: tuple[str, ...] = ("inlier", "l1", "l2", "huber", "median")
-
-
-@dataclass(frozen=True)
-class LdfParams:
-    """Parameters of the pose-ranking loss (paper eq. 4-5)."""
-
-    tau: float = 0.1  # tau: inlier threshold on |f2D - f3D| (radians)
-    query_level: int = 1  # Q = icosphere(level) vertices; level 1 -> |Q| = 42
-    loss: LossKind = "inlier"  # paper's inlier count; l1/l2/huber/median are ablations
-    decompose: bool = True  # decompose by principal direction (eq. 5) or not (eq. 4)
-    chunk_translations: int = 4  # translations per batch in ldf_3d (small chunks stay in cache)
 
 
 # ------------------------------------------------------------------------------------- helpers
 
 
-
 def query_points(level: int = 1, device=None, dtype=None) -> "torch.Tensor":
     """The query points Q: vertices of a level-``level`` icosphere (level 1: 42 points)."""
-    from ldlmap.core.geometry import icosphere_points
-
     return _as_tensor(np.array(icosphere_points(level)), device, dtype)
 
 
@@ -92,8 +75,6 @@ def distance_function(x, arcs, mask=None) -> "torch.Tensor":
     Returns:
         (..., Q); :data:`EMPTY_DISTANCE` (pi) where no arc is used.
     """
-    import torch
-
     x = _as_tensor(x)
     arcs = _as_tensor(arcs, x.device, x.dtype)
     _check_last("arcs", arcs, (2, 3))
@@ -111,8 +92,6 @@ def _group_min(d: "torch.Tensor", labels: "torch.Tensor", num_groups: int) -> "t
 
     ``labels`` broadcasts against (..., L); lines labelled outside 0..G-1 are ignored.
     """
-    import torch
-
     outs = []
     for g in range(num_groups):  # G = 3: a loop over groups, not over data
         m = (labels == g).unsqueeze(-2)
@@ -134,8 +113,6 @@ def decomposed_distance_2d(x, arcs, labels, num_groups: int = 3) -> "torch.Tenso
     Returns:
         (G, Q) or (N_r, G, Q).
     """
-    import torch
-
     x = _as_tensor(x)
     _check_last("query points", x, (3,))
     arcs = _as_tensor(arcs, x.device, x.dtype)
@@ -152,8 +129,6 @@ def decomposed_distance_2d(x, arcs, labels, num_groups: int = 3) -> "torch.Tenso
 def _inputs_3d(x, rotations, translations, lines3d, groups, num_groups: int, device, dtype, visibility=None):
     """Checked tensors of the 3D functions: x, R, T, grouped lines sorted by group, group bounds,
     and the (N_t, L') visibility of those sorted lines (None: all visible)."""
-    import torch
-
     x = _as_tensor(x, device, dtype)
     dev, dt = x.device, x.dtype
     R = _as_tensor(rotations, dev, dt)
@@ -204,8 +179,6 @@ def ldf_3d(x, rotations, translations, lines3d, groups, num_groups: int = 3,
     Returns:
         (N_t, N_r, G, Q) distances.
     """
-    import torch
-
     x, R, T, lines, bounds, vis = _inputs_3d(x, rotations, translations, lines3d, groups, num_groups, device, dtype,
                                              visibility)
     n_t, n_r, q = T.shape[0], R.shape[0], x.shape[0]
@@ -236,8 +209,6 @@ def ldf_3d_at(x, rotations, translations, lines3d, groups, translation_index, ro
     evaluations (each pose with its own rotated query points; :data:`AT_BATCH_VALUES` per batch). Returns (M, G, Q), the
     values ``ldf_3d(...)[translation_index, rotation_index]`` (up to float rounding).
     """
-    import torch
-
     x, R, T, lines, bounds, vis = _inputs_3d(x, rotations, translations, lines3d, groups, num_groups, device, dtype,
                                              visibility)
     ti = _as_tensor(translation_index, x.device, torch.long).reshape(-1)
@@ -278,8 +249,6 @@ def pose_loss(f2d, f3d, kind: str = "inlier", tau: float = 0.1, decompose: bool 
     Returns:
         (N_t, N_r) losses.
     """
-    import torch
-
     f3d = _as_tensor(f3d)
     f2d = _as_tensor(f2d, f3d.device, f3d.dtype)
     if f3d.dim() != 4:
@@ -308,18 +277,11 @@ def pose_loss(f2d, f3d, kind: str = "inlier", tau: float = 0.1, decompose: bool 
     raise InputError(f"unknown loss {kind!r}; choose one of {', '.join(LOSS_KINDS)}")
 
 
-def inlier_loss(f2d, f3d, tau: float = 0.1, decompose: bool = True) -> "torch.Tensor":
-    """Paper eq. 5 (eq. 4 without decomposition): negative inlier count, (N_t, N_r)."""
-    return pose_loss(f2d, f3d, kind="inlier", tau=tau, decompose=decompose)
-
-
 def top_k_poses(loss, k: int = 20) -> tuple["torch.Tensor", "torch.Tensor", "torch.Tensor"]:
     """Indices (translation, rotation) and losses of the ``k`` lowest losses of an (N_t, N_r) grid.
 
     Ties keep the lower flat index (translation-major) first.
     """
-    import torch
-
     loss = _as_tensor(loss)
     flat = loss.reshape(-1)
     k = min(int(k), flat.numel())

@@ -1,6 +1,6 @@
 """Pose search: rank all N_t x N_r poses by line distance functions and keep the top K.
 
-Paper section 3.3, DESIGN.md 5.7-5.8. The 3D lines keep the principal group the map assigned
+Paper section 3.3. The 3D lines keep the principal group the map assigned
 them (index j of ``map.principal_directions``); under a candidate rotation, 2D group ``j`` holds
 the arcs through the vanishing point that the rotation matched to 3D direction ``j``, so group
 ``j`` in 2D always pairs with group ``j`` in 3D.
@@ -30,35 +30,45 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ldlmap.core.errors import InputError
+from ldlmap.core.lazy import lazy_module
+from ldlmap.map.visibility import coverage_at
+from ldlloc.rotation import ARC_GROUP_TOL, arc_normals
+from ldlloc.search import ldf
+from ldlloc.search.fields import inlier_loss_from_fields
+
+torch = lazy_module("torch")
 
 
 @dataclass(frozen=True)
 class SearchParams:
     """Parameters of the pose search (paper defaults)."""
 
-    top_k: int = 20  # K: poses kept for refinement
-    tau: float = 0.1  # tau: inlier threshold of the loss (radians)
-    loss: str = "inlier"  # inlier (paper) | l1 | l2 | huber | median (ablations)
-    decompose: bool = True  # decomposed distance functions (eq. 5) or not (eq. 4)
-    query_level: int = 1  # |Q| = 42 icosphere points
-    chunk_translations: int = 4  # translations per batch of the exact path (cache-sized on a CPU,
-    # docs/measurements.md#chunk-translations; raise it on CUDA)
-    use_fields: bool | None = None  # fast look-ups in the map's distance fields; None: when
-    # the map has them (and decompose is on), False: always the exact path
-    rescore: int = 64  # fast path: the best `rescore` poses by field loss (at least top_k) are
-    # re-scored with the exact functions and the top_k by exact loss returned (0: field losses)
-    rescore_lines: int = 700  # a map of more lines re-scores proportionally fewer poses (at least top_k):
-    # the exact cost is poses x lines, and a building floor's 1600 lines made it most of the search
-    # (docs/measurements.md#rescore-lines)
-    rescore_query_level: int | None = 2  # query points of the exact re-scoring (None: query_level;
-    # 2 = 162 points sees small structure such as door frames that tell a room from its twin)
-    coverage_cap: float = 2.0  # maps with coverage (room layouts): the re-scored inlier count is
-    # taken over the directions the map covers and divided by their share (at most this factor),
-    # so a doorway pose is not beaten by a twin whose map lines cover the unmapped room behind it;
-    # 1: off
-    diverse_translation: float = 0.35  # top-K diversity: a pose is dropped when a better one lies
-    diverse_rotation_deg: float = 5.0  # within this distance (m) AND this angle (0: no diversity), so
-    # the top K are not near-copies of one pose (0.35 m: the next candidate of a 0.3 m lattice)
+    top_k: int = 20
+    """K: poses kept for refinement."""
+    tau: float = 0.1
+    """Inlier threshold of the loss (radians)."""
+    loss: str = "inlier"
+    """inlier (the paper's) | l1 | l2 | huber | median (ablations)."""
+    decompose: bool = True
+    """Decomposed distance functions (eq. 5) or not (eq. 4)."""
+    query_level: int = 1
+    """Icosphere level of the query points Q (1: 42 points)."""
+    chunk_translations: int = 4
+    """Translations per batch of the exact path (cache-sized on a CPU; raise it on CUDA)."""
+    use_fields: bool | None = None
+    """Fast look-ups in the map's distance fields; None: when the map has them and decompose is on."""
+    rescore: int = 64
+    """Fast path: the best this many poses by field loss get their exact loss (0: field losses)."""
+    rescore_lines: int = 700
+    """A map of more lines re-scores proportionally fewer poses (docs/measurements.md#rescore-lines)."""
+    rescore_query_level: int | None = 2
+    """Query points of the exact re-scoring (None: query_level); 2 sees door frames that tell twins apart."""
+    coverage_cap: float = 2.0
+    """Coverage maps: inliers over the covered directions / their share, at most this factor (1: off)."""
+    diverse_translation: float = 0.35
+    """Top-K diversity: a pose is dropped when a better one is this near (m) and diverse_rotation_deg near (0: off)."""
+    diverse_rotation_deg: float = 5.0
+    """Top-K diversity's angle (deg): with diverse_translation, the top K are not near-copies of one pose (0: off)."""
 
 
 @dataclass
@@ -90,11 +100,6 @@ def search_poses(arcs2d: np.ndarray, labels2d: np.ndarray, rotations: np.ndarray
     ``num_groups``: the map's principal directions K (3; more for an Atlanta frame of several
     horizontals): one decomposed function per direction.
     """
-    import torch
-
-    from ldlloc.search import ldf
-    from ldlloc.search.fields import inlier_loss_from_fields
-
     if len(rotations) == 0:
         raise InputError("no candidate rotations (too few lines in the panorama?)")
     if len(arcs2d) == 0:
@@ -152,20 +157,58 @@ def search_poses(arcs2d: np.ndarray, labels2d: np.ndarray, rotations: np.ndarray
                         translation_index=ti, rotation_index=ri, losses=lv.cpu().numpy())
 
 
+def search_map(arcs2d: np.ndarray, labels2d: np.ndarray, rotations: np.ndarray, ldl_map,
+               params: SearchParams = SearchParams(), device: str = "cpu", fields=None,
+               translation_index: np.ndarray | None = None) -> SearchResult:
+    """The pose search stage on a map (an :class:`ldlmap.map.contents.LdlMap`: its lines, groups,
+    principal directions, candidate translations, visibility and coverage), :func:`search_poses`.
+    ``translation_index``: search only these of the map's candidate translations (their fields,
+    visibility and coverage); the result's translation indices are the whole map's."""
+    m = ldl_map
+    if translation_index is None:
+        return search_poses(arcs2d, labels2d, rotations, m.lines, m.line_groups, m.translations, params, device,
+                            fields=fields, visibility=m.visibility, coverage=m.coverage,
+                            num_groups=len(m.principal_directions))
+    ti = np.asarray(translation_index)
+    res = search_poses(arcs2d, labels2d, rotations, m.lines, m.line_groups, m.translations[ti], params, device,
+                       fields=None if fields is None else fields.subset(ti),
+                       visibility=None if m.visibility is None else m.visibility[ti],
+                       coverage=None if m.coverage is None else m.coverage[ti], num_groups=len(m.principal_directions))
+    res.translation_index = ti[res.translation_index]
+    return res
+
+
+def score_on_map(arcs2d: np.ndarray, rotations: np.ndarray, centers: np.ndarray, ldl_map,
+                 params: SearchParams = SearchParams(), device: str = "cpu", group_tol: float = ARC_GROUP_TOL,
+                 translation_index: np.ndarray | None = None) -> np.ndarray:
+    """Exact losses (M,) of poses on a map (:func:`score_poses`), each seen from the candidate
+    translation ``translation_index`` (None: the map's candidate translation nearest to it)."""
+    m = ldl_map
+    ti = m.nearest_translation(centers) if translation_index is None else translation_index
+    return score_poses(arcs2d, rotations, centers, m.lines, m.line_groups, m.principal_directions, ti, params,
+                       m.visibility, m.coverage, device, group_tol)
+
+
+def line_loss(arcs2d: np.ndarray, ldl_map, params: SearchParams = SearchParams(), device: str = "cpu",
+              group_tol: float = ARC_GROUP_TOL):
+    """``loss(R (M, 3, 3), t (M, 3)) -> (M,)``: :func:`score_on_map` of these arcs, each pose seen
+    from the candidate translation nearest to it."""
+
+    def loss(R: np.ndarray, t: np.ndarray) -> np.ndarray:
+        return score_on_map(arcs2d, R, t, ldl_map, params, device, group_tol)
+
+    return loss
+
+
 def score_poses(arcs2d: np.ndarray, rotations: np.ndarray, centers: np.ndarray, lines3d: np.ndarray,
                 line_groups: np.ndarray, principal3d: np.ndarray, translation_index: np.ndarray,
                 params: SearchParams = SearchParams(), visibility: np.ndarray | None = None,
-                coverage: np.ndarray | None = None, device: str = "cpu", group_tol: float = 0.05) -> np.ndarray:
+                coverage: np.ndarray | None = None, device: str = "cpu", group_tol: float = ARC_GROUP_TOL) -> np.ndarray:
     """Exact inlier losses (M,) of arbitrary poses (e.g. refined ones), as the re-scoring computes
     them: decomposed functions on the re-scoring's query points, each arc grouped by the principal
     direction its great circle passes through under the pose (``|n . R p_g| < group_tol``), the
     lines seen from (and the coverage of) the candidate translation ``translation_index`` (M,)
     each pose came from."""
-    import torch
-
-    from ldlloc.search import ldf
-    from ldlloc.rotation import arc_normals
-
     R = np.asarray(rotations, dtype=np.float64).reshape(-1, 3, 3)
     C = np.asarray(centers, dtype=np.float64).reshape(-1, 3)
     ti = np.asarray(translation_index, dtype=np.int64).reshape(-1)
@@ -188,8 +231,6 @@ def score_poses(arcs2d: np.ndarray, rotations: np.ndarray, centers: np.ndarray, 
 def _rescored_loss(f2d, f3d, Q, rotations: np.ndarray, translation_index: np.ndarray, coverage, params: SearchParams):
     """Loss of M poses from their functions (M, G, Q): over the covered directions (maps with
     coverage, inlier loss, ``coverage_cap`` > 1; :func:`covered_inlier_loss`) or the plain loss."""
-    from ldlloc.search import ldf
-
     if coverage is not None and params.loss == "inlier" and params.coverage_cap > 1:
         return covered_inlier_loss(f2d, f3d, Q, rotations, translation_index, coverage, params.tau, params.coverage_cap)
     return ldf.pose_loss(f2d, f3d.unsqueeze(0), kind=params.loss, tau=params.tau)[0]
@@ -204,10 +245,6 @@ def covered_inlier_loss(f2d, f3d, Q, rotations: np.ndarray, translation_index: n
     ``f2d`` (M, G, Q) or (G, Q), ``f3d`` (M, G, Q), ``Q`` (Q, 3) camera-frame points,
     ``rotations`` (M, 3, 3), ``translation_index`` (M,), ``coverage`` (N_t, G' + 1, 2G').
     """
-    import torch
-
-    from ldlmap.map.visibility import coverage_at
-
     dirs = np.einsum("qi,mij->mqj", Q.detach().cpu().numpy().astype(np.float64), rotations)  # R^T q
     covered = torch.as_tensor(coverage_at(coverage, translation_index, dirs), device=f3d.device)  # (M, Q)
     inl = ((f2d - f3d).abs() < tau) & covered[:, None, :]

@@ -1,4 +1,4 @@
-"""Geometric conventions shared by ``ldlmap`` and ``ldlloc`` (DESIGN.md section 2).
+"""Geometric conventions shared by ``ldlmap`` and ``ldlloc``.
 
 World frame: metric, z up. A pose is ``(R, t)`` where ``R`` (``rot_cam_from_world``) rotates
 world into camera and ``t`` is the camera centre in world coordinates::
@@ -107,10 +107,16 @@ def translation_error(t_est: np.ndarray, t_true: np.ndarray) -> float:
     return float(np.linalg.norm(np.asarray(t_est, float) - np.asarray(t_true, float)))
 
 
+def angle_from_trace_deg(trace: np.ndarray | float) -> np.ndarray:
+    """Angle in degrees of rotations with these traces: ``arccos((trace - 1) / 2)`` (the one formula of
+    a rotation's angle; ``trace(A^T B) = sum(A * B)`` gives the angle between two rotations)."""
+    c = (np.asarray(trace, dtype=np.float64) - 1.0) / 2.0
+    return np.degrees(np.arccos(np.clip(c, -1.0, 1.0)))
+
+
 def rotation_error_deg(r_est: np.ndarray, r_true: np.ndarray) -> float:
-    """Angle of ``R_est^T R_true`` in degrees: ``arccos((trace - 1) / 2)``."""
-    c = (np.trace(np.asarray(r_est, float).T @ np.asarray(r_true, float)) - 1.0) / 2.0
-    return float(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))))
+    """Angle of ``R_est^T R_true`` in degrees (:func:`angle_from_trace_deg`)."""
+    return float(angle_from_trace_deg(np.trace(np.asarray(r_est, float).T @ np.asarray(r_true, float))))
 
 
 # ------------------------------------------------------------------------------------ rotations
@@ -205,7 +211,3 @@ def pose_from_colmap(rot_colmap: np.ndarray, trans_colmap: np.ndarray) -> tuple[
     t = -R_c.T @ np.asarray(trans_colmap, dtype=np.float64)
     return R, t
 
-
-def colmap_bearing_from_ours(p: np.ndarray) -> np.ndarray:
-    """Camera-frame directions in our frame (..., 3) expressed in COLMAP's camera frame."""
-    return np.asarray(p, dtype=np.float64) @ COLMAP_FROM_OURS.T

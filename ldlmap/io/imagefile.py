@@ -8,6 +8,7 @@ system holds, ``OSError`` with the reason) and OpenCV only sees buffers (``imdec
 A written JPEG or PNG can carry a short text (``comment``): a JPEG COM segment after the start
 marker, a PNG ``tEXt`` chunk (keyword ``Comment``) after ``IHDR``; :func:`image_comment` reads it
 back from the file's first bytes (it is how a command recognizes its own pictures).
+:func:`image_header_size` reads a PNG's or JPEG's size from its header, before decoding it.
 
 libjpeg reports damaged data (a file cut short, its end marker kept) only as a warning on the
 process's stderr and returns a grey-filled image: :func:`read_image` catches the decoder's stderr,
@@ -28,6 +29,9 @@ from typing import Iterator
 import numpy as np
 
 from ldlmap.core.errors import InputError
+from ldlmap.core.lazy import lazy_module
+
+cv2 = lazy_module("cv2")
 
 JPEG_SUFFIXES = (".jpg", ".jpeg")
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
@@ -49,8 +53,6 @@ def read_image(path: str | os.PathLike, flags: int | None = None) -> np.ndarray 
     the ``IMREAD_REDUCED_*`` flags work too), None when it cannot be decoded (what the decoder said
     of it is not printed); ``OSError`` when the file cannot be read; :class:`InputError` when the
     decoder reports damaged data."""
-    import cv2
-
     with open(path, "rb") as f:
         data = np.frombuffer(f.read(), dtype=np.uint8)
     if data.size == 0:
@@ -92,8 +94,6 @@ def encode_image(image: np.ndarray, suffix: str, quality: int = 90, comment: str
     """``image`` (BGR or grey) encoded in the format ``suffix`` names (``.jpg``: JPEG at ``quality``,
     ``.webp`` likewise); ``comment`` (ASCII) is embedded in a JPEG or PNG. ``ValueError`` when
     OpenCV cannot encode it."""
-    import cv2
-
     ext = suffix.lower()
     params = {".jpg": [cv2.IMWRITE_JPEG_QUALITY, quality], ".jpeg": [cv2.IMWRITE_JPEG_QUALITY, quality],
               ".webp": [cv2.IMWRITE_WEBP_QUALITY, quality]}.get(ext, [])
@@ -145,4 +145,26 @@ def image_comment(path: str | os.PathLike) -> str | None:
     return None
 
 
-__all__ = ["encode_image", "image_comment", "printable", "read_image", "write_image"]
+def image_header_size(path: str | os.PathLike) -> tuple[int, int] | None:
+    """(width, height) from a PNG or JPEG header, read before decoding (None: another format, or
+    no size found); raises :class:`InputError` for a JPEG without its end marker (truncated)."""
+    p = Path(path)
+    with open(p, "rb") as f:
+        head = f.read(1 << 16)
+        if head.startswith(_PNG_SIGNATURE) and len(head) >= 24 and head[12:16] == b"IHDR":
+            return int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big")
+        if not head.startswith(b"\xff\xd8"):
+            return None
+        f.seek(max(0, p.stat().st_size - 4096))
+        if b"\xff\xd9" not in f.read():
+            raise InputError(f"truncated JPEG (no end marker): {p}")
+    i = 2
+    while i + 9 <= len(head) and head[i] == 0xFF:  # JPEG segments up to the frame header (SOFn)
+        marker, length = head[i + 1], int.from_bytes(head[i + 2:i + 4], "big")
+        if 0xC0 <= marker <= 0xCF and marker not in (0xC4, 0xC8, 0xCC):
+            return int.from_bytes(head[i + 7:i + 9], "big"), int.from_bytes(head[i + 5:i + 7], "big")
+        i += 2 + length
+    return None
+
+
+__all__ = ["encode_image", "image_comment", "image_header_size", "printable", "read_image", "write_image"]
