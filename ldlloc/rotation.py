@@ -54,7 +54,7 @@ from itertools import combinations, permutations, product
 import numpy as np
 
 from ldlmap.core.errors import InputError
-from ldlmap.core.geometry import half_icosphere_points
+from ldlmap.core.geometry import angle_from_trace_deg, half_icosphere_points
 from ldlmap.lines3d.principal import FrameParams
 
 ARC_GROUP_TOL = 0.05  # an arc joins the principal group of direction p when |n . p| < this (n: its
@@ -287,7 +287,7 @@ def _distinct(R: np.ndarray, dedup_deg: float) -> np.ndarray:
     keep = np.ones(len(R), dtype=bool)
     if len(R):
         tr = np.einsum("aij,bij->ab", R, R)  # trace(R_a^T R_b)
-        close = np.degrees(np.arccos(np.clip((tr - 1.0) / 2.0, -1.0, 1.0))) < dedup_deg
+        close = angle_from_trace_deg(tr) < dedup_deg
         for i in range(len(R)):  # N_r ~ 10-1000 candidates, a cheap loop over candidates
             if keep[i]:
                 dup = close[i].copy()

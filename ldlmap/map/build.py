@@ -41,7 +41,7 @@ import numpy as np
 from ldlmap.core.errors import InputError
 from ldlmap.core.frame import (apply, check_extent, decompose, is_identity, parse_up, recentring_offset, scale_warning,
                                similarity)
-from ldlmap.core.geometry import rotation_error_deg
+from ldlmap.core.geometry import angle_from_trace_deg
 from ldlmap.core.timing import StageClock
 from ldlmap.features import available_backends, backend_for
 from ldlmap.features.sphere import check_extraction, default_extraction
@@ -335,7 +335,7 @@ def map_frame(src: SceneInput, lines_raw: np.ndarray, params: BuildParams) -> tu
         return np.eye(3), {"up_source": "layout", "rotation_deg": 0.0}, "", False
     est, principal = estimate_up(lines_raw, up, src.camera_down)
     R = map_rotation(est, principal)
-    deg = rotation_error_deg(R, np.eye(3))  # the rotation's angle
+    deg = float(angle_from_trace_deg(np.trace(R)))  # the rotation's angle
     info = {"up_source": est.source, "up_input": [round(float(x), 6) for x in est.up], "rotation_deg": deg,
             "snapped_deg": est.snapped_deg, "camera_agreement": est.camera_agreement, "sign_share": est.sign_share,
             "kept_z": est.kept_z}
