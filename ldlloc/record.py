@@ -85,8 +85,8 @@ def _is_seconds(x: Any) -> bool:
 
 
 def _is_candidates(x: Any) -> bool:
-    return isinstance(x, list) and all(_is_pose(c) and (c.get("loss") is None or isinstance(c.get("loss"), (int, float)))
-                                       for c in x)
+    return isinstance(x, list) and all(
+        _is_pose(c) and (c.get("loss") is None or isinstance(c.get("loss"), (int, float))) for c in x)
 
 
 def _is_competitors(x: Any) -> bool:

@@ -11,7 +11,6 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 
 from ldlloc.batch.images import (default_images_output, find_images, image_run_meta, picture_path as image_picture,
                                  refuse_other_folders_results, run_images as localize_images)
-from ldlloc.batch.ray_run import run_images_ray, run_queries_ray
 from ldlloc.batch.results import check_results_path, refuse_replacing_results, results_outputs
 from ldlloc.batch.run import (default_results_path, missing_maps_message, picture_path, run_queries,
                               scenes_without_maps)
@@ -22,12 +21,15 @@ from ldlloc.pipeline import LocalizeParams
 from ldlloc.walk.localize import VIDEO, WalkParams
 from ldlloc.walk.options import check_walk_options
 from ldlloc.walk.run import run_walk_images, run_walk_queries, run_walk_video, walk_photos
-from ldlmap.batch.ray_cluster import ThroughputBar
 from ldlmap.core.cli_common import (check_device, check_threads, console, dataset_label, open_dataset_root,
                                     refuse_map_level, set_threads)
 from ldlmap.core.errors import InputError, refuse_overwriting_inputs
 from ldlmap.core.pictures import refuse_replacing_pictures
+from ldlmap.core.lazy import lazy_module
 from ldlmap.datasets import MAP_LEVELS
+
+ray_run = lazy_module("ldlloc.batch.ray_run")  # the Ray plumbing loads only for --ray (tests/test_ray.py checks it)
+ray_cluster = lazy_module("ldlmap.batch.ray_cluster")
 
 
 @dataclass
@@ -49,10 +51,10 @@ class RunOptions:
 
 
 def run(images: str | None, root: str | None, dataset: str | None, map_level: str | None, split: list[str] | None,
-        scene: str | None, scene_unknown: bool, maps: str | None, output: Path | None, method: dict, top_maps: int | None,
-        device: str, resume: bool, resume_any_options: bool, save_vis: str | None, overwrite: bool, threads: int,
-        ray: str | None, walk: bool, order: str | None, video: Path | None, fps: float | None,
-        every: int | None) -> None:
+        scene: str | None, scene_unknown: bool, maps: str | None, output: Path | None, method: dict,
+        top_maps: int | None, device: str, resume: bool, resume_any_options: bool, save_vis: str | None,
+        overwrite: bool, threads: int, ray: str | None, walk: bool, order: str | None, video: Path | None,
+        fps: float | None, every: int | None) -> None:
     """The command (its options: :func:`ldlloc.cli.run`): checks the options that go together, then
     runs the video, the images or the dataset. ``method``: :func:`localize_params`' arguments."""
     params = localize_params(**method)
@@ -114,8 +116,8 @@ def run_dataset(root: Path | None, dataset: str | None, map_level: str | None, s
             results = run_walk_queries(queries, maps, output, o.params, WalkParams(top_maps=top_maps or TOP_MAPS),
                                        o.device, o.resume, meta, scene_unknown, any_options=o.any_options, say=say)
     elif o.ray is not None:  # one Ray actor per scene map (ldlloc/batch/ray_run.py)
-        with ThroughputBar(console, "localizing") as bar:
-            results = run_queries_ray(*args, o.save_vis, **opts, progress=bar, address=o.ray, threads=o.threads)
+        with ray_cluster.ThroughputBar(console, "localizing") as bar:
+            results = ray_run.run_queries_ray(*args, o.save_vis, **opts, progress=bar, address=o.ray, threads=o.threads)
     else:
         with _progress_bar() as bar:
             task = bar.add_task("localizing", total=len(queries))
@@ -169,8 +171,8 @@ def run_images(images: str, o: RunOptions, walk_order: str | None = None) -> Non
     if o.ray is not None:  # one Ray actor per CPU slot, each holding every map (ldlloc/batch/ray_run.py)
         with console.status(f"checking {len(files)} map(s)"):  # the actors load them; bad maps are said here
             _warn_left_out(MapSet.load(o.maps, o.params, "cpu"))
-        with ThroughputBar(console, "localizing") as bar:
-            results = run_images_ray(queries, o.maps, output, o.params, o.device, o.resume, o.save_vis, **opts,
+        with ray_cluster.ThroughputBar(console, "localizing") as bar:
+            results = ray_run.run_images_ray(queries, o.maps, output, o.params, o.device, o.resume, o.save_vis, **opts,
                                      progress=bar, address=o.ray, threads=o.threads)
     elif walk_order is not None:  # --walk: the panoramas as one walk (ldlloc/walk/run.py)
         walk_photos(queries, walk_order)  # its errors before the maps are read

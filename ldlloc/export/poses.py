@@ -7,8 +7,8 @@ Which queries: ``failed`` ones never (they have no pose). When the file carries 
 unless ``include_all``; a file without any verdict (written before verdicts existed) exports every
 localized query (status ok or coarse), and the export says so.
 
-Poses follow the toolkit's conventions (docs/method.md): ``R`` rotates world into camera (camera frame: forward +x, left +y, up +z),
-``t`` is the camera centre; ``frame="map"`` is the map's frame (metric, z up), ``frame="input"`` the
+Poses follow the toolkit's conventions (docs/method.md): ``R`` rotates world into camera (camera
+frame: forward +x, left +y, up +z), ``t`` is the camera centre; ``frame="map"`` is the map's frame (metric, z up), ``frame="input"`` the
 frame the map was built from (a record's ``input_frame``; the same as the map's when the map was
 built without ``--up`` / ``--scale`` / a recentring shift).
 """
