@@ -22,6 +22,7 @@ from ldlmap.core.errors import LdlError, refuse_overwriting_inputs, require_file
 from ldlmap.core.pictures import check_picture_path, refuse_replacing_pictures
 from ldlmap.datasets import read_pose_file
 from ldlmap.io.panorama_meta import recorded_up
+from ldlmap.map.contents import LdlMap
 from ldlmap.map.mapfile import read_map
 
 
@@ -73,7 +74,7 @@ def localize(map_path: Path, pano: Path, as_json: bool, gt: Path | None, device:
         console.print(f"[yellow]warning:[/] picture {vis} not written ({out['picture_error']})", soft_wrap=True)
 
 
-def read_map_while_importing(map_path: Path, threads: int):
+def read_map_while_importing(map_path: Path, threads: int) -> tuple[LdlMap, dict[str, float]]:
     """The map (without its cloud), read in a thread while torch is imported: h5py decompresses
     with the GIL released for most of the read, so on an idle machine it costs no extra time.
     Returns the map and ``{"read_map": seconds the read took, "wait_map": seconds waited for it
@@ -81,7 +82,7 @@ def read_map_while_importing(map_path: Path, threads: int):
     import_heavy("h5py")  # here, not in the thread, to keep the two imports apart
     require_file(map_path, "map")  # a missing map is said at once, not after the imports
 
-    def read():
+    def read() -> tuple[LdlMap, float]:
         tick = time.perf_counter()
         return read_map(map_path, load_cloud=False), time.perf_counter() - tick
 

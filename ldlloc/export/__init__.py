@@ -25,11 +25,9 @@ import numpy as np
 from ldlloc.batch.results import run_kind, unfinished_note
 from ldlloc.export.colmap import (MODEL_FILES, MODEL_SUFFIXES, check_image_names, line_points, model_files,
                                   write_colmap_model)
-from ldlloc.export.nerfstudio import transforms, write_transforms
-from ldlloc.export.ply import write_cameras_ply
+from ldlloc.export import nerfstudio, ply, tum  # the writers of a format, called through their module
 from ldlloc.export.poses import (FRAMES, export_poses, image_names, image_size, input_to_map_of, map_lines,
                                  map_path_for, read_records, select_queries)
-from ldlloc.export.tum import check_one_walk, tum_text
 from ldlmap.core.errors import InputError, atomic_dir, atomic_file, refuse_overwriting_inputs
 from ldlmap.core.frame import decompose
 
@@ -129,7 +127,7 @@ def _write_nerfstudio(out: Path, poses: list, frame: str, results: Path) -> None
     extra = {"ldl_export": {"results": str(results), "frame": frame,
                             "convention": f"camera to world, OpenGL camera (x right, y up, z back); world: {world}"}}
     with atomic_file(out) as tmp:
-        write_transforms(tmp, transforms(poses, out, sizes, extra))
+        nerfstudio.write_transforms(tmp, nerfstudio.transforms(poses, out, sizes, extra))
 
 
 def export_results(results: str | Path, fmt: str, out: str | Path, include_all: bool = False, frame: str = "map",
@@ -179,9 +177,9 @@ def export_results(results: str | Path, fmt: str, out: str | Path, include_all: 
         _write_nerfstudio(out, poses, frame, results)
         return ExportOutcome(out=out, count=len(poses), notes=notes)
     if fmt == "tum":
-        check_one_walk(poses, results)
+        tum.check_one_walk(poses, results)
         with atomic_file(out) as tmp:
-            Path(tmp).write_text(tum_text(poses, frame))
+            Path(tmp).write_text(tum.tum_text(poses, frame))
         return ExportOutcome(out=out, count=len(poses), notes=notes)
     lines = map_lines(poses, frame, meta, map_path)
     if lines.missing:
@@ -191,7 +189,7 @@ def export_results(results: str | Path, fmt: str, out: str | Path, include_all: 
     else:
         units = _frame_units(poses, frame, meta, map_path)
         with atomic_file(out) as tmp:
-            write_cameras_ply(tmp, poses, lines.lines, lines.groups, units, comment=f"frame: {frame}")
+            ply.write_cameras_ply(tmp, poses, lines.lines, lines.groups, units, comment=f"frame: {frame}")
     return ExportOutcome(out=out, count=len(poses), notes=notes)
 
 

@@ -15,7 +15,6 @@ built without ``--up`` / ``--scale`` / a recentring shift).
 
 from __future__ import annotations
 
-import json
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
