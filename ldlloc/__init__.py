@@ -20,7 +20,7 @@ from ldlmap.core.lazy_api import lazy_api
 _API = {
     "Localizer": "ldlloc.pipeline", "LocalizeParams": "ldlloc.pipeline", "Localization": "ldlloc.pipeline",
     "load_image": "ldlloc.pipeline", "run_queries": "ldlloc.batch.run", "load_results": "ldlloc.batch.results",
-    "QueryResult": "ldlloc.batch.accuracy", "summarize": "ldlloc.batch.accuracy",
+    "QueryResult": "ldlloc.record", "summarize": "ldlloc.batch.accuracy",
     "export_results": "ldlloc.export", "write_html_report": "ldlloc.report",
 }
 __all__, __getattr__, __dir__ = lazy_api("ldlloc", _API)

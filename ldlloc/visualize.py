@@ -8,18 +8,20 @@ from pathlib import Path
 
 import numpy as np
 
+from ldlloc.batch.accuracy import THRESHOLDS, within_threshold
+from ldlmap.core.lazy import lazy_module
 from ldlmap.core.pictures import draw_arcs, drawable_text, group_legend, project_lines, with_caption, write_picture
+
+cv2 = lazy_module("cv2")
 
 
 def localization_caption(name: str, loc, errors: tuple[float, float] | None = None) -> str:
     """``name`` and its pose error against ground truth (``errors``: metres, degrees) with the
     verdict at the headline threshold, or without ground truth its status; and how it was refined."""
-    from ldlloc.batch.accuracy import THRESHOLDS
-
     how = f"refined by {loc.refine_method}" if getattr(loc, "refined", False) else "not refined"
     if errors is not None:
         _, t_max, r_max = THRESHOLDS[1]
-        verdict = "localized" if errors[0] < t_max and errors[1] < r_max else "not localized"
+        verdict = "localized" if within_threshold(*errors) else "not localized"
         return (f"{name}: error {errors[0]:.3f} m, {errors[1]:.2f} deg: {verdict} (within {t_max:g} m / "
                 f"{r_max:g} deg), {how}")
     return f"{name}: {loc.status}, {how}, no ground truth" + (f" ({loc.message})" if loc.message else "")
@@ -29,8 +31,6 @@ def localization_picture(image_rgb: np.ndarray, loc, ldl_map, caption: str = "")
     """BGR picture: top, the query with its (filtered) 2D lines colored by principal group;
     bottom, the query with the map's 3D lines projected at the estimated pose; under them a band
     with ``caption`` and the colours' legend."""
-    import cv2
-
     bgr = cv2.cvtColor(np.asarray(image_rgb), cv2.COLOR_RGB2BGR)
     top = draw_arcs(bgr, loc.arcs if loc.arcs is not None else np.zeros((0, 2, 3)), loc.arc_groups)
     bottom = draw_map_lines(bgr, ldl_map, loc.rot_cam_from_world, loc.center)
@@ -59,8 +59,6 @@ def draw_map_lines(image_bgr: np.ndarray, ldl_map, rot_cam_from_world: np.ndarra
 
 def _title(img: np.ndarray, text: str, scale: float) -> None:
     """White text on a dark banner in the top-left corner (readable on any panorama), in place."""
-    import cv2
-
     text = drawable_text(text)
     font, size, thick = cv2.FONT_HERSHEY_SIMPLEX, 0.7 * scale, max(1, int(round(1.5 * scale)))
     (w, h), base = cv2.getTextSize(text, font, size, thick)

@@ -17,7 +17,7 @@ from scipy.spatial.transform import Rotation
 from typer.testing import CliRunner
 
 from ldlloc.cli import app as loc_app
-from ldlloc.batch.accuracy import QueryResult, best_candidate, first_good_rank
+from ldlloc.record import QueryResult, best_candidate, first_good_rank
 from ldlloc.batch.results import ResultsWriter, load_results, read_results_data
 from ldlloc.pipeline import UPRIGHT_MAX_TILT_DEG, LocalizeParams, Localizer, load_image, rotation_prior_name
 from ldlloc.rotation import RotationCandidates, camera_tilt_deg, filter_by_tilt

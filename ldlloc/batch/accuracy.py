@@ -1,26 +1,25 @@
-"""A query's result record (:class:`QueryResult`) and the accuracy of a set of them: pose errors, the
-paper's thresholds, top-K candidate ranks, summaries, CSV rows and terminal tables.
+"""The accuracy of a set of results records (:class:`ldlloc.record.QueryResult`): pose errors, the
+paper's thresholds, summaries, CSV rows and terminal tables.
 
 Top-K candidates against the truth (to judge ambiguity: is the right pose among the search's
-K, and how far down?): a candidate is *good* when within :data:`GOOD_T_M` = 0.5 m and
-:data:`GOOD_R_DEG` = 10 deg of the truth; ``first_good_rank`` is the 1-based rank of the first
-good one (1: the search's top-1 is good; None: none of the K is). The *best candidate*
-(:func:`best_candidate`) is the one with the smallest translation error among the candidates
-within 10 deg rotation error, or, when none is, the one with the smallest rotation error; its
-errors are ``best_candidate_t_error_m`` and ``best_candidate_r_error_deg``.
+K, and how far down?): a candidate is *good* when within :data:`~ldlloc.record.GOOD_T_M` = 0.5 m
+and :data:`~ldlloc.record.GOOD_R_DEG` = 10 deg of the truth; ``first_good_rank`` is the 1-based
+rank of the first good one (1: the search's top-1 is good; None: none of the K is). The *best
+candidate* (:func:`ldlloc.record.best_candidate`) is the one with the smallest translation error
+among the candidates within 10 deg rotation error, or, when none is, the one with the smallest
+rotation error; its errors are ``best_candidate_t_error_m`` and ``best_candidate_r_error_deg``.
 """
 
 from __future__ import annotations
 
 import csv
 import io
-from dataclasses import dataclass, field
 from typing import Any, Iterable
 
 import numpy as np
+from rich.table import Table
 
-
-from ldlmap.core.geometry import rotation_error_deg, translation_error
+from ldlloc.record import GOOD_R_DEG, GOOD_T_M, QueryResult
 
 # (name, metres, degrees): the paper's thresholds; the second is the headline accuracy.
 THRESHOLDS: tuple[tuple[str, float, float], ...] = (
@@ -29,79 +28,13 @@ THRESHOLDS: tuple[tuple[str, float, float], ...] = (
     ("0.2m_10deg", 0.2, 10.0),
 )
 STAGES = ("lines2d", "rotation", "search", "refine", "confidence", "total")  # image runs on several maps add "choose"
-CONFIDENT_T_M, CONFIDENT_R_DEG = 0.25, 5.0  # a confident pose is meant to be within 0.25 m / 5 deg (issue 20)
-GOOD_T_M = 0.5  # a top-K candidate is "good" within 0.5 m and 10 degrees of the truth
-GOOD_R_DEG = 10.0
+CONFIDENT_T_M, CONFIDENT_R_DEG = 0.25, 5.0  # what a confident pose is meant to be within (verdict_summary checks it)
 
 
-def pose_errors(rot_est: np.ndarray, center_est: np.ndarray, rot_true: np.ndarray, center_true: np.ndarray) -> dict:
-    """``t_error_m``, ``r_error_deg`` of an estimated pose against the truth, and ``localized``:
-    both under the headline threshold (``THRESHOLDS[1]``: 0.1 m and 5 degrees)."""
-    t_err = translation_error(center_est, center_true)
-    r_err = rotation_error_deg(rot_est, rot_true)
+def within_threshold(t_error_m: float, r_error_deg: float) -> bool:
+    """Whether pose errors are within the headline threshold (``THRESHOLDS[1]``: 0.1 m and 5 degrees)."""
     _, t_max, r_max = THRESHOLDS[1]
-    return {"t_error_m": t_err, "r_error_deg": r_err, "localized": bool(t_err < t_max and r_err < r_max)}
-
-
-@dataclass
-class QueryResult:
-    """The outcome of localizing one panorama."""
-
-    image: str
-    scene: str
-    split: str
-    name: str
-    R: list | None = None  # estimated rotation, world -> camera (3x3 nested list)
-    t: list | None = None  # estimated camera centre (3,)
-    t_error_m: float | None = None
-    r_error_deg: float | None = None
-    seconds: dict[str, float] = field(default_factory=dict)
-    num_rotations: int = 0
-    num_matches: int = 0
-    num_inliers: int = 0
-    refined: bool = False
-    status: str = "ok"  # ok | coarse (refinement failed or skipped) | failed
-    message: str = ""
-    refine_method: str = "none"  # what produced the final pose: features | geometric | none
-    refine_residual_deg: float | None = None  # geometric refinement: median angle of matched line points
-    rotation_prior: str = "free"  # "free" (paper) or "upright<=Xdeg" (--max-tilt, upright queries)
-    candidates: list = field(default_factory=list)  # top-K search poses, best first: {R, t, loss}
-    best_candidate_t_error_m: float | None = None  # errors of the best of the K (best_candidate)
-    best_candidate_r_error_deg: float | None = None
-    first_good_rank: int | None = None  # 1-based rank of the first candidate within 0.5 m / 10 deg
-    input_frame: dict | None = None  # maps built from another frame (SfM): the pose {R, t} in that frame
-    picture_error: str | None = None  # --save-vis: why this query's picture was not written (its result stands)
-    map: str | None = None  # image runs: path of the map the pose is in (the chosen one)
-    map_runner_up: dict | None = None  # image runs on several maps: the next best {"map": path, "score": loss}
-    map_scores: list | None = None  # image runs on several maps: [{"map", "search_loss", "loss"}], best search first
-    confidence: float | None = None  # how far to trust the pose, in [0, 1] (ldlloc.confidence; None: older runs)
-    verdict: str | None = None  # confident | ambiguous | failed (None: older runs)
-    competitors: list = field(default_factory=list)  # distinct poses of nearly the same loss: {R, t, loss, why}
-    confidence_signals: dict | None = None  # what the confidence was computed from (ldlloc.confidence)
-    walk: dict | None = None  # a frame of a walk (ldlloc.walk.run.walk_fields): {name, frame, time, walk_decided,
-    # single_verdict, single_confidence, margin, tracked}; None: a single image
-
-    @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> "QueryResult":
-        known = {k: d[k] for k in cls.__dataclass_fields__ if k in d}
-        return cls(**known)
-
-
-def best_candidate(t_errors, r_errors, max_r_deg: float = GOOD_R_DEG) -> int | None:
-    """Index of the best candidate: the smallest translation error among those within
-    ``max_r_deg`` rotation error, else the smallest rotation error (None when there are none)."""
-    t = np.asarray(t_errors, dtype=np.float64)
-    r = np.asarray(r_errors, dtype=np.float64)
-    if len(t) == 0:
-        return None
-    close = np.flatnonzero(r < max_r_deg)
-    return int(close[np.argmin(t[close])]) if len(close) else int(np.argmin(r))
-
-
-def first_good_rank(t_errors, r_errors, max_t_m: float = GOOD_T_M, max_r_deg: float = GOOD_R_DEG) -> int | None:
-    """1-based rank of the first candidate within ``max_t_m`` and ``max_r_deg`` (None: none is)."""
-    good = np.flatnonzero((np.asarray(t_errors, float) < max_t_m) & (np.asarray(r_errors, float) < max_r_deg))
-    return int(good[0]) + 1 if len(good) else None
+    return bool(t_error_m < t_max and r_error_deg < r_max)
 
 
 def _median(values: Iterable[float]) -> float | None:
@@ -249,8 +182,6 @@ def _fmt(x: float | None, spec: str) -> str:
 
 def summary_table(results: list[QueryResult], by: str, title: str):
     """A Rich table of errors and accuracies, one row per group (scene or split) and a total row."""
-    from rich.table import Table
-
     groups = group_by(results, by)
     if not has_ground_truth(results):
         return _counts_table(groups, by, title)
@@ -272,8 +203,6 @@ def summary_table(results: list[QueryResult], by: str, title: str):
 def _counts_table(groups: dict[str, list[QueryResult]], by: str, title: str):
     """:func:`summary_table` without ground truth: per group, queries localized (refined), coarse
     (the search's pose kept) and failed, and the median seconds."""
-    from rich.table import Table
-
     table = Table(title=title, caption="no ground truth: ok = refined pose, coarse = the search's pose, fail = "
                   "none, or a pose whose verdict is failed")
     table.add_column(by, no_wrap=True, min_width=max([len(k) for k in groups] + [3]))
@@ -289,8 +218,6 @@ def _counts_table(groups: dict[str, list[QueryResult]], by: str, title: str):
 
 def timing_table(results: list[QueryResult], title: str = "median seconds per stage"):
     """A Rich table of the median seconds of each stage (successful queries)."""
-    from rich.table import Table
-
     ok = [r for r in results if r.status != "failed"]
     s = summarize(ok)["median_seconds"] if ok else {}
     stages = [*STAGES[:-1], *sorted(set(s) - set(STAGES)), STAGES[-1]]  # e.g. image runs' "choose"

@@ -28,15 +28,15 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
-import numpy as np
 
 from ldlmap.core.errors import InputError, LdlError
 from ldlmap.core.pictures import picture_file
-from ldlloc.batch.accuracy import QueryResult
+from ldlloc.record import QueryResult, failed_record, record_of
 from ldlloc.batch.results import load_results
 from ldlloc.batch.run import open_results, write_query_picture
 from ldlloc.batch.which_map import TOP_MAPS, MapChoice, MapSet, localize_on_maps
 from ldlloc.pipeline import Localization, LocalizeParams, load_image, rotation_prior_name
+from ldlloc.visualize import localization_caption
 from ldlmap.io.panorama_meta import recorded_up
 
 IMAGES_SPLIT = "images"  # the split of every record of an image run
@@ -259,29 +259,13 @@ def picture_path(save_vis: str | Path, q: ImageQuery) -> Path:
 
 def image_result(q: ImageQuery, loc: Localization, choice: MapChoice) -> QueryResult:
     """The results record of image query ``q`` localized on the chosen map (no ground truth)."""
-    input_frame = None
-    in_pose = loc.input_frame_pose()
-    if in_pose is not None:
-        input_frame = {"R": in_pose[0].tolist(), "t": in_pose[1].tolist()}
-    entry = choice.chosen.entry
-    return QueryResult(
-        image=str(q.image), scene=entry.scene, split=q.split, name=q.name,
-        R=np.asarray(loc.rot_cam_from_world).tolist(), t=np.asarray(loc.center).tolist(),
-        seconds={k: float(v) for k, v in loc.seconds.items()},
-        num_rotations=int(loc.num_rotations), num_matches=int(loc.num_matches), num_inliers=int(loc.num_inliers),
-        refined=bool(loc.refined), status=loc.status, message=loc.message, rotation_prior=loc.rotation_prior,
-        candidates=loc.candidate_dicts(), refine_method=loc.refine_method,
-        refine_residual_deg=loc.refine_residual_deg, input_frame=input_frame,
-        **choice.record(), confidence=loc.confidence, verdict=loc.verdict, competitors=list(loc.competitors),
-        confidence_signals=dict(loc.confidence_signals) or None,
-    )
+    return record_of(loc, str(q.image), choice.chosen.entry.scene, q.split, q.name, **choice.record())
 
 
 def failed_image_result(q: ImageQuery, params: LocalizeParams, message: str, seconds: float) -> QueryResult:
     """The ``failed`` record of image query ``q``, with its reason."""
-    return QueryResult(image=str(q.image), scene=q.scene, split=q.split, name=q.name, status="failed",
-                       message=message, seconds={"total": seconds},
-                       rotation_prior=rotation_prior_name(params.max_tilt_deg), confidence=0.0, verdict="failed")
+    return failed_record(str(q.image), q.scene, q.split, q.name, message, {"total": seconds},
+                         rotation_prior_name(params.max_tilt_deg))
 
 
 def localize_image_query(maps: MapSet, q: ImageQuery, params: LocalizeParams, top_maps: int = TOP_MAPS,
@@ -300,8 +284,6 @@ def localize_image_query(maps: MapSet, q: ImageQuery, params: LocalizeParams, to
         return failed_image_result(q, params, f"internal error ({type(exc).__name__}: {exc})",
                                    time.perf_counter() - t0)
     if save_vis is not None:
-        from ldlloc.visualize import localization_caption
-
         caption = f"{localization_caption(Path(q.image).name, loc)} | map {choice.chosen.entry.scene}"
         r.picture_error = write_query_picture(img, loc, choice.chosen.entry.localizer.map, picture_path(save_vis, q),
                                               caption)

@@ -27,10 +27,14 @@ from collections import Counter
 from pathlib import Path
 from typing import Callable
 
-from ldlloc.batch.accuracy import QueryResult
+from ldlloc.batch.images import failed_image_result, localize_image_query
 from ldlloc.batch.results import ResultsWriter
-from ldlloc.pipeline import LocalizeParams
 from ldlloc.batch.run import failed_result, localize_query, open_results, query_key, scene_maps
+from ldlloc.batch.which_map import MapSet
+from ldlloc.pipeline import LocalizeParams
+from ldlloc.record import QueryResult
+from ldlmap.core.cli_common import set_threads
+from ldlmap.core.errors import LdlError
 from ldlmap.batch.ray_cluster import RETRIES, TaskDone, WorkerInfo, as_completed, check_resources, current_worker, \
     enter_folder, failure_reason, ray_session, stop
 
@@ -41,9 +45,6 @@ class SceneLocalizer:
 
     def __init__(self, cwd: str, maps_dir: str, scene: str, params: LocalizeParams, device: str,
                  save_vis: str | None = None, threads: int = 1, top_maps: int | None = None):
-        from ldlmap.core.cli_common import set_threads
-        from ldlmap.core.errors import LdlError
-
         enter_folder(cwd)  # relative paths (maps, images, pictures) as on the driver
         set_threads(threads)
         self.params, self.save_vis = params, save_vis
@@ -135,17 +136,12 @@ class ImagesLocalizer:
 
     def __init__(self, cwd: str, maps: str, params: LocalizeParams, device: str, top_maps: int,
                  save_vis: str | None = None, threads: int = 1):
-        from ldlloc.batch.which_map import MapSet
-        from ldlmap.core.cli_common import set_threads
-
         enter_folder(cwd)
         set_threads(threads)
         self.params, self.top_maps, self.save_vis = params, top_maps, save_vis
         self.maps = MapSet.load(maps, params, device)
 
     def localize(self, q) -> tuple[QueryResult, WorkerInfo]:
-        from ldlloc.batch.images import localize_image_query
-
         return localize_image_query(self.maps, q, self.params, self.top_maps, self.save_vis), current_worker()
 
 
@@ -159,8 +155,6 @@ def run_images_ray(queries: list, maps: str | Path, output: str | Path, params: 
     panorama, each holding all the maps (so any actor can take any panorama: the panoramas are
     dealt out in turn). Results are written by the driver as they arrive; faults and Ctrl-C as
     :func:`run_queries_ray`."""
-    from ldlloc.batch.images import failed_image_result
-
     with open_results(output, params, device, meta, resume, any_options, queries, say) as writer:
         done = writer.done()
         todo = [q for q in sorted(queries, key=lambda q: q.name) if q.name not in done]

@@ -1,23 +1,16 @@
 """The results file of a run: JSON (and a CSV beside it), validated on read, written after every query
 (records and summaries: :mod:`.accuracy`).
 
-Results file (DESIGN.md section 4)::
+Results file::
 
-    {"queries": [ {image, scene, split, name, R (3x3), t (3,), t_error_m, r_error_deg,
-                   seconds: {stage: s}, num_rotations, num_matches, num_inliers, refined,
-                   status, message, refine_method, refine_residual_deg, rotation_prior,
-                   candidates: [{R, t, loss}, ...] (the search's top K, best first),
-                   best_candidate_t_error_m, best_candidate_r_error_deg, first_good_rank}, ... ],
-     "summary": {count, failed, median_t_error_m, median_r_error_deg,
-                 accuracy: {"0.05m_5deg": a, "0.1m_5deg": a, "0.2m_10deg": a},
-                 median_seconds: {stage: s}, device,
-                 search: {"top1_0.5m_10deg": a, "topk_0.5m_10deg": a} (when candidates were kept),
-                 ...}}
+    {"format_version": 1, "meta": {the run's options}, "summary": {...}, "queries": [record, ...]}
 
-Image runs (``run --images``: ``split="images"``, no errors) add ``map``, ``map_runner_up`` and
-``map_scores`` (:mod:`ldlloc.batch.images`), and their summary counts by map instead of accuracies.
-The candidates are in the JSON only (not in the CSV). Files written before these fields existed
-still load (the fields get their defaults: no candidates, rotation prior "free").
+Each record is a :class:`ldlloc.record.QueryResult`: its fields, the check each value passes on
+read and their meanings are declared there once (``docs/formats.md`` lists them). The ``summary``
+(:func:`ldlloc.batch.accuracy.summarize`: counts, median errors, accuracies, median seconds, the
+search's own accuracy and the verdicts; image runs count by map instead) is recomputed on read.
+The candidates are in the JSON only (not in the CSV). Files written before a field existed still
+load (the field gets its default).
 
 While a run goes on, ``ResultsWriter`` appends each query's record to a journal beside the JSON
 (``r.json.journal``, JSON Lines: :func:`journal_path`) and rewrites the JSON (and the CSV beside it,
@@ -36,96 +29,21 @@ from __future__ import annotations
 
 import contextlib
 import json
-import math
 import os
-from dataclasses import asdict
 from pathlib import Path
 from typing import Any, Callable
 
-import numpy as np
-
-from ldlloc.batch.accuracy import QueryResult, results_csv, summarize
+from ldlloc.batch.accuracy import results_csv, summarize
 from ldlloc.batch.journal import MAX_RESULTS_BYTES, is_journal, journal_header, journal_path, read_journal
 from ldlloc.batch.lock import ResultsBusy, acquire_lock, lock_path, release_lock
+from ldlloc.record import FIELD_CHECKS, REQUIRED_FIELDS, QueryResult, json_safe, record_json
 from ldlmap.core.errors import (FormatVersionError, InputError, LdlError, WriteError, atomic_file, remove_stale_temporaries,
                                 require_file)
 
 
 RESULTS_FORMAT_VERSION = 1  # top-level "format_version" of a results file (absent: written before it, read as 1)
-STATUSES = ("ok", "coarse", "failed")
 OPTION_KEYS = ("dataset", "root", "splits", "map_level", "device", "params", "max_tilt_deg", "maps", "top_maps",
                "scene_unknown", "images_path")  # meta compared by --resume
-
-
-def _is_number(x: Any) -> bool:
-    """Whether ``x`` is a finite number (not a bool); math, not numpy: called per matrix entry."""
-    if isinstance(x, float):
-        return math.isfinite(x)
-    return isinstance(x, int) and not isinstance(x, bool)
-
-
-def _is_count(x: Any, lo: int = 0) -> bool:
-    """Whether ``x`` is an integer (not a bool) of at least ``lo``."""
-    return isinstance(x, int) and not isinstance(x, bool) and x >= lo
-
-
-def _is_matrix(x: Any, rows: int, cols: int | None = None) -> bool:
-    """Whether ``x`` is a (rows,) list, or (rows, cols) nested lists, of finite numbers."""
-    if not isinstance(x, list) or len(x) != rows:
-        return False
-    if cols is None:
-        return all(_is_number(v) for v in x)
-    return all(_is_matrix(row, cols) for row in x)
-
-
-# Field of a query record -> (check, what it must be). Absent fields get their defaults (older files).
-_FIELD_CHECKS: dict[str, tuple[Any, str]] = {
-    "image": (lambda x: isinstance(x, str), "a string"),
-    "scene": (lambda x: isinstance(x, str) and x != "", "a non-empty string"),
-    "split": (lambda x: isinstance(x, str), "a string"),
-    "name": (lambda x: isinstance(x, str) and x != "", "a non-empty string"),
-    "R": (lambda x: x is None or _is_matrix(x, 3, 3), "a 3x3 matrix of finite numbers or null"),
-    "t": (lambda x: x is None or _is_matrix(x, 3), "3 finite numbers or null"),
-    "t_error_m": (lambda x: x is None or (_is_number(x) and x >= 0), "a finite number >= 0 or null"),
-    "r_error_deg": (lambda x: x is None or (_is_number(x) and x >= 0), "a finite number >= 0 or null"),
-    "seconds": (lambda x: isinstance(x, dict) and all(isinstance(k, str) and _is_number(v) for k, v in x.items()),
-                "an object of finite seconds"),
-    "num_rotations": (_is_count, "an integer >= 0"),
-    "num_matches": (_is_count, "an integer >= 0"),
-    "num_inliers": (_is_count, "an integer >= 0"),
-    "refined": (lambda x: isinstance(x, bool), "true or false"),
-    "status": (lambda x: x in STATUSES, " | ".join(STATUSES)),
-    "message": (lambda x: isinstance(x, str), "a string"),
-    "refine_method": (lambda x: isinstance(x, str), "a string"),
-    "refine_residual_deg": (lambda x: x is None or _is_number(x), "a finite number or null"),
-    "rotation_prior": (lambda x: isinstance(x, str), "a string"),
-    "candidates": (lambda x: isinstance(x, list) and all(
-        isinstance(c, dict) and _is_matrix(c.get("R"), 3, 3) and _is_matrix(c.get("t"), 3)
-        and (c.get("loss") is None or isinstance(c.get("loss"), (int, float))) for c in x),
-        "a list of {R: 3x3, t: 3, loss} of finite numbers"),
-    "best_candidate_t_error_m": (lambda x: x is None or _is_number(x), "a finite number or null"),
-    "best_candidate_r_error_deg": (lambda x: x is None or _is_number(x), "a finite number or null"),
-    "first_good_rank": (lambda x: x is None or _is_count(x, 1),
-                        "an integer >= 1 or null"),
-    "input_frame": (lambda x: x is None or (isinstance(x, dict) and _is_matrix(x.get("R"), 3, 3)
-                                            and _is_matrix(x.get("t"), 3)), "{R: 3x3, t: 3} or null"),
-    "picture_error": (lambda x: x is None or isinstance(x, str), "a string or null"),
-    "map": (lambda x: x is None or isinstance(x, str), "a string or null"),
-    "map_runner_up": (lambda x: x is None or (isinstance(x, dict) and isinstance(x.get("map"), str)
-                                              and _is_number(x.get("score"))), "{map: string, score: number} or null"),
-    "map_scores": (lambda x: x is None or (isinstance(x, list) and all(isinstance(v, dict) for v in x)),
-                   "a list of objects or null"),
-    "confidence": (lambda x: x is None or (_is_number(x) and 0 <= x <= 1), "a number in [0, 1] or null"),
-    "verdict": (lambda x: x is None or x in ("confident", "ambiguous", "failed"), "confident | ambiguous | failed or null"),
-    "competitors": (lambda x: isinstance(x, list) and all(
-        isinstance(c, dict) and _is_matrix(c.get("R"), 3, 3) and _is_matrix(c.get("t"), 3)
-        and isinstance(c.get("why", ""), str) for c in x), "a list of {R: 3x3, t: 3, loss, why}"),
-    "confidence_signals": (lambda x: x is None or (isinstance(x, dict) and all(
-        isinstance(k, str) and _is_number(v) for k, v in x.items())), "an object of finite numbers or null"),
-}
-# Fields every record has had since the first results file (ResultsWriter writes every field): a record
-# without one is not ours (``report`` would count it as a failure at 0.00 accuracy).
-_REQUIRED_FIELDS = ("image", "scene", "split", "name", "status", "t_error_m", "r_error_deg")
 
 
 def validate_results(data: Any, source: str | Path = "results") -> tuple[list[QueryResult], dict[str, Any]]:
@@ -153,11 +71,11 @@ def validate_results(data: Any, source: str | Path = "results") -> tuple[list[Qu
     for i, q in enumerate(queries):
         if not isinstance(q, dict):
             raise InputError(f"{bad} (queries[{i}] is a {type(q).__name__}, not an object)")
-        missing = [k for k in _REQUIRED_FIELDS if k not in q]
+        missing = [k for k in REQUIRED_FIELDS if k not in q]
         if missing:
             who = f", query {q['name']}" if isinstance(q.get("name"), str) else ""
             raise InputError(f"{bad} (queries[{i}] lacks {', '.join(missing)}{who})")
-        for key, (ok, what) in _FIELD_CHECKS.items():
+        for key, (ok, what) in FIELD_CHECKS.items():
             if key in q and not ok(q[key]):
                 who = f", query {q['name']}" if isinstance(q.get("name"), str) else ""
                 raise InputError(f"{bad} (queries[{i}].{key} must be {what}, got {json.dumps(q[key])[:40]}{who})")
@@ -293,26 +211,6 @@ def _dict_differences(a: dict, b: dict, prefix: str = "") -> list[str]:
         elif x != y:
             out.append(f"{prefix}{k}")
     return out
-
-
-def _json_safe(obj: Any) -> Any:
-    """``obj`` with every non-finite float replaced by None (strict JSON, no NaN / Infinity)."""
-    if isinstance(obj, float):
-        return obj if np.isfinite(obj) else None
-    if isinstance(obj, dict):
-        return {k: _json_safe(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_json_safe(v) for v in obj]
-    return obj
-
-
-def record_json(r: QueryResult) -> str:
-    """Query record ``r`` as one line of strict JSON (non-finite numbers as null)."""
-    fields = {k: getattr(r, k) for k in r.__dataclass_fields__}  # values are plain lists and dicts already
-    try:
-        return json.dumps(fields, allow_nan=False)
-    except ValueError:  # a NaN or an infinity somewhere: null
-        return json.dumps(_json_safe(asdict(r)), allow_nan=False)
 
 
 class ResultsWriter:
@@ -470,7 +368,7 @@ class ResultsWriter:
     def _write_json(self, token: str | None) -> None:
         """The JSON: its head indented, then ``"queries"`` with one record per line (each serialized
         once, when it was added)."""
-        head = _json_safe({
+        head = json_safe({
             "format_version": RESULTS_FORMAT_VERSION,
             "meta": self.meta,
             "summary": summarize(self.results, self.meta.get("device")),
@@ -542,6 +440,16 @@ def continue_hint(meta: dict[str, Any], prefix: str = "continue with --resume") 
     if run_kind(meta) == "video":
         return "a --video run is not resumed: run it again with --overwrite"
     return prefix
+
+
+def unfinished_note(records: list, meta: dict) -> str | None:
+    """What to say of a results file whose run did not finish (``meta["finished"]`` false: killed
+    or interrupted), None for a finished run (or one written before the flag existed)."""
+    if meta.get("finished") is not False:
+        return None
+    return (f"this run did not finish (killed or interrupted): the file holds {len(records)} "
+            f"quer{'y' if len(records) == 1 else 'ies'}, not necessarily all of its run; "
+            f"{continue_hint(meta, '`ldlloc run ... --resume` continues it')}")
 
 
 def _resumed_meta(path: Path, old: dict[str, Any], new: dict[str, Any], any_options: bool) -> dict[str, Any]:

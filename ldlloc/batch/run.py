@@ -27,13 +27,16 @@ from typing import Callable
 import numpy as np
 
 from ldlmap.core.errors import InputError, LdlError
-from ldlmap.core.geometry import rotation_error_deg, translation_error
 from ldlmap.core.pictures import picture_file
-from ldlloc.batch.accuracy import QueryResult, best_candidate, first_good_rank
-from ldlloc.batch.results import ResultsWriter
+from ldlmap.datasets import DEFAULT_ROOTS
 from ldlmap.io.panorama_meta import recorded_up
+from ldlmap.map.mapfile import read_map
+from ldlloc.batch.results import ResultsWriter
+from ldlloc.batch.which_map import MapSet, localize_on_maps
 from ldlloc.pipeline import (UPRIGHT_MAX_TILT_DEG, Localization, LocalizeParams, Localizer, load_image,
                              rotation_prior_name)
+from ldlloc.record import QueryResult, failed_record, record_of
+from ldlloc.visualize import localization_caption, save_localization_picture
 
 
 def max_tilt_for(q, params: LocalizeParams) -> float | None:
@@ -45,35 +48,9 @@ def max_tilt_for(q, params: LocalizeParams) -> float | None:
 
 
 def result_from_localization(q, loc: Localization) -> QueryResult:
-    """A results record for dataset query ``q`` (with ground truth) and its localization.
-
-    The ground truth is in the dataset's frame, the map's input frame: on a map built with another
-    frame (``--up``, ``--scale``) it is moved into the map frame, where errors are in metres.
-    """
-    gt_rot, gt_center = loc.truth_in_map_frame(q.rot_cam_from_world, q.center)
-    input_frame = None
-    if loc.input_to_map is not None:
-        R_in, t_in = loc.input_frame_pose()
-        input_frame = {"R": R_in.tolist(), "t": t_in.tolist()}
-    cand_t = [translation_error(c, gt_center) for c in np.asarray(loc.candidates_center)]
-    cand_r = [rotation_error_deg(R, gt_rot) for R in np.asarray(loc.candidates_rot)]
-    best = best_candidate(cand_t, cand_r)
-    return QueryResult(
-        image=str(q.image), scene=q.scene, split=q.split, name=q.name,
-        R=np.asarray(loc.rot_cam_from_world).tolist(), t=np.asarray(loc.center).tolist(),
-        t_error_m=translation_error(loc.center, gt_center),
-        r_error_deg=rotation_error_deg(loc.rot_cam_from_world, gt_rot),
-        seconds={k: float(v) for k, v in loc.seconds.items()},
-        num_rotations=int(loc.num_rotations), num_matches=int(loc.num_matches), num_inliers=int(loc.num_inliers),
-        refined=bool(loc.refined), status=loc.status, message=loc.message,
-        rotation_prior=loc.rotation_prior, candidates=loc.candidate_dicts(),
-        refine_method=loc.refine_method, refine_residual_deg=loc.refine_residual_deg,
-        best_candidate_t_error_m=None if best is None else float(cand_t[best]),
-        best_candidate_r_error_deg=None if best is None else float(cand_r[best]),
-        first_good_rank=first_good_rank(cand_t, cand_r), input_frame=input_frame,
-        confidence=loc.confidence, verdict=loc.verdict, competitors=list(loc.competitors),
-        confidence_signals=dict(loc.confidence_signals) or None,
-    )
+    """The record of dataset query ``q`` (with ground truth) localized as ``loc``
+    (:func:`ldlloc.record.record_of`: errors in the map frame)."""
+    return record_of(loc, str(q.image), q.scene, q.split, q.name, truth=(q.rot_cam_from_world, q.center))
 
 
 class MapCache:
@@ -90,8 +67,6 @@ class MapCache:
 
     def load(self, key):
         """The :class:`Localizer` of scene ``key``'s map."""
-        from ldlmap.map.mapfile import read_map
-
         path = self.maps_dir / f"{key}.h5"
         if not path.exists():
             raise InputError(f"map not found: {path} (build it with `ldlmap prepare ROOT --maps {self.maps_dir}`)")
@@ -138,8 +113,6 @@ class FolderMaps(MapCache):
 
     def load(self, key: Path):
         """The :class:`ldlloc.batch.which_map.MapSet` of the maps in folder ``key``."""
-        from ldlloc.batch.which_map import MapSet
-
         maps = MapSet.load(key, self.params, self.device, recursive=False)
         for path, why in maps.skipped if self.warn is not None else []:
             self.warn(f"warning: {path} left out: {why}")
@@ -149,8 +122,6 @@ class FolderMaps(MapCache):
                  camera_up: np.ndarray | None = None) -> tuple[Localization, Localizer, dict]:
         """``img`` localized against the maps of ``scene``'s folder; the record's extra fields name
         the chosen map and the runner-up (:meth:`ldlloc.batch.which_map.MapChoice.record`)."""
-        from ldlloc.batch.which_map import localize_on_maps
-
         res, choice = localize_on_maps(img, self.get(scene), max_tilt_deg, self.top_maps, camera_up)
         return res, choice.chosen.entry.localizer, choice.record()
 
@@ -161,8 +132,6 @@ def default_results_path(label: str, kind: str, root: Path, splits: list[str] | 
     measures, so that runs of other data never replace each other's results. ``label``: the kind
     users see (``synthetic`` for a dataset of ``ldlmap synth``); the root folder's name when it is
     not the kind's usual one; ZInD's map level (room or floor); the splits (``all``) and scene."""
-    from ldlmap.datasets import DEFAULT_ROOTS
-
     usual = {label, kind, DEFAULT_ROOTS[kind].name if kind in DEFAULT_ROOTS else kind}
     parts = [label, *([root.name] if root.name and root.name not in usual else []),
              *([map_level] if kind == "zind" and map_level else []), "-".join(splits) if splits else "all",
@@ -185,8 +154,6 @@ def missing_maps_message(missing: list[str], maps_dir: Path, root: Path, maps_gi
     The maps go where ``--maps`` said, else beside the data when that folder is writable, else
     into ``./maps/<root name>`` (datasets are often read-only); ``extra``: options both commands
     need (``--dataset``, ``--map-level``)."""
-    import os
-
     target = maps_dir if maps_given or os.access(root, os.W_OK) else Path("maps") / root.name
     where = f"{len(missing)} scene(s), e.g. {Path(maps_dir) / (missing[0] + '.h5')}"
     return (f"no maps for the queries' {where}: build them first with `ldlmap prepare {root}{extra} --maps "
@@ -207,9 +174,8 @@ def run_meta(params: LocalizeParams, device: str, meta: dict | None = None) -> d
 
 def failed_result(q, params: LocalizeParams, message: str, seconds: float | None = None) -> QueryResult:
     """The ``failed`` record of query ``q``, with its reason."""
-    return QueryResult(image=str(q.image), scene=q.scene, split=q.split, name=q.name, status="failed",
-                       message=message, seconds={} if seconds is None else {"total": seconds},
-                       rotation_prior=rotation_prior_name(max_tilt_for(q, params)), confidence=0.0, verdict="failed")
+    return failed_record(str(q.image), q.scene, q.split, q.name, message, {} if seconds is None else {"total": seconds},
+                         rotation_prior_name(max_tilt_for(q, params)))
 
 
 def localize_query(cache: MapCache, q, params: LocalizeParams,
@@ -232,8 +198,6 @@ def localize_query(cache: MapCache, q, params: LocalizeParams,
     except Exception as exc:  # noqa: BLE001 - e.g. cv2.error, MemoryError: one query's failure, not the run's
         return failed_result(q, params, f"internal error ({type(exc).__name__}: {exc})", time.perf_counter() - t0)
     if save_vis is not None:
-        from ldlloc.visualize import localization_caption
-
         caption = localization_caption(f"{q.name}{Path(q.image).suffix}", res, (r.t_error_m, r.r_error_deg))
         if r.map is not None:
             caption += f" | map {Path(r.map).stem}"
@@ -259,8 +223,6 @@ def picture_path(save_vis: str | Path, q) -> Path:
 
 def write_query_picture(img: np.ndarray, res: Localization, ldl_map, path: Path, caption: str = "") -> str | None:
     """Write a query's picture (``caption``: under it); returns why it could not be written (None when written)."""
-    from ldlloc.visualize import save_localization_picture
-
     try:
         save_localization_picture(img, res, ldl_map, path, caption)
     except (LdlError, OSError) as exc:

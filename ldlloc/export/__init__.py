@@ -22,6 +22,15 @@ from typing import Any
 
 import numpy as np
 
+from ldlloc.batch.results import run_kind, unfinished_note
+from ldlloc.export.colmap import (MODEL_FILES, MODEL_SUFFIXES, check_image_names, line_points, model_files,
+                                  write_colmap_model)
+from ldlloc.export import nerfstudio, ply, tum  # the writers of a format, called through their module
+from ldlloc.export.poses import (FRAMES, export_poses, image_names, image_size, input_to_map_of, map_lines,
+                                 map_path_for, read_records, select_queries)
+from ldlmap.core.errors import InputError, atomic_dir, atomic_file, refuse_overwriting_inputs
+from ldlmap.core.frame import decompose
+
 FORMATS = ("colmap", "nerfstudio", "ply", "tum")
 
 
@@ -36,8 +45,6 @@ class ExportOutcome:
 
 def _check_options(fmt: str, out: Path, text: bool, image_root: Path | None, overwrite: bool) -> None:
     """One-line errors for options that do not fit ``fmt`` and for an ``out`` that may not be replaced."""
-    from ldlmap.core.errors import InputError
-
     if fmt not in FORMATS:
         raise InputError(f"unknown --format {fmt!r}; valid: {', '.join(FORMATS)}")
     if fmt != "colmap" and (text or image_root is not None):
@@ -57,8 +64,6 @@ def _check_options(fmt: str, out: Path, text: bool, image_root: Path | None, ove
         if out.is_dir() and any(out.iterdir()) and not overwrite:
             raise InputError(f"output folder {out} is not empty; use --overwrite to replace the model files in it "
                              "(its other files stay), or another name")
-        from ldlloc.export.colmap import model_files
-
         odd = [f for f in (model_files(out) if out.is_dir() else []) if f.is_dir() or not f.is_file()]
         if odd:  # checked here, so that the new model's files are moved in all or none
             raise InputError(f"{odd[0]} is not a file: a COLMAP model file cannot replace it (move it away)")
@@ -69,9 +74,6 @@ def _check_options(fmt: str, out: Path, text: bool, image_root: Path | None, ove
 def _frame_units(poses: list, frame: str, meta: dict[str, Any], map_path: Path | None) -> np.ndarray:
     """Frame units per metre of each pose: 1 in the map frame; 1 / s in the input frame of a map
     built with ``--scale s`` (1 where the map is not found)."""
-    from ldlmap.core.frame import decompose
-    from ldlloc.export.poses import input_to_map_of, map_path_for
-
     units = np.ones(len(poses))
     if frame != "input":
         return units
@@ -90,10 +92,6 @@ def _write_colmap(out: Path, poses: list, lines, text: bool, image_root: Path | 
     """Write the COLMAP model into ``out``: built and checked in a temporary folder beside it, then
     its files moved in. Only model files are replaced (an earlier model's, binary or text); every
     other file of ``out`` stays. Returns what to say about it."""
-    from ldlmap.core.errors import atomic_dir
-    from ldlloc.export.colmap import check_image_names, line_points, model_files, write_colmap_model
-    from ldlloc.export.poses import image_names, image_size
-
     root, names = image_names([p.image for p in poses], image_root)
     check_image_names(names, text)  # before reading every image's size
     sizes = [image_size(p.image) for p in poses]
@@ -124,16 +122,12 @@ def _write_colmap(out: Path, poses: list, lines, text: bool, image_root: Path | 
 
 def _write_nerfstudio(out: Path, poses: list, frame: str, results: Path) -> None:
     """Write the ``transforms.json`` (atomically)."""
-    from ldlmap.core.errors import atomic_file
-    from ldlloc.export.nerfstudio import transforms, write_transforms
-    from ldlloc.export.poses import image_size
-
     sizes = [image_size(p.image) for p in poses]
     world = "the map's (metres, z up)" if frame == "map" else "the map's input frame"
     extra = {"ldl_export": {"results": str(results), "frame": frame,
                             "convention": f"camera to world, OpenGL camera (x right, y up, z back); world: {world}"}}
     with atomic_file(out) as tmp:
-        write_transforms(tmp, transforms(poses, out, sizes, extra))
+        nerfstudio.write_transforms(tmp, nerfstudio.transforms(poses, out, sizes, extra))
 
 
 def export_results(results: str | Path, fmt: str, out: str | Path, include_all: bool = False, frame: str = "map",
@@ -146,12 +140,6 @@ def export_results(results: str | Path, fmt: str, out: str | Path, include_all: 
     model in text files (default binary); ``image_root``: the folder COLMAP image names are relative
     to (default: the deepest folder holding every image); ``map_path``: the map for records that do
     not name one that exists (``--map``); ``scene``: only this scene's queries."""
-    from ldlmap.core.errors import InputError, atomic_file, refuse_overwriting_inputs
-    from ldlloc.batch.results import run_kind
-    from ldlloc.report.page import unfinished_note
-    from ldlloc.export.colmap import MODEL_FILES, MODEL_SUFFIXES
-    from ldlloc.export.poses import FRAMES, export_poses, map_lines, read_records, select_queries
-
     results, out = Path(results), Path(out)
     map_path = Path(map_path) if map_path is not None else None
     image_root = Path(image_root) if image_root is not None else None
@@ -177,8 +165,6 @@ def export_results(results: str | Path, fmt: str, out: str | Path, include_all: 
     poses = export_poses(sel.chosen, frame, meta, map_path)
     if fmt == "tum" and not any(p.record.get("walk") for p in poses):
         notes.append(f"{results} is not of a walk (--walk, --video): the timestamps are the poses' ranks in name order")
-    from ldlloc.export.poses import map_path_for
-
     maps = {map_path_for(p.record, meta, map_path)[0] for p in poses}  # the maps whose lines the export reads
     # a COLMAP export replaces its model files only, never the folder (which may hold the images)
     written = [out / f"{n}{x}" for n in MODEL_FILES for x in MODEL_SUFFIXES] if fmt == "colmap" else [out]
@@ -191,11 +177,9 @@ def export_results(results: str | Path, fmt: str, out: str | Path, include_all: 
         _write_nerfstudio(out, poses, frame, results)
         return ExportOutcome(out=out, count=len(poses), notes=notes)
     if fmt == "tum":
-        from ldlloc.export.tum import check_one_walk, tum_text
-
-        check_one_walk(poses, results)
+        tum.check_one_walk(poses, results)
         with atomic_file(out) as tmp:
-            Path(tmp).write_text(tum_text(poses, frame))
+            Path(tmp).write_text(tum.tum_text(poses, frame))
         return ExportOutcome(out=out, count=len(poses), notes=notes)
     lines = map_lines(poses, frame, meta, map_path)
     if lines.missing:
@@ -203,11 +187,9 @@ def export_results(results: str | Path, fmt: str, out: str | Path, include_all: 
     if fmt == "colmap":
         notes += _write_colmap(out, poses, lines, text, image_root, overwrite)
     else:
-        from ldlloc.export.ply import write_cameras_ply
-
         units = _frame_units(poses, frame, meta, map_path)
         with atomic_file(out) as tmp:
-            write_cameras_ply(tmp, poses, lines.lines, lines.groups, units, comment=f"frame: {frame}")
+            ply.write_cameras_ply(tmp, poses, lines.lines, lines.groups, units, comment=f"frame: {frame}")
     return ExportOutcome(out=out, count=len(poses), notes=notes)
 
 

@@ -12,12 +12,17 @@ structure for COLMAP's viewer and a seed for splatting pipelines that start from
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
 
+from ldlmap.core.errors import InputError, LdlError
 from ldlmap.core.geometry import colmap_cam_from_world
+from ldlmap.core.lazy import lazy_module
 from ldlmap.core.pictures import GROUP_COLORS_BGR
+
+pycolmap = lazy_module("pycolmap")
 
 
 def line_points(lines: np.ndarray, groups: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -33,8 +38,6 @@ def build_reconstruction(poses: list, names: list[str], sizes: list[tuple[int, i
     """A ``pycolmap.Reconstruction`` of ``poses`` (:class:`ldlloc.export.poses.ExportPose`) named
     ``names``, with image sizes ``sizes`` ((W, H) each) and track-less ``points`` (N, 3) coloured
     ``colors`` (N, 3) uint8."""
-    import pycolmap
-
     rec = pycolmap.Reconstruction()
     camera_of: dict[tuple[int, int], int] = {}
     for w, h in sizes:
@@ -70,8 +73,6 @@ def check_image_names(names: list[str], text: bool) -> None:
     """One line for an image name a COLMAP model cannot hold as written: not valid UTF-8 (a file
     name of other bytes), or, in a text model (``text``), one with a space, tab, newline or other
     control character (COLMAP's ``images.txt`` reads a name up to its first white space)."""
-    from ldlmap.core.errors import InputError
-
     for n in names:
         try:
             n.encode("utf-8")
@@ -100,10 +101,6 @@ def write_colmap_model(folder: str | Path, poses: list, names: list[str], sizes:
 def check_written_model(folder: str | Path, expected, text: bool, shown_as: str | Path) -> None:
     """Raise a one-line :class:`ldlmap.core.errors.LdlError` unless ``folder`` holds every model
     file, none empty, and reads back with ``expected``'s cameras, image names and point count."""
-    import pycolmap
-
-    from ldlmap.core.errors import LdlError
-
     suffix = ".txt" if text else ".bin"
     files = [Path(folder) / f"{n}{suffix}" for n in MODEL_FILES]
     bad = [f.name for f in files if not f.is_file() or f.stat().st_size == 0]
@@ -125,8 +122,6 @@ def check_written_model(folder: str | Path, expected, text: bool, shown_as: str 
 
 def _disk_full(folder: str | Path) -> bool:
     """Whether the file system of ``folder`` has no free block left for this user."""
-    import os
-
     try:
         st = os.statvfs(folder)
     except OSError:

@@ -6,7 +6,7 @@ equirect, fx = fy = height = width / 2"): ``w``, ``h``, ``fl_x = w / 2``, ``fl_y
 ``file_path`` relative to the JSON's folder, and ``transform_matrix``, the 4x4 camera-to-world
 matrix in nerfstudio's (OpenGL's) camera frame: x right, y up, z back (the camera looks along -z).
 
-Conversion: our camera frame (DESIGN.md) looks along +x with +y left and +z up, so a camera-frame
+Conversion: our camera frame (docs/method.md) looks along +x with +y left and +z up, so a camera-frame
 direction ``p`` is ``OPENGL_FROM_OURS @ p`` in OpenGL's frame (x = -y, y = z, z = -x). With our pose
 ``p_cam = R (X - c)``, camera-to-world is ``X = R^T OPENGL_FROM_OURS^T p_gl + c``: the matrix's
 rotation block is ``(OPENGL_FROM_OURS R)^T`` and its last column ``c``. Nerfstudio's equirectangular

@@ -7,15 +7,14 @@ Which queries: ``failed`` ones never (they have no pose). When the file carries 
 unless ``include_all``; a file without any verdict (written before verdicts existed) exports every
 localized query (status ok or coarse), and the export says so.
 
-Poses follow DESIGN.md: ``R`` rotates world into camera (camera frame: forward +x, left +y, up +z),
-``t`` is the camera centre; ``frame="map"`` is the map's frame (metric, z up), ``frame="input"`` the
+Poses follow the toolkit's conventions (docs/method.md): ``R`` rotates world into camera (camera
+frame: forward +x, left +y, up +z), ``t`` is the camera centre; ``frame="map"`` is the map's frame (metric, z up), ``frame="input"`` the
 frame the map was built from (a record's ``input_frame``; the same as the map's when the map was
 built without ``--up`` / ``--scale`` / a recentring shift).
 """
 
 from __future__ import annotations
 
-import json
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -23,7 +22,14 @@ from typing import Any
 
 import numpy as np
 
+from ldlloc.batch.results import load_results, read_results_data
 from ldlmap.core.errors import InputError, require_file
+from ldlmap.core.frame import apply, invert, is_identity
+from ldlmap.core.lazy import lazy_module
+from ldlmap.io.imagefile import image_header_size, read_image
+from ldlmap.map.mapfile import read_map, read_map_header
+
+cv2 = lazy_module("cv2")
 
 FRAMES = ("map", "input")
 VERDICTS = ("confident", "ambiguous", "failed")
@@ -92,8 +98,6 @@ def _check_extra_fields(records: list[dict], source: Path) -> None:
 def read_records(path: str | Path) -> tuple[list[dict], dict[str, Any]]:
     """The query records (as plain dicts, every field kept) and ``meta`` of a results file, after
     :func:`ldlloc.batch.results.load_results` has validated it (one-line errors for bad files)."""
-    from ldlloc.batch.results import load_results, read_results_data
-
     results, meta = load_results(path)
     records = read_results_data(path)["queries"]  # with the journal of a run that did not finish
     _check_extra_fields(records, Path(path))
@@ -148,9 +152,6 @@ def map_path_for(record: dict, meta: dict[str, Any], given: Path | None = None) 
 
 def input_to_map_of(map_path: Path) -> np.ndarray | None:
     """The map's ``input_to_map`` (None: the identity), read from its header only."""
-    from ldlmap.core.frame import is_identity
-    from ldlmap.map.mapfile import read_map_header
-
     A = read_map_header(map_path)["input_to_map"]
     return None if A is None or is_identity(np.asarray(A)) else np.asarray(A, dtype=np.float64)
 
@@ -229,15 +230,9 @@ def image_names(images: list[Path], root: Path | None = None) -> tuple[Path, lis
 
 def image_size(path: str | Path) -> tuple[int, int]:
     """(width, height) of an image: from its PNG or JPEG header, else by decoding it."""
-    from ldlmap.io.imagefile import image_header_size
-
     p = require_file(path, "image")
     size = image_header_size(p)
     if size is None:
-        import cv2
-
-        from ldlmap.io.imagefile import read_image
-
         img = read_image(p, cv2.IMREAD_UNCHANGED)
         if img is None:
             raise InputError(f"cannot decode image (corrupt or unsupported format): {p}")
@@ -260,9 +255,6 @@ class MapLines:
 def map_lines(poses: list[ExportPose], frame: str, meta: dict[str, Any], given_map: Path | None = None) -> MapLines:
     """The kept lines of every map the ``poses`` were found in (each map read once), moved into
     the input frame for ``frame="input"``."""
-    from ldlmap.core.frame import apply, invert, is_identity
-    from ldlmap.map.mapfile import read_map
-
     found: dict[Path, None] = {}
     missing: dict[str, None] = {}
     for p in poses:

@@ -6,6 +6,12 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Callable
 
+from ldlloc.export.poses import read_records, resolve_path
+from ldlloc.report.page import PAGE_HEAD, render_page, worst_first
+from ldlloc.report.thumbnails import make_thumbnails
+from ldlmap.core.errors import InputError, atomic_file, refuse_overwriting_inputs, refuse_replacing_other_files
+from ldlmap.io.imagefile import printable
+
 MAX_THUMBNAILS = 200  # default --max-thumbnails: the worst queries get one (~25 kB each in the page)
 HTML_SUFFIXES = (".html", ".htm")
 
@@ -13,9 +19,6 @@ HTML_SUFFIXES = (".html", ".htm")
 def check_html_path(path: str | Path) -> Path:
     """``path`` as an HTML output: a ``.html`` name that is not a folder, nor a file other than a page
     of this command (one-line errors, before any work)."""
-    from ldlmap.core.errors import InputError, refuse_replacing_other_files
-    from ldlloc.report.page import PAGE_HEAD
-
     p = Path(path)
     if p.suffix.lower() not in HTML_SUFFIXES:
         raise InputError(f"--html must name a .html file, got {p}")
@@ -37,12 +40,6 @@ def write_html_report(results: str | Path, html: str | Path, max_thumbnails: int
                       progress: Callable[[int, int], None] | None = None) -> Path:
     """Write the report of ``results`` to ``html`` (atomically). ``max_thumbnails``: the worst
     queries that get a thumbnail; ``progress(done, total)`` after each thumbnail."""
-    from ldlmap.core.errors import atomic_file, refuse_overwriting_inputs
-    from ldlmap.io.imagefile import printable
-    from ldlloc.export.poses import read_records, resolve_path
-    from ldlloc.report.page import render_page, worst_first
-    from ldlloc.report.thumbnails import make_thumbnails
-
     results, html = Path(results), check_html_path(html)
     records, meta = read_records(results)
     refuse_overwriting_inputs([results, *(resolve_path(q["image"], meta) for q in records)], [html])

@@ -17,8 +17,9 @@ from typing import Any
 
 import numpy as np
 
-from ldlloc.batch.accuracy import STAGES, THRESHOLDS, QueryResult, group_by, summarize
-from ldlloc.batch.results import continue_hint
+from ldlloc.batch.accuracy import STAGES, THRESHOLDS, group_by, summarize
+from ldlloc.record import QueryResult
+from ldlloc.batch.results import unfinished_note
 from ldlloc.report.plots import cdf_svg, histogram_svg
 from ldlloc.report.walk import map_lines_xy, walk_svg
 
@@ -201,16 +202,6 @@ def _query_rows(records: list[dict], thumbs: dict, limit: int) -> str:
     header = "".join(f'<th class="l">{escape(h)}</th>' if h.startswith(("thumbnail", "query")) else
                      f"<th>{escape(h)}</th>" for h in head)
     return f'<table id="queries"><tr>{header}</tr>{"".join(rows)}</table>'
-
-
-def unfinished_note(records: list, meta: dict) -> str | None:
-    """What to say of a results file whose run did not finish (``meta["finished"]`` false: killed
-    or interrupted), None for a finished run (or one written before the flag existed)."""
-    if meta.get("finished") is not False:
-        return None
-    return (f"this run did not finish (killed or interrupted): the file holds {len(records)} "
-            f"quer{'y' if len(records) == 1 else 'ies'}, not necessarily all of its run; "
-            f"{continue_hint(meta, '`ldlloc run ... --resume` continues it')}")
 
 
 def render_page(results_path: Path, records: list[dict], meta: dict[str, Any], thumbs: dict, limit: int) -> str:

@@ -14,7 +14,16 @@ from typing import Any, Callable
 
 import numpy as np
 
-from ldlmap.core.errors import LdlError
+from ldlloc.batch.results import run_kind
+from ldlloc.export.poses import has_pose, map_path_for, resolve_path
+from ldlloc.visualize import draw_map_lines
+from ldlloc.walk.video import frames_by_index
+from ldlmap.core.errors import InputError, LdlError, require_file
+from ldlmap.core.lazy import lazy_module
+from ldlmap.io.imagefile import image_header_size, read_image
+from ldlmap.map.mapfile import read_map
+
+cv2 = lazy_module("cv2")
 
 THUMB_W, THUMB_H = 384, 192  # shown at this size (CSS pixels): 2:1 like the panoramas
 JPEG_QUALITY = 85
@@ -29,11 +38,6 @@ class Thumbnail:
 
 def read_small(path: str | Path) -> np.ndarray:
     """The BGR image at ``path`` resized to THUMB_W x THUMB_H (JPEGs decoded at a reduced scale)."""
-    import cv2
-
-    from ldlmap.core.errors import InputError, require_file
-    from ldlmap.io.imagefile import image_header_size, read_image
-
     p = require_file(path, "image")
     size = image_header_size(p)
     flag = cv2.IMREAD_COLOR
@@ -53,8 +57,6 @@ def read_small(path: str | Path) -> np.ndarray:
 
 def data_uri(image_bgr: np.ndarray) -> str:
     """A JPEG data URI of a BGR image."""
-    import cv2
-
     ok, buf = cv2.imencode(".jpg", image_bgr, [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
     if not ok:
         raise LdlError("cannot encode a thumbnail")
@@ -65,10 +67,6 @@ def make_thumbnails(records: list[dict], meta: dict[str, Any],
                     progress: Callable[[], None] | None = None) -> dict[str, Thumbnail]:
     """A :class:`Thumbnail` per record (by name). The map of each record is found as for exports
     (:func:`ldlloc.export.poses.map_path_for`); each map is read once (records grouped by map)."""
-    from ldlmap.map.mapfile import read_map
-    from ldlloc.export.poses import has_pose, map_path_for, resolve_path
-    from ldlloc.visualize import draw_map_lines
-
     by_map: dict[Path | None, list[dict]] = {}
     looked_for: dict[str, list[Path]] = {}
     for q in records:
@@ -97,12 +95,6 @@ def make_thumbnails(records: list[dict], meta: dict[str, Any],
 def _video_frames(records: list[dict], meta: dict[str, Any]) -> dict[int, np.ndarray | LdlError] | None:
     """A video run's frames of ``records`` as thumbnails (BGR) by frame index, decoded in one pass
     (an error instead when the video cannot be read); None for a run of images."""
-    import cv2
-
-    from ldlloc.batch.results import run_kind
-    from ldlloc.export.poses import resolve_path
-    from ldlloc.walk.video import frames_by_index
-
     if run_kind(meta) != "video" or not records:
         return None
     wanted = {_frame_index(q) for q in records}

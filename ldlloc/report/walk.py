@@ -9,6 +9,9 @@ from pathlib import Path
 
 import numpy as np
 
+from ldlmap.core.errors import LdlError
+from ldlmap.map.mapfile import read_map
+
 SIZE = 560  # the view's width and height in CSS pixels
 PAD = 24
 MAX_MAP_LINES = 4000
@@ -22,9 +25,6 @@ def walk_records(records: list[dict]) -> list[dict]:
 
 def map_lines_xy(records: list[dict]) -> np.ndarray:
     """(L, 2, 2) the x, y of the lines of the maps the records name (those that can be read)."""
-    from ldlmap.core.errors import LdlError
-    from ldlmap.map.mapfile import read_map
-
     out = []
     for path in sorted({r["map"] for r in records if r.get("map")}):
         if Path(path).is_file():

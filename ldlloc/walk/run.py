@@ -17,13 +17,14 @@ from pathlib import Path
 from typing import Callable
 
 from ldlmap.core.errors import InputError, LdlError
-from ldlloc.batch.accuracy import QueryResult
-from ldlloc.batch.images import failed_image_result, image_result
+from ldlloc.record import QueryResult
+from ldlloc.batch.images import ImageQuery, failed_image_result, image_result
 from ldlloc.batch.run import failed_result, max_tilt_for, open_results, result_from_localization
 from ldlloc.batch.which_map import MapSet
 from ldlloc.pipeline import LocalizeParams, image_size, load_image
 from ldlloc.walk.localize import MIN_FRAMES, FrameOutcome, WalkFrame, WalkParams, localize_walk
 from ldlloc.walk.order import natural_key, ordered
+from ldlloc.walk.video import check_sampling, decoded_frames, frame_at, video_info
 
 
 def walk_fields(out: FrameOutcome, walk: str, index: int) -> dict:
@@ -169,9 +170,6 @@ def run_walk_video(video: str | Path, maps: MapSet, output: str | Path, params: 
     decoded in order (``fps`` or ``every``), each record named ``<stem>/<frame index>`` with the
     video as its image and its timestamp in ``walk.time``. The records are written once the walk
     is decided (a rerun localizes the video again)."""
-    from ldlloc.batch.images import ImageQuery
-    from ldlloc.walk.video import check_sampling, decoded_frames, frame_at, video_info
-
     info = video_info(video)
     check_sampling(info, fps, every)
     stem = info.path.stem

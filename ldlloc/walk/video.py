@@ -17,8 +17,12 @@ from typing import Iterator
 
 import numpy as np
 
-from ldlmap.core.errors import InputError, require_file
 from ldlloc.pipeline import WORK_WIDTH
+from ldlmap.core.errors import InputError, atomic_file, require_file
+from ldlmap.core.lazy import lazy_module
+
+av = lazy_module("av")
+cv2 = lazy_module("cv2")
 
 
 @dataclass(frozen=True)
@@ -42,8 +46,6 @@ class VideoInfo:
 
 
 def _open(path: Path):
-    import av
-
     try:
         container = av.open(str(path))
     except (av.error.FFmpegError, OSError, ValueError) as exc:
@@ -89,8 +91,6 @@ def check_sampling(info: VideoInfo, fps: float | None, every: int | None) -> Non
 
 def _rgb(frame) -> np.ndarray:
     """A decoded frame as RGB uint8 at the working width (as :func:`ldlloc.pipeline.load_image`)."""
-    import cv2
-
     img = frame.to_ndarray(format="rgb24")
     if img.shape[1] > WORK_WIDTH:
         img = cv2.resize(img, (WORK_WIDTH, WORK_WIDTH // 2), interpolation=cv2.INTER_AREA)
@@ -107,8 +107,6 @@ def decoded_frames(info: VideoInfo, fps: float | None = None, every: int | None 
                    ) -> Iterator[tuple[VideoFrame, np.ndarray]]:
     """The kept frames in order with their images: every ``every``-th, or the first at or after
     each multiple of ``1 / fps`` seconds (neither: every frame)."""
-    import av
-
     with _open(info.path) as c:
         s = c.streams.video[0]
         s.thread_type = "AUTO"
@@ -140,8 +138,6 @@ def frame_at(info: VideoInfo, vf: VideoFrame) -> np.ndarray:
 def frames_by_index(path: str | Path, indices: set[int]) -> Iterator[tuple[int, np.ndarray]]:
     """The frames of the video at ``path`` whose index is in ``indices`` (RGB at the working width),
     in one decoding pass (a report's thumbnails of a video run)."""
-    import av
-
     info = video_info(path)
     last = max(indices, default=-1)
     with _open(info.path) as c:
@@ -161,9 +157,6 @@ def frames_by_index(path: str | Path, indices: set[int]) -> Iterator[tuple[int, 
 
 def write_video(path: str | Path, frames: Iterator[np.ndarray], fps: float, codec: str = "libx264") -> Path:
     """Encode RGB frames (H, 2H, 3) uint8 as a video (mp4: H.264, yuv420p) at ``fps``."""
-    import av
-
-    from ldlmap.core.errors import atomic_file
 
     target = Path(path)
     with atomic_file(target) as tmp:

@@ -1,0 +1,52 @@
+"""The localization options of ``ldlloc localize`` and ``ldlloc run``, checked (one line each,
+before any work) and turned into :class:`~ldlloc.pipeline.LocalizeParams`."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from ldlloc.batch.which_map import TOP_MAPS
+from ldlloc.pipeline import QUERY_FRAMES, REFINE_MODES, LocalizeParams
+from ldlloc.search.ldf import LOSS_KINDS
+from ldlloc.search.pose_search import SearchParams
+from ldlmap.core.cli_common import check_range
+from ldlmap.core.errors import InputError
+
+MAX_TOP_K = 1000  # --top-k: each kept pose is refined; more than this is a typo, not a method
+MAX_TOP_MAPS = 1000  # --top-maps: each of them is refined
+
+
+def localize_params(top_k: int, loss: str, no_decompose: bool, no_refine: bool, privacy: bool,
+                    features: str | None, weights: Path | None, max_tilt: float | None = None,
+                    refine: str = "auto", query_frame: str = "map") -> LocalizeParams:
+    """The parameters the options give; one-line errors naming the option for a value out of range,
+    an unknown name, or ``--no-refine`` with another ``--refine``."""
+    if loss not in LOSS_KINDS:
+        raise InputError(f"unknown loss {loss!r}; valid: {', '.join(LOSS_KINDS)}")
+    check_range(top_k, "--top-k", 1, MAX_TOP_K, integer=True)
+    if refine not in REFINE_MODES:
+        raise InputError(f"unknown --refine {refine!r}; valid: {', '.join(REFINE_MODES)}")
+    if no_refine and refine not in ("auto", "none"):  # auto: the default, i.e. --refine not given
+        raise InputError(f"--no-refine (= --refine none) contradicts --refine {refine}: give one of them")
+    if query_frame not in QUERY_FRAMES:
+        raise InputError(f"unknown --query-frame {query_frame!r}; valid: {', '.join(QUERY_FRAMES)}")
+    if max_tilt is not None and not (0.0 < max_tilt <= 180.0):
+        raise InputError(f"--max-tilt must be in (0, 180] degrees, got {max_tilt:g}")
+    return LocalizeParams(search=SearchParams(top_k=top_k, loss=loss, decompose=not no_decompose),
+                          features=features, weights=str(weights) if weights else None,
+                          do_refine=not no_refine, privacy=privacy, max_tilt_deg=max_tilt, refine_mode=refine,
+                          query_frame=query_frame)
+
+
+def top_maps_or_default(top_maps: int | None) -> int:
+    """``--top-maps`` (default :data:`TOP_MAPS`), checked."""
+    top_maps = TOP_MAPS if top_maps is None else top_maps
+    check_range(top_maps, "--top-maps", 1, MAX_TOP_MAPS, integer=True)
+    return top_maps
+
+
+def path_option(value: str | None, option: str) -> Path | None:
+    """A path option as a Path; an empty one is refused (it would mean the working folder)."""
+    if value is not None and not value.strip():
+        raise InputError(f"{option} is empty: give a path")
+    return None if value is None else Path(value)
