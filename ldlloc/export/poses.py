@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from ldlloc.batch.results import load_results, read_results_data
+from ldlloc.record import VERDICTS
 from ldlmap.core.errors import InputError, require_file
 from ldlmap.core.frame import apply, invert, is_identity
 from ldlmap.core.lazy import lazy_module
@@ -32,8 +33,6 @@ from ldlmap.map.mapfile import read_map, read_map_header
 cv2 = lazy_module("cv2")
 
 FRAMES = ("map", "input")
-VERDICTS = ("confident", "ambiguous", "failed")
-
 
 @dataclass
 class ExportPose:

@@ -39,11 +39,11 @@ import numpy as np
 
 from ldlmap.core.errors import InputError
 from ldlmap.core.lazy import lazy_module
+from ldlmap.map.fields3d import FIELD_KIND  # the only grid kind the map writes (version 1)
 
 torch = lazy_module("torch")
 F = lazy_module("torch.nn.functional")
 
-FIELD_KIND = "equirect_nodes"  # the only grid kind written by ldlmap.map.fields3d (version 1)
 
 
 def _all_finite(a: np.ndarray) -> bool:
