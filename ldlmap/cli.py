@@ -500,10 +500,10 @@ def prepare(
         raise InputError(f"--map-level must be {' or '.join(datasets.MAP_LEVELS)}, got {map_level!r}")
     check_threads(threads)
     check_device(device)
-    options = dict(weights=str(weights) if weights else None, feature_extraction=extraction, num_translations=num_trans,
-                   num_views=num_views, device=device, trans_spacing=trans_spacing,
-                   camera_height=parse_band(camera_height, "--camera-height"), up=up, scale=scale)
-    map_params.params_with(map_params.BuildParams(), features=features, **options).check()
+    build_options = dict(weights=str(weights) if weights else None, feature_extraction=extraction,
+                         num_translations=num_trans, num_views=num_views, device=device, trans_spacing=trans_spacing,
+                         camera_height=parse_band(camera_height, "--camera-height"), up=up, scale=scale)
+    map_params.params_with(map_params.BuildParams(), features=features, **build_options).check()
     given_level, map_level = map_level, map_level or "room"
     ds = open_dataset_root(root, dataset, "ldlmap prepare ROOT", map_level=map_level)
     root, kind, label = Path(ds.root), ds.kind, dataset_label(ds)
@@ -521,7 +521,7 @@ def prepare(
         _print_warnings(w for home in ds.splits() for w in ds.home(home).warnings)
         console.print(f"ZInD: lines-only maps from the room layouts, one per {map_level} (features: none)")
     params = map_params.params_with(batch_prepare.default_params(kind),
-                                    features=features or ("none" if kind == "zind" else "sift"), **options)
+                                    features=features or ("none" if kind == "zind" else "sift"), **build_options)
     options = dict(overwrite=overwrite, use_line_files=line_files, scenes=scene or None, map_level=map_level)
     if ray is not None:  # one Ray task per scene (ldlmap/batch/ray_prepare.py)
 
