@@ -42,7 +42,7 @@ def _worker(input_path: str, output: str, params_json: str) -> None:
 
     from ldlmap.map.build import BuildParams, build_map
 
-    params = BuildParams(**json.loads(params_json))
+    params = BuildParams().replaced(**json.loads(params_json))
     rep = build_map(input_path, output, params=params)
     peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0  # kB on Linux
     print(json.dumps({"seconds": rep.seconds, "counts": rep.counts, "peak_rss_mb": peak_mb}))

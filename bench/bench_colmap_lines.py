@@ -71,7 +71,7 @@ def on_surface(mesh, lines: np.ndarray, tol: float = 0.03) -> float:
 def build_seconds(ws: Path, images: Path | None, out: Path) -> tuple[dict, dict]:
     from ldlmap.map.build import BuildParams, build_map
 
-    rep = build_map(ws, out, params=BuildParams(features="none"), images_path=images)
+    rep = build_map(ws, out, params=BuildParams().replaced(features="none"), images_path=images)
     return rep.seconds, rep.counts
 
 
@@ -144,7 +144,7 @@ def localize_table(mesh, edges: np.ndarray, map_path: Path, n: int, seed: int) -
     poses = sample_poses(mesh, "robot", n, np.random.default_rng(seed), renderer=renderer)
     images = [renderer.render(R, t, 1024, 512).rgb for R, t in poses]
     true_map = CACHE / f"colmap_s{seed}_true_edges.h5"
-    build_lines_map(edges, true_map, BuildParams(features="none"), name="true_edges")
+    build_lines_map(edges, true_map, BuildParams().replaced(features="none"), name="true_edges")
     for name, path in (("photo lines", map_path), ("true edges", true_map)):
         loc = Localizer(read_map(path), LocalizeParams())
         err, secs = [], []

@@ -75,7 +75,7 @@ def lines_only_maps(dataset: Path, ds, scene: str, band: tuple[float, float]) ->
     folder = common.CACHE / "geometric" / dataset.name
     folder.mkdir(parents=True, exist_ok=True)
     key = f"s{SPACING:g}_h{band[0]:.2f}-{band[1]:.2f}_{tag}"
-    params = BuildParams(features="none", trans_spacing=SPACING, camera_height=band)
+    params = BuildParams().replaced(features="none", trans_spacing=SPACING, camera_height=band)
     out: dict[str, dict[str, Any]] = {}
 
     scan_obj = folder / f"{scene}_scan_lines_{tag}.obj"

@@ -66,7 +66,7 @@ def build(cloud: Path, out: Path, n_t: int, views: int, lam: float = 0.1) -> dic
         return json.loads(meta.read_text())
     out.parent.mkdir(parents=True, exist_ok=True)
     print(f"building {out.name} (N_t = {n_t}, {views} views, lambda = {lam:.3f}) ...", flush=True)
-    rep = build_map(cloud, out, params=BuildParams(num_translations=n_t, num_views=views, lam=lam), name=out.stem)
+    rep = build_map(cloud, out, params=BuildParams().replaced(num_translations=n_t, num_views=views, lam=lam), name=out.stem)
     info = {"requested_n_t": n_t, "views": views, "lam": lam,
             "build_seconds": {k: round(v, 2) for k, v in rep.seconds.items()}, **rep.counts}
     common.write_json(meta, info)

@@ -171,7 +171,7 @@ def main() -> None:
     con = common.console()
     per_split = 1 if args.quick else args.per_split
     root = dataset(args.seed, args.rooms, per_split, illumination=not args.quick)
-    params = BuildParams(num_views=4, num_translations=200) if args.quick else BuildParams()
+    params = BuildParams().replaced(num_views=4, num_translations=200) if args.quick else BuildParams()
     work = common.CACHE / "ray_bench_out"
     configs: list[tuple[str, int | None]] = ([] if args.no_plain else [("plain", None)]) + [("ray1", 1), ("ray2", 2)]
     starts = {w: cluster_start(w) for _, w in configs if w}

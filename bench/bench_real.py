@@ -71,7 +71,7 @@ def use_threads(threads: int) -> None:
 
 def build_maps(zind_root: Path, level: str, spacing: float | None) -> Path:
     """Maps of every scene at ``level``, cached by the code that builds them."""
-    from ldlmap.map.build import BuildParams, params_with
+    from ldlmap.map.params import BuildParams, params_with
     from ldlmap.batch.prepare import default_params, prepare_dataset
 
     tag = source_hash("ldlmap", exclude=("synth/",))

@@ -61,7 +61,7 @@ def _prepare(root: Path | None, cache: Path, seed: int) -> tuple[Path, dict[str,
         if not out.exists():
             print(f"building the lines-only map of {scene} ...", flush=True)
             out.parent.mkdir(parents=True, exist_ok=True)
-            rep = build_map(ds.point_cloud(scene), out, params=BuildParams(features="none"), name=scene)
+            rep = build_map(ds.point_cloud(scene), out, params=BuildParams().replaced(features="none"), name=scene)
             field_secs[scene] = rep.seconds.get("fields", float("nan"))
         maps[scene] = out
     return root, maps, field_secs

@@ -63,7 +63,7 @@ def after(path: Path, out: Path, scale: float, true_up: np.ndarray) -> dict:
     from ldlmap.core.frame import decompose
     from ldlmap.map.mapfile import read_map
 
-    params = BuildParams(features="none", distance_fields=False, scale=scale, trans_spacing=1.0)
+    params = BuildParams().replaced(features="none", distance_fields=False, scale=scale, trans_spacing=1.0)
     report = build_map(path, out, params=params)
     m = read_map(out, load_cloud=False)
     _, R, _ = decompose(m.input_to_map)
@@ -94,8 +94,8 @@ def localize(root: Path, out: Path, queries: int) -> None:
         path = write_line3dpp_txt(out / f"{scene}_sfm.txt", sfm_like_lines(read_lines(gt), np.random.default_rng(0),
                                                                               R0, k, offset))
         images = sorted((root / "robot_pano").rglob(f"*{scene}_scene*/*.jpg"))[:queries]
-        for label, share in (("count", 0.0), ("length", BuildParams().min_kept_length_share)):
-            params = BuildParams(features="none", scale=1 / k, trans_spacing=0.4, min_kept_length_share=share)
+        for label, share in (("count", 0.0), ("length", BuildParams().lines.min_kept_share)):
+            params = BuildParams().replaced(features="none", scale=1 / k, trans_spacing=0.4, min_kept_length_share=share)
             build_map(path, out / f"{scene}_{label}.h5", params=params)
             m = read_map(out / f"{scene}_{label}.h5", load_cloud=False)
             loc = Localizer(m, LocalizeParams())

@@ -30,7 +30,6 @@ from __future__ import annotations
 import argparse
 import sys
 import time
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -55,7 +54,7 @@ def shapes_dataset(kind: str, scenes: int, seed: int, per_split: int) -> Path:
 
 def build_maps(root: Path, source: str, overrides: dict | None = None) -> Path:
     """One map per scene of ``root`` from its true edges (``edges``) or its scan (``scan``);
-    ``overrides``: BuildParams fields of the edge maps (experiments)."""
+    ``overrides``: BuildParams config keys of the edge maps (experiments)."""
     from ldlmap.batch.prepare import default_params, prepare_dataset
     from ldlmap.datasets import open_dataset
     from ldlmap.io.linefiles import read_lines
@@ -67,7 +66,7 @@ def build_maps(root: Path, source: str, overrides: dict | None = None) -> Path:
     if source == "scan":
         prepare_dataset(root, "omniscenes", maps, default_params("omniscenes"))
         return maps
-    params = replace(BuildParams(features="none", up="z"), **(overrides or {}))
+    params = BuildParams().replaced(features="none", up="z").replaced(**(overrides or {}))
     for scene in ds.scenes():
         target = maps / f"{scene}.h5"
         if not target.exists():
@@ -146,7 +145,7 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=23)
     ap.add_argument("--maps", default="edges", help="edges, scan or edges,scan")
     ap.add_argument("--max-tilt", type=float, default=None, help="upright prior (deg); default free rotation")
-    ap.add_argument("--build", action="append", default=[], help="field=value: a BuildParams field of the edge maps")
+    ap.add_argument("--build", action="append", default=[], help="key=value: a BuildParams config key of the edge maps")
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--out", type=Path, default=HERE / "shapes.json")
     args = ap.parse_args()
@@ -156,7 +155,7 @@ def main() -> None:
     overrides = {}
     for kv in args.build:
         key, value = kv.split("=", 1)
-        overrides[key] = parse_field(getattr(BuildParams(), key), value)
+        overrides[key] = parse_field(BuildParams().config()[key], value)
     report = {"machine": machine_info(), "args": {k: str(v) for k, v in vars(args).items()}, "maps": {}}
     for source in args.maps.split(","):
         table, all_rows = {}, []

@@ -177,7 +177,7 @@ def cached_map(dataset: Path, scene: str, num_views: int = 40, features: str = "
         out.parent.mkdir(parents=True, exist_ok=True)
         ds = open_dataset(dataset, "omniscenes")
         t0 = time.perf_counter()
-        build_map(ds.point_cloud(scene), out, params=BuildParams(num_views=num_views, features=features, **params),
+        build_map(ds.point_cloud(scene), out, params=BuildParams().replaced(num_views=num_views, features=features, **params),
                   name=scene)
         out.with_suffix(".json").write_text(json.dumps({"build_seconds": time.perf_counter() - t0}))
     return out

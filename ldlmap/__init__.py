@@ -3,7 +3,7 @@
 Public API (imported on first use, so ``import ldlmap`` stays instant)::
 
     from ldlmap import BuildParams, build_map, read_map
-    report = build_map("scan.ply", "scan.h5", params=BuildParams(num_translations=400))
+    report = build_map("scan.ply", "scan.h5", params=BuildParams().replaced(num_translations=400))
     ldl_map = read_map(report.path)          # an LdlMap: lines, principal directions, translations
 
 Also: ``build_lines_map`` (a lines-only map from segments in memory), ``write_map``, ``LdlMap``,
@@ -18,7 +18,7 @@ lines and gravity), ``features`` (local features), ``map`` (the map file and its
 from ldlmap.core.lazy_api import lazy_api
 
 _API = {
-    "BuildParams": "ldlmap.map.build", "BuildReport": "ldlmap.map.build", "build_map": "ldlmap.map.build",
+    "BuildParams": "ldlmap.map.params", "BuildReport": "ldlmap.map.build", "build_map": "ldlmap.map.build",
     "build_lines_map": "ldlmap.map.build", "LdlMap": "ldlmap.map.contents", "read_map": "ldlmap.map.mapfile",
     "read_map_header": "ldlmap.map.mapfile", "write_map": "ldlmap.map.mapfile", "open_dataset": "ldlmap.datasets",
     "Query": "ldlmap.datasets", "prepare_dataset": "ldlmap.batch.prepare", "extract_lines": "ldlmap.lines3d",

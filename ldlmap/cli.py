@@ -7,7 +7,6 @@ command runs, so that ``ldlmap --help`` answers instantly.
 
 from __future__ import annotations
 
-import math
 import os
 from pathlib import Path
 from typing import Optional
@@ -27,7 +26,6 @@ batch_prepare = lazy_module("ldlmap.batch.prepare")
 core_frame = lazy_module("ldlmap.core.frame")
 core_pictures = lazy_module("ldlmap.core.pictures")
 datasets = lazy_module("ldlmap.datasets")
-features_sphere = lazy_module("ldlmap.features.sphere")
 ifc_maps = lazy_module("ldlmap.map.ifc_maps")
 io_cloud = lazy_module("ldlmap.io.cloud")
 io_e57 = lazy_module("ldlmap.io.e57")
@@ -37,6 +35,7 @@ io_pointcloud = lazy_module("ldlmap.io.pointcloud")
 lines3d = lazy_module("ldlmap.lines3d")
 lines_principal = lazy_module("ldlmap.lines3d.principal")
 map_build = lazy_module("ldlmap.map.build")
+map_params = lazy_module("ldlmap.map.params")
 map_inputs = lazy_module("ldlmap.map.inputs")
 map_pictures = lazy_module("ldlmap.map.pictures")
 mapfile = lazy_module("ldlmap.map.mapfile")
@@ -153,20 +152,14 @@ def _translations_summary(header: dict) -> str:
 
 
 def parse_band(text: Optional[str], option: str) -> Optional[tuple[float, float]]:
-    """``"MIN:MAX"`` as a (min, max) pair of finite heights with 0 <= min <= max, max > 0 (None stays
-    None); whether the band meets the scene is checked by the build (``scene_translations``)."""
-
-
+    """``"MIN:MAX"`` as a (min, max) pair (None stays None); its bounds are checked by the build's parameters
+    (``CandidateParams.check``), whether the band meets the scene by the build (``scene_translations``)."""
     if text is None:
         return None
     try:
         lo, hi = (float(x) for x in text.split(":"))
     except ValueError:
         raise InputError(f"{option} must be MIN:MAX in metres (e.g. 1.2:1.7), got {text!r}") from None
-    if not (math.isfinite(lo) and math.isfinite(hi)) or lo > hi:
-        raise InputError(f"{option} must be MIN:MAX with finite MIN <= MAX, got {text!r}")
-    if lo < 0 or hi <= 0:  # heights above the floor (a single height MIN = MAX is a band too)
-        raise InputError(f"{option} must be heights above the floor, 0 <= MIN <= MAX and MAX > 0 (metres), got {text!r}")
     return lo, hi
 
 
@@ -183,7 +176,7 @@ def lines(
                                    "files (line files written before are replaced without it)."),
 ) -> None:
     """Extract 3D line segments from a point cloud and write them as .obj and .txt."""
-    check_range(lam, "--lambda", 0.0, 1.0)
+    map_params.LengthFilterParams(lam=lam).check()
     if png is not None:
         core_pictures.check_picture_path(png, "--png")
     if output.is_dir():
@@ -329,17 +322,22 @@ def build(
     """Build an LDL map (3D lines, principal directions, translations, features) from a scan."""
 
 
-    check_build_options(num_trans=num_trans, num_views=num_views, lam=lam, min_length=min_length,
-                        trans_spacing=trans_spacing, scale=scale, device=device, extraction=extraction,
-                        threads=threads)
+    check_threads(threads)
+    check_device(device)
+    params = map_params.params_with(map_params.BuildParams(), features=features, weights=str(weights) if weights else None,
+                                    feature_extraction=extraction, num_translations=num_trans,
+                                    translation_method=method, num_views=num_views, lam=lam, min_line_length=min_length,
+                                    device=device, trans_spacing=trans_spacing,
+                                    camera_height=parse_band(camera_height, "--camera-height"), up=up, scale=scale)
+    params.check()
     if png is not None:
         core_pictures.check_picture_path(png, "--png")
     station_list = _check_input_options(input_path, stations, storey, include, lines_file, images)
     if input_path.suffix.lower() == ".ifc":
         return _build_ifc(input_path, output, storey, include, png, overwrite, threads,
-                          map_build.params_with(map_build.BuildParams(), num_views=num_views, lam=lam, min_line_length=min_length,
-                                      device=device, trans_spacing=trans_spacing, up=up, scale=scale,
-                                      camera_height=parse_band(camera_height, "--camera-height")))
+                          map_params.params_with(map_params.BuildParams(), num_views=num_views, lam=lam,
+                                                 min_line_length=min_length, device=device, trans_spacing=trans_spacing,
+                                                 up=up, scale=scale, camera_height=params.translations.camera_height))
     output = output if output is not None else input_path.with_suffix(".h5")
     refuse_overwriting_inputs([input_path, lines_file, images, weights], [output, png])
     batch_prepare.refuse_replacing_non_map(output, overwrite)
@@ -347,11 +345,7 @@ def build(
         if path is not None:
             check_writable_output(path, option)
 
-    params = map_build.params_with(map_build.BuildParams(), features=features, weights=str(weights) if weights else None,
-                         feature_extraction=extraction, num_translations=num_trans, translation_method=method,
-                         num_views=num_views, lam=lam, min_line_length=min_length, device=device, trans_spacing=trans_spacing,
-                         camera_height=parse_band(camera_height, "--camera-height"), up=up, scale=scale,
-                         stations=station_list)
+    params = map_params.params_with(params, stations=station_list)
     set_threads(threads)
     with StageProgress(console, f"map of {input_path.name}") as bar:
         report = map_build.build_map(input_path, output, lines_file, params, images_path=images,
@@ -367,7 +361,7 @@ def build(
     c = report.counts
     console.print(f"{c['lines_raw']} lines -> {c['lines']} kept (ratio {c['kept_ratio']:.3f}), "
                   f"{c['translations']} translations, {c['keypoints']} keypoints in {c['views']} views "
-                  f"({params.features if c['views'] else 'no features'}), {c['size_mb']:.1f} MB", soft_wrap=True)
+                  f"({params.features.backend if c['views'] else 'no features'}), {c['size_mb']:.1f} MB", soft_wrap=True)
     _print_notes(report)
     if png is not None:
 
@@ -464,31 +458,6 @@ def e57(
                       f"ldlloc run --root {done.root} --split scanner", soft_wrap=True, highlight=False)
 
 
-MAX_TRANSLATIONS = 20_000  # N_t: the distance fields take ~50 kB per candidate (1 GB at this bound)
-MAX_VIEWS = 1000  # views rendered for features (40 by default; each costs a rendering and a feature pass)
-
-
-def check_build_options(num_trans: Optional[int] = None, num_views: Optional[int] = None, lam: Optional[float] = None,
-                        min_length: Optional[float] = None, trans_spacing: Optional[float] = None,
-                        scale: Optional[float] = None, device: str = "cpu", extraction: Optional[str] = None,
-                        threads: int = 0) -> None:
-    """Bounds on the numeric options of `build` and `prepare` (threads included), the device and
-    the feature extraction, before any work."""
-    check_threads(threads)
-    check_range(num_trans, "--num-trans", 1, MAX_TRANSLATIONS, integer=True,
-                why="the distance fields take about 50 kB per candidate translation")
-    check_range(num_views, "--num-views", 1, MAX_VIEWS, integer=True)
-    check_range(lam, "--lambda", 0.0, 1.0)
-    check_range(min_length, "--min-line-length", 0.0, 1000.0)
-    check_range(trans_spacing, "--trans-spacing", 1e-3, 1e6, why="input units between candidate translations")
-    if scale is not None:
-        map_build.check_scale(scale)
-    check_device(device)
-    if extraction is not None:
-
-        features_sphere.check_extraction(extraction)
-
-
 def _print_notes(report) -> None:
     """The build's notes on stdout and its warnings as ``warning:`` lines on stderr."""
     for line in report.notes:
@@ -529,9 +498,12 @@ def prepare(
 
     if map_level is not None and map_level not in datasets.MAP_LEVELS:
         raise InputError(f"--map-level must be {' or '.join(datasets.MAP_LEVELS)}, got {map_level!r}")
-    check_build_options(num_trans=num_trans, num_views=num_views, trans_spacing=trans_spacing, scale=scale,
-                        device=device, extraction=extraction, threads=threads)
-    band = parse_band(camera_height, "--camera-height")
+    check_threads(threads)
+    check_device(device)
+    build_options = dict(weights=str(weights) if weights else None, feature_extraction=extraction,
+                         num_translations=num_trans, num_views=num_views, device=device, trans_spacing=trans_spacing,
+                         camera_height=parse_band(camera_height, "--camera-height"), up=up, scale=scale)
+    map_params.params_with(map_params.BuildParams(), features=features, **build_options).check()
     given_level, map_level = map_level, map_level or "room"
     ds = open_dataset_root(root, dataset, "ldlmap prepare ROOT", map_level=map_level)
     root, kind, label = Path(ds.root), ds.kind, dataset_label(ds)
@@ -548,10 +520,8 @@ def prepare(
         ds.scenes()  # reads and validates every home's zind_data.json before anything is printed
         _print_warnings(w for home in ds.splits() for w in ds.home(home).warnings)
         console.print(f"ZInD: lines-only maps from the room layouts, one per {map_level} (features: none)")
-    params = map_build.params_with(batch_prepare.default_params(kind), features=features or ("none" if kind == "zind" else "sift"),
-                         weights=str(weights) if weights else None, feature_extraction=extraction,
-                         num_translations=num_trans, num_views=num_views,
-                         device=device, trans_spacing=trans_spacing, camera_height=band, up=up, scale=scale)
+    params = map_params.params_with(batch_prepare.default_params(kind),
+                                    features=features or ("none" if kind == "zind" else "sift"), **build_options)
     options = dict(overwrite=overwrite, use_line_files=line_files, scenes=scene or None, map_level=map_level)
     if ray is not None:  # one Ray task per scene (ldlmap/batch/ray_prepare.py)
 

@@ -23,7 +23,7 @@ def test_atlanta_map_of_an_angled_room_localizes_its_panoramas(tmp_path):
     from ldlmap.synth.scene import build_scene
 
     mesh = build_scene(ROOM)
-    params = BuildParams(features="none", up="z", trans_spacing=0.4, camera_height=(1.2, 1.8), distance_fields=False)
+    params = BuildParams().replaced(features="none", up="z", trans_spacing=0.4, camera_height=(1.2, 1.8), distance_fields=False)
     report = build_lines_map(mesh_edges(mesh), tmp_path / "angled.h5", params)
     assert any("Atlanta frame" in n for n in report.notes)
     m = read_map(tmp_path / "angled.h5")

@@ -40,7 +40,7 @@ def test_room_with_three_wall_directions_gets_them_all_and_localizes(tmp_path):
     from ldlmap.synth.scene import build_scene
 
     mesh = build_scene(ROOM)
-    params = BuildParams(features="none", up="z", trans_spacing=0.4, camera_height=(1.2, 1.8))
+    params = BuildParams().replaced(features="none", up="z", trans_spacing=0.4, camera_height=(1.2, 1.8))
     report = build_lines_map(mesh_edges(mesh), tmp_path / "hexagon.h5", params)
     assert any(f"Atlanta frame of {k}" in n for n in report.notes for k in (4, 5)), report.notes
     m = read_map(tmp_path / "hexagon.h5")
@@ -140,7 +140,7 @@ def test_map_file_versions_by_direction_count(tmp_path):
     for d, n in zip(P, (30, 30, 30, 30)):
         a = rng.uniform([0, 0, 0], [6, 4, 2.6], (n, 3))
         lines.append(np.stack([a, a + rng.uniform(0.8, 2.0, (n, 1)) * d], 1))
-    params = BuildParams(features="none", up="z", trans_spacing=1.0, distance_fields=False)
+    params = BuildParams().replaced(features="none", up="z", trans_spacing=1.0, distance_fields=False)
     path = build_lines_map(np.concatenate(lines), tmp_path / "many.h5", params).path
     assert len(read_map(path).principal_directions) == 4
     with h5py.File(path, "r") as h5:

@@ -76,7 +76,7 @@ def test_cube_face_map_records_its_extraction_and_localizes(demo_dataset, tmp_pa
     m = read_map(demo_dataset / "maps" / f"{scene}.h5", load_cloud=False)
     cloud = read_point_cloud(ds.point_cloud(scene))
     feats = compute_features(cloud.points, cloud.colors, m.translations,
-                             BuildParams(features="sift", num_views=4, feature_extraction="cube"))
+                             BuildParams().replaced(features="sift", num_views=4, feature_extraction="cube"))
     assert feats.extraction == "cube"
     path = write_map(tmp_path / "cube.h5", replace(m, features=feats))
     assert read_map_header(path)["feature_extraction"] == "cube"

@@ -114,7 +114,7 @@ def test_build_says_when_each_stage_starts_and_counts_the_distance_fields(tmp_pa
     from ldlmap.map.build import BuildParams, build_lines_map
 
     events = []
-    rep = build_lines_map(box_lines(), tmp_path / "box.h5", BuildParams(trans_spacing=1.0, features="none"),
+    rep = build_lines_map(box_lines(), tmp_path / "box.h5", BuildParams().replaced(trans_spacing=1.0, features="none"),
                           name="box", progress=lambda *e: events.append(e))
     stages = list(dict.fromkeys(stage for stage, _, _ in events))
     assert stages == ["load", "lines", "principal", "translations", "fields", "features", "write"]

@@ -337,7 +337,7 @@ def test_utm_scan_localizes_like_the_same_scan_at_the_origin(tmp_path, room_clou
     from ldlmap.map.render import PointRenderer, RenderParams
 
     P, colors = room_cloud
-    params = BuildParams(features="none", num_translations=100, distance_fields=False)
+    params = BuildParams().replaced(features="none", num_translations=100, distance_fields=False)
     maps = {}
     for name, X in (("plain", P), ("utm", P + UTM)):
         write_point_cloud(tmp_path / f"{name}.ply", PointCloud(X, colors))

@@ -181,7 +181,7 @@ def test_las_at_utm_coordinates_is_recentred_with_the_shift_in_the_map(room, tmp
 
     cap, d = room
     report = build_map(d / "room.las", tmp_path / "las.h5",
-                       params=BuildParams(features="none", num_translations=100, distance_fields=False))
+                       params=BuildParams().replaced(features="none", num_translations=100, distance_fields=False))
     assert any("centred on" in n for n in report.notes)
     m = read_map(tmp_path / "las.h5")
     shift = -m.input_to_map[:3, 3]  # X_map = X_input - shift (z-up kept)

@@ -114,7 +114,7 @@ def test_localization_with_packaged_weights_offline(name, demo_dataset, offline)
     assert is_identity(m.input_to_map)
     cloud = read_point_cloud(ds.point_cloud(scene))
     feats = compute_features(cloud.points, cloud.colors, m.translations,
-                             BuildParams(features=name, num_views=MAP_VIEWS[name]))
+                             BuildParams().replaced(features=name, num_views=MAP_VIEWS[name]))
     assert feats.backend == name and feats.extraction == ("cube" if name == "aliked" else "equirect")  # measured defaults
     loc = Localizer(replace(m, features=feats), LocalizeParams(query_frame="map"))
     assert loc.feature_backend == name

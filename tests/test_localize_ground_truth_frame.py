@@ -38,7 +38,7 @@ def scaled_map(tmp_path_factory):
     pc.estimate_normals(o3d.geometry.KDTreeSearchParamKNN(12))
     colors = (60 + 180 * np.abs(np.asarray(pc.normals))).astype(np.uint8)  # edges show in renders
     write_point_cloud(tmp / "mm.ply", PointCloud(P * 1000.0, colors))
-    report = build_map(tmp / "mm.ply", tmp / "mm.h5", params=BuildParams(features="none", num_translations=100,
+    report = build_map(tmp / "mm.ply", tmp / "mm.h5", params=BuildParams().replaced(features="none", num_translations=100,
                                                                           distance_fields=False, scale=0.001))
     R = rotation_from_axis_angle(np.array([0.0, 0.0, 1.0]), 0.4)
     img = PointRenderer(P, colors, RenderParams(width=512, height=256)).render(R, TRUE_CENTER).rgb

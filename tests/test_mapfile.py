@@ -174,3 +174,21 @@ def test_only_manhattan_frames_must_be_orthonormal(tmp_path, config, valid):
         with pytest.raises(InputError, match="orthonormal"):
             write_map(tmp_path / "a.h5", m)
         assert not (tmp_path / "a.h5").exists()
+
+
+def test_build_params_config_keeps_the_stored_keys_and_order():
+    """The map's config stores the build parameters flat, with the keys (and order) maps were written with
+    before the parameters were grouped per stage, so that `prepare` still finds those maps up to date."""
+    from ldlmap.map.params import BuildParams
+
+    keys = ["lam", "min_line_length", "num_translations", "translation_method", "clearance", "features", "weights",
+            "num_views", "width", "height", "max_keypoints", "feature_extraction", "stored_cloud_points",
+            "mesh_samples", "device", "seed", "distance_fields", "trans_spacing", "camera_height", "up", "scale",
+            "min_kept_lines", "min_kept_length_share", "max_kept_lines", "orthonormal_directions", "atlanta_frame",
+            "max_horizontals", "max_inclined", "stations"]
+    params = BuildParams().replaced(features="none", trans_spacing=0.7, camera_height=(1.0, 2.0), atlanta_frame=False)
+    assert list(params.config()) == keys
+    assert params.features.backend == "none" and params.translations.spacing == 0.7 and not params.principal.atlanta
+    assert BuildParams().replaced(**params.config()) == params
+    with pytest.raises(TypeError, match="config key"):
+        BuildParams().replaced(spacing=1.0)

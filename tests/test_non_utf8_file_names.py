@@ -47,7 +47,7 @@ def room(tmp_path_factory):
     pc.estimate_normals(o3d.geometry.KDTreeSearchParamKNN(12))
     colors = (60 + 180 * np.abs(np.asarray(pc.normals))).astype(np.uint8)
     write_point_cloud(tmp / "room.ply", PointCloud(P, colors))
-    build_map(tmp / "room.ply", tmp / "room.h5", params=BuildParams(features="none", num_translations=100,
+    build_map(tmp / "room.ply", tmp / "room.h5", params=BuildParams().replaced(features="none", num_translations=100,
                                                                      distance_fields=False))
     R = rotation_from_axis_angle(np.array([0.0, 0.0, 1.0]), 0.4)
     img = PointRenderer(P, colors, RenderParams(width=512, height=256)).render(R, TRUE_CENTER).rgb

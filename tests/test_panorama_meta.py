@@ -103,7 +103,7 @@ def test_upright_prior_around_the_cameras_gravity(tmp_path):
     from tests.test_atlanta_frame import ROOM
 
     mesh = build_scene(ROOM)
-    build_lines_map(mesh_edges(mesh), tmp_path / "m.h5", BuildParams(features="none", up="z", trans_spacing=0.4,
+    build_lines_map(mesh_edges(mesh), tmp_path / "m.h5", BuildParams().replaced(features="none", up="z", trans_spacing=0.4,
                                                                      camera_height=(1.2, 1.8), distance_fields=False))
     pitch, roll = 15.0, -8.0
     from scipy.spatial.transform import Rotation

@@ -124,7 +124,7 @@ def test_known_up_reaches_the_map(tmp_path):
     rng = np.random.default_rng(7)
     lean = [np.sin(np.radians(15)), 0, np.cos(np.radians(15))]
     lines = np.concatenate([_box_room_lines(rng)[:-10], _segments(lean, rng.uniform([0, 0, 0], [5, 4, 0.3], (14, 3)), 1.8)])
-    build_lines_map(lines, tmp_path / "sfm.h5", BuildParams(features="none", up="z", trans_spacing=0.8))
+    build_lines_map(lines, tmp_path / "sfm.h5", BuildParams().replaced(features="none", up="z", trans_spacing=0.8))
     m = read_map(tmp_path / "sfm.h5", load_cloud=False)
     assert len(m.principal_directions) == 3 and np.isclose(_rise_deg(m.principal_directions).max(), 90.0, atol=1e-6)
 
@@ -144,7 +144,7 @@ def _scan_map(tmp_path, spec, density: float | None = None):
     pts, cols = sample_scan(build_scene(spec), spec.scan, stream_rng(0, spec, 1, "scan"))
     write_ply(tmp_path / "scan.ply", pts, cols)
     report = build_map(tmp_path / "scan.ply", tmp_path / "scan.h5",
-                       params=BuildParams(features="none", num_translations=50))
+                       params=BuildParams().replaced(features="none", num_translations=50))
     return read_map(tmp_path / "scan.h5", load_cloud=False), report
 
 

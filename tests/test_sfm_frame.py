@@ -201,7 +201,7 @@ def test_non_orthogonal_directions_atlanta_frame_or_warn(tmp_path):
     assert m.config["principal_frame"] == "atlanta" and max(m.config["principal_deviation_deg"]) < 1.0
     assert np.all(np.abs(dirs @ m.principal_directions.T).max(axis=1) > np.cos(np.radians(1.0)))
     report = build_lines_map(np.concatenate(segs), tmp_path / "m.h5",
-                             BuildParams(features="none", trans_spacing=1.0, atlanta_frame=False))
+                             BuildParams().replaced(features="none", trans_spacing=1.0, atlanta_frame=False))
     assert any("off the nearest orthogonal" in w for w in report.warnings)
     m = read_map(tmp_path / "m.h5")
     assert m.config["principal_frame"] == "manhattan"
@@ -322,10 +322,10 @@ def test_layout_maps_stay_in_their_frame(tmp_path):
     lines = np.concatenate([np.stack([floor, np.roll(floor, -1, 0)], 1), np.stack([ceiling, np.roll(ceiling, -1, 0)], 1),
                             np.stack([floor, ceiling], 1)])
     walk = Walkable(polygons=(poly,), z_range=(1.4, 1.4))
-    params = BuildParams(features="none", distance_fields=False)
+    params = BuildParams().replaced(features="none", distance_fields=False)
     report = build_lines_map(lines, tmp_path / "room.h5", params, walkable=walk)
     assert read_map(report.path).config["frame"]["up_source"] == "layout" and not report.notes
     for bad in ({"up": "x"}, {"scale": 2.0}):
         with pytest.raises(InputError, match="layouts"):
-            build_lines_map(lines, tmp_path / "bad.h5", BuildParams(features="none", **bad), walkable=walk)
+            build_lines_map(lines, tmp_path / "bad.h5", BuildParams().replaced(features="none", **bad), walkable=walk)
     assert not (tmp_path / "bad.h5").exists()

@@ -50,7 +50,7 @@ def test_angled_room_under_a_gable_keeps_its_atlanta_frame_and_localizes(tmp_pat
         openings=(OpeningSpec("door", 0, 1.0, 0.9, 2.0, 0.0), OpeningSpec("window", 3, 1.5, 1.2, 1.0, 0.9)))
     mesh = build_scene(room)
     lines = mesh_edges(mesh)
-    params = BuildParams(features="none", up="z", trans_spacing=0.4, camera_height=(1.2, 1.8))
+    params = BuildParams().replaced(features="none", up="z", trans_spacing=0.4, camera_height=(1.2, 1.8))
     build_lines_map(lines, tmp_path / "m.h5", params)
     m = read_map(tmp_path / "m.h5")
     P = m.principal_directions

@@ -140,7 +140,7 @@ def test_lines_only_map_records_spacing_and_info_prints_it(tmp_path):
     from ldlmap.map.translations import Walkable
 
     lines = _layout_lines(L_ROOM, 2.5)
-    rep = build_lines_map(lines, tmp_path / "room.h5", BuildParams(features="none", trans_spacing=0.4),
+    rep = build_lines_map(lines, tmp_path / "room.h5", BuildParams().replaced(features="none", trans_spacing=0.4),
                           name="lroom", walkable=Walkable((L_ROOM,), None, (1.4, 1.4)))
     m = read_map(rep.path)
     assert m.lines_only and len(m.translations) == rep.counts["translations"] > 50

@@ -80,7 +80,7 @@ def test_map_stores_visibility_and_rejects_a_wrong_shape(tmp_path):
              [((0, 0), (8, 0)), ((8, 0), (8, 3)), ((8, 3), (0, 3)), ((0, 3), (0, 0)), ((4, 0), (4, 3))] for z in (0, H)]
     lines = np.concatenate([lines, np.array(edges, float)])
     polys = (np.array([[0, 0], [4, 0], [4, 3], [0, 3]], float), np.array([[4, 0], [8, 0], [8, 3], [4, 3]], float))
-    rep = build_lines_map(lines, tmp_path / "two.h5", BuildParams(features="none", trans_spacing=0.5),
+    rep = build_lines_map(lines, tmp_path / "two.h5", BuildParams().replaced(features="none", trans_spacing=0.5),
                           walkable=Walkable(polys, None, (1.4, 1.4), walls))
     m = read_map(rep.path)
     assert m.visibility is not None and m.visibility.shape == (len(m.translations), len(m.lines))

@@ -17,28 +17,29 @@ window and opening frames) with candidate translations spaced over the rooms' po
 portals at the panoramas' camera height (:func:`ldlmap.map.build.build_lines_map`). ``map_level``
 picks one map per complete room (``room``) or per floor (``floor``); maps go to
 ``<maps_dir>/<home>/<floor>/<complete_room>.h5`` or ``<maps_dir>/<home>/<floor>.h5``. Features
-are always ``none`` there (``params.features`` is overridden), and a map is up to date when it
+are always ``none`` there (``params.features.backend`` is overridden), and a map is up to date when it
 is newer than the home's ``zind_data.json`` and used the same parameters.
 """
 
 from __future__ import annotations
 
 import json
-from dataclasses import asdict, dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
 from ldlmap.core.errors import InputError, LdlError, refuse_overwriting_inputs, refuse_replacing_other_files
 from ldlmap.datasets import open_dataset
 from ldlmap.io.linefiles import read_lines
-from ldlmap.map.build import BuildParams, BuildReport, build_lines_map, build_map
+from ldlmap.map.build import BuildReport, build_lines_map, build_map
 from ldlmap.map.mapfile import is_map_file, read_map_header
+from ldlmap.map.params import BuildParams
 
-# Paper hyperparameters per dataset (supplementary): N_t and the translation sampling.
+# Paper hyperparameters per dataset (supplementary): N_t and the translation sampling (BuildParams config keys).
 DATASET_DEFAULTS = {
     "omniscenes": {"num_translations": 800, "translation_method": "octree"},
     "stanford": {"num_translations": 1700, "translation_method": "grid"},
-    "zind": {"features": "none"},  # layout maps: lines only, translations by spacing (BuildParams.trans_spacing)
+    "zind": {"features": "none"},  # layout maps: lines only, translations by spacing (``trans_spacing``)
 }
 
 
@@ -62,11 +63,11 @@ def refuse_replacing_non_map(output: Path, overwrite: bool = False) -> None:
 
 def default_params(kind: str, base: BuildParams = BuildParams()) -> BuildParams:
     """``base`` with the paper's per-dataset translation settings."""
-    return replace(base, **DATASET_DEFAULTS.get(kind, {}))
+    return base.replaced(**DATASET_DEFAULTS.get(kind, {}))
 
 
 def _comparable(config: dict) -> dict:
-    keys = set(asdict(BuildParams())) - {"device"}
+    keys = set(BuildParams().config()) - {"device"}
     return json.loads(json.dumps({k: config.get(k) for k in sorted(keys)}))  # tuples as lists
 
 
@@ -85,7 +86,7 @@ def is_up_to_date(map_path: Path, sources: list[Path], params: BuildParams, inpu
     config = header["build_config"]
     if any(config.get(k) != v for k, v in (inputs or {}).items()):
         return False
-    return _comparable(config) == _comparable(asdict(params))
+    return _comparable(config) == _comparable(params.config())
 
 
 def prepare_dataset(root: str | Path, kind: str | None, maps_dir: str | Path | None = None,
@@ -102,7 +103,7 @@ def prepare_dataset(root: str | Path, kind: str | None, maps_dir: str | Path | N
     kind = ds.kind
     params = params or default_params(kind)
     if kind == "zind":
-        params = replace(params, features="none")
+        params = params.replaced(features="none")
     maps_dir = Path(maps_dir) if maps_dir is not None else Path(ds.root) / "maps"
     todo = ds.scenes() if not scenes else scenes
     unknown = sorted(set(todo) - set(ds.scenes()))
@@ -174,4 +175,4 @@ def _scene_build(ds, scene: str, use_line_files: bool,
     def build_lines_only(target: Path, p: BuildParams, name: str, progress) -> BuildReport:
         return build_lines_map(read_lines(lines), target, p, name=name, source=f"lines:{lines}", progress=progress)
 
-    return [lines], replace(params, features="none"), build_lines_only, LINES_ONLY_NOTE
+    return [lines], params.replaced(features="none"), build_lines_only, LINES_ONLY_NOTE

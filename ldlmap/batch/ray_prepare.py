@@ -24,7 +24,7 @@ from ldlmap.batch.ray_cluster import (RETRIES, TaskDone, WorkerInfo, as_complete
 from ldlmap.core.cli_common import set_threads
 from ldlmap.core.errors import InputError
 from ldlmap.datasets import open_dataset
-from ldlmap.map.build import BuildParams
+from ldlmap.map.params import BuildParams
 
 
 def build_scene(cwd: str, root: str, kind: str, maps_dir: str | None, params: BuildParams | None, scene: str,

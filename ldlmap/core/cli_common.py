@@ -15,7 +15,6 @@ import gc
 import importlib
 import io
 import json
-import math
 import os
 import re
 import sys
@@ -28,7 +27,7 @@ from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 from typer.core import TyperCommand, TyperGroup
 
-from ldlmap.core.errors import InputError, LdlError
+from ldlmap.core.errors import InputError, LdlError, check_range  # noqa: F401 (check_range: the CLIs' import)
 from ldlmap.core.lazy import lazy_module
 from ldlmap.core.signals import Terminated, sigterm_as_interrupt
 
@@ -282,20 +281,6 @@ def make_app(name: str, help: str) -> typer.Typer:
         """The program itself (a command group even with a single command)."""
 
     return app
-
-
-def check_range(value: float | int | None, option: str, lo: float, hi: float, integer: bool = False,
-                why: str = "") -> None:
-    """Raise a one-line :class:`~ldlmap.core.errors.InputError` unless ``value`` (None passes) is a finite
-    number in ``[lo, hi]`` (``why``: what the bound protects, appended to the message); call it
-    before any work is done."""
-    if value is None:
-        return
-    if not math.isfinite(value) or not lo <= value <= hi:
-        show = (lambda v: str(int(v))) if integer else (lambda v: f"{v:g}")
-        got = show(value) if math.isfinite(value) else str(value)
-        raise InputError(f"{option} must be {'an integer' if integer else 'a number'} in [{show(lo)}, {show(hi)}], "
-                         f"got {got}" + (f" ({why})" if why else ""))
 
 
 def check_device(device: str, option: str = "--device", local: bool = True) -> str:

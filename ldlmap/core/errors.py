@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import math
 import os
 import re
 import shutil
@@ -46,6 +47,20 @@ class WriteError(LdlError, OSError):
 
     def __str__(self) -> str:
         return str(self.args[0])
+
+
+def check_range(value: float | int | None, option: str, lo: float, hi: float, integer: bool = False,
+                why: str = "") -> None:
+    """Raise a one-line :class:`~ldlmap.core.errors.InputError` unless ``value`` (None passes) is a finite
+    number in ``[lo, hi]`` (``why``: what the bound protects, appended to the message); call it
+    before any work is done."""
+    if value is None:
+        return
+    if not math.isfinite(value) or not lo <= value <= hi:
+        show = (lambda v: str(int(v))) if integer else (lambda v: f"{v:g}")
+        got = show(value) if math.isfinite(value) else str(value)
+        raise InputError(f"{option} must be {'an integer' if integer else 'a number'} in [{show(lo)}, {show(hi)}], "
+                         f"got {got}" + (f" ({why})" if why else ""))
 
 
 # Write failures said as "<reason> writing PATH" (the reason alone does not say which output failed).

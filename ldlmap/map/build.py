@@ -31,8 +31,7 @@ Stages (paper section 3.1), each timed, in the order :func:`build_from_input` ca
 
 from __future__ import annotations
 
-import math
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Callable
 
@@ -43,8 +42,8 @@ from ldlmap.core.frame import (apply, check_extent, decompose, is_identity, pars
                                similarity)
 from ldlmap.core.geometry import angle_from_trace_deg
 from ldlmap.core.timing import StageClock
-from ldlmap.features import available_backends, backend_for
-from ldlmap.features.sphere import check_extraction, default_extraction
+from ldlmap.features import backend_for
+from ldlmap.features.sphere import default_extraction
 from ldlmap.io.linefiles import check_segments
 from ldlmap.lines3d import extract_lines, filter_by_length, length_threshold, robust_bounds
 from ldlmap.lines3d.principal import (FrameParams, HORIZONTAL_DEG, assign_line_groups, line_directions,
@@ -54,88 +53,12 @@ from ldlmap.map.fields3d import FieldParams, compute_fields
 from ldlmap.map.inputs import SceneInput, load_input
 from ldlmap.map.keypoints3d import view_features
 from ldlmap.map.mapfile import write_map
+from ldlmap.map.params import BuildParams
 from ldlmap.map.render import PointRenderer, RenderParams
 from ldlmap.map.translations import (SPARSE_SPACING_M, TranslationParams, candidate_spacing, candidate_translations,
                                      spaced_translations)
 from ldlmap.map.visibility import coverage_fields, line_visibility, room_surfaces
 from ldlmap.sfm.gravity import estimate_up, map_rotation
-
-SCALE_RANGE = (1e-6, 1e6)  # --scale: metres per input unit accepted
-
-
-@dataclass(frozen=True)
-class BuildParams:
-    """Map-building parameters (paper defaults where the paper gives one). Flat: the map stores them as
-    its config attribute (``asdict``), which must stay comparable across versions."""
-
-    lam: float = 0.1
-    """lambda: the 3D length filter's ratio to the robust extent (paper sec. 3.1)."""
-    min_line_length: float | None = None
-    """Absolute length threshold (m) instead of lambda's: maps of several rooms, whose extent makes lambda's
-    threshold longer than most of a room's lines."""
-    num_translations: int = 800
-    """N_t: candidate translations of a scan (800 OmniScenes, 1700 Stanford 2D-3D-S)."""
-    translation_method: str = "octree"
-    """How a scan's candidates are placed: octree (OmniScenes) | grid (Stanford)."""
-    clearance: float = 0.25
-    """Candidate translations keep this distance (m) from the scan."""
-    features: str = "sift"
-    """Local features: sift | aliked | disk | xfeat | superpoint | none (:mod:`ldlmap.features`)."""
-    weights: str | None = None
-    """SuperPoint checkpoint path (else env var / cache / download)."""
-    num_views: int = 40
-    """Views rendered for features; each translation uses its nearest view."""
-    width: int = 1024
-    """Rendered view width (the queries' size)."""
-    height: int = 512
-    """Rendered view height."""
-    max_keypoints: int | None = None
-    """Keypoints per rendered view (None: the backend's max_keypoints)."""
-    feature_extraction: str | None = None
-    """equirect (the panorama) | cube (its six 90-degree faces; :mod:`ldlmap.features.sphere`), for the map's
-    views and, as the map records it, the queries; None: the backend's default (``default_extraction``)."""
-    stored_cloud_points: int = 200_000
-    """Subsampled colored cloud kept in the map for pictures."""
-    mesh_samples: int = 1_000_000
-    """Points sampled from a mesh input."""
-    device: str = "cpu"
-    """Torch device for rendering and SuperPoint."""
-    seed: int = 0
-    """Seed of the view sampling and the stored cloud's subsample."""
-    distance_fields: bool = True
-    """Precompute 3D distance fields (fast pose search, :mod:`ldlmap.map.fields3d`)."""
-    trans_spacing: float = 0.3
-    """Maps without a scan (layouts, line files): candidate translations on a lattice this many metres apart
-    (a true camera is then within spacing / sqrt(2) in xy)."""
-    camera_height: tuple[float, float] | None = None
-    """Camera-height band (metres above the floor) for candidate translations: a scan's N_t go to its free
-    space in the band (its floor: the robust lowest z); maps without a scan: world z. None: a scan's free space
-    from floor to ceiling; the layout's band when known."""
-    up: str = "auto"
-    """The input's up axis: auto (cameras, else the lines; :mod:`ldlmap.sfm.gravity`) | x | y | z | -x | -y | -z."""
-    scale: float = 1.0
-    """Input coordinates are multiplied by this first (SfM frames: metres per unit; :data:`SCALE_RANGE`)."""
-    min_kept_lines: int = 100
-    """Length filter floor: keep at least min(this, half the lines), the longest, ..."""
-    min_kept_length_share: float = 0.6
-    """... and the longest holding this share of the total line length (below what the paper's threshold keeps
-    of a scan, far above an SfM map's: docs/measurements.md#length-share)."""
-    max_kept_lines: int = 3000
-    """Length filter cap: keep at most this many, the longest."""
-    orthonormal_directions: bool = True
-    """Principal directions: the nearest Manhattan frame (paper's assumption), ..."""
-    atlanta_frame: bool = True
-    """... or, when the main horizontals are far from perpendicular, an Atlanta frame (the vertical and those
-    two; :func:`ldlmap.lines3d.principal.principal_frame`). False: always Manhattan."""
-    max_horizontals: int = 4
-    """Atlanta frames: at most this many horizontal directions, where the walls run in more than two
-    (``FrameParams.max_horizontals``; 2: the vertical and the main two only)."""
-    max_inclined: int = 2
-    """Sloped ceilings: at most this many inclined directions added to the frame (``FrameParams.max_inclined``;
-    0: none)."""
-    stations: tuple[str, ...] = ()
-    """E57 input: the scan stations to use, names or 0-based indices (all when empty)."""
-
 
 @dataclass
 class BuildReport:
@@ -165,16 +88,16 @@ def _farthest_point_indices(P: np.ndarray, k: int, seed: int) -> np.ndarray:
 def compute_features(points: np.ndarray, colors: np.ndarray, translations: np.ndarray, params: BuildParams,
                      progress: Callable[[int, int], None] | None = None):
     """Render ``num_views`` views, extract and lift features; returns a MapFeatures."""
-    extraction = params.feature_extraction or default_extraction(params.features)
-    backend = backend_for(params.features, params.weights, params.device, extraction)
-    renderer = PointRenderer(points, colors, RenderParams(width=params.width, height=params.height),
-                             device=params.device)
-    vidx = _farthest_point_indices(translations, max(1, params.num_views), params.seed)
+    fp = params.features
+    extraction = fp.extraction or default_extraction(fp.backend)
+    backend = backend_for(fp.backend, fp.weights, params.device, extraction)
+    renderer = PointRenderer(points, colors, RenderParams(width=fp.width, height=fp.height), device=params.device)
+    vidx = _farthest_point_indices(translations, max(1, fp.num_views), params.seed)
     centers = translations[vidx]
     views = []
     for i, c in enumerate(centers):
-        views.append(view_features(None, None, c, backend, params.width, params.height, renderer=renderer,
-                                   max_keypoints=params.max_keypoints))
+        views.append(view_features(None, None, c, backend, fp.width, fp.height, renderer=renderer,
+                                   max_keypoints=fp.max_keypoints))
         if progress:
             progress(i + 1, len(centers))
     counts = np.array([len(v.xyz) for v in views])
@@ -188,8 +111,8 @@ def compute_features(points: np.ndarray, colors: np.ndarray, translations: np.nd
         scores=np.concatenate([v.scores for v in views]).astype(np.float16),
         descriptors=np.concatenate([v.descriptors for v in views]),
         translation_view=d.argmin(1).astype(np.int32),
-        width=params.width,
-        height=params.height,
+        width=fp.width,
+        height=fp.height,
         extraction=extraction,
     )
 
@@ -209,11 +132,11 @@ def build_map(input_path: str | Path, output: str | Path | None = None, lines_pa
     """
     input_path = Path(input_path)
     output = Path(output) if output is not None else input_path.with_suffix(".h5")
-    check_params(params)
+    params.check()
     if progress:
         progress("load", 0, 1)
     clock = StageClock({})
-    src = load_input(input_path, lines_path, params.mesh_samples, images_path, params.stations)
+    src = load_input(input_path, lines_path, params.input.mesh_samples, images_path, params.input.stations)
     load_seconds = clock.lap("load")
     config = {"input": str(input_path), "lines_file": str(lines_path) if lines_path else None}
     if images_path is not None:
@@ -230,38 +153,11 @@ def build_lines_map(lines: np.ndarray, output: str | Path, params: BuildParams =
     ``walkable`` (:class:`ldlmap.map.translations.Walkable`) says where cameras can stand; without it
     candidate translations fill the free space of the lines.
     """
-    check_params(params)
+    params.check()
     output = Path(output)
     segs = check_segments(lines, name or "lines")
     src = SceneInput(None, None, segs, None, source, walkable)
     return build_from_input(src, output, params, name or output.stem, progress, {"input": source, "lines_file": None})
-
-
-def check_params(params: BuildParams) -> None:
-    """Refuse (one line) parameters no build can use, before any work."""
-    if params.features not in (*available_backends(), "none"):
-        raise InputError(f"unknown feature backend {params.features!r}; valid: {', '.join(available_backends())}, none")
-    if params.feature_extraction is not None:
-        check_extraction(params.feature_extraction)
-    if params.min_line_length is not None and not params.min_line_length > 0:
-        raise InputError(f"minimum line length must be > 0 m, got {params.min_line_length}")
-    parse_up(params.up)
-    check_scale(params.scale)
-    if params.min_kept_lines < 0 or params.max_kept_lines < 1 or not 0 <= params.min_kept_length_share <= 1:
-        raise InputError(f"kept-line bounds must be >= 0, >= 1 and a share in [0, 1], got {params.min_kept_lines}, "
-                         f"{params.max_kept_lines}, {params.min_kept_length_share}")
-    if not (np.isfinite(params.trans_spacing) and params.trans_spacing > 0):
-        raise InputError(f"translation spacing must be > 0 m, got {params.trans_spacing}")
-    ch = params.camera_height
-    if ch is not None and not (len(ch) == 2 and np.all(np.isfinite(ch)) and ch[0] <= ch[1]):
-        raise InputError(f"camera-height band must be MIN:MAX with MIN <= MAX, got {ch}")
-
-
-def check_scale(scale: float) -> None:
-    """Refuse a ``scale`` (metres per input unit) outside :data:`SCALE_RANGE` (one line, the CLI's option named)."""
-    lo, hi = SCALE_RANGE
-    if not (math.isfinite(scale) and lo <= scale <= hi):
-        raise InputError(f"--scale must be a number in [{lo:g}, {hi:g}], got {scale:g} (metres per input unit)")
 
 
 def scene_translations(src: SceneInput, lines: np.ndarray, lines_raw: np.ndarray,
@@ -274,19 +170,19 @@ def scene_translations(src: SceneInput, lines: np.ndarray, lines_raw: np.ndarray
     """
 
     if src.points is not None:
-        band = params.camera_height
-        T = candidate_translations(src.points, params.num_translations, params.translation_method,
-                                   params.clearance, prior_centers=src.prior_centers,
+        band = params.translations.camera_height
+        T = candidate_translations(src.points, params.translations.num, params.translations.method,
+                                   params.translations.clearance, prior_centers=src.prior_centers,
                                    params=TranslationParams(band_above_floor=band))
-        return T, {"method": params.translation_method, "num": int(params.num_translations),
+        return T, {"method": params.translations.method, "num": int(params.translations.num),
                    "camera_height_above_floor": [float(z) for z in band] if band is not None else None,
                    "median_spacing_m": candidate_spacing(T)}
-    _check_band_meets_scene(params.camera_height, lines_raw)
-    T = spaced_translations(lines_raw, params.trans_spacing, src.walkable, params.camera_height)
+    _check_band_meets_scene(params.translations.camera_height, lines_raw)
+    T = spaced_translations(lines_raw, params.translations.spacing, src.walkable, params.translations.camera_height)
     if src.prior_centers is not None:
         T = np.concatenate([T, np.asarray(src.prior_centers, float).reshape(-1, 3)])
-    zr = params.camera_height or (src.walkable.z_range if src.walkable is not None else None)
-    info = {"method": "spacing", "spacing": float(params.trans_spacing),
+    zr = params.translations.camera_height or (src.walkable.z_range if src.walkable is not None else None)
+    info = {"method": "spacing", "spacing": float(params.translations.spacing),
             "region": "layout polygons" if src.walkable is not None and src.walkable.polygons else "free space of the lines",
             "camera_height": [float(z) for z in zr] if zr is not None else None}
     return T, info
@@ -328,10 +224,10 @@ def map_frame(src: SceneInput, lines_raw: np.ndarray, params: BuildParams) -> tu
     """The rotation input -> map (z up) of an already scaled input, its record for the map's
     config, a one-line note for the user ("" when the input frame is kept without doubt) and
     whether the note is a warning (the lines barely told the up axis, or leaned elsewhere)."""
-    up = parse_up(params.up)
+    up = parse_up(params.input.up)
     if src.walkable is not None:  # room layouts are built metric and z-up
         if up is not None and not np.allclose(up, [0, 0, 1]):
-            raise InputError(f"--up {params.up} does not apply to room layouts (already z-up)")
+            raise InputError(f"--up {params.input.up} does not apply to room layouts (already z-up)")
         return np.eye(3), {"up_source": "layout", "rotation_deg": 0.0}, "", False
     est, principal = estimate_up(lines_raw, up, src.camera_down)
     R = map_rotation(est, principal)
@@ -341,7 +237,7 @@ def map_frame(src: SceneInput, lines_raw: np.ndarray, params: BuildParams) -> tu
             "kept_z": est.kept_z}
     if deg == 0.0:  # input frame kept: say so only when the lines had doubts
         return R, info, (f"frame: {est.note}" if est.note and est.source == "lines" else ""), est.weak
-    how = {"user": f"--up {params.up}", "cameras": "the cameras", "lines": "the lines"}[est.source]
+    how = {"user": f"--up {params.input.up}", "cameras": "the cameras", "lines": "the lines"}[est.source]
     snap = f", snapped {est.snapped_deg:.1f} deg onto the lines' vertical" if est.snapped_deg else ""
     note = (f"frame: input up = ({est.up[0]:.3f}, {est.up[1]:.3f}, {est.up[2]:.3f}) from {how}{snap}; "
             f"rotated {deg:.1f} deg into z-up" + (f" ({est.note})" if est.note else ""))
@@ -473,17 +369,17 @@ def check_scene_input(src: SceneInput, params: BuildParams) -> None:
     """Refuse, before the long stages, a cloud too small to build on or without the colors features need."""
     if src.points is not None and len(src.points) < 100:
         raise InputError(f"point cloud has only {len(src.points)} points: too few to build a map")
-    if params.features != "none" and src.points is not None and src.colors is None:
+    if params.features.backend != "none" and src.points is not None and src.colors is None:
         raise InputError("the point cloud has no colors: features need a colored cloud (or use --features none)")
 
 
 def scaled_and_centred(src: SceneInput, params: BuildParams, report: BuildReport) -> tuple[SceneInput, np.ndarray | None]:
     """The input multiplied by ``scale`` and, when far from the origin (UTM), moved to its centre
     (the offset is returned, None when kept); its extent is checked before any grid is sized."""
-    if params.scale != 1.0:
+    if params.input.scale != 1.0:
         if src.walkable is not None:
             raise InputError("--scale does not apply to room layouts (already metric)")
-        src, _ = _transformed(src, None, similarity(params.scale))
+        src, _ = _transformed(src, None, similarity(params.input.scale))
     where = _input_points(src)
     check_extent(np.subtract(*robust_bounds(where)[::-1]))
     offset = recentring_offset(where) if src.walkable is None else None
@@ -508,7 +404,7 @@ def into_map_frame(src: SceneInput, lines_raw: np.ndarray, offset: np.ndarray | 
     """The input and its lines rotated into z-up (:func:`map_frame`), with the frame's note."""
     rot, frame_info, note, weak = map_frame(src, lines_raw, params)
     shift = np.zeros(3) if offset is None else offset
-    input_to_map = similarity(params.scale, rot, -(rot @ shift))  # X_map = R (s X_input - offset)
+    input_to_map = similarity(params.input.scale, rot, -(rot @ shift))  # X_map = R (s X_input - offset)
     src, lines_raw = _transformed(src, lines_raw, similarity(1.0, rot))
     if note:
         (report.warnings if weak else report.notes).append(note)
@@ -523,11 +419,12 @@ def length_filter(src: SceneInput, lines_raw: np.ndarray, params: BuildParams, r
     extent = float(np.mean(bmax - bmin))
     if scale_warning(extent):
         report.warnings.append(scale_warning(extent))
-    lam, floor, share = params.lam, min(params.min_kept_lines, (len(lines_raw) + 1) // 2), params.min_kept_length_share
-    if params.min_line_length is not None:
-        lam, floor, share = float(params.min_line_length / max(extent, 1e-12)), 0, 0.0  # the user's threshold, exactly
+    lp = params.lines
+    lam, floor, share = lp.lam, min(lp.min_kept, (len(lines_raw) + 1) // 2), lp.min_kept_share
+    if lp.min_length is not None:
+        lam, floor, share = float(lp.min_length / max(extent, 1e-12)), 0, 0.0  # the user's threshold, exactly
     lines, kept, threshold = filter_by_length(lines_raw, bmin, bmax, lam, min_keep=floor,
-                                              max_keep=params.max_kept_lines, min_length_share=share)
+                                              max_keep=lp.max_kept, min_length_share=share)
     if len(lines) == 0:
         raise InputError(f"no 3D line is longer than the length threshold {threshold:.3f} m")
     return LengthFilter(lines, kept, threshold, lam, length_threshold(bmin, bmax, lam), bmin, bmax, extent)
@@ -540,12 +437,12 @@ def principal_stage(lines: np.ndarray, frame: MapFrame, params: BuildParams, rep
     deviation, frame_kind = np.zeros(3), "voted"
     up = known_up(frame.info, frame.rotation)
     gravity = {"up": (0.0, 0.0, 1.0) if up is None else up, "up_known": up is not None}
-    if params.orthonormal_directions and params.atlanta_frame:
-        principal, deviation, frame_kind = principal_frame(lines, principal,
-                                                           params=FrameParams(max_horizontals=params.max_horizontals,
-                                                                              max_inclined=params.max_inclined),
-                                                           **gravity)
-    elif params.orthonormal_directions:
+    pp = params.principal
+    if pp.orthonormal and pp.atlanta:
+        principal, deviation, frame_kind = principal_frame(
+            lines, principal, params=FrameParams(max_horizontals=pp.max_horizontals, max_inclined=pp.max_inclined),
+            **gravity)
+    elif pp.orthonormal:
         (principal, deviation), frame_kind = manhattan_frame(lines, principal, **gravity), "manhattan"
     _frame_notes(report, principal, deviation, frame_kind)
     # under a sloped ceiling, lines join only directions of about their own elevation (the map frame's up is z)
@@ -590,9 +487,9 @@ def fields_stage(lines: np.ndarray, directions: Directions, translations: np.nda
                  visibility: np.ndarray | None, params: BuildParams, stages: BuildStages) -> tuple[dict, dict]:
     """The 3D distance fields of every translation (empty when ``distance_fields`` is off)."""
     fields, fields_attrs = {}, {}
-    n_t = len(translations) if params.distance_fields else 1
+    n_t = len(translations) if params.output.distance_fields else 1
     stages.start("fields", n_t)
-    if params.distance_fields:
+    if params.output.distance_fields:
         dist, fields_attrs = compute_fields(lines, directions.groups, translations,
                                             FieldParams(num_groups=len(directions.principal)),
                                             device=params.device, visibility=visibility,
@@ -605,8 +502,8 @@ def fields_stage(lines: np.ndarray, directions: Directions, translations: np.nda
 def features_stage(src: SceneInput, translations: np.ndarray, params: BuildParams, stages: BuildStages):
     """The map's local features (a MapFeatures), None without a colored scan or with ``features = none``."""
     features = None
-    with_features = params.features != "none" and src.points is not None
-    n_views = min(max(1, params.num_views), len(translations)) if with_features else 1
+    with_features = params.features.backend != "none" and src.points is not None
+    n_views = min(max(1, params.features.num_views), len(translations)) if with_features else 1
     stages.start("features", n_views)
     if with_features:
         features = compute_features(src.points, src.colors, translations, params, stages.steps("features"))
@@ -619,7 +516,7 @@ def stored_cloud(src: SceneInput, params: BuildParams) -> tuple[np.ndarray | Non
     if src.points is None:
         return None, None
     rng = np.random.default_rng(params.seed)
-    keep = rng.permutation(len(src.points))[: params.stored_cloud_points]
+    keep = rng.permutation(len(src.points))[: params.output.cloud_points]
     keep.sort()
     return src.points[keep], (src.colors[keep] if src.colors is not None else None)
 
@@ -627,11 +524,11 @@ def stored_cloud(src: SceneInput, params: BuildParams) -> tuple[np.ndarray | Non
 def map_config(params: BuildParams, config: dict | None, src: SceneInput, trans_info: dict, frame: MapFrame,
                filt: LengthFilter, directions: Directions) -> dict:
     """The build's record stored in the map: the parameters, the input and what each stage decided."""
-    out = {**asdict(params), **(config or {}), "source": src.source, "translations": trans_info,
+    out = {**params.config(), **(config or {}), "source": src.source, "translations": trans_info,
            "frame": frame.info, "length_filter": filt.config(),
            "principal_deviation_deg": [round(float(x), 3) for x in directions.deviation],
            "principal_frame": directions.kind}
-    if params.features == "none" or src.points is None:
+    if params.features.backend == "none" or src.points is None:
         out["features"] = "none"
     return out
 
@@ -646,7 +543,7 @@ def build_counts(m: LdlMap, filt: LengthFilter, src: SceneInput, output: Path, p
         "keypoints": int(len(m.features.xyz)) if m.features else 0,
         "size_mb": output.stat().st_size / 1e6,
         "note": src.note,
-        "frame_rotation_deg": m.config["frame"]["rotation_deg"], "scale": float(params.scale),
+        "frame_rotation_deg": m.config["frame"]["rotation_deg"], "scale": float(params.input.scale),
     }
 
 
@@ -693,7 +590,3 @@ def build_from_input(src: SceneInput, output: Path, params: BuildParams, name: s
     report.counts = build_counts(m, filt, src, output, params)
     return report
 
-
-def params_with(params: BuildParams, **changes: Any) -> BuildParams:
-    """A copy of ``params`` with the non-None ``changes`` applied (for CLI options)."""
-    return replace(params, **{k: v for k, v in changes.items() if v is not None})

@@ -6,15 +6,14 @@ its openings, a slab's rim, a column's edges), merged where collinear, less the 
 below the storey's floor (a slab's underside: no camera on the storey sees it) and, when the storey
 has spaces, those whose middle lies outside every space by more than :data:`SPACE_MARGIN` in xy
 (the walls' outer faces) or half that below its floor or above its top (the top of a ceiling). Candidate
-translations stand on a lattice of ``params.trans_spacing`` inside the storey's spaces (IfcSpace
+translations stand on a lattice of ``params.translations.spacing`` inside the storey's spaces (IfcSpace
 footprints), or in the free space of its lines when it has none, within a camera-height band above
-the storey's floor (``params.camera_height``, default :data:`DEFAULT_BAND`). No features (a
+the storey's floor (``params.translations.camera_height``, default :data:`DEFAULT_BAND`). No features (a
 model has no photos): queries are refined geometrically.
 """
 
 from __future__ import annotations
 
-from dataclasses import replace
 from pathlib import Path
 from types import SimpleNamespace
 from typing import Callable
@@ -24,7 +23,8 @@ import numpy as np
 from ldlmap.core.errors import InputError
 from ldlmap.core.lazy import lazy_module
 from ldlmap.io.ifc import read_ifc, storey_file_name
-from ldlmap.map.build import BuildParams, BuildReport, build_lines_map
+from ldlmap.map.build import BuildReport, build_lines_map
+from ldlmap.map.params import BuildParams
 from ldlmap.map.translations import Walkable
 from ldlmap.synth.edges import mesh_edges
 
@@ -96,13 +96,13 @@ def build_ifc_maps(model: str | Path, outputs: dict[str, Path], params: BuildPar
     the reports (in the storeys' order) and the model's note."""
 
     model = Path(model)
-    if params.scale != 1.0 or (params.up or "auto").lower() not in ("auto", "z", "+z"):
+    if params.input.scale != 1.0 or (params.input.up or "auto").lower() not in ("auto", "z", "+z"):
         raise InputError("IFC models are metric and z-up (their unit is read from the file): --scale and --up do not apply")
     names = list(outputs)
     storeys, note = read_ifc(model, names[0] if len(names) == 1 else None, include)
     storeys = [s for s in storeys if s.name in outputs]
-    band = params.camera_height or DEFAULT_BAND
-    lines_only = replace(params, features="none", camera_height=None)  # the band goes into the walkable z range
+    band = params.translations.camera_height or DEFAULT_BAND
+    lines_only = params.replaced(features="none", camera_height=None)  # the band goes into the walkable z range
     all_lines = [storey_lines(s) for s in storeys]  # every storey checked before any map is written
     for s, lines in zip(storeys, all_lines):
         if len(lines) == 0:
