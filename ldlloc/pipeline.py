@@ -165,8 +165,6 @@ class Localization:
 
 REFINE_MODES = ("auto", "features", "geometric", "both", "none")
 QUERY_FRAMES = ("image", "map")
-PARAM_NAMES = {"loss": "loss", "top_k": "top_k", "refine_mode": "refine_mode", "query_frame": "query_frame",
-               "max_tilt_deg": "max_tilt_deg"}  # how check_localize_params' messages call each parameter
 
 
 def check_choice(value: str, valid: tuple[str, ...], name: str) -> None:
@@ -177,14 +175,14 @@ def check_choice(value: str, valid: tuple[str, ...], name: str) -> None:
 
 def check_localize_params(params: LocalizeParams, names: dict[str, str] | None = None) -> None:
     """A one-line InputError for the first parameter out of its range or set (the loss, top K, refinement,
-    query frame, tilt bound); ``names``: what the messages call them (default :data:`PARAM_NAMES`, the
-    fields; the command line passes its options). Cheap: call it before any work."""
-    n = {**PARAM_NAMES, **(names or {})}
-    check_loss(params.search.loss, n["loss"])
-    check_top_k(params.search.top_k, n["top_k"])
-    check_choice(params.refine_mode, REFINE_MODES, n["refine_mode"])
-    check_choice(params.query_frame, QUERY_FRAMES, n["query_frame"])
-    check_max_tilt(params.max_tilt_deg, n["max_tilt_deg"])
+    query frame, tilt bound); ``names``: what the messages call them by field name (default: the field
+    names; the command line passes its options). Cheap: call it before any work."""
+    n = names or {}
+    check_loss(params.search.loss, n.get("loss", "loss"))
+    check_top_k(params.search.top_k, n.get("top_k", "top_k"))
+    check_choice(params.refine_mode, REFINE_MODES, n.get("refine_mode", "refine_mode"))
+    check_choice(params.query_frame, QUERY_FRAMES, n.get("query_frame", "query_frame"))
+    check_max_tilt(params.max_tilt_deg, n.get("max_tilt_deg", "max_tilt_deg"))
 
 
 WORK_WIDTH = 2048  # panoramas wider than this are resized to WORK_WIDTH x WORK_WIDTH / 2 on reading:
