@@ -32,10 +32,12 @@ from ldlloc.lines2d import Lines2DParams, detect_lines, filter_by_length, query_
 from ldlloc.refine.features import RefineParams, keep_near_lines, refine_by_retrieval, refine_candidates
 from ldlloc.refine.geometric import GeometricParams, map_line_support, refine_and_keep, selection_scores
 from ldlloc.refine.retrieval import RetrievalContext, ViewIndex, accept_retrieved
-from ldlloc.rotation import (PrincipalParams, RotationCandidates, assign_arcs_to_principal, candidate_rotations,
-                             filter_by_tilt, frame_rows, pair_candidates, rotation_labels, vanishing_points)
+from ldlloc.rotation import (FREE_TILT_DEG, PrincipalParams, RotationCandidates, assign_arcs_to_principal,
+                             candidate_rotations, check_max_tilt, filter_by_tilt, frame_rows, pair_candidates,
+                             rotation_labels, vanishing_points)
 from ldlloc.search.fields import DistanceFields
-from ldlloc.search.pose_search import SearchParams, line_loss, search_map
+from ldlloc.search.ldf import check_loss
+from ldlloc.search.pose_search import SearchParams, check_top_k, line_loss, search_map
 
 cv2 = lazy_module("cv2")
 
@@ -47,7 +49,7 @@ UPRIGHT_MAX_TILT_DEG = 10.0
 
 def rotation_prior_name(max_tilt_deg: float | None) -> str:
     """``"free"`` (no bound, or a bound of 180 degrees or more) or e.g. ``"upright<=10deg"``."""
-    if max_tilt_deg is None or max_tilt_deg >= 180.0:
+    if max_tilt_deg is None or max_tilt_deg >= FREE_TILT_DEG:
         return "free"
     return f"upright<={max_tilt_deg:g}deg"
 
@@ -163,6 +165,24 @@ class Localization:
 
 REFINE_MODES = ("auto", "features", "geometric", "both", "none")
 QUERY_FRAMES = ("image", "map")
+
+
+def check_choice(value: str, valid: tuple[str, ...], name: str) -> None:
+    """A one-line InputError unless ``value`` is one of ``valid`` (``name``: how the caller calls it)."""
+    if value not in valid:
+        raise InputError(f"unknown {name} {value!r}; valid: {', '.join(valid)}")
+
+
+def check_localize_params(params: LocalizeParams, names: dict[str, str] | None = None) -> None:
+    """A one-line InputError for the first parameter out of its range or set (the loss, top K, refinement,
+    query frame, tilt bound); ``names``: what the messages call them by field name (default: the field
+    names; the command line passes its options). Cheap: call it before any work."""
+    n = names or {}
+    check_loss(params.search.loss, n.get("loss", "loss"))
+    check_top_k(params.search.top_k, n.get("top_k", "top_k"))
+    check_choice(params.refine_mode, REFINE_MODES, n.get("refine_mode", "refine_mode"))
+    check_choice(params.query_frame, QUERY_FRAMES, n.get("query_frame", "query_frame"))
+    check_max_tilt(params.max_tilt_deg, n.get("max_tilt_deg", "max_tilt_deg"))
 
 
 WORK_WIDTH = 2048  # panoramas wider than this are resized to WORK_WIDTH x WORK_WIDTH / 2 on reading:
@@ -301,6 +321,7 @@ class Localizer:
     """Holds one map (and its feature backend) and localizes panoramas against it."""
 
     def __init__(self, ldl_map, params: LocalizeParams = LocalizeParams(), device: str = "cpu"):
+        check_localize_params(params)
         self.map = ldl_map
         self.params = params
         self.device = device
@@ -314,11 +335,7 @@ class Localizer:
         self.view_index = None  # the map's view retrieval index (ldlloc.refine.retrieval), built when first needed
         if params.search.use_fields is not False:
             self.fields = DistanceFields.from_map(ldl_map, device)
-        if params.query_frame not in QUERY_FRAMES:
-            raise InputError(f"unknown query frame {params.query_frame!r}; valid: {', '.join(QUERY_FRAMES)}")
         mode = params.refine_mode if params.do_refine else "none"
-        if mode not in REFINE_MODES:
-            raise InputError(f"unknown refinement {mode!r}; valid: {', '.join(REFINE_MODES)}")
         # auto on a map with features: features, and the geometric refinement only where they fail
         # (a polish after PnP makes poses worse: docs/measurements.md#auto-refinement)
         self.fallback_geometric = mode == "auto" and map_backend is not None
@@ -493,9 +510,8 @@ class Localizer:
         p, m = self.params, self.map
         img = _check_panorama_array(image_rgb)
         tilt = p.max_tilt_deg if max_tilt_deg is None else float(max_tilt_deg)
-        if tilt is not None and not (0.0 < tilt <= 180.0):
-            raise InputError(f"the tilt bound must be in (0, 180] degrees, got {tilt:g}")
-        if tilt is not None and tilt >= 180.0:
+        check_max_tilt(tilt)
+        if tilt is not None and tilt >= FREE_TILT_DEG:
             tilt = None
         lines = QueryLines.detect(img, p) if lines is None else lines
         secs: dict[str, float] = {"lines2d": lines.seconds}

@@ -441,6 +441,15 @@ def labels_for_rotations(arcs: np.ndarray, vp2d: np.ndarray, triplets: np.ndarra
 
 # --------------------------------------------------------------------------------- upright prior
 
+FREE_TILT_DEG = 180.0  # the largest tilt: a bound of this or more is free rotation
+
+
+def check_max_tilt(max_tilt_deg: float | None, name: str = "max_tilt_deg") -> None:
+    """A one-line InputError unless the upright prior's bound is None (free) or in (0, :data:`FREE_TILT_DEG`]
+    degrees (``name``: how the caller calls it)."""
+    if max_tilt_deg is not None and not (0.0 < max_tilt_deg <= FREE_TILT_DEG):
+        raise InputError(f"{name} must be in (0, {FREE_TILT_DEG:g}] degrees, got {max_tilt_deg:g}")
+
 
 def camera_tilt_deg(rotations: np.ndarray) -> np.ndarray:
     """Tilt of the camera's up axis from the world's up, in degrees, per rotation.
@@ -467,7 +476,7 @@ def filter_by_tilt(rots: RotationCandidates, max_tilt_deg: float,
     tilt = float(max_tilt_deg)
     if not np.isfinite(tilt) or tilt < 0:
         raise InputError(f"the tilt bound must be a finite angle >= 0 degrees, got {max_tilt_deg}")
-    if tilt >= 180.0 or len(rots) == 0:
+    if tilt >= FREE_TILT_DEG or len(rots) == 0:
         return rots
     if camera_up is None:
         return rots.subset(camera_tilt_deg(rots.rotations) <= tilt + 1e-9)

@@ -36,6 +36,7 @@ from ldlloc.batch.which_map import MapSet, localize_on_maps
 from ldlloc.pipeline import (UPRIGHT_MAX_TILT_DEG, Localization, LocalizeParams, Localizer, load_image,
                              rotation_prior_name)
 from ldlloc.record import QueryResult, failed_record, record_of
+from ldlloc.rotation import FREE_TILT_DEG
 from ldlloc.visualize import localization_caption, save_localization_picture
 
 
@@ -45,6 +46,12 @@ def max_tilt_for(q, params: LocalizeParams) -> float | None:
     if params.max_tilt_deg is not None:
         return float(params.max_tilt_deg)
     return UPRIGHT_MAX_TILT_DEG if getattr(q, "upright", False) else None
+
+
+def tilt_bound_for(q, params: LocalizeParams) -> float:
+    """:func:`max_tilt_for` as the bound a localization takes: :data:`~ldlloc.rotation.FREE_TILT_DEG` when free."""
+    tilt = max_tilt_for(q, params)
+    return FREE_TILT_DEG if tilt is None else tilt
 
 
 def result_from_localization(q, loc: Localization) -> QueryResult:
@@ -186,12 +193,11 @@ def localize_query(cache: MapCache, q, params: LocalizeParams,
     else a bad panorama or map provokes) becomes this query's ``failed`` record, never the run's
     end; a picture that cannot be written is recorded (``picture_error``) beside the result."""
     t0 = time.perf_counter()
-    tilt = max_tilt_for(q, params)
-    tilt = 180.0 if tilt is None else tilt  # free rotation
+    tilt = tilt_bound_for(q, params)
     try:
         cache.get(q.scene)  # a map that cannot be read fails the query before its image is read
         img = load_image(q.image)
-        res, loc, extra = cache.localize(q.scene, img, tilt, recorded_up(q.image) if tilt < 180.0 else None)
+        res, loc, extra = cache.localize(q.scene, img, tilt, recorded_up(q.image) if tilt < FREE_TILT_DEG else None)
         r = replace(result_from_localization(q, res), **extra)
     except LdlError as exc:
         return failed_result(q, params, str(exc), time.perf_counter() - t0)

@@ -6,36 +6,30 @@ from __future__ import annotations
 from pathlib import Path
 
 from ldlloc.batch.which_map import TOP_MAPS
-from ldlloc.pipeline import QUERY_FRAMES, REFINE_MODES, LocalizeParams
-from ldlloc.search.ldf import LOSS_KINDS
+from ldlloc.pipeline import LocalizeParams, check_localize_params
 from ldlloc.search.pose_search import SearchParams
 from ldlmap.core.cli_common import check_range
 from ldlmap.core.errors import InputError
 
-MAX_TOP_K = 1000  # --top-k: each kept pose is refined; more than this is a typo, not a method
 MAX_TOP_MAPS = 1000  # --top-maps: each of them is refined
+OPTION_NAMES = {"loss": "loss", "top_k": "--top-k", "refine_mode": "--refine", "query_frame": "--query-frame",
+                "max_tilt_deg": "--max-tilt"}  # the options of LocalizeParams' checked fields
 
 
 def localize_params(top_k: int, loss: str, no_decompose: bool, no_refine: bool, privacy: bool,
                     features: str | None, weights: Path | None, max_tilt: float | None = None,
                     refine: str = "auto", query_frame: str = "map") -> LocalizeParams:
-    """The parameters the options give; one-line errors naming the option for a value out of range,
-    an unknown name, or ``--no-refine`` with another ``--refine``."""
-    if loss not in LOSS_KINDS:
-        raise InputError(f"unknown loss {loss!r}; valid: {', '.join(LOSS_KINDS)}")
-    check_range(top_k, "--top-k", 1, MAX_TOP_K, integer=True)
-    if refine not in REFINE_MODES:
-        raise InputError(f"unknown --refine {refine!r}; valid: {', '.join(REFINE_MODES)}")
+    """The parameters the options give, checked by the library (:func:`~ldlloc.pipeline.check_localize_params`,
+    one-line errors naming the option) before any work; here only what the options alone can get
+    wrong: ``--no-refine`` with another ``--refine``."""
+    params = LocalizeParams(search=SearchParams(top_k=top_k, loss=loss, decompose=not no_decompose),
+                            features=features, weights=str(weights) if weights else None,
+                            do_refine=not no_refine, privacy=privacy, max_tilt_deg=max_tilt, refine_mode=refine,
+                            query_frame=query_frame)
+    check_localize_params(params, OPTION_NAMES)
     if no_refine and refine not in ("auto", "none"):  # auto: the default, i.e. --refine not given
         raise InputError(f"--no-refine (= --refine none) contradicts --refine {refine}: give one of them")
-    if query_frame not in QUERY_FRAMES:
-        raise InputError(f"unknown --query-frame {query_frame!r}; valid: {', '.join(QUERY_FRAMES)}")
-    if max_tilt is not None and not (0.0 < max_tilt <= 180.0):
-        raise InputError(f"--max-tilt must be in (0, 180] degrees, got {max_tilt:g}")
-    return LocalizeParams(search=SearchParams(top_k=top_k, loss=loss, decompose=not no_decompose),
-                          features=features, weights=str(weights) if weights else None,
-                          do_refine=not no_refine, privacy=privacy, max_tilt_deg=max_tilt, refine_mode=refine,
-                          query_frame=query_frame)
+    return params
 
 
 def top_maps_or_default(top_maps: int | None) -> int:

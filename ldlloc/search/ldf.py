@@ -53,6 +53,12 @@ torch = lazy_module("torch")
 LOSS_KINDS: tuple[str, ...] = ("inlier", "l1", "l2", "huber", "median")
 
 
+def check_loss(kind: str, name: str = "loss") -> None:
+    """A one-line InputError unless ``kind`` is one of :data:`LOSS_KINDS` (``name``: how the caller calls it)."""
+    if kind not in LOSS_KINDS:
+        raise InputError(f"unknown {name} {kind!r}; valid: {', '.join(LOSS_KINDS)}")
+
+
 # ------------------------------------------------------------------------------------- helpers
 
 
@@ -249,6 +255,7 @@ def pose_loss(f2d, f3d, kind: str = "inlier", tau: float = 0.1, decompose: bool 
     Returns:
         (N_t, N_r) losses.
     """
+    check_loss(kind)
     f3d = _as_tensor(f3d)
     f2d = _as_tensor(f2d, f3d.device, f3d.dtype)
     if f3d.dim() != 4:
@@ -272,9 +279,7 @@ def pose_loss(f2d, f3d, kind: str = "inlier", tau: float = 0.1, decompose: bool 
         quad = 0.5 * diff * diff
         lin = delta * (diff - 0.5 * delta)
         return torch.where(diff <= delta, quad, lin).sum(-1)
-    if kind == "median":
-        return diff.median(-1).values
-    raise InputError(f"unknown loss {kind!r}; choose one of {', '.join(LOSS_KINDS)}")
+    return diff.median(-1).values  # median
 
 
 def top_k_poses(loss, k: int = 20) -> tuple["torch.Tensor", "torch.Tensor", "torch.Tensor"]:

@@ -38,13 +38,21 @@ from ldlloc.search.fields import inlier_loss_from_fields
 
 torch = lazy_module("torch")
 
+MAX_TOP_K = 1000  # top_k: each kept pose is refined; more than this is a typo, not a method
+
+
+def check_top_k(top_k: int, name: str = "top_k") -> None:
+    """A one-line InputError unless ``top_k`` is in [1, :data:`MAX_TOP_K`] (``name``: how the caller calls it)."""
+    if not 1 <= top_k <= MAX_TOP_K:
+        raise InputError(f"{name} must be an integer in [1, {MAX_TOP_K}], got {top_k}")
+
 
 @dataclass(frozen=True)
 class SearchParams:
     """Parameters of the pose search (paper defaults)."""
 
     top_k: int = 20
-    """K: poses kept for refinement."""
+    """K: poses kept for refinement, 1 to MAX_TOP_K."""
     tau: float = 0.1
     """Inlier threshold of the loss (radians)."""
     loss: str = "inlier"

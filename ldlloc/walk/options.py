@@ -5,20 +5,20 @@ from __future__ import annotations
 from typing import Any
 
 from ldlmap.core.errors import InputError
-from ldlloc.walk.order import ORDERS
+from ldlloc.walk.order import check_order
 
 
 def check_walk_options(walk: bool, order: str | None, images, ray, save_vis, video=None, fps: float | None = None,
                        every: int | None = None, resume: bool = False, maps=None,
                        dataset_options: dict[str, Any] | None = None) -> None:
-    """``--order`` goes with ``--walk --images`` and is one of :data:`ORDERS`; a walk runs in this
-    process (not on Ray: one walk is never split) and writes no pictures; ``--fps`` and ``--every``
+    """``--order`` goes with ``--walk --images`` and is one of :data:`~ldlloc.walk.order.ORDERS`; a walk runs
+    in this process (not on Ray: one walk is never split) and writes no pictures; ``--fps`` and ``--every``
     go with ``--video``, which runs alone (no dataset, images or resume: a rerun localizes it again;
     ``dataset_options``: the dataset run's other options by name, e.g. ``--split``) and needs ``--maps``."""
     if order is not None and not walk:
         raise InputError("--order goes with --walk")
-    if order is not None and order not in ORDERS:
-        raise InputError(f"--order must be {' or '.join(ORDERS)}, got {order!r}")
+    if order is not None:
+        check_order(order, "--order")
     if order is not None and images is None:
         raise InputError("--order goes with --images (a dataset knows its walks' order)")
     if (walk or video is not None) and ray is not None:

@@ -13,6 +13,12 @@ from ldlmap.io.panorama_meta import panorama_metadata
 ORDERS = ("name", "time")
 
 
+def check_order(order: str, name: str = "order") -> None:
+    """A one-line InputError unless ``order`` is one of :data:`ORDERS` (``name``: how the caller calls it)."""
+    if order not in ORDERS:
+        raise InputError(f"{name} must be {' or '.join(ORDERS)}, got {order!r}")
+
+
 def natural_key(text: str) -> tuple:
     """A sort key that orders the digit runs of ``text`` as numbers (``a2`` < ``a10``)."""
     return tuple((0, int(p), "") if p.isdigit() else (1, 0, p) for p in re.split(r"(\d+)", text) if p)
@@ -31,8 +37,7 @@ def capture_time(path: str | Path) -> float | None:
 def ordered(items: list, order: str, name_of, path_of) -> tuple[list, list[float | None]]:
     """``items`` in walk order and their capture times: ``name`` (natural order of ``name_of(item)``)
     or ``time`` (capture time, ties by name; a one-line error naming a photo without one)."""
-    if order not in ORDERS:
-        raise InputError(f"--order must be {' or '.join(ORDERS)}, got {order!r}")
+    check_order(order)
     items = sorted(items, key=lambda q: natural_key(name_of(q)))
     times = [capture_time(path_of(q)) for q in items]
     if order == "name":

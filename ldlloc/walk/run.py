@@ -19,7 +19,7 @@ from typing import Callable
 from ldlmap.core.errors import InputError, LdlError
 from ldlloc.record import QueryResult
 from ldlloc.batch.images import ImageQuery, failed_image_result, image_result
-from ldlloc.batch.run import failed_result, max_tilt_for, open_results, result_from_localization
+from ldlloc.batch.run import failed_result, open_results, result_from_localization, tilt_bound_for
 from ldlloc.batch.which_map import MapSet
 from ldlloc.pipeline import LocalizeParams, image_size, load_image
 from ldlloc.walk.localize import MIN_FRAMES, FrameOutcome, WalkFrame, WalkParams, localize_walk
@@ -135,7 +135,8 @@ def run_walk_queries(queries: list, maps_dir: str | Path, output: str | Path, pa
             where = Path(maps_dir) / (key if scene_unknown else f"{key}.h5")
             try:
                 maps = MapSet.load(where, params, device, recursive=False)
-                frames = [WalkFrame(q.name, (lambda p=q.image: load_image(p)), None, _tilt(q, params)) for q in group]
+                frames = [WalkFrame(q.name, (lambda p=q.image: load_image(p)), None, tilt_bound_for(q, params))
+                          for q in group]
                 outs = localize_walk(frames, maps, walk)
             except LdlError as exc:
                 writer.extend([failed_result(q, params, str(exc)) for q in group])
@@ -146,11 +147,6 @@ def run_walk_queries(queries: list, maps_dir: str | Path, output: str | Path, pa
                 progress(r)
         writer.finish()
         return writer.results
-
-
-def _tilt(q, params: LocalizeParams) -> float:
-    tilt = max_tilt_for(q, params)
-    return 180.0 if tilt is None else tilt
 
 
 def _dataset_record(q, out: FrameOutcome, params: LocalizeParams, walk: str, index: int) -> QueryResult:
