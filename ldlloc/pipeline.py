@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ldlmap.core.errors import InputError, require_file
+from ldlmap.core.errors import InputError, check_choice, require_file
 from ldlmap.core.frame import is_identity, pose_to_input, pose_to_map
 from ldlmap.core.geometry import half_icosphere_points, rotation_error_deg
 from ldlmap.core.lazy import lazy_module
@@ -165,12 +165,6 @@ class Localization:
 
 REFINE_MODES = ("auto", "features", "geometric", "both", "none")
 QUERY_FRAMES = ("image", "map")
-
-
-def check_choice(value: str, valid: tuple[str, ...], name: str) -> None:
-    """A one-line InputError unless ``value`` is one of ``valid`` (``name``: how the caller calls it)."""
-    if value not in valid:
-        raise InputError(f"unknown {name} {value!r}; valid: {', '.join(valid)}")
 
 
 def check_localize_params(params: LocalizeParams, names: dict[str, str] | None = None) -> None:

@@ -38,7 +38,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ldlmap.core.errors import InputError
+from ldlmap.core.errors import InputError, check_choice
 from ldlmap.core.geometry import icosphere_points
 from ldlmap.core.lazy import lazy_module
 # Shared with the map side (ldlmap never imports ldlloc): the torch point-arc distance and its
@@ -55,8 +55,7 @@ LOSS_KINDS: tuple[str, ...] = ("inlier", "l1", "l2", "huber", "median")
 
 def check_loss(kind: str, name: str = "loss") -> None:
     """A one-line InputError unless ``kind`` is one of :data:`LOSS_KINDS` (``name``: how the caller calls it)."""
-    if kind not in LOSS_KINDS:
-        raise InputError(f"unknown {name} {kind!r}; valid: {', '.join(LOSS_KINDS)}")
+    check_choice(kind, LOSS_KINDS, name)
 
 
 # ------------------------------------------------------------------------------------- helpers

@@ -49,6 +49,12 @@ class WriteError(LdlError, OSError):
         return str(self.args[0])
 
 
+def check_choice(value: str, valid: tuple[str, ...], name: str) -> None:
+    """A one-line InputError unless ``value`` is one of ``valid`` (``name``: how the caller calls it)."""
+    if value not in valid:
+        raise InputError(f"unknown {name} {value!r}; valid: {', '.join(valid)}")
+
+
 def check_range(value: float | int | None, option: str, lo: float, hi: float, integer: bool = False,
                 why: str = "") -> None:
     """Raise a one-line :class:`~ldlmap.core.errors.InputError` unless ``value`` (None passes) is a finite
