@@ -496,8 +496,8 @@ def prepare(
     With --ray, one Ray task per scene (one GPU each with --device cuda)."""
 
 
-    if map_level is not None and map_level not in datasets.MAP_LEVELS:
-        raise InputError(f"--map-level must be {' or '.join(datasets.MAP_LEVELS)}, got {map_level!r}")
+    if map_level is not None:
+        datasets.check_map_level(map_level, "--map-level")
     check_threads(threads)
     check_device(device)
     build_options = dict(weights=str(weights) if weights else None, feature_extraction=extraction,

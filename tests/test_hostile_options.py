@@ -65,7 +65,7 @@ OPTION_CASES = [
     (PREPARE, "--device", "cuda:99", "--device cuda:99"),
     (PREPARE, "--device", "metal", "--device must be"),
     (PREPARE, "--camera-height", "3:1", "finite MIN <= MAX"),
-    (PREPARE, "--map-level", "house", "--map-level must be"),
+    (PREPARE, "--map-level", "house", "unknown --map-level 'house'; valid: room, floor"),
     (PREPARE, "--feature-extraction", "cubes", "unknown feature extraction 'cubes'"),
     (SYNTH, "--seed", "-1", "--seed must be in [0, 2**32)"),
     (SYNTH, "--seed", str(2**32), "--seed must be in [0, 2**32)"),

@@ -26,7 +26,7 @@ from ldlmap.core.cli_common import (check_device, check_threads, console, datase
 from ldlmap.core.errors import InputError, refuse_overwriting_inputs
 from ldlmap.core.pictures import refuse_replacing_pictures
 from ldlmap.core.lazy import lazy_module
-from ldlmap.datasets import MAP_LEVELS
+from ldlmap.datasets.base import check_map_level
 
 ray_run = lazy_module("ldlloc.batch.ray_run")  # the Ray plumbing loads only for --ray (tests/test_ray.py checks it)
 ray_cluster = lazy_module("ldlmap.batch.ray_cluster")
@@ -143,8 +143,8 @@ def dataset_top_maps(top_maps: int | None, scene_unknown: bool, map_level: str |
         raise InputError("--top-maps goes with --images or --scene-unknown")
     if scene_unknown:
         top_maps = top_maps_or_default(top_maps)
-    if map_level is not None and map_level not in MAP_LEVELS:
-        raise InputError(f"--map-level must be {' or '.join(MAP_LEVELS)}, got {map_level!r}")
+    if map_level is not None:
+        check_map_level(map_level, "--map-level")
     return top_maps
 
 

@@ -26,7 +26,7 @@ from ldlloc.batch.results import run_kind, unfinished_note
 from ldlloc.export.colmap import (MODEL_FILES, MODEL_SUFFIXES, check_image_names, line_points, model_files,
                                   write_colmap_model)
 from ldlloc.export import nerfstudio, ply, tum  # the writers of a format, called through their module
-from ldlloc.export.poses import (FRAMES, export_poses, image_names, image_size, input_to_map_of, map_lines,
+from ldlloc.export.poses import (check_frame, export_poses, image_names, image_size, input_to_map_of, map_lines,
                                  map_path_for, read_records, select_queries)
 from ldlmap.core.errors import InputError, atomic_dir, atomic_file, refuse_overwriting_inputs
 from ldlmap.core.frame import decompose
@@ -143,8 +143,7 @@ def export_results(results: str | Path, fmt: str, out: str | Path, include_all: 
     results, out = Path(results), Path(out)
     map_path = Path(map_path) if map_path is not None else None
     image_root = Path(image_root) if image_root is not None else None
-    if frame not in FRAMES:
-        raise InputError(f"--frame must be {' or '.join(FRAMES)}, got {frame!r}")
+    check_frame(frame)
     _check_options(fmt, out, text, image_root, overwrite)
     records, meta = read_records(results)
     if fmt in ("colmap", "nerfstudio") and run_kind(meta) == "video":

@@ -34,6 +34,12 @@ cv2 = lazy_module("cv2")
 
 FRAMES = ("map", "input")
 
+
+def check_frame(frame: str) -> None:
+    """A one-line InputError unless ``frame`` is one of :data:`FRAMES` (``--frame``)."""
+    if frame not in FRAMES:
+        raise InputError(f"--frame must be {' or '.join(FRAMES)}, got {frame!r}")
+
 @dataclass
 class ExportPose:
     """One query's pose as exported."""
@@ -161,8 +167,7 @@ def pose_in_frame(record: dict, frame: str, meta: dict[str, Any], given_map: Pat
     ``input_frame``; a record without it is in the input frame already when its map was built in
     its input's frame (identity ``input_to_map``), which the map's header says; otherwise (or
     without the map) a one-line error."""
-    if frame not in FRAMES:
-        raise InputError(f"--frame must be {' or '.join(FRAMES)}, got {frame!r}")
+    check_frame(frame)
     if frame == "input" and record.get("input_frame") is not None:
         pose = record["input_frame"]
         return np.asarray(pose["R"], dtype=np.float64), np.asarray(pose["t"], dtype=np.float64)

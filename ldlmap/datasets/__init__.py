@@ -6,7 +6,7 @@ serves real and synthetic data), Stanford 2D-3D-S (:mod:`.stanford`) and ZInD (:
 """
 
 from ldlmap.datasets.base import (DATASET_KINDS, DEFAULT_ROOTS, IMAGE_EXTENSIONS, MAP_LEVELS, OMNISCENES_SPLITS,
-                                  STANFORD_AREAS, Dataset, Query)
+                                  STANFORD_AREAS, Dataset, Query, check_map_level)
 from ldlmap.datasets.catalog import detect_kind, load_manifest, manifest_path, open_dataset
 from ldlmap.datasets.omniscenes import OmniScenes
 from ldlmap.datasets.poses import read_pose_file, read_pose_txt, read_stanford_pose, stanford_rotation, write_pose_txt
@@ -16,4 +16,4 @@ from ldlmap.datasets.zind import ZInD
 __all__ = ["DATASET_KINDS", "DEFAULT_ROOTS", "IMAGE_EXTENSIONS", "MAP_LEVELS", "OMNISCENES_SPLITS", "STANFORD_AREAS",
            "Dataset", "OmniScenes", "Query", "Stanford2D3DS", "ZInD", "detect_kind", "load_manifest", "manifest_path",
            "open_dataset", "read_pose_file", "read_pose_txt", "read_stanford_pose", "stanford_rotation",
-           "write_pose_txt"]
+           "write_pose_txt", "check_map_level"]

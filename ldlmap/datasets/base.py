@@ -11,7 +11,7 @@ from typing import Iterable, Protocol, Sequence, runtime_checkable
 
 import numpy as np
 
-from ldlmap.core.errors import InputError
+from ldlmap.core.errors import InputError, check_choice
 
 
 DEFAULT_ROOTS: dict[str, Path] = {"omniscenes": Path("data/omniscenes"), "stanford": Path("data/stanford2d3ds"),
@@ -20,6 +20,11 @@ DATASET_KINDS: tuple[str, ...] = ("omniscenes", "stanford", "zind")
 # Folder under ``datasets/`` holding each kind's split manifest.
 MANIFEST_DIRS: dict[str, str] = {"omniscenes": "omniscenes", "stanford": "stanford2d3ds", "zind": "zind"}
 MAP_LEVELS: tuple[str, ...] = ("room", "floor")  # ZInD: one map per complete room, or per floor
+
+
+def check_map_level(level: str, name: str = "map level") -> None:
+    """A one-line InputError unless ``level`` is one of :data:`MAP_LEVELS` (``name``: how the caller calls it)."""
+    check_choice(level, MAP_LEVELS, name)
 
 # Split order used for listing and sorting (other ``<name>_pano`` splits follow alphabetically).
 OMNISCENES_SPLITS: tuple[str, ...] = ("robot", "handheld", "extreme", "change_robot", "change_handheld")

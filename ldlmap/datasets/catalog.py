@@ -13,7 +13,7 @@ except ModuleNotFoundError:  # Python 3.10
     import tomli as tomllib  # type: ignore[no-redef]
 
 from ldlmap.core.errors import InputError
-from ldlmap.datasets.base import (DATASET_KINDS, DEFAULT_ROOTS, Dataset, MANIFEST_DIRS, MAP_LEVELS, require_root,
+from ldlmap.datasets.base import (DATASET_KINDS, DEFAULT_ROOTS, Dataset, MANIFEST_DIRS, check_map_level, require_root,
                                   visible_dirs)
 from ldlmap.datasets.omniscenes import OmniScenes
 from ldlmap.datasets.stanford import Stanford2D3DS
@@ -43,8 +43,7 @@ def open_dataset(root: str | Path | None = None, kind: str | None = "omniscenes"
     (one map per complete room or per floor); other kinds ignore it."""
     if kind is not None and kind not in DATASET_KINDS:
         raise InputError(f"unknown dataset kind {kind!r}; choose one of {', '.join(DATASET_KINDS)}")
-    if map_level not in MAP_LEVELS:
-        raise InputError(f"unknown map level {map_level!r}; choose one of {', '.join(MAP_LEVELS)}")
+    check_map_level(map_level)
     if root is None:
         if kind is None:
             raise InputError("give a dataset root or a dataset kind")
