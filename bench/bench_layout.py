@@ -1,14 +1,14 @@
 """Furnished rooms against maps of their layout alone: the ``layout`` benchmark.
 
-Run: ``python bench/bench_layout.py [--per-kind 8] [--seed 39] [--per-split N] [--out bench/layout.json]``.
+Run: ``python bench/bench_layout.py [--per-kind 6] [--seed 39] [--per-split N] [--out bench/layout.json]``.
 
 It generates ``4 x --per-kind`` rooms of ``ldlmap synth --preset furnished`` (kitchens, bathrooms,
 bedrooms, living rooms, cycling through the box, sloped, stepped, arched, curved and L-shaped
-apartment shapes; densely furnished; cached under ``bench/.cache/layout/``), builds each room's map
-from its layout line file (``layout/<scene>.obj``: the shell's creases, no doors, windows or
-furniture) exactly as ``ldlmap build layout.obj -o room.h5`` does (its defaults, through
-``build_map``), and localizes every robot and handheld panorama (upright, cameras 1.1-2.2 m above
-the floor) with ``ldlloc run``'s defaults and ``--max-tilt 10`` (``run_queries``).
+apartment shapes: the default 24 rooms hold every function with every shape once; densely
+furnished; cached under ``bench/.cache/layout/``), builds each room's map from its layout line
+file (``layout/<scene>.obj``: the shell's creases, no doors, windows or furniture) exactly as
+``ldlmap build layout.obj -o room.h5`` does (its defaults, through ``build_map``), and localizes
+every robot and handheld panorama (upright, cameras 1.1-2.2 m above the floor) with ``ldlloc run``'s defaults and ``--max-tilt 10`` (``run_queries``).
 
 Printed per room function, per shape and overall: within 0.1 m / 5 deg and 0.25 m / 5 deg, search
 top-1 and best of the top 20 within 0.5 m / 10 deg, poses marked ``confident`` and how many of them
@@ -152,7 +152,7 @@ def print_table(table: dict) -> None:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--per-kind", type=int, default=8, help="rooms per room function (4 functions)")
+    ap.add_argument("--per-kind", type=int, default=6, help="rooms per room function (4 functions)")
     ap.add_argument("--seed", type=int, default=39)
     ap.add_argument("--per-split", type=int, default=None, help="panoramas per split and room (default: the preset's 1)")
     ap.add_argument("--threads", type=int, default=1)

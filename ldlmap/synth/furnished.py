@@ -2,8 +2,9 @@
 ``furnished`` preset of ``ldlmap synth``).
 
 Room ``i`` (1, 2, ...) of a seed is a kitchen, bathroom, bedroom or living room
-(:data:`FUNCTIONS`, cycling) of one of the shapes :data:`SHAPES` (cycling on its own, so 12 rooms
-make every pair of a function and a shape parity): a box, a sloped, stepped or arched ceiling, a
+(:data:`FUNCTIONS`, cycling) of one of the shapes :data:`SHAPES` (cycling on its own, shifted by
+one every 12 rooms, so that rooms 1-24 hold every pair of a function and a shape once): a box, a
+sloped, stepped or arched ceiling, a
 curved wall (the generator's shapes, :mod:`ldlmap.synth.shapes`) or an apartment-like L-shaped
 room. Each is filled with the furniture of its function (cabinets and counters along the walls,
 beds, sofas, tables, chairs, appliances, lamps, plants as boxes of plausible sizes: at least
@@ -88,8 +89,10 @@ def room_function(index: int) -> str:
 
 
 def room_shape(index: int) -> str:
-    """The shape of room ``index`` (1, 2, ...): one of :data:`SHAPES`."""
-    return SHAPES[(int(index) - 1) % len(SHAPES)]
+    """The shape of room ``index`` (1, 2, ...): one of :data:`SHAPES` (rooms 1-24: every function
+    with every shape once)."""
+    k = int(index) - 1
+    return SHAPES[(k + k // 12) % len(SHAPES)]
 
 
 def _l_footprint(rng: np.random.Generator, size: tuple[float, float]) -> np.ndarray:
