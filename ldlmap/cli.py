@@ -240,7 +240,9 @@ def synth(
                                           "in one scan, one scene multiroom_1; building: 3 floors of 12 rooms, "
                                           "corridors and a stairwell, one scene per floor; building_small: 2 floors "
                                           "of 3 rooms; rooms that are not boxes: angled, sloped, stepped, arched, "
-                                          "curved, shapes = one of each); default demo."),
+                                          "curved, shapes = one of each; furnished: kitchens, bathrooms, bedrooms "
+                                          "and living rooms as densely furnished as homes, each with its layout "
+                                          "line file); default demo."),
     spec: Optional[list[Path]] = typer.Option(None, "--spec", help="Scene spec .toml (repeatable); replaces --preset."),
     seed: int = typer.Option(0, "--seed", help="Random seed in [0, 2**32): same seed, identical files."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace a non-empty OUT folder."),

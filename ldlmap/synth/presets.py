@@ -67,6 +67,20 @@ for _kind in SHAPE_KINDS:
     PRESETS[_kind] = {**_SHAPE_BASE, "shape": _kind}
 PRESETS["shapes"] = {**_SHAPE_BASE, "scenes": len(SHAPE_KINDS), "shape": "mixed"}
 
+# Rooms furnished as densely as homes, with their layout line files (ldlmap/synth/furnished.py draws
+# them; only "scenes", "capture" and "scan" are read from here): kitchens, bathrooms, bedrooms and
+# living rooms cycling through the shapes; cameras 1.1-2.2 m above the floor, upright within 2-3 deg.
+PRESETS["furnished"] = {
+    "scenes": 12,
+    "shape": "furnished",
+    "layout": True,
+    "capture": {"width": 1024, "height": 512,
+                "robot": {"count": 1, "camera_height": 1.45, "height_jitter": 0.35, "max_tilt_deg": 2.0},
+                "handheld": {"count": 1, "camera_height": 1.65, "height_jitter": 0.55, "max_tilt_deg": 3.0},
+                "extreme": {"count": 0}, "change": {"count": 0}, "illumination": {"enabled": False}},
+    "scan": {"density": 300.0, "stations": 2, "holes": 2},  # a light scan: the preset is for layout maps
+}
+
 _OBJECT_SIZES = {  # kind -> (min (sx, sy, sz), max (sx, sy, sz)) in m
     "box": ((0.35, 0.35, 0.3), (0.8, 0.8, 0.9)),
     "table": ((0.9, 0.6, 0.7), (1.8, 1.0, 0.8)),
@@ -125,9 +139,15 @@ def _footprint(rng: np.random.Generator, size: tuple[float, float], p_chamfer: f
 
 
 def place_object(rng: np.random.Generator, kind: str, fp: np.ndarray, ceiling: float,
-                 placed: list[ObjectSpec], keep_out: list[np.ndarray], tries: int = 300) -> ObjectSpec | None:
-    """A random ``kind`` object inside footprint ``fp``, clear of ``placed`` and ``keep_out``; None after ``tries``."""
-    lo, hi = _OBJECT_SIZES[kind]
+                 placed: list[ObjectSpec], keep_out: list[np.ndarray], tries: int = 300,
+                 sizes: tuple | None = None, against_wall: bool | None = None, gap: float = 0.35) -> ObjectSpec | None:
+    """A random ``kind`` object inside footprint ``fp``, clear of ``placed`` and ``keep_out``; None after ``tries``.
+
+    ``sizes``: ``(min (sx, sy, sz), max (sx, sy, sz))`` instead of the kind's; ``against_wall``: back
+    against a wall always (True), never (False) or as the kind goes (None); ``gap``: walking space
+    kept free around the object (m)."""
+    lo, hi = sizes if sizes is not None else _OBJECT_SIZES[kind]
+    wall_p = {True: 1.0, False: 0.0, None: 0.8 if kind in _AGAINST_WALL else 0.0}[against_wall]
     size = tuple(float(np.round(rng.uniform(a, b), 2)) for a, b in zip(lo, hi))
     size = (size[0], size[1], min(size[2], round(ceiling - 0.3, 2)))
     xmin, ymin = fp.min(axis=0)
@@ -137,7 +157,7 @@ def place_object(rng: np.random.Generator, kind: str, fp: np.ndarray, ceiling: f
                                "shelf": ["wood", "dark_wood", "painted"], "cabinet": ["painted", "wood", "metal"],
                                "sofa": ["fabric", "fabric", "carpet"]}[kind]))
     for _ in range(tries):
-        if kind in _AGAINST_WALL and rng.random() < 0.8:
+        if wall_p > 0 and rng.random() < wall_p:
             # Back against a random wall, facing into the room (front = local -y).
             i = int(rng.integers(len(fp)))
             length = float(np.linalg.norm(edges[i]))
@@ -156,7 +176,7 @@ def place_object(rng: np.random.Generator, kind: str, fp: np.ndarray, ceiling: f
         rect = object_footprint(obj)
         if not pg.convex_inside_polygon(_inflate(rect, 0.05), fp):
             continue
-        walk = _inflate(rect, 0.35)  # keep walking space between objects
+        walk = _inflate(rect, gap)  # keep walking space between objects
         if any(pg.convex_overlap(walk, object_footprint(o)) for o in placed):
             continue
         if any(pg.convex_overlap(rect, k) for k in keep_out):
@@ -175,7 +195,7 @@ def _inflate(rect: np.ndarray, d: float) -> np.ndarray:
     return c + signs[:, :1] * ux * hx + signs[:, 1:] * uy * hy
 
 
-def _wall_items(rng: np.random.Generator, fp: np.ndarray, ceiling: float, counts: dict[str, int]
+def wall_items(rng: np.random.Generator, fp: np.ndarray, ceiling: float, counts: dict[str, int]
                 ) -> tuple[list[OpeningSpec], list[PosterSpec]]:
     lengths = np.linalg.norm(np.roll(fp, -1, axis=0) - fp, axis=1)
     used: dict[int, list[tuple[float, float, float, float]]] = {}
@@ -260,7 +280,7 @@ def random_spec(preset: str, seed: int, index: int = 0) -> SceneSpec:
     counts = {"door": int(rng.integers(cfg["doors"][0], cfg["doors"][1] + 1)),
               "window": int(rng.integers(cfg["windows"][0], cfg["windows"][1] + 1)),
               "poster": int(rng.integers(cfg["posters"][0], cfg["posters"][1] + 1))}
-    openings, posters = _wall_items(rng, fp, ceiling, counts)
+    openings, posters = wall_items(rng, fp, ceiling, counts)
     keep_out = door_keep_out(fp, openings)
     n_obj = int(rng.integers(cfg["objects"][0], cfg["objects"][1] + 1))
     kinds = list(OBJECT_KINDS)
