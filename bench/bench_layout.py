@@ -156,7 +156,7 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=39)
     ap.add_argument("--per-split", type=int, default=None, help="panoramas per split and room (default: the preset's 1)")
     ap.add_argument("--threads", type=int, default=1)
-    ap.add_argument("--out", type=Path, default=HERE / "layout.json")
+    ap.add_argument("--output", type=Path, default=HERE / "layout.json")
     args = ap.parse_args()
     set_threads(args.threads)
     t0 = time.perf_counter()
@@ -177,10 +177,10 @@ def main() -> None:
     table["all"] = summarize(rows, rooms)
     print_table(table)
     console().print(f"data {t1 - t0:.0f} s, maps {t2 - t1:.0f} s, localization {t3 - t2:.0f} s; {load_line(machine_info())}")
-    write_json(args.out, {"machine": machine_info(), "args": {k: str(v) for k, v in vars(args).items()},
+    write_json(args.output, {"machine": machine_info(), "args": {k: str(v) for k, v in vars(args).items()},
                           "seconds": {"data": t1 - t0, "maps": t2 - t1, "localize": t3 - t2},
                           "summary": table, "queries": rows})
-    console().print(f"results: {args.out}")
+    console().print(f"results: {args.output}")
 
 
 if __name__ == "__main__":
