@@ -54,15 +54,19 @@ def furnished_dataset(rooms: int, seed: int, per_split: int | None) -> Path:
     return out
 
 
-def build_maps(root: Path) -> tuple[Path, dict]:
-    """One map per room from its layout line file, as ``ldlmap build layout.obj -o room.h5`` makes it;
-    returns the maps' folder and per scene ``{mb, build_s}`` (seconds of a build done now or before)."""
+def build_maps(root: Path, camera_height: tuple[float, float] | None = None, up: str | None = None
+               ) -> tuple[Path, dict]:
+    """One map per room from its layout line file, as ``ldlmap build layout.obj -o room.h5`` makes it
+    (``camera_height``: ``--camera-height MIN:MAX``; ``up``: ``--up``); returns the maps' folder and per scene ``{mb,
+    build_s}`` (seconds of a build done now or before)."""
     from ldlmap.map import build as map_build
     from ldlmap.map import params as map_params
 
-    maps = root / f"maps_layout_{map_tag()}"
+    band = f"_h{camera_height[0]:g}-{camera_height[1]:g}" if camera_height else ""
+    maps = root / f"maps_layout{band}{f'_up{up}' if up else ''}_{map_tag()}"
     maps.mkdir(exist_ok=True)
-    params = map_params.params_with(map_params.BuildParams(), features="sift")  # the command's defaults
+    params = map_params.params_with(map_params.BuildParams(), features="sift",  # the command's defaults
+                                    camera_height=camera_height, up=up)
     info = {}
     for scene in json.loads((root / "dataset.json").read_text())["scenes"]:
         name, target = scene["name"], maps / f"{scene['name']}.h5"
@@ -156,13 +160,17 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=39)
     ap.add_argument("--per-split", type=int, default=None, help="panoramas per split and room (default: the preset's 1)")
     ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument("--camera-height", default=None, metavar="MIN:MAX",
+                    help="build the maps with ldlmap build's --camera-height MIN:MAX (default: not given)")
+    ap.add_argument("--up", default=None, help="build the maps with ldlmap build's --up (default: auto)")
     ap.add_argument("--output", type=Path, default=HERE / "layout.json")
     args = ap.parse_args()
     set_threads(args.threads)
     t0 = time.perf_counter()
     root = furnished_dataset(4 * args.per_kind, args.seed, args.per_split)
     t1 = time.perf_counter()
-    maps, rooms = build_maps(root)
+    band = tuple(float(x) for x in args.camera_height.split(":")) if args.camera_height else None
+    maps, rooms = build_maps(root, band, args.up)
     t2 = time.perf_counter()
     rows = localize(root, maps)
     t3 = time.perf_counter()
