@@ -19,9 +19,9 @@ from dataclasses import replace
 import numpy as np
 
 from ldlmap.core import polygon as pg
-from ldlmap.synth.presets import door_keep_out, get_preset, place_object, wall_items
+from ldlmap.synth.presets import door_keep_out, get_preset, place_object, room_spec, wall_items
 from ldlmap.synth.shapes import random_ceiling, rectangle, shape_footprint
-from ldlmap.synth.spec import CaptureSpec, CeilingSpec, ObjectSpec, ScanSpec, SceneSpec, dataclass_from_dict, validate_spec
+from ldlmap.synth.spec import CeilingSpec, ObjectSpec, SceneSpec
 
 FUNCTIONS = ("kitchen", "bathroom", "bedroom", "living")
 SHAPES = ("box", "sloped", "stepped", "arched", "curved", "apartment")
@@ -151,24 +151,8 @@ def furnished_spec(seed: int, index: int) -> SceneSpec:
     counts = {"door": 1, "window": int(rng.integers(0, 3)), "poster": int(rng.integers(1, 3))}
     openings, posters = wall_items(rng, fp, ceiling, counts)
     objects = _furnish(rng, function, fp, ceiling, door_keep_out(fp, openings))
-    walls, floors = _MATERIALS[function]
-    spec = SceneSpec(
-        name=f"{function}{index:02d}",
-        footprint=tuple((float(x), float(y)) for x, y in fp),
-        ceiling_height=ceiling,
-        objects=tuple(objects),
-        openings=tuple(openings),
-        posters=tuple(posters),
-        seed=int(rng.integers(0, 2**31 - 1)),
-        wall_material=str(rng.choice(walls)),
-        floor_material=str(rng.choice(floors)),
-        ceiling_material="ceiling",
-        ceiling=ceil,
-        capture=dataclass_from_dict(CaptureSpec, cfg["capture"], "capture"),
-        scan=dataclass_from_dict(ScanSpec, cfg["scan"], "scan"),
-    )
-    validate_spec(spec)
-    return spec
+    return room_spec(rng, cfg, f"{function}{index:02d}", fp, ceiling, ceil, objects, openings, posters,
+                     _MATERIALS[function])
 
 
 def layout_spec(spec: SceneSpec) -> SceneSpec:

@@ -294,8 +294,19 @@ def random_spec(preset: str, seed: int, index: int = 0) -> SceneSpec:
     # would outnumber the structural lines that a 3D scan can give (specs may still use brick).
     walls = ["plaster", "plaster", "wallpaper", "concrete"]
     floors = ["parquet", "carpet", "tiles", "carpet"]
+    return room_spec(rng, cfg, f"{preset}{index:02d}", fp, ceiling, ceiling_shape, objects, openings, posters,
+                     (walls, floors))
+
+
+def room_spec(rng: np.random.Generator, cfg: dict, name: str, fp: np.ndarray, ceiling: float,
+              ceiling_shape: CeilingSpec | None, objects: list[ObjectSpec], openings: list[OpeningSpec],
+              posters: list[PosterSpec], materials: tuple[list[str], list[str]]) -> SceneSpec:
+    """A random room's validated spec from its parts: the render seed and the wall and floor
+    materials (one of ``materials``' walls and floors each) drawn from ``rng`` in that order, the
+    capture and scan settings from the preset ``cfg``."""
+    walls, floors = materials
     spec = SceneSpec(
-        name=f"{preset}{index:02d}",
+        name=name,
         footprint=tuple((float(x), float(y)) for x, y in fp),
         ceiling_height=ceiling,
         objects=tuple(objects),
