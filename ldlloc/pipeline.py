@@ -207,11 +207,6 @@ def load_image(path: str | Path) -> np.ndarray:
     return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
 
 
-def image_size(path: str | Path) -> tuple[int, int] | None:
-    """(width, height) of a PNG or JPEG from its header, without decoding it (None: another format)."""
-    return image_header_size(Path(path))
-
-
 def _check_panorama_size(size: tuple[int, int], p: Path) -> None:
     """One-line errors for a (width, height) that is too large, not 2:1 or too small."""
     w, h = size

@@ -17,11 +17,12 @@ from pathlib import Path
 from typing import Callable
 
 from ldlmap.core.errors import InputError, LdlError
+from ldlmap.io.imagefile import image_header_size
 from ldlloc.record import QueryResult
 from ldlloc.batch.images import ImageQuery, failed_image_result, image_result
 from ldlloc.batch.run import failed_result, open_results, result_from_localization, tilt_bound_for
 from ldlloc.batch.which_map import MapSet
-from ldlloc.pipeline import LocalizeParams, image_size, load_image
+from ldlloc.pipeline import LocalizeParams, load_image
 from ldlloc.walk.localize import MIN_FRAMES, FrameOutcome, WalkFrame, WalkParams, localize_walk
 from ldlloc.walk.order import natural_key, ordered
 from ldlloc.walk.video import check_sampling, decoded_frames, frame_at, video_info
@@ -52,7 +53,7 @@ def check_frame_sizes(paths: list[Path]) -> None:
     sizes = {}
     for p in paths:
         try:
-            size = image_size(p)
+            size = image_header_size(p)
         except InputError:
             continue
         if size is not None:
