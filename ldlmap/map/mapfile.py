@@ -3,7 +3,7 @@
 Schema (``FORMAT_VERSION`` 3; a map with 3 principal directions is written as version 1, the
 layout every reader since version 1 knows; one with more, an Atlanta frame of several horizontal
 directions, as version 2; one with distance fields as version 3, its fields stored as uint8 steps
-of ``/fields`` attr ``distance_quantum`` (pi / 255 rad) instead of float16, half the size; older
+``q`` (``distance_quantum * q**2`` radians, ``distance_quantum`` = pi / 255**2) instead of float16, half the size; older
 readers refuse versions newer than theirs). World frame metric, z up (docs/formats.md). All groups and
 datasets are readable with plain h5py::
 
@@ -72,9 +72,9 @@ h5py = lazy_module("h5py")
 FORMAT_VERSION = 3  # the newest version this code reads and writes (it reads every version from 1)
 _VERSION_3_DIRECTIONS = 1  # what maps of 3 principal directions are written as (unchanged since version 1)
 _VERSION_MANY_DIRECTIONS = 2  # maps of more principal directions, float16 fields
-_VERSION_QUANTIZED = 3  # maps with distance fields, stored as uint8 steps of DISTANCE_QUANTUM
-DISTANCE_QUANTUM = float(np.pi / 255)  # radians per stored step: at most 0.0062 rad off, 6 % of the search's
-# inlier threshold (0.1 rad) and a fifth of the fields' float16 error budget at pi (docs/measurements.md#fields-uint8)
+_VERSION_QUANTIZED = 3  # maps with distance fields, stored as uint8 codes q of DISTANCE_QUANTUM * q**2 radians
+DISTANCE_QUANTUM = float(np.pi / 255 ** 2)  # square-root coding: steps of 0.0014 rad at 0.01 rad, 0.0044 at the search's
+# inlier threshold (0.1 rad), 0.025 at pi (no line): fine where lines are near (docs/measurements.md#fields-uint8)
 _COMPRESS = dict(compression="gzip", compression_opts=4, shuffle=True)
 
 def _library_versions() -> dict[str, str]:
@@ -96,13 +96,17 @@ def map_format_version(m: LdlMap) -> int:
 
 
 def quantized_distances(d: np.ndarray) -> np.ndarray:
-    """Distance fields (radians in [0, pi]) as uint8 steps of :data:`DISTANCE_QUANTUM` (nearest)."""
-    return np.clip(np.rint(np.asarray(d, np.float32) / DISTANCE_QUANTUM), 0, 255).astype(np.uint8)
+    """Distance fields (radians in [0, pi]) as uint8 codes q, ``d ~ DISTANCE_QUANTUM * q**2`` (nearest code)."""
+    d = np.maximum(np.asarray(d, np.float32), 0.0)
+    return np.clip(np.rint(np.sqrt(d / np.float32(DISTANCE_QUANTUM))), 0, 255).astype(np.uint8)
 
 
 def dequantized_distances(q: np.ndarray, quantum: float) -> np.ndarray:
-    """Stored uint8 steps back to float16 radians (float16 fields, as version 1 and 2 maps store, pass through)."""
-    return q if q.dtype != np.uint8 else (q.astype(np.float32) * np.float32(quantum)).astype(np.float16)
+    """Stored uint8 codes back to float16 radians, ``quantum * q**2`` (float16 fields, as version 1 and 2 maps
+    store, pass through)."""
+    if q.dtype != np.uint8:
+        return q
+    return (np.square(q.astype(np.float32)) * np.float32(quantum)).astype(np.float16)
 
 
 def stored_distances(h5, stored: np.ndarray, path: Path) -> np.ndarray:
@@ -111,8 +115,8 @@ def stored_distances(h5, stored: np.ndarray, path: Path) -> np.ndarray:
     if stored.dtype != np.uint8:
         return stored
     quantum = _attr_value(h5["fields"], "distance_quantum", "float", path)
-    if quantum is None or not 0 < quantum <= 1:
-        raise InputError(f"corrupt LDL map {path}: uint8 distance fields need a /fields distance_quantum in (0, 1], "
+    if quantum is None or not 0 < quantum * 255 ** 2 <= 4:
+        raise InputError(f"corrupt LDL map {path}: uint8 distance fields need a /fields distance_quantum in (0, 4 / 255**2], "
                          f"got {quantum!r}")
     return dequantized_distances(stored, quantum)
 
