@@ -43,7 +43,7 @@ from ldlmap.core.errors import (FormatVersionError, InputError, LdlError, WriteE
 
 RESULTS_FORMAT_VERSION = 1  # top-level "format_version" of a results file (absent: written before it, read as 1)
 OPTION_KEYS = ("dataset", "root", "splits", "map_level", "device", "params", "max_tilt_deg", "maps", "top_maps",
-               "scene_unknown", "images_path")  # meta compared by --resume
+               "scene_unknown", "images_path", "walk", "video", "fps", "every")  # meta compared by --resume
 
 
 def validate_results(data: Any, source: str | Path = "results") -> tuple[list[QueryResult], dict[str, Any]]:
@@ -168,7 +168,7 @@ def refuse_replacing_results(path: str | Path, overwrite: bool = False, resume: 
     if meta.get("finished") is False:  # absent: written before the flag, or by a run that finished
         release_lock(*acquire_lock(p), lock_path(p))  # a run writing it now: ResultsBusy says so
         raise InputError(f"{p} holds {len(results)} results of a run that did not finish (killed or interrupted): "
-                         f"{continue_hint(meta, 'continue it with --resume, or replace it with --overwrite')}")
+                         "continue it with --resume, or replace it with --overwrite")
 
 
 def _is_results_csv(path: Path) -> bool:
@@ -346,7 +346,7 @@ class ResultsWriter:
             _remove_journal(self.journal_path)
             return
         header = journal_header(token)
-        with _naming_errors(self.journal_path, self.meta):
+        with _naming_errors(self.journal_path):
             with atomic_file(self.journal_path) as tmp:
                 tmp.write_bytes(header)
             self._journal = open(self.journal_path, "ab")
@@ -354,7 +354,7 @@ class ResultsWriter:
     def _append(self, results: list[QueryResult]) -> None:
         """Append the records of ``results`` to the journal, one line each, in one write."""
         lines = "".join(f'{{"query": {self._texts[r.name]}}}\n' for r in results).encode()
-        with _naming_errors(self.journal_path, self.meta):
+        with _naming_errors(self.journal_path):
             try:
                 self._journal.write(lines)
                 self._journal.flush()
@@ -377,7 +377,7 @@ class ResultsWriter:
         text = json.dumps(head, indent=1, allow_nan=False)[:-2]  # without the closing "\n}"
         text += ',\n "queries": [\n' + ",\n".join(self._texts.values()) + "\n ]\n}" if self._texts else \
             ',\n "queries": []\n}'
-        with _naming_errors(self.path, self.meta):
+        with _naming_errors(self.path):
             with atomic_file(self.path) as tmp:
                 tmp.write_text(text)
         self._json_bytes = len(text)
@@ -399,10 +399,10 @@ class ResultsWriter:
 
 
 @contextlib.contextmanager
-def _naming_errors(path: Path, meta: dict[str, Any]):
+def _naming_errors(path: Path):
     """Turn an OSError (a full disk, a folder made read-only) into a one-line error naming ``path``
-    and how to go on (``meta``: the run's, :func:`continue_hint`)."""
-    kept = f"(the results written before are kept: {continue_hint(meta)})"
+    and how to go on (``--resume``)."""
+    kept = "(the results written before are kept: continue with --resume)"
     try:
         yield
     except WriteError as exc:  # already names the file it could not write
@@ -434,14 +434,6 @@ RUN_KINDS = {"images": "an --images run", "images walk": "an --images --walk run
              "dataset walk": "a dataset --walk run", "video": "a --video run"}  # :func:`run_kind` in words
 
 
-def continue_hint(meta: dict[str, Any], prefix: str = "continue with --resume") -> str:
-    """How to go on with the results of a run that did not finish: ``prefix`` (resume it), or for a
-    video, which is never resumed, run it again."""
-    if run_kind(meta) == "video":
-        return "a --video run is not resumed: run it again with --overwrite"
-    return prefix
-
-
 def unfinished_note(records: list, meta: dict) -> str | None:
     """What to say of a results file whose run did not finish (``meta["finished"]`` false: killed
     or interrupted), None for a finished run (or one written before the flag existed)."""
@@ -449,7 +441,7 @@ def unfinished_note(records: list, meta: dict) -> str | None:
         return None
     return (f"this run did not finish (killed or interrupted): the file holds {len(records)} "
             f"quer{'y' if len(records) == 1 else 'ies'}, not necessarily all of its run; "
-            f"{continue_hint(meta, '`ldlloc run ... --resume` continues it')}")
+            "`ldlloc run ... --resume` continues it")
 
 
 def _resumed_meta(path: Path, old: dict[str, Any], new: dict[str, Any], any_options: bool) -> dict[str, Any]:

@@ -18,7 +18,7 @@ from __future__ import annotations
 from dataclasses import replace
 from itertools import islice
 from pathlib import Path
-from typing import Callable, Iterable
+from typing import Callable, Iterable, Iterator
 
 from ldlmap.core.errors import InputError, LdlError
 from ldlmap.io.imagefile import image_header_size
@@ -55,10 +55,15 @@ def walk_records(writer: ResultsWriter, names: list[str]) -> list[QueryResult | 
     return [have.get(n) for n in names]
 
 
+def written_whole(records: list[QueryResult | None]) -> bool:
+    """Whether a walk's frames are all written (and not all failed: those are run again)."""
+    return bool(records) and all(r is not None for r in records) and any(r.status != "failed" for r in records)
+
+
 def walk_resume(records: list[QueryResult | None], maps: MapSet, lag: int) -> tuple[bool, Resume | None]:
-    """Whether a walk is written whole (its frames not all failed: nothing to run), and else where
-    it goes on (:func:`ldlloc.walk.stream.resume_state`; None: from its first frame)."""
-    if records and all(r is not None for r in records) and any(r.status != "failed" for r in records):
+    """Whether a walk is written whole (:func:`written_whole`: nothing to run), and else where it
+    goes on (:func:`ldlloc.walk.stream.resume_state`; None: from its first frame)."""
+    if written_whole(records):
         return True, None
     return False, resume_state(records, maps, lag)
 
@@ -204,8 +209,13 @@ class DatasetWalk:
         self.device = device
 
     def run(self, write: Callable[[list[QueryResult]], None], records: list | None = None) -> None:
-        """Localize the walk, ``write``-ing each decided frame's record (a list of one); ``records``:
-        the frames' records already written (a resumed run: it goes on after them, or skips a walk
+        """Localize the walk, ``write``-ing each decided frame's record (a list of one): :meth:`batches`."""
+        for batch in self.batches(records):
+            write(batch)
+
+    def batches(self, records: list | None = None) -> Iterator[list[QueryResult]]:
+        """The records of the walk's frames as they are decided (lists of one); ``records``: the
+        frames' records already written (a resumed run: it goes on after them, or skips a walk
         written whole). A walk whose maps cannot be loaded fails its frames not yet written."""
         done = 0
         try:
@@ -217,10 +227,10 @@ class DatasetWalk:
             frames = [WalkFrame(q.name, (lambda p=q.image: load_image(p)), None, tilt_bound_for(q, self.params))
                       for q in self.queries[state.start if state else 0:]]
             for slot in stream_walk(frames, maps, self.walk, self.lag, state):
-                write([_dataset_record(self.queries[slot.index], slot, self.params, self.key)])
+                yield [_dataset_record(self.queries[slot.index], slot, self.params, self.key)]
                 done = slot.index + 1
         except LdlError as exc:
-            write([failed_result(q, self.params, str(exc)) for q in self.queries[done:]])
+            yield [failed_result(q, self.params, str(exc)) for q in self.queries[done:]]
 
 
 def _dataset_record(q, slot: Slot, params: LocalizeParams, walk: str) -> QueryResult:
