@@ -293,3 +293,23 @@ def test_scene_unknown_run_on_ray_equals_the_plain_one(cluster, demo_dataset, tm
     strip = lambda rs: [{k: v for k, v in r.items() if k not in ("seconds", "message")} for r in rs]  # noqa: E731
     assert strip(plain) == strip(on_ray) and len(on_ray) == 5
     assert all(r["map"] == str(demo_dataset / "maps" / "synthroom_2.h5") for r in on_ray)
+
+
+def test_walks_on_ray_equal_the_plain_run_also_resumed(cluster, demo_dataset, tmp_path):
+    """`run --walk --ray`: one actor per walk (a scene's queries), never split, gives the plain run's
+    records but for the timings; resumed from a file a killed run left (the first walk's first
+    frames written), the actor goes on from its last written frame and the file is the same."""
+    base = ["run", "--root", str(demo_dataset), "--split", "robot", "--walk", "--lag", "1"]
+    plain, on_ray = tmp_path / "plain.json", tmp_path / "ray.json"
+    res = runner.invoke(loc_app, [*base, "--output", str(plain)])
+    assert res.exit_code == 0, res.output
+    data = json.loads(plain.read_text())
+    data["meta"]["finished"] = False  # as a run killed after its third frame leaves it
+    data["queries"] = data["queries"][:3]
+    on_ray.write_text(json.dumps(data))
+    res = runner.invoke(loc_app, [*base, "--output", str(on_ray), "--resume", "--ray", "local"])
+    assert res.exit_code == 0, res.output
+    assert _without_timings(on_ray) == _without_timings(plain)
+    assert _csv_without_timings(on_ray.with_suffix(".csv")) == _csv_without_timings(plain.with_suffix(".csv"))
+    walks = {q["walk"]["name"] for q in json.loads(on_ray.read_text())["queries"]}
+    assert walks == {"synthroom_1", "synthroom_2"}
