@@ -10,6 +10,14 @@ whole cost of a run's results, amortized per query). Prints one table; nothing i
 
 Before / after: run it with the tree to measure first on ``PYTHONPATH`` (``--tree DIR``), e.g.
 ``python bench/bench_results_write.py --tree ../main`` and ``python bench/bench_results_write.py``.
+
+``--walk N``: a walk of N frames through the walk's stream (:mod:`ldlloc.walk.stream`: windows of
+``--lag`` frames, the path chosen, each frame's record written once decided) and the results
+writer, with made-up frames (each 48 hypotheses over two maps, as a real frame keeps, and a
+record as large as a real walk frame's; the localization itself is left out: its cost and memory
+do not grow with the walk). Prints, at frames 30, 300, 1000, 3000 (and N): the milliseconds to
+decide and write a frame (mean of the 10 frames before), the memory held by the stream and by
+the writer (tracemalloc), the peak, and the file's bytes.
 """
 
 from __future__ import annotations
@@ -28,6 +36,8 @@ def parse_args() -> argparse.Namespace:
     ap.add_argument("--adds", type=int, default=10, help="queries added (and timed) at each size")
     ap.add_argument("--scratch", type=int, default=0, help="also time a run of this many queries from an empty file")
     ap.add_argument("--tree", default=None, help="source tree to import ldlloc from (default: this one)")
+    ap.add_argument("--walk", type=int, default=0, help="also a walk of this many frames (stream and writer)")
+    ap.add_argument("--lag", type=int, default=100, help="--walk: the stream's lag (frames)")
     return ap.parse_args()
 
 
@@ -99,6 +109,61 @@ def time_scratch(m: int, folder: Path) -> dict:
             "finish_s": finish, "bytes": path.stat().st_size}
 
 
+def walk_frame(i: int, maps):
+    """Made-up frame ``i`` of a walk down a corridor: 48 hypotheses over two maps (its own pose
+    first), a record-sized localization; what :func:`ldlloc.walk.localize.localize_frame` returns."""
+    import numpy as np
+    from ldlloc.walk.hypotheses import Hypotheses
+    from ldlloc.walk.localize import FrameOutcome
+
+    rng = np.random.default_rng(i)
+    c = np.array([0.3 * i, 0.0, 1.5])
+    centers = np.r_[c[None], c + rng.normal(0, 2, (47, 3))]
+    rots = np.repeat(np.eye(3)[None], 48, 0)
+    h = Hypotheses(rng.integers(0, 2, 48), rots, centers, np.r_[-60.0, rng.uniform(-55, -10, 47)],
+                   np.r_[True, np.zeros(47, bool)])
+    loc = type("Loc", (), {"rot_cam_from_world": rots[0], "center": centers[0], "refined": True, "confidence": 0.9,
+                           "verdict": "confident", "competitors": []})()
+    return FrameOutcome(None, loc=loc, entry=maps.entries[0], hypotheses=h, single_confidence=0.9,
+                        single_verdict="confident", single_pose=(rots[0], centers[0]))
+
+
+def time_walk(n: int, lag: int, folder: Path) -> list[dict]:
+    """A walk of ``n`` made-up frames streamed and written (module docstring); rows at checkpoints."""
+    import tracemalloc
+    from dataclasses import replace
+    from ldlloc.batch.results import ResultsWriter
+    from ldlloc.walk import stream
+    from ldlloc.walk.localize import WalkFrame, WalkParams
+
+    entry = type("Entry", (), {"path": Path("a.h5"), "scene": "a"})
+    maps = type("Maps", (), {"entries": [entry(), entry()]})()
+    stream.localize_frame = lambda item, *a: (replace(walk_frame(int(item.name[1:]), maps), frame=item), None)
+    marks = sorted({m for m in (30, 300, 1000, 3000, n) if m <= n})
+    frames = (WalkFrame(f"f{i:06d}", lambda: None, 0.2 * i) for i in range(n))
+    rows, times = [], []
+    tracemalloc.start()
+    tick = time.perf_counter()
+    with ResultsWriter(folder / "walk.json", meta={"device": "cpu", "dataset": "images", "walk": {}}) as w:
+        walk = stream.stream_walk(frames, maps, WalkParams(), lag)
+        for slot in walk:
+            r = replace(record(slot.index), name=slot.out.frame.name, walk={
+                "name": "walk", "frame": slot.index, "time": slot.out.frame.time, "margin": slot.out.walk_margin,
+                "single_pose": {"R": slot.out.single_pose[0].tolist(), "t": slot.out.single_pose[1].tolist()}})
+            w.add(r)
+            now = time.perf_counter()
+            times.append(now - tick)
+            tick = now
+            if slot.index + 1 in marks:
+                held, peak = tracemalloc.get_traced_memory()
+                rows.append({"frame": slot.index + 1, "ms": 1e3 * sum(times[-10:]) / len(times[-10:]),
+                             "held_mb": held / 1e6, "peak_mb": peak / 1e6,
+                             "bytes": sum(p.stat().st_size for p in folder.glob("walk.json*"))})
+        w.finish()
+    tracemalloc.stop()
+    return rows
+
+
 def main() -> None:
     args = parse_args()
     tree = Path(args.tree).resolve() if args.tree else Path(__file__).resolve().parents[1]
@@ -118,6 +183,13 @@ def main() -> None:
             print(f"run of {row['m']} queries from an empty file: {row['total_s']:.2f} s in all, "
                   f"{row['per_query_ms']:.2f} ms per query (worst add {row['worst_ms']:.0f} ms, finish "
                   f"{row['finish_s']:.2f} s), {row['bytes'] / 1e6:.1f} MB")
+        if args.walk:
+            print(f"walk of {args.walk} made-up frames, lag {args.lag}: ms to decide and write a frame (mean of the "
+                  "10 before), memory held and peak (tracemalloc), files")
+            print(f"{'frame':>8} {'ms/frame':>9} {'held MB':>8} {'peak MB':>8} {'files MB':>9}")
+            for row in time_walk(args.walk, args.lag, folder):
+                print(f"{row['frame']:>8} {row['ms']:>9.2f} {row['held_mb']:>8.1f} {row['peak_mb']:>8.1f} "
+                      f"{row['bytes'] / 1e6:>9.1f}")
 
 
 if __name__ == "__main__":

@@ -23,12 +23,14 @@ from tests._hostile import error_line
 
 runner = CliRunner()
 REPO = Path(__file__).resolve().parents[1]
-LAG = 1  # small: the demo's walks (5 frames) are decided frame by frame, not as a whole
-KILL_AFTER = 4  # records written before the run is killed: all but the last frame of the first walk
+LAG, BLOCK = 1, 2  # small: the demo's walks (5 frames) are decided block by block, not as a whole
+KILL_AFTER = 4  # records written before the run is killed: two blocks of the first walk, not its last frame
 
 KILLER = """
 import os, signal, sys
 from ldlloc.batch import results
+from ldlloc.walk import stream
+stream.BLOCK = {block}
 extend, written = results.ResultsWriter.extend, []
 def killing(self, records):
     extend(self, records)
@@ -57,14 +59,16 @@ def _without_timings(path: Path) -> dict:
 def whole_run(demo_dataset, tmp_path_factory) -> Path:
     """The robot split's two walks (one per scene), run without a stop."""
     out = tmp_path_factory.mktemp("whole") / "walks.json"
-    res = runner.invoke(app, _walk_args(demo_dataset, out))
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(stream, "BLOCK", BLOCK)
+        res = runner.invoke(app, _walk_args(demo_dataset, out))
     assert res.exit_code == 0, res.output
     return out
 
 
 def test_resume_after_a_kill_goes_on_from_the_last_written_frame(demo_dataset, whole_run, tmp_path, monkeypatch):
     out = tmp_path / "walks.json"
-    script = KILLER.format(n=KILL_AFTER, args=_walk_args(demo_dataset, out))
+    script = KILLER.format(n=KILL_AFTER, block=BLOCK, args=_walk_args(demo_dataset, out))
     env = {**os.environ, "PYTHONPATH": str(REPO)}
     killed = subprocess.run([sys.executable, "-c", script], env=env, cwd=tmp_path, capture_output=True, text=True)
     assert killed.returncode == -9, killed.stderr[-2000:]
@@ -75,13 +79,16 @@ def test_resume_after_a_kill_goes_on_from_the_last_written_frame(demo_dataset, w
     localized = []
     real = stream.localize_frame
     monkeypatch.setattr(stream, "localize_frame", lambda item, *a: localized.append(item.name) or real(item, *a))
+    monkeypatch.setattr(stream, "BLOCK", BLOCK)
     res = runner.invoke(app, [*_walk_args(demo_dataset, out), "--resume"])
     assert res.exit_code == 0, res.output
     whole = _without_timings(whole_run)
     names = [q["name"] for q in whole["queries"]]
     first = [q["name"] for q in whole["queries"] if q["walk"]["name"] == whole["queries"][0]["walk"]["name"]]
-    # the first walk: the frame before the first unwritten one again (its window's past), then the rest
-    assert localized == first[KILL_AFTER - LAG:] + [n for n in names if n not in first], localized
+    # the first walk: the lag frames before the first unwritten one again (its window's past, whole
+    # blocks), then the rest
+    start = (KILL_AFTER - LAG) // BLOCK * BLOCK
+    assert 0 < start < KILL_AFTER and localized == first[start:] + [n for n in names if n not in first], localized
     assert _without_timings(out) == whole  # the same records, in the same order
     after = {q["name"]: q for q in json.loads(out.read_text())["queries"]}
     assert all(after[q["name"]] == q for q in before)  # the written frames were not written again
@@ -91,6 +98,7 @@ def test_a_walk_written_whole_is_not_run_again(whole_run, demo_dataset, tmp_path
     out = tmp_path / "again.json"
     out.write_bytes(whole_run.read_bytes())
     monkeypatch.setattr(stream, "localize_frame", lambda *a: pytest.fail("a frame was localized again"))
+    monkeypatch.setattr(stream, "BLOCK", BLOCK)
     res = runner.invoke(app, [*_walk_args(demo_dataset, out), "--resume"])
     assert res.exit_code == 0, res.output
     assert _without_timings(out)["queries"] == _without_timings(whole_run)["queries"]
@@ -184,7 +192,7 @@ def _streamed(monkeypatch, n: int, lag: int) -> tuple[list, list]:
 def test_a_long_walk_holds_a_bounded_window(monkeypatch):
     got, held = _streamed(monkeypatch, 400, 10)
     assert [g[0] for g in got] == list(range(400))  # every frame, in order, once
-    assert max(held) <= 2 * 10 + 1  # the window: lag frames before the one decided, lag after
+    assert max(held) < 2 * (10 + stream.BLOCK)  # the window: lag frames before the block decided, lag after
 
 
 def test_a_walk_shorter_than_the_lag_is_decided_as_a_whole(monkeypatch):

@@ -1,26 +1,28 @@
 """A walk as a stream: each frame decided a fixed lag after it and handed on (written) at once;
 a killed walk resumed from its last written frame (:func:`stream_walk`, :func:`resume_state`).
 
-Frame f is decided once frame f + ``lag`` is localized (or the walk has ended): its pose is the
-one of the most likely path (:func:`ldlloc.walk.localize.walk_path`) over the frames f - ``lag``
-to f + ``lag``, starting from the decided pose of the last frame before them (the anchor: the
-walk's prefix, fixed once written). Frames before f are not fixed within the window (only the
+Frames are decided in blocks of :data:`BLOCK` (frames kB to kB + B - 1), once the frame ``lag``
+after the block's last is localized (or the walk has ended): their poses are those of the most
+likely path (:func:`ldlloc.walk.localize.walk_path`) over the frames kB - ``lag`` to kB + B - 1 +
+``lag``, starting from the decided pose of the last frame before them (the anchor: the walk's
+prefix, fixed once written). A block's path is searched once (its cost grows with the window,
+2 lag + B frames: a block spares B - 1 of those searches). Frames before f are not fixed within the window (only the
 anchor is), so a frame's margin weighs the paths that change the frames around it too, as the
 whole walk's does. A walk of at most ``lag`` + 1 frames is decided over the whole walk, exactly
 as :func:`ldlloc.walk.localize.localize_walk` (offline) decides it. The searches near confident
 frames (:func:`ldlloc.walk.localize.augment_frame`) run when the first confident frame after a
 frame arrives, or when the frame is decided.
 
-Memory: the hypotheses of at most 2 ``lag`` + 1 frames and the localizations of ``lag`` + 1
-(the frames not yet decided), never the images, whatever the walk's length.
+Memory: the hypotheses of fewer than 2 (``lag`` + B) frames and the localizations of the frames not
+yet decided (at most ``lag`` + B), never the images, whatever the walk's length.
 
 A frame's decision depends on the frames of its window, on the anchor, and on the state the
 first pass carries from frame to frame (the previous frame's own pose and map for tracking,
 the last global frame's loss, the last confident frame): all in the written records
 (``walk.single_pose``, ``walk.single_map``, ``walk.ref_loss``, the record's pose and map). A
-resumed walk (:func:`resume_state`) localizes again the ``lag`` frames before its first unwritten
-one (their hypotheses: the window's past) without writing them, and goes on: its records equal
-an uninterrupted run's.
+resumed walk (:func:`resume_state`) localizes again the ``lag`` frames (rounded to whole blocks)
+before its first unwritten block (their hypotheses: the window's past) without writing them,
+and goes on: its records equal an uninterrupted run's.
 """
 
 from __future__ import annotations
@@ -40,6 +42,7 @@ from ldlloc.walk.localize import (FrameOutcome, WalkFrame, WalkParams, augment_f
 
 LAG = 100  # frames: a frame is decided once this many after it are localized (a walk of lag + 1 frames or fewer:
 # decided as a whole, offline); its window also holds this many before it
+BLOCK = 10  # frames decided together, over one window (frames kB .. kB + B - 1): a tenth of the path searches
 
 
 @dataclass
@@ -93,11 +96,13 @@ class WalkStream:
     :meth:`finish`; each returns the frames decided, in order (:class:`Slot`)."""
 
     def __init__(self, maps: MapSet, params: WalkParams, lag: int = LAG, resume: Resume | None = None,
-                 progress: Callable[[int, FrameOutcome], None] | None = None):
-        if isinstance(lag, bool) or not isinstance(lag, int) or lag < 1:
-            raise InputError(f"a walk's lag must be a whole number of frames >= 1, got {lag!r}")
+                 progress: Callable[[int, FrameOutcome], None] | None = None, block: int | None = None):
+        block = BLOCK if block is None else block
+        for name, v in (("lag", lag), ("block", block)):
+            if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+                raise InputError(f"a walk's {name} must be a whole number of frames >= 1, got {v!r}")
         r = resume or Resume()
-        self.maps, self.params, self.lag, self.progress = maps, params, lag, progress
+        self.maps, self.params, self.lag, self.block, self.progress = maps, params, lag, block, progress
         self.index = {id(e): i for i, e in enumerate(maps.entries)}
         self.trackers: dict = {}
         self.next = self.decide_next = r.start
@@ -124,8 +129,8 @@ class WalkStream:
         if self.progress is not None and not slot.written:
             self.progress(i, out)
         done: list[Slot] = []
-        while self.decide_next <= i - self.lag:
-            done += self._decide_next()
+        while self.decide_next + self.block - 1 <= i - self.lag:  # the block's last frame has lag frames after it
+            done += self._decide_block()
         return done
 
     def finish(self) -> list[Slot]:
@@ -135,7 +140,7 @@ class WalkStream:
                 self._augment(s, [])
         done: list[Slot] = []
         while self.decide_next < self.next:
-            done += self._decide_next()
+            done += self._decide_block()
         return done
 
     def _augment(self, s: Slot, after: list[tuple]) -> None:
@@ -143,36 +148,41 @@ class WalkStream:
         augment_frame(s.out, [(a - s.index, entry, c) for a, entry, c in near], self.index, self.maps, self.params)
         s.pending = False
 
-    def _decide_next(self) -> list[Slot]:
-        """Decide frame ``decide_next`` over its window; [] when it was written before (a resumed walk)."""
-        f = self.decide_next
-        self.decide_next += 1
-        while self.slots[0].index < f - self.lag:  # out of the window: its decided pose anchors the rest
+    def _decide_block(self) -> list[Slot]:
+        """Decide the block of frames from ``decide_next`` over its window; the frames written before
+        (a resumed walk) are left out."""
+        b = self.decide_next
+        self.decide_next = end = min(b + self.block, self.next)
+        while self.slots[0].index < b - self.lag:  # out of the window: its decided pose anchors the rest
             old = self.slots.popleft()
             if old.final is not None:
                 self.anchor = old.final
-        slot = self.slots[f - self.slots[0].index]
-        if slot.pending:
-            self._augment(slot, [])
-        if slot.written:
-            slot.final = self.finals.pop(f, None)
-            return []
-        o = slot.out
-        if o.hypotheses is None or not len(o.hypotheses):
-            return [slot]
+        block = [self.slots[i - self.slots[0].index] for i in range(b, end)]
+        for s in block:
+            if s.pending:
+                self._augment(s, [])
+            if s.written:
+                s.final = self.finals.pop(s.index, None)
+        todo = [s for s in block if not s.written]
+        mine = {id(s.out) for s in todo if s.out.hypotheses is not None and len(s.out.hypotheses)}
+        if not mine:
+            return todo
         window = [s.out for s in self.slots if s.out.hypotheses is not None and len(s.out.hypotheses)]
         live = ([self.anchor] if self.anchor is not None else []) + window
         if self.anchor is not None:
             self.costs[id(self.anchor.hypotheses)] = (self.anchor.hypotheses, np.zeros(1))
         path = walk_path(live, self.params, self.costs)
-        k = next(n for n, x in enumerate(live) if x is o)
-        settle(o, path.choice[k], path.marginals[k], self.maps, self.params)
-        slot.final = fixed_frame(WalkFrame(o.frame.name, _no_image, o.frame.time), o.loc.rot_cam_from_world,
-                                 o.loc.center, self.index[id(o.entry)])
+        for k, o in enumerate(live):
+            if id(o) in mine:
+                settle(o, path.choice[k], path.marginals[k], self.maps, self.params)
+        for s in todo:
+            if id(s.out) in mine:
+                s.final = fixed_frame(WalkFrame(s.out.frame.name, _no_image, s.out.frame.time),
+                                      s.out.loc.rot_cam_from_world, s.out.loc.center, self.index[id(s.out.entry)])
         held = {id(x.hypotheses) for x in live}
         self.costs = {k: v for k, v in self.costs.items()
                       if (k in held if isinstance(k, int) else k[0] in held and k[1] in held)}
-        return [slot]
+        return todo
 
 
 def release(slot: Slot) -> None:
@@ -183,35 +193,41 @@ def release(slot: Slot) -> None:
 
 def stream_walk(frames: Iterable, maps: MapSet, params: WalkParams, lag: int = LAG, resume: Resume | None = None,
                 progress: Callable[[int, FrameOutcome], None] | None = None,
-                at_end: Callable[[int], None] | None = None) -> Iterator[Slot]:
+                at_end: Callable[[int], None] | None = None, block: int | None = None) -> Iterator[Slot]:
     """The decided frames of a walk, in order, as they are decided (:class:`WalkStream`); ``frames``
     from frame ``resume.start`` on. ``at_end(count)``: called with the walk's frame count once its
     frames are all localized, before the last ones are decided (it may refuse the walk)."""
-    stream = WalkStream(maps, params, lag, resume, progress)
+    stream = WalkStream(maps, params, lag, resume, progress, block)
     for item in frames:
-        for slot in stream.push(item):
-            yield slot
-            release(slot)
+        yield from _handed_on(stream.push(item))
     if at_end is not None:
         at_end(stream.next)
-    for slot in stream.finish():
+    yield from _handed_on(stream.finish())
+
+
+def _handed_on(slots: list[Slot]) -> Iterator[Slot]:
+    """``slots`` yielded, each released (:func:`release`) once its consumer has written it."""
+    for slot in slots:
         yield slot
         release(slot)
 
 
-def resume_state(records: list[QueryResult | None], maps: MapSet, lag: int = LAG) -> Resume | None:
+def resume_state(records: list[QueryResult | None], maps: MapSet, lag: int = LAG, block: int | None = None
+                 ) -> Resume | None:
     """How a walk goes on from its records in the results file (``records[i]``: frame i's, None when
-    not written): after its written frames (a prefix of the walk), None to run it whole (nothing
-    written, or only failed frames: they are retried, or records without the stream's state:
-    written by an earlier ldlloc)."""
+    not written): after its written blocks of frames (a prefix of the walk; a block cut short by a
+    full disk is decided again), None to run it whole (nothing written, or only failed frames: they
+    are retried, or records without the stream's state: written by an earlier ldlloc)."""
     written = next((i for i, r in enumerate(records) if r is None), len(records))
+    block = BLOCK if block is None else block
+    written = written // block * block
     done = records[:written]
     if not done or all(r.status == "failed" for r in done) or any(
             r.walk is None or "ref_loss" not in r.walk for r in done):
         return None
     by_path = {str(e.path): e for e in maps.entries}
     index = {id(e): i for i, e in enumerate(maps.entries)}
-    start = max(0, written - lag)
+    start = max(0, (written - lag) // block * block)  # a block's start: the stream decides as it did
 
     def own(r: QueryResult) -> tuple | None:
         pose, entry = r.walk.get("single_pose"), by_path.get(str(r.walk.get("single_map")))
