@@ -241,15 +241,16 @@ def run_walks_ray(queries: list, maps_dir: str | Path, output: str | Path, param
     meta = {**(meta or {}), "walk": walk_meta("name", walk, lag)}
     with open_results(output, params, device, meta, resume, any_options, queries, say) as writer:
         jobs = []
-        for key, group in walk_groups(queries, scene_unknown).items():
-            records = walk_records(writer, [q.name for q in group]) if resume else []
+        groups = walk_groups(queries, scene_unknown)
+        written = walk_records(writer, [[q.name for q in g] for g in groups.values()]) if resume else [[]] * len(groups)
+        for (key, group), records in zip(groups.items(), written):  # light records: what resuming reads
             if not written_whole(records):
                 jobs.append((DatasetWalk(key, group, str(walk_maps(maps_dir, key, scene_unknown)), params, walk, lag,
                                          device), records))
         if jobs:
             with ray_session(address) as ray:
                 _walks_on_ray(ray, writer, jobs, params, device, progress, threads)
-        order = {q.name: i for i, q in enumerate(q for g in walk_groups(queries, scene_unknown).values() for q in g)}
+        order = {q.name: i for i, q in enumerate(q for g in groups.values() for q in g)}
         writer.reorder(key=lambda r: order.get(r.name, -1))
         writer.finish()
         return writer.results

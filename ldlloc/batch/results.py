@@ -30,6 +30,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+from dataclasses import replace
 from pathlib import Path
 from typing import Any, Callable
 
@@ -201,6 +202,13 @@ def option_differences(old: dict[str, Any], new: dict[str, Any]) -> list[str]:
     return diffs
 
 
+def light_record(r: QueryResult) -> QueryResult:
+    """``r`` without what only its JSON line needs (the candidates but the first, the competitors,
+    confidence signals and map scores): what :class:`ResultsWriter` keeps in memory for the summary,
+    the CSV and a resumed walk, a quarter of the whole record."""
+    return replace(r, candidates=r.candidates[:1], competitors=[], confidence_signals=None, map_scores=None)
+
+
 def _dict_differences(a: dict, b: dict, prefix: str = "") -> list[str]:
     """Dotted keys whose values differ between two nested dicts."""
     out: list[str] = []
@@ -242,7 +250,7 @@ class ResultsWriter:
         self.csv_path = self.path.with_suffix(".csv")
         self.journal_path = journal_path(self.path)
         self.meta = {**(meta or {}), "finished": False}  # true once :meth:`finish` ran (a rerun checks it)
-        self._results: dict[str, QueryResult] = {}  # name -> result, in file order
+        self._results: dict[str, QueryResult] = {}  # name -> its light record (light_record), in file order
         self._texts: dict[str, str] = {}  # name -> its record as one line of JSON (made once per record)
         self._json_bytes = self._journal_bytes = 0
         self.warn = warn or (lambda message: None)
@@ -254,7 +262,7 @@ class ResultsWriter:
             remove_stale_temporaries(self.journal_path, ".journal")
             if resume and self.path.exists():
                 results, old_meta = load_results(self.path)
-                self._results = {r.name: r for r in results}
+                self._results = {r.name: light_record(r) for r in results}
                 self._texts = {r.name: record_json(r) for r in results}
                 self.meta = _resumed_meta(self.path, old_meta, self.meta, any_options)
                 self.flush()
@@ -264,7 +272,12 @@ class ResultsWriter:
 
     @property
     def results(self) -> list[QueryResult]:
-        """The records, in file order."""
+        """The records, in file order (whole: read back from their JSON lines)."""
+        return [QueryResult.from_dict(json.loads(text)) for text in self._texts.values()]
+
+    @property
+    def light_results(self) -> list[QueryResult]:
+        """The records, in file order, as the writer keeps them in memory (:func:`light_record`)."""
         return list(self._results.values())
 
     def __enter__(self) -> "ResultsWriter":
@@ -315,7 +328,7 @@ class ResultsWriter:
         for r in latest.values():
             self._results.pop(r.name, None)
             self._texts.pop(r.name, None)
-            self._results[r.name] = r
+            self._results[r.name] = light_record(r)
             self._texts[r.name] = record_json(r)
             if r.picture_error:
                 self.warn_once("picture", f"picture of {r.name} not written ({r.picture_error}); its result is "
@@ -371,7 +384,7 @@ class ResultsWriter:
         head = json_safe({
             "format_version": RESULTS_FORMAT_VERSION,
             "meta": self.meta,
-            "summary": summarize(self.results, self.meta.get("device")),
+            "summary": summarize(self.light_results, self.meta.get("device")),
             **({"journal": token} if token is not None else {}),  # the journal of this JSON (read_results_data)
         })
         text = json.dumps(head, indent=1, allow_nan=False)[:-2]  # without the closing "\n}"
@@ -386,7 +399,7 @@ class ResultsWriter:
         """Write the CSV; on failure warn once and record why in the JSON's ``meta["csv_error"]``."""
         try:
             with atomic_file(self.csv_path) as tmp:
-                tmp.write_text(results_csv(self.results), errors="surrogateescape")  # names as their bytes
+                tmp.write_text(results_csv(self.light_results), errors="surrogateescape")  # names as their bytes
         except (OSError, LdlError) as exc:
             reason = getattr(exc, "strerror", None) or str(exc)
             self.warn_once("csv", f"cannot write {self.csv_path} ({reason}); the results are in {self.path}")

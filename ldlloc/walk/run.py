@@ -49,10 +49,11 @@ def walk_fields(slot: Slot, walk: str) -> dict:
             "ref_loss": slot.ref_loss}
 
 
-def walk_records(writer: ResultsWriter, names: list[str]) -> list[QueryResult | None]:
-    """The records ``writer`` holds of a walk's frames (``names``, in walk order; None: not written)."""
-    have = {r.name: r for r in writer.results}
-    return [have.get(n) for n in names]
+def walk_records(writer: ResultsWriter, groups: list[list[str]]) -> list[list[QueryResult | None]]:
+    """The records ``writer`` holds (light: :func:`ldlloc.batch.results.light_record`) of each walk's
+    frames (``groups``: each walk's names, in walk order; None: not written)."""
+    have = {r.name: r for r in writer.light_results}
+    return [[have.get(n) for n in names] for names in groups]
 
 
 def written_whole(records: list[QueryResult | None]) -> bool:
@@ -122,7 +123,7 @@ def run_walk_images(queries: list, maps: MapSet, output: str | Path, params: Loc
     queries, times = walk_photos(queries, order)
     meta = {**(meta or {}), "walk": walk_meta(order, walk, lag)}
     with open_results(output, params, device, meta, resume, any_options, queries, say) as writer:
-        whole, state = walk_resume(walk_records(writer, [q.name for q in queries]), maps, lag) if resume \
+        whole, state = walk_resume(walk_records(writer, [[q.name for q in queries]])[0], maps, lag) if resume \
             else (False, None)
         if not whole:
             start = state.start if state else 0
@@ -178,9 +179,10 @@ def run_walk_queries(queries: list, maps_dir: str | Path, output: str | Path, pa
     :func:`ldlloc.batch.ray_run.run_walks_ray` does the same on a Ray cluster."""
     meta = {**(meta or {}), "walk": walk_meta("name", walk, lag)}
     with open_results(output, params, device, meta, resume, any_options, queries, say) as writer:
-        for key, group in walk_groups(queries, scene_unknown).items():
+        groups = walk_groups(queries, scene_unknown)
+        written = walk_records(writer, [[q.name for q in g] for g in groups.values()]) if resume else [[]] * len(groups)
+        for (key, group), records in zip(groups.items(), written):
             job = DatasetWalk(key, group, str(walk_maps(maps_dir, key, scene_unknown)), params, walk, lag, device)
-            records = walk_records(writer, [q.name for q in group]) if resume else []
             job.run(lambda rs: write_records(writer, rs, progress), records)
         writer.finish()
         return writer.results
@@ -281,6 +283,6 @@ def run_walk_video(video: str | Path, maps: MapSet, output: str | Path, params: 
 
 def video_resume(writer: ResultsWriter, stem: str, maps: MapSet, lag: int) -> Resume | None:
     """Where a resumed video goes on: after the frames of walk ``stem`` that ``writer`` holds."""
-    mine = {r.walk["frame"]: r for r in writer.results if r.walk and r.walk.get("name") == stem}
+    mine = {r.walk["frame"]: r for r in writer.light_results if r.walk and r.walk.get("name") == stem}
     records = [mine.get(i) for i in range(len(mine))]
     return resume_state(records, maps, lag)
