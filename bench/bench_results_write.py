@@ -18,6 +18,11 @@ record as large as a real walk frame's; the localization itself is left out: its
 do not grow with the walk). Prints, at frames 30, 300, 1000, 3000 (and N): the milliseconds to
 decide and write a frame (mean of the 10 frames before), the memory held by the stream and by
 the writer (tracemalloc), the peak, and the file's bytes.
+
+``--real N --maps MAP --images GLOB``: a real walk of N frames (the panoramas of GLOB in turn,
+each held for ``--hold`` frames, 5 frames a second: a video's tracking) localized and written as
+``ldlloc run --video`` does it; prints after each block of decided frames the memory the run holds
+(tracemalloc, Python and numpy) and the process's peak RSS: flat once the window is full.
 """
 
 from __future__ import annotations
@@ -37,7 +42,11 @@ def parse_args() -> argparse.Namespace:
     ap.add_argument("--scratch", type=int, default=0, help="also time a run of this many queries from an empty file")
     ap.add_argument("--tree", default=None, help="source tree to import ldlloc from (default: this one)")
     ap.add_argument("--walk", type=int, default=0, help="also a walk of this many frames (stream and writer)")
-    ap.add_argument("--lag", type=int, default=100, help="--walk: the stream's lag (frames)")
+    ap.add_argument("--lag", type=int, default=100, help="--walk, --real: the stream's lag (frames)")
+    ap.add_argument("--real", type=int, default=0, help="a real walk of this many frames (--maps, --images)")
+    ap.add_argument("--maps", default=None, help="--real: the map (.h5) or folder of maps")
+    ap.add_argument("--images", default=None, help="--real: the panoramas (a glob), shown in turn")
+    ap.add_argument("--hold", type=int, default=10, help="--real: frames each panorama is held for")
     return ap.parse_args()
 
 
@@ -164,6 +173,39 @@ def time_walk(n: int, lag: int, folder: Path) -> list[dict]:
     return rows
 
 
+def real_walk(n: int, lag: int, maps: str, images: str, hold: int, folder: Path) -> list[dict]:
+    """A real walk of ``n`` frames (module docstring): rows after each block of decided frames."""
+    import glob
+    import resource
+    import tracemalloc
+    from dataclasses import replace
+    from ldlloc.batch.images import ImageQuery
+    from ldlloc.batch.results import ResultsWriter
+    from ldlloc.batch.which_map import MapSet
+    from ldlloc.pipeline import LocalizeParams, load_image
+    from ldlloc.walk.localize import VIDEO, WalkFrame
+    from ldlloc.walk.run import _image_record
+    from ldlloc.walk.stream import stream_walk
+
+    paths = sorted(glob.glob(images))
+    mapset = MapSet.load(maps, LocalizeParams(), "cpu")
+    image = lambda i: load_image(paths[(i // hold) % len(paths)])  # noqa: E731
+    frames = ((WalkFrame(f"v/{i:06d}", (lambda i=i: image(i)), 0.2 * i), image(i)) for i in range(n))
+    rows = []
+    tracemalloc.start()
+    tick = time.perf_counter()
+    with ResultsWriter(folder / "real.json", meta={"device": "cpu", "dataset": "video", "walk": {}}) as w:
+        for slot in stream_walk(frames, mapset, replace(VIDEO, top_maps=1), lag):
+            w.add(_image_record(ImageQuery(Path(paths[0]), slot.out.frame.name), slot, LocalizeParams(), "v"))
+            if (slot.index + 1) % 10 == 0 or slot.index + 1 == n:
+                held, peak = tracemalloc.get_traced_memory()
+                rows.append({"frame": slot.index + 1, "s": time.perf_counter() - tick, "held_mb": held / 1e6,
+                             "peak_mb": peak / 1e6, "rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e3})
+        w.finish()
+    tracemalloc.stop()
+    return rows
+
+
 def main() -> None:
     args = parse_args()
     tree = Path(args.tree).resolve() if args.tree else Path(__file__).resolve().parents[1]
@@ -190,6 +232,12 @@ def main() -> None:
             for row in time_walk(args.walk, args.lag, folder):
                 print(f"{row['frame']:>8} {row['ms']:>9.2f} {row['held_mb']:>8.1f} {row['peak_mb']:>8.1f} "
                       f"{row['bytes'] / 1e6:>9.1f}")
+        if args.real:
+            print(f"real walk of {args.real} frames, lag {args.lag}: memory held and peak (tracemalloc), peak RSS")
+            print(f"{'frame':>8} {'s':>8} {'held MB':>8} {'peak MB':>8} {'RSS MB':>8}")
+            for row in real_walk(args.real, args.lag, args.maps, args.images, args.hold, folder):
+                print(f"{row['frame']:>8} {row['s']:>8.0f} {row['held_mb']:>8.1f} {row['peak_mb']:>8.1f} "
+                      f"{row['rss_mb']:>8.0f}", flush=True)
 
 
 if __name__ == "__main__":

@@ -27,6 +27,7 @@ from typer.testing import CliRunner
 from ldlloc.batch.results import read_results_data
 from ldlloc.cli import app as loc_app
 from ldlmap.cli import app as map_app
+from tests._results_files import without_timings
 
 pytestmark = pytest.mark.xdist_group("ray")
 runner = CliRunner()
@@ -102,14 +103,6 @@ def _kill_first_worker(title: str, after_s: float, killed: list[int], timeout_s:
     return t
 
 
-def _without_timings(path: Path) -> dict:
-    data = json.loads(path.read_text())
-    for q in data["queries"]:
-        q.pop("seconds")
-    data["summary"].pop("median_seconds")
-    return data
-
-
 def _csv_without_timings(path: Path) -> list[list[str]]:
     rows = list(csv.reader(io.StringIO(path.read_text())))
     keep = [i for i, name in enumerate(rows[0]) if not name.startswith("sec_")]
@@ -162,7 +155,7 @@ def test_run_on_ray_gives_the_same_results_with_an_actor_killed(cluster, demo_da
     after = [p for s, p in workers[1:] if s == scene]
     assert after and all(p != pid for p in after), workers  # a restarted actor served the rest of its scene
     assert len(results) == 10 and len({r.name for r in results}) == 10
-    assert _without_timings(out) == _without_timings(plain_run)  # same records, same order
+    assert without_timings(out) == without_timings(plain_run)  # same records, same order
     assert _csv_without_timings(out.with_suffix(".csv")) == _csv_without_timings(plain_run.with_suffix(".csv"))
 
 
@@ -309,7 +302,7 @@ def test_walks_on_ray_equal_the_plain_run_also_resumed(cluster, demo_dataset, tm
     on_ray.write_text(json.dumps(data))
     res = runner.invoke(loc_app, [*base, "--output", str(on_ray), "--resume", "--ray", "local"])
     assert res.exit_code == 0, res.output
-    assert _without_timings(on_ray) == _without_timings(plain)
+    assert without_timings(on_ray) == without_timings(plain)
     assert _csv_without_timings(on_ray.with_suffix(".csv")) == _csv_without_timings(plain.with_suffix(".csv"))
     walks = {q["walk"]["name"] for q in json.loads(on_ray.read_text())["queries"]}
     assert walks == {"synthroom_1", "synthroom_2"}

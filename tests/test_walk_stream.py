@@ -20,6 +20,7 @@ from ldlloc.walk import stream
 from ldlloc.walk.hypotheses import Hypotheses
 from ldlloc.walk.localize import FrameOutcome, WalkFrame, WalkParams
 from tests._hostile import error_line
+from tests._results_files import without_timings
 
 runner = CliRunner()
 REPO = Path(__file__).resolve().parents[1]
@@ -45,14 +46,6 @@ app({args!r})
 
 def _walk_args(demo_dataset: Path, out: Path) -> list[str]:
     return ["run", "--root", str(demo_dataset), "--split", "robot", "--walk", "--lag", str(LAG), "--output", str(out)]
-
-
-def _without_timings(path: Path) -> dict:
-    data = json.loads(path.read_text())
-    for q in data["queries"]:
-        q.pop("seconds")
-    data["summary"].pop("median_seconds")
-    return data
 
 
 @pytest.fixture(scope="module")
@@ -82,14 +75,14 @@ def test_resume_after_a_kill_goes_on_from_the_last_written_frame(demo_dataset, w
     monkeypatch.setattr(stream, "BLOCK", BLOCK)
     res = runner.invoke(app, [*_walk_args(demo_dataset, out), "--resume"])
     assert res.exit_code == 0, res.output
-    whole = _without_timings(whole_run)
+    whole = without_timings(whole_run)
     names = [q["name"] for q in whole["queries"]]
     first = [q["name"] for q in whole["queries"] if q["walk"]["name"] == whole["queries"][0]["walk"]["name"]]
     # the first walk: the lag frames before the first unwritten one again (its window's past, whole
     # blocks), then the rest
     start = (KILL_AFTER - LAG) // BLOCK * BLOCK
     assert 0 < start < KILL_AFTER and localized == first[start:] + [n for n in names if n not in first], localized
-    assert _without_timings(out) == whole  # the same records, in the same order
+    assert without_timings(out) == whole  # the same records, in the same order
     after = {q["name"]: q for q in json.loads(out.read_text())["queries"]}
     assert all(after[q["name"]] == q for q in before)  # the written frames were not written again
 
@@ -101,7 +94,7 @@ def test_a_walk_written_whole_is_not_run_again(whole_run, demo_dataset, tmp_path
     monkeypatch.setattr(stream, "BLOCK", BLOCK)
     res = runner.invoke(app, [*_walk_args(demo_dataset, out), "--resume"])
     assert res.exit_code == 0, res.output
-    assert _without_timings(out)["queries"] == _without_timings(whole_run)["queries"]
+    assert without_timings(out)["queries"] == without_timings(whole_run)["queries"]
 
 
 @pytest.mark.parametrize("args, why", [
