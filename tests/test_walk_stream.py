@@ -97,6 +97,33 @@ def test_a_walk_written_whole_is_not_run_again(whole_run, demo_dataset, tmp_path
     assert without_timings(out)["queries"] == without_timings(whole_run)["queries"]
 
 
+def test_a_resumed_video_goes_on_from_its_last_written_frames(demo_dataset, tmp_path, monkeypatch):
+    """A video's frames are decoded again up to the resume point, localized again from there (the
+    lag before the first unwritten block), and its records equal an uninterrupted run's."""
+    import cv2
+    from ldlloc.walk.video import write_video
+
+    shots = sorted((demo_dataset / "robot_pano" / "robot_synthroom_1_scene_1").glob("*.jpg"))[:4]
+    video = write_video(tmp_path / "v.mp4", (cv2.imread(str(p))[:, :, ::-1] for p in shots for _ in range(2)), fps=5)
+    monkeypatch.setattr(stream, "BLOCK", BLOCK)
+    args = ["run", "--video", str(video), "--maps", str(demo_dataset / "maps"), "--lag", str(LAG)]
+    whole, out = tmp_path / "whole.json", tmp_path / "v.json"
+    res = runner.invoke(app, [*args, "--output", str(whole)])
+    assert res.exit_code == 0, res.output
+    data = json.loads(whole.read_text())
+    data["meta"]["finished"] = False  # as a run killed after its first blocks leaves it
+    data["queries"] = data["queries"][:KILL_AFTER]
+    out.write_text(json.dumps(data))
+    localized = []
+    real = stream.localize_frame
+    monkeypatch.setattr(stream, "localize_frame", lambda item, *a: localized.append(item[0].name) or real(item, *a))
+    res = runner.invoke(app, [*args, "--output", str(out), "--resume"])
+    assert res.exit_code == 0, res.output
+    names = [q["name"] for q in without_timings(whole)["queries"]]
+    assert len(names) == 8 and localized == names[(KILL_AFTER - LAG) // BLOCK * BLOCK:], localized
+    assert without_timings(out) == without_timings(whole)
+
+
 @pytest.mark.parametrize("args, why", [
     (["--lag", "0", "--walk"], "--lag must be a whole number of frames >= 1, got 0"),
     (["--lag", "3"], "--lag goes with --walk or --video"),
