@@ -69,14 +69,10 @@ def walk_resume(records: list[QueryResult | None], maps: MapSet, lag: int) -> tu
     return False, resume_state(records, maps, lag)
 
 
-def write_walk(writer: ResultsWriter, slots: Iterable[Slot], record: Callable[[Slot], QueryResult],
-               progress: Callable[[QueryResult], None] | None = None) -> None:
+def write_walk(writer: ResultsWriter, slots: Iterable[Slot], record: Callable[[Slot], QueryResult]) -> None:
     """Write each decided frame's record as it comes (one journal line each)."""
     for slot in slots:
-        r = record(slot)
-        writer.add(r)
-        if progress is not None:
-            progress(r)
+        writer.add(record(slot))
 
 
 def choice_fields(out: FrameOutcome) -> dict:
@@ -130,9 +126,9 @@ def run_walk_images(queries: list, maps: MapSet, output: str | Path, params: Loc
             frames = [WalkFrame(q.name, (lambda p=q.image: load_image(p)), t, params.max_tilt_deg)
                       for q, t in zip(queries[start:], times[start:])]
             tell = None if progress is None else (
-                lambda i, o: progress(_image_record(queries[i], Slot(i, o, None, None, False), params, name)))
+                lambda i, o: progress(image_frame_record(queries[i], Slot(i, o, None, None, False), params, name)))
             write_walk(writer, stream_walk(frames, maps, walk, lag, state, tell),
-                       lambda s: _image_record(queries[s.index], s, params, name))
+                       lambda s: image_frame_record(queries[s.index], s, params, name))
         writer.finish()
         return writer.results
 
@@ -142,7 +138,7 @@ def walk_meta(order: str, walk: WalkParams, lag: int) -> dict:
     return {"order": order, "motion": vars(walk.motion), "track": walk.track, "lag": lag}
 
 
-def _image_record(q, slot: Slot, params: LocalizeParams, walk: str) -> QueryResult:
+def image_frame_record(q, slot: Slot, params: LocalizeParams, walk: str) -> QueryResult:
     """An image frame's record (before the walk is decided: its single-image record, for progress)."""
     out = slot.out
     if out.loc is None:
@@ -267,7 +263,7 @@ def run_walk_video(video: str | Path, maps: MapSet, output: str | Path, params: 
         frames = ((WalkFrame(f"{stem}/{vf.index:06d}", (lambda vf=vf: frame_at(info, vf)), vf.time,
                              params.max_tilt_deg), img) for vf, img in pairs)
         tell = None if progress is None else (
-            lambda i, o: progress(_image_record(ImageQuery(info.path, o.frame.name), Slot(i, o, None, None, False),
+            lambda i, o: progress(image_frame_record(ImageQuery(info.path, o.frame.name), Slot(i, o, None, None, False),
                                                 params, stem)))
 
         def at_end(n: int) -> None:
@@ -276,7 +272,7 @@ def run_walk_video(video: str | Path, maps: MapSet, output: str | Path, params: 
                                  "(lower --every or raise --fps)")
 
         write_walk(writer, stream_walk(frames, maps, walk, lag, state, tell, at_end),
-                   lambda s: _image_record(ImageQuery(info.path, s.out.frame.name), s, params, stem))
+                   lambda s: image_frame_record(ImageQuery(info.path, s.out.frame.name), s, params, stem))
         writer.finish()
         return writer.results
 
