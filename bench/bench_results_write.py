@@ -16,13 +16,13 @@ Before / after: run it with the tree to measure first on ``PYTHONPATH`` (``--tre
 writer, with made-up frames (each 48 hypotheses over two maps, as a real frame keeps, and a
 record as large as a real walk frame's; the localization itself is left out: its cost and memory
 do not grow with the walk). Prints, at frames 30, 300, 1000, 3000 (and N): the milliseconds to
-decide and write a frame (mean of the 10 frames before), the memory held by the stream and by
-the writer (tracemalloc), the peak, and the file's bytes.
+decide and write a frame and to write it (means over the frames since the last checkpoint), the
+process's resident memory (now and its peak: the stream's and the writer's) and the files' bytes.
 
 ``--real N --maps MAP --images GLOB``: a real walk of N frames (the panoramas of GLOB in turn,
 each held for ``--hold`` frames, 5 frames a second: a video's tracking) localized and written as
-``ldlloc run --video`` does it; prints after each block of decided frames the memory the run holds
-(tracemalloc, Python and numpy) and the process's peak RSS: flat once the window is full.
+``ldlloc run --video`` does it; prints after each block of decided frames the process's resident
+memory (now and its peak): flat once the window is full.
 """
 
 from __future__ import annotations
@@ -37,7 +37,7 @@ from pathlib import Path
 
 def parse_args() -> argparse.Namespace:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--sizes", default="30,2000,3000", help="records already in the file (comma-separated)")
+    ap.add_argument("--sizes", default="30,2000,3000", help="records already in the file (comma-separated; \"\": none)")
     ap.add_argument("--adds", type=int, default=10, help="queries added (and timed) at each size")
     ap.add_argument("--scratch", type=int, default=0, help="also time a run of this many queries from an empty file")
     ap.add_argument("--tree", default=None, help="source tree to import ldlloc from (default: this one)")
@@ -139,7 +139,6 @@ def walk_frame(i: int, maps):
 
 def time_walk(n: int, lag: int, folder: Path) -> list[dict]:
     """A walk of ``n`` made-up frames streamed and written (module docstring); rows at checkpoints."""
-    import tracemalloc
     from dataclasses import replace
     from ldlloc.batch.results import ResultsWriter
     from ldlloc.walk import stream
@@ -151,7 +150,6 @@ def time_walk(n: int, lag: int, folder: Path) -> list[dict]:
     marks = sorted({m for m in (30, 300, 1000, 3000, n) if m <= n})
     frames = (WalkFrame(f"f{i:06d}", lambda: None, 0.2 * i) for i in range(n))
     rows, times, writes = [], [], []
-    tracemalloc.start()
     tick = time.perf_counter()
     with ResultsWriter(folder / "walk.json", meta={"device": "cpu", "dataset": "images", "walk": {}}) as w:
         walk = stream.stream_walk(frames, maps, WalkParams(), lag)
@@ -166,20 +164,27 @@ def time_walk(n: int, lag: int, folder: Path) -> list[dict]:
             writes.append(now - t0)
             tick = now
             if slot.index + 1 in marks:
-                held, peak = tracemalloc.get_traced_memory()
-                rows.append({"frame": slot.index + 1, "ms": 1e3 * sum(times[-10:]) / len(times[-10:]),
-                             "write_ms": 1e3 * sum(writes[-10:]) / len(writes[-10:]), "held_mb": held / 1e6,
-                             "peak_mb": peak / 1e6, "bytes": sum(p.stat().st_size for p in folder.glob("walk.json*"))})
+                rss, peak = resident()
+                rows.append({"frame": slot.index + 1, "ms": 1e3 * sum(times) / len(times),
+                             "write_ms": 1e3 * sum(writes) / len(writes), "write_max_ms": 1e3 * max(writes),
+                             "held_mb": rss, "peak_mb": peak,
+                             "bytes": sum(p.stat().st_size for p in folder.glob("walk.json*"))})
+                times, writes = [], []
         w.finish()
-    tracemalloc.stop()
     return rows
+
+
+def resident() -> tuple[float, float]:
+    """The process's resident memory now and its peak (MB)."""
+    import resource
+
+    rss = int(Path("/proc/self/statm").read_text().split()[1]) * resource.getpagesize()
+    return rss / 1e6, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e3
 
 
 def real_walk(n: int, lag: int, maps: str, images: str, hold: int, folder: Path) -> list[dict]:
     """A real walk of ``n`` frames (module docstring): rows after each block of decided frames."""
     import glob
-    import resource
-    import tracemalloc
     from dataclasses import replace
     from ldlloc.batch.images import ImageQuery
     from ldlloc.batch.results import ResultsWriter
@@ -194,17 +199,16 @@ def real_walk(n: int, lag: int, maps: str, images: str, hold: int, folder: Path)
     image = lambda i: load_image(paths[(i // hold) % len(paths)])  # noqa: E731
     frames = ((WalkFrame(f"v/{i:06d}", (lambda i=i: image(i)), 0.2 * i), image(i)) for i in range(n))
     rows = []
-    tracemalloc.start()
     tick = time.perf_counter()
     with ResultsWriter(folder / "real.json", meta={"device": "cpu", "dataset": "video", "walk": {}}) as w:
         for slot in stream_walk(frames, mapset, replace(VIDEO, top_maps=1), lag):
             w.add(image_frame_record(ImageQuery(Path(paths[0]), slot.out.frame.name), slot, LocalizeParams(), "v"))
             if (slot.index + 1) % 10 == 0 or slot.index + 1 == n:
-                held, peak = tracemalloc.get_traced_memory()
-                rows.append({"frame": slot.index + 1, "s": time.perf_counter() - tick, "held_mb": held / 1e6,
-                             "peak_mb": peak / 1e6, "rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e3})
+                rss, peak = resident()
+                row = {"frame": slot.index + 1, "s": time.perf_counter() - tick, "rss_mb": rss, "peak_mb": peak}
+                print(f"{row['frame']:>8} {row['s']:>8.0f} {row['rss_mb']:>8.0f} {row['peak_mb']:>8.0f}", flush=True)
+                rows.append(row)
         w.finish()
-    tracemalloc.stop()
     return rows
 
 
@@ -218,7 +222,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
         print(f"{'records':>8} {'open s':>8} {'add mean ms':>12} {'add max ms':>11} {'files MB':>9}")
-        for n in (int(s) for s in args.sizes.split(",")):
+        for n in (int(s) for s in args.sizes.split(",") if s):
             row = time_adds(n, args.adds, folder)
             print(f"{row['n']:>8} {row['open_s']:>8.2f} {row['mean_ms']:>12.1f} {row['max_ms']:>11.1f} "
                   f"{row['bytes'] / 1e6:>9.1f}")
@@ -228,18 +232,17 @@ def main() -> None:
                   f"{row['per_query_ms']:.2f} ms per query (worst add {row['worst_ms']:.0f} ms, finish "
                   f"{row['finish_s']:.2f} s), {row['bytes'] / 1e6:.1f} MB")
         if args.walk:
-            print(f"walk of {args.walk} made-up frames, lag {args.lag}: ms to decide and write a frame and ms to "
-                  "write it (means of the 10 before), memory held and peak (tracemalloc), files")
-            print(f"{'frame':>8} {'ms/frame':>9} {'write ms':>9} {'held MB':>8} {'peak MB':>8} {'files MB':>9}")
+            print(f"walk of {args.walk} made-up frames, lag {args.lag}: ms to decide and write a frame, to write it "
+                  "(means since the row before) and the slowest write, resident memory now and its peak, files")
+            print(f"{'frame':>8} {'ms/frame':>9} {'write ms':>9} {'max ms':>7} {'RSS MB':>8} {'peak MB':>8} "
+                  f"{'files MB':>9}")
             for row in time_walk(args.walk, args.lag, folder):
-                print(f"{row['frame']:>8} {row['ms']:>9.2f} {row['write_ms']:>9.2f} {row['held_mb']:>8.1f} "
-                      f"{row['peak_mb']:>8.1f} {row['bytes'] / 1e6:>9.1f}")
+                print(f"{row['frame']:>8} {row['ms']:>9.2f} {row['write_ms']:>9.2f} {row['write_max_ms']:>7.1f} "
+                      f"{row['held_mb']:>8.0f} {row['peak_mb']:>8.0f} {row['bytes'] / 1e6:>9.1f}")
         if args.real:
-            print(f"real walk of {args.real} frames, lag {args.lag}: memory held and peak (tracemalloc), peak RSS")
-            print(f"{'frame':>8} {'s':>8} {'held MB':>8} {'peak MB':>8} {'RSS MB':>8}")
-            for row in real_walk(args.real, args.lag, args.maps, args.images, args.hold, folder):
-                print(f"{row['frame']:>8} {row['s']:>8.0f} {row['held_mb']:>8.1f} {row['peak_mb']:>8.1f} "
-                      f"{row['rss_mb']:>8.0f}", flush=True)
+            print(f"real walk of {args.real} frames, lag {args.lag}: resident memory now and its peak")
+            print(f"{'frame':>8} {'s':>8} {'RSS MB':>8} {'peak MB':>8}")
+            real_walk(args.real, args.lag, args.maps, args.images, args.hold, folder)
 
 
 if __name__ == "__main__":
