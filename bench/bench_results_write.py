@@ -152,8 +152,7 @@ def time_walk(n: int, lag: int, folder: Path) -> list[dict]:
     rows, times, writes = [], [], []
     tick = time.perf_counter()
     with ResultsWriter(folder / "walk.json", meta={"device": "cpu", "dataset": "images", "walk": {}}) as w:
-        walk = stream.stream_walk(frames, maps, WalkParams(), lag)
-        for slot in walk:
+        for slot in (s for block in stream.stream_walk(frames, maps, WalkParams(), lag) for s in block):
             r = replace(record(slot.index), name=slot.out.frame.name, walk={
                 "name": "walk", "frame": slot.index, "time": slot.out.frame.time, "margin": slot.out.walk_margin,
                 "single_pose": {"R": slot.out.single_pose[0].tolist(), "t": slot.out.single_pose[1].tolist()}})
@@ -201,7 +200,7 @@ def real_walk(n: int, lag: int, maps: str, images: str, hold: int, folder: Path)
     rows = []
     tick = time.perf_counter()
     with ResultsWriter(folder / "real.json", meta={"device": "cpu", "dataset": "video", "walk": {}}) as w:
-        for slot in stream_walk(frames, mapset, replace(VIDEO, top_maps=1), lag):
+        for slot in (s for block in stream_walk(frames, mapset, replace(VIDEO, top_maps=1), lag) for s in block):
             w.add(image_frame_record(ImageQuery(Path(paths[0]), slot.out.frame.name), slot, LocalizeParams(), "v"))
             if (slot.index + 1) % 10 == 0 or slot.index + 1 == n:
                 rss, peak = resident()

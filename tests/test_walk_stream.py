@@ -204,8 +204,8 @@ def _streamed(monkeypatch, n: int, lag: int) -> tuple[list, list]:
         streams.append(s)
         return s
     monkeypatch.setattr(stream, "WalkStream", keep)
-    got = [(s.index, s.out.walk_margin, s.out.single_pose[1][1]) for s in
-           stream.stream_walk(frames, _Maps(), WalkParams(), lag)]
+    got = [(s.index, s.out.walk_margin, s.out.single_pose[1][1]) for block in
+           stream.stream_walk(frames, _Maps(), WalkParams(), lag) for s in block]
     return got, held
 
 

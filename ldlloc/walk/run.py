@@ -69,10 +69,10 @@ def walk_resume(records: list[QueryResult | None], maps: MapSet, lag: int) -> tu
     return False, resume_state(records, maps, lag)
 
 
-def write_walk(writer: ResultsWriter, slots: Iterable[Slot], record: Callable[[Slot], QueryResult]) -> None:
-    """Write each decided frame's record as it comes (one journal line each)."""
-    for slot in slots:
-        writer.add(record(slot))
+def write_walk(writer: ResultsWriter, blocks: Iterable[list[Slot]], record: Callable[[Slot], QueryResult]) -> None:
+    """Write each decided block's records as it comes (one journal write: a kill leaves whole blocks)."""
+    for block in blocks:
+        writer.extend([record(slot) for slot in block])
 
 
 def choice_fields(out: FrameOutcome) -> dict:
@@ -207,12 +207,12 @@ class DatasetWalk:
         self.device = device
 
     def run(self, write: Callable[[list[QueryResult]], None], records: list | None = None) -> None:
-        """Localize the walk, ``write``-ing each decided frame's record (a list of one): :meth:`batches`."""
+        """Localize the walk, ``write``-ing each decided block's records: :meth:`batches`."""
         for batch in self.batches(records):
             write(batch)
 
     def batches(self, records: list | None = None) -> Iterator[list[QueryResult]]:
-        """The records of the walk's frames as they are decided (lists of one); ``records``: the
+        """The records of the walk's frames as they are decided (a list per block); ``records``: the
         frames' records already written (a resumed run: it goes on after them, or skips a walk
         written whole). A walk whose maps cannot be loaded fails its frames not yet written."""
         done = 0
@@ -224,9 +224,9 @@ class DatasetWalk:
             done = state.written if state else 0
             frames = [WalkFrame(q.name, (lambda p=q.image: load_image(p)), None, tilt_bound_for(q, self.params))
                       for q in self.queries[state.start if state else 0:]]
-            for slot in stream_walk(frames, maps, self.walk, self.lag, state):
-                yield [_dataset_record(self.queries[slot.index], slot, self.params, self.key)]
-                done = slot.index + 1
+            for block in stream_walk(frames, maps, self.walk, self.lag, state):
+                yield [_dataset_record(self.queries[slot.index], slot, self.params, self.key) for slot in block]
+                done = block[-1].index + 1
         except LdlError as exc:
             yield [failed_result(q, self.params, str(exc)) for q in self.queries[done:]]
 

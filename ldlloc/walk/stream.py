@@ -93,7 +93,7 @@ def _no_image():
 
 class WalkStream:
     """The stream of one walk (module docstring): :meth:`push` each frame in order, then
-    :meth:`finish`; each returns the frames decided, in order (:class:`Slot`)."""
+    :meth:`finish`; each returns the blocks of frames decided, in order (:class:`Slot`)."""
 
     def __init__(self, maps: MapSet, params: WalkParams, lag: int = LAG, resume: Resume | None = None,
                  progress: Callable[[int, FrameOutcome], None] | None = None, block: int | None = None):
@@ -111,8 +111,8 @@ class WalkStream:
         self.slots: deque[Slot] = deque()
         self.costs: dict = {}
 
-    def push(self, item) -> list[Slot]:
-        """Localize the next frame (a :class:`WalkFrame` or ``(WalkFrame, image)``); the frames decided now."""
+    def push(self, item) -> list[list[Slot]]:
+        """Localize the next frame (a :class:`WalkFrame` or ``(WalkFrame, image)``); the blocks decided now."""
         i = self.next
         self.next += 1
         prev = self.slots[-1].out if self.slots else self.prev
@@ -128,20 +128,20 @@ class WalkStream:
         self.slots.append(slot)
         if self.progress is not None and not slot.written:
             self.progress(i, out)
-        done: list[Slot] = []
+        done: list[list[Slot]] = []
         while self.decide_next + self.block - 1 <= i - self.lag:  # the block's last frame has lag frames after it
-            done += self._decide_block()
-        return done
+            done.append(self._decide_block())
+        return [b for b in done if b]
 
-    def finish(self) -> list[Slot]:
-        """The walk has ended: the frames not yet decided, decided."""
+    def finish(self) -> list[list[Slot]]:
+        """The walk has ended: the frames not yet decided, decided (block by block)."""
         for s in self.slots:
             if s.pending:
                 self._augment(s, [])
-        done: list[Slot] = []
+        done: list[list[Slot]] = []
         while self.decide_next < self.next:
-            done += self._decide_block()
-        return done
+            done.append(self._decide_block())
+        return [b for b in done if b]
 
     def _augment(self, s: Slot, after: list[tuple]) -> None:
         near = ([s.before] if s.before is not None else []) + after
@@ -193,10 +193,11 @@ def release(slot: Slot) -> None:
 
 def stream_walk(frames: Iterable, maps: MapSet, params: WalkParams, lag: int = LAG, resume: Resume | None = None,
                 progress: Callable[[int, FrameOutcome], None] | None = None,
-                at_end: Callable[[int], None] | None = None, block: int | None = None) -> Iterator[Slot]:
-    """The decided frames of a walk, in order, as they are decided (:class:`WalkStream`); ``frames``
-    from frame ``resume.start`` on. ``at_end(count)``: called with the walk's frame count once its
-    frames are all localized, before the last ones are decided (it may refuse the walk)."""
+                at_end: Callable[[int], None] | None = None, block: int | None = None) -> Iterator[list[Slot]]:
+    """The decided frames of a walk as they are decided, a block at a time, in order (:class:`WalkStream`;
+    the frames written before are left out); ``frames`` from frame ``resume.start`` on. ``at_end(count)``:
+    called with the walk's frame count once its frames are all localized, before the last ones are
+    decided (it may refuse the walk). Write a block at once: a kill then leaves whole blocks."""
     stream = WalkStream(maps, params, lag, resume, progress, block)
     for item in frames:
         yield from _handed_on(stream.push(item))
@@ -205,11 +206,12 @@ def stream_walk(frames: Iterable, maps: MapSet, params: WalkParams, lag: int = L
     yield from _handed_on(stream.finish())
 
 
-def _handed_on(slots: list[Slot]) -> Iterator[Slot]:
-    """``slots`` yielded, each released (:func:`release`) once its consumer has written it."""
-    for slot in slots:
-        yield slot
-        release(slot)
+def _handed_on(blocks: list[list[Slot]]) -> Iterator[list[Slot]]:
+    """``blocks`` yielded in turn, each released (:func:`release`) once its consumer has written it."""
+    for got in blocks:
+        yield got
+        for slot in got:
+            release(slot)
 
 
 def resume_state(records: list[QueryResult | None], maps: MapSet, lag: int = LAG, block: int | None = None
