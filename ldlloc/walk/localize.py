@@ -105,33 +105,44 @@ def localize_walk(frames: Iterable, maps: MapSet, params: WalkParams = WalkParam
     outcomes: list[FrameOutcome] = []
     ref_loss: float | None = None  # the last global frame's final loss: what a tracked pose must come near
     for i, item in enumerate(frames):
-        fr, img = item if isinstance(item, tuple) else (item, None)
-        out = FrameOutcome(fr)
-        try:
-            img = fr.load() if img is None else img
-            got = track(img, outcomes[-1], fr, params, ref_loss, trackers) if params.track and outcomes else None
-            if got is None:
-                loc, choice = localize_on_maps(img, maps, fr.max_tilt_deg, params.top_maps)
-                ref_loss = own_loss(choice)
-            else:
-                loc, choice = got
-                out.tracked = True
-            out.loc, out.choice, out.entry = loc, choice, choice.chosen.entry
-            out.hypotheses = from_choice(choice, index, params.max_hypotheses)
-            out.single_confidence, out.single_verdict = loc.confidence, loc.verdict
-            out.single_pose = (np.asarray(loc.rot_cam_from_world, float), np.asarray(loc.center, float))
-            out.competitors = list(loc.competitors)
-        except LdlError as exc:
-            out.error = str(exc)
-        except Exception as exc:  # noqa: BLE001 - one frame's failure (cv2.error, a decoder's), not the walk's
-            out.error = f"internal error ({type(exc).__name__}: {exc})"
-        lighten(out)
+        out, ref_loss = localize_frame(item, outcomes[-1] if outcomes else None, maps, params, ref_loss, trackers,
+                                       index)
         outcomes.append(out)
         if progress:
             progress(i, out)
     augment(outcomes, maps, params)
     decide(outcomes, maps, params)
     return outcomes
+
+
+def localize_frame(item, prev: FrameOutcome | None, maps: MapSet, params: WalkParams, ref_loss: float | None,
+                   trackers: dict[int, Localizer], index: dict[int, int]) -> tuple[FrameOutcome, float | None]:
+    """One frame's own localization (the first pass): tracked near ``prev`` (the frame before it) or
+    global, its hypotheses kept and its image dropped (:func:`lighten`). ``item``: a :class:`WalkFrame`
+    or a ``(WalkFrame, image)`` pair; ``ref_loss``: the last global frame's loss (returned updated);
+    ``index``: ``id(MapEntry) -> index``. A frame that cannot be localized gets its ``error``."""
+    fr, img = item if isinstance(item, tuple) else (item, None)
+    out = FrameOutcome(fr)
+    try:
+        img = fr.load() if img is None else img
+        got = track(img, prev, fr, params, ref_loss, trackers) if params.track and prev is not None else None
+        if got is None:
+            loc, choice = localize_on_maps(img, maps, fr.max_tilt_deg, params.top_maps)
+            ref_loss = own_loss(choice)
+        else:
+            loc, choice = got
+            out.tracked = True
+        out.loc, out.choice, out.entry = loc, choice, choice.chosen.entry
+        out.hypotheses = from_choice(choice, index, params.max_hypotheses)
+        out.single_confidence, out.single_verdict = loc.confidence, loc.verdict
+        out.single_pose = (np.asarray(loc.rot_cam_from_world, float), np.asarray(loc.center, float))
+        out.competitors = list(loc.competitors)
+    except LdlError as exc:
+        out.error = str(exc)
+    except Exception as exc:  # noqa: BLE001 - one frame's failure (cv2.error, a decoder's), not the walk's
+        out.error = f"internal error ({type(exc).__name__}: {exc})"
+    lighten(out)
+    return out, ref_loss
 
 
 def own_loss(choice: MapChoice) -> float:
@@ -194,31 +205,51 @@ def augment(outcomes: list[FrameOutcome], maps: MapSet, params: WalkParams) -> N
     per frame apart): the pose a search over the whole map lost among distractors (furniture the
     map lacks) is often the best of the few near where the walk was."""
     index = {id(e): i for i, e in enumerate(maps.entries)}
-    sure = [i for i, o in enumerate(outcomes) if o.single_verdict == "confident" and o.loc is not None]
+    sure = [i for i, o in enumerate(outcomes) if is_anchor(o)]
     for i, o in enumerate(outcomes):
-        if o.hypotheses is None or o.single_verdict == "confident" or o.tracked:
+        if not needs_more(o):
             continue
-        before = [a for a in sure if a < i][-1:]
-        after = [a for a in sure if a > i][:1]
-        if not before + after:
-            continue
+        near = [a for a in sure if a < i][-1:] + [a for a in sure if a > i][:1]
+        augment_frame(o, [anchor_of(a - i, outcomes[a]) for a in near], index, maps, params)
+
+
+def is_anchor(o: FrameOutcome) -> bool:
+    """Whether frame ``o``'s own pose anchors the searches of :func:`augment`: its image was confident."""
+    return o.single_verdict == "confident" and o.loc is not None
+
+
+def needs_more(o: FrameOutcome) -> bool:
+    """Whether :func:`augment` searches again for frame ``o``: it has hypotheses, its image was not
+    confident and it was not tracked."""
+    return o.hypotheses is not None and o.single_verdict != "confident" and not o.tracked
+
+
+def anchor_of(gap: int, o: FrameOutcome) -> tuple[int, MapEntry, np.ndarray]:
+    """Confident frame ``o`` as an anchor of :func:`augment_frame`: ``gap`` frames away, its map and own centre."""
+    return gap, o.entry, np.asarray(o.loc.center, float)
+
+
+def augment_frame(o: FrameOutcome, anchors: list[tuple[int, MapEntry, np.ndarray]], index: dict[int, int],
+                  maps: MapSet, params: WalkParams) -> None:
+    """:func:`augment` of one frame: ``anchors`` the confident frames before and after it, each
+    ``(frames apart, its map, its own centre)`` (:func:`anchor_of`); ``index``: ``id(MapEntry) -> index``."""
+    if not anchors:
+        return
+    try:
+        img = o.frame.load()
+        lines = maps.entries[0].localizer.detect_lines(img)
+    except LdlError:
+        return
+    for gap, entry, center in anchors:
+        radius = min(params.gap_radius_m * abs(gap), params.max_gap_radius_m)
+        loz = entry.localizer
         try:
-            img = o.frame.load()
-            lines = maps.entries[0].localizer.detect_lines(img)
-        except LdlError:
+            s = loz.search(img, o.frame.max_tilt_deg, lines, near=SearchNear(center, None, radius))
+        except InputError:
             continue
-        for a in before + after:
-            anchor = outcomes[a]
-            radius = min(params.gap_radius_m * abs(a - i), params.max_gap_radius_m)
-            loz = anchor.entry.localizer
-            try:
-                s = loz.search(img, o.frame.max_tilt_deg, lines,
-                               near=SearchNear(np.asarray(anchor.loc.center, float), None, radius))
-            except InputError:
-                continue
-            c = s.out
-            o.hypotheses = joined(o.hypotheses, index[id(anchor.entry)], c.candidates_rot, c.candidates_center,
-                                  c.candidates_loss)
+        c = s.out
+        o.hypotheses = joined(o.hypotheses, index[id(entry)], c.candidates_rot, c.candidates_center,
+                              c.candidates_loss)
 
 
 def emission_costs(o: FrameOutcome, params: WalkParams) -> np.ndarray:
@@ -243,30 +274,52 @@ def decide(outcomes: list[FrameOutcome], maps: MapSet, params: WalkParams) -> No
     live = [o for o in outcomes if o.hypotheses is not None and len(o.hypotheses)]
     if not live:
         return
-    em = [emission_costs(o, params) for o in live]
+    path = walk_path(live, params)
+    for f, o in enumerate(live):
+        settle(o, path.choice[f], path.marginals[f], maps, params)
+        o.hypotheses = None  # not needed any more
+
+
+def walk_path(live: list[FrameOutcome], params: WalkParams, costs: dict | None = None):
+    """The most likely path (:func:`ldlloc.walk.viterbi.best_path`) over ``live`` frames (each with
+    hypotheses). ``costs``: a cache of emission and transition costs by hypotheses object, for
+    windows that overlap (:mod:`ldlloc.walk.stream`)."""
+    costs = {} if costs is None else costs
+
+    def em(o: FrameOutcome) -> np.ndarray:
+        key = id(o.hypotheses)
+        if key not in costs:
+            costs[key] = (o.hypotheses, emission_costs(o, params))
+        return costs[key][1]
 
     def trans(f: int) -> np.ndarray:
         a, b = live[f - 1], live[f]
-        dt = None if a.frame.time is None or b.frame.time is None else b.frame.time - a.frame.time
-        return transition_costs(a.hypotheses, b.hypotheses, params.motion, dt)
+        key = (id(a.hypotheses), id(b.hypotheses))
+        if key not in costs:
+            dt = None if a.frame.time is None or b.frame.time is None else b.frame.time - a.frame.time
+            costs[key] = (a.hypotheses, b.hypotheses, transition_costs(a.hypotheses, b.hypotheses, params.motion, dt))
+        return costs[key][-1]
 
-    path = best_path(em, trans)
-    for f, o in enumerate(live):
-        h, j = o.hypotheses, path.choice[f]
-        R, t = h.rot_cam_from_world[j], h.center[j]
-        o.walk_margin = margin(path.marginals[f], j, distinct(R, t, h.rot_cam_from_world, h.center))
-        changed = bool(distinct(R, t, o.single_pose[0][None], o.single_pose[1][None])[0])
-        pose_ok = bool(o.loc.refined)
-        if changed:
-            pose_ok = move_to(o, maps.entries[int(h.map_index[j])], R, t, params)
-        conf, verdict, o.walk_decided = walk_judgement(o.single_confidence, o.single_verdict, o.walk_margin,
-                                                       changed, pose_ok)
-        o.loc.confidence, o.loc.verdict = conf, verdict
-        if o.walk_decided and changed:  # the image's own pose is the walk's competitor
-            R0, t0 = o.single_pose
-            o.loc.competitors = [{"R": np.round(R0, 8).tolist(), "t": np.round(t0, 6).tolist(), "loss": None,
-                                  "why": "the image's own pose (the walk chose another)"}]
-        o.hypotheses = None  # not needed any more
+    return best_path([em(o) for o in live], trans)
+
+
+def settle(o: FrameOutcome, j: int, marginals: np.ndarray, maps: MapSet, params: WalkParams) -> None:
+    """Give frame ``o`` the pose its path chose (hypothesis ``j``; ``marginals``: the costs of the best
+    paths through each of its poses) and its judgement (:func:`ldlloc.confidence.walk_judgement`)."""
+    h = o.hypotheses
+    R, t = h.rot_cam_from_world[j], h.center[j]
+    o.walk_margin = margin(marginals, j, distinct(R, t, h.rot_cam_from_world, h.center))
+    changed = bool(distinct(R, t, o.single_pose[0][None], o.single_pose[1][None])[0])
+    pose_ok = bool(o.loc.refined)
+    if changed:
+        pose_ok = move_to(o, maps.entries[int(h.map_index[j])], R, t, params)
+    conf, verdict, o.walk_decided = walk_judgement(o.single_confidence, o.single_verdict, o.walk_margin,
+                                                   changed, pose_ok)
+    o.loc.confidence, o.loc.verdict = conf, verdict
+    if o.walk_decided and changed:  # the image's own pose is the walk's competitor
+        R0, t0 = o.single_pose
+        o.loc.competitors = [{"R": np.round(R0, 8).tolist(), "t": np.round(t0, 6).tolist(), "loss": None,
+                              "why": "the image's own pose (the walk chose another)"}]
 
 
 def move_to(o: FrameOutcome, entry: MapEntry, R: np.ndarray, t: np.ndarray, params: WalkParams) -> bool:
