@@ -20,19 +20,11 @@ from ldlmap.synth.multiroom import MultiRoomParams, multiroom_specs
 from ldlmap.synth.walk import WALK_STEP_M, write_walks
 from ldlmap.synth.walkplan import EYE_HEIGHT, STEP_RANGE, BuiltRooms, WalkRoom, plan_walk
 from tests.conftest import DEMO_SEED
+from tests.test_cli_synth import L_ROOM
 
 runner = CliRunner()
 
-SMALL_ROOM = """
-name = "lroom"
-footprint = [[0.0, 0.0], [6.0, 0.0], [6.0, 3.0], [3.0, 3.0], [3.0, 5.0], [0.0, 5.0]]
-ceiling_height = 2.7
-
-[[objects]]
-kind = "table"
-center = [1.5, 1.5]
-size = [1.2, 0.8, 0.75]
-
+SMALL_ROOM = L_ROOM + """
 [scan]
 density = 150.0
 stations = 4
@@ -194,3 +186,16 @@ def test_tour_localizes_as_a_walk(demo_dataset, tmp_path):
     for x in recs:  # frames in walk order within each room's walk
         assert x["walk"]["frame"] == int(Path(x["name"]).name) - (0 if x["scene"] == "synthroom_1" else
                                                                   sum(1 for y in recs if y["scene"] == "synthroom_1"))
+
+
+def test_reader_names_walk_frames_rooms(tmp_path):
+    """A walk's frames carry their floor and room in dataset.json: the reader's ``query_rooms`` reads them."""
+    from ldlmap.datasets.omniscenes import SYNTH_GENERATOR, query_rooms
+
+    frames = [{"stem": "0000", "scene": "floor_0", "floor": 0, "room": "f0_corridor"},
+              {"stem": "0001", "scene": "floor_1", "floor": 1, "room": "f1_office2", "jump": "stairs"},
+              {"stem": "0002", "scene": "synthroom_1", "floor": None, "room": None}]
+    (tmp_path / "dataset.json").write_text(json.dumps({"generator": SYNTH_GENERATOR, "scenes": [],
+                                                       "walks": {"walk_tour": {"frames": frames}}}))
+    assert query_rooms(tmp_path) == {("walk_tour", "floor_0", "0000"): (0, "f0_corridor"),
+                                     ("walk_tour", "floor_1", "0001"): (1, "f1_office2")}
