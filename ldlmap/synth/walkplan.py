@@ -273,12 +273,13 @@ def _past_doorway(nxt: float, last: float, hi: float, blocked: np.ndarray, fine:
     return after, True
 
 
-def sample_path(poly: np.ndarray, step: float, rng: np.random.Generator,
-                grid: FreeGrid) -> tuple[np.ndarray, np.ndarray]:
+def sample_path(poly: np.ndarray, step: float, rng: np.random.Generator, grid: FreeGrid,
+                objects: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """Frames (N, 3) along the 3D polyline ``poly``, its ends the first and last, steps of
     ``STEP_RANGE`` x ``step`` along it, none in a doorway (:func:`_past_doorway`), and whether each was
     reached across a doorway longer than a step. A step whose straight chord would cross a wall
-    outside a door or an object (round a corner) ends at the farthest point of the path it can see instead."""
+    outside a door, or (``objects``: a video's) an object, ends at the farthest point of the path it
+    can see instead (a tour's photographer walks round the furniture between two photos)."""
     poly = np.asarray(poly, dtype=np.float64)
     if len(poly) == 1:
         return poly.copy(), np.zeros(1, dtype=bool)
@@ -290,7 +291,7 @@ def sample_path(poly: np.ndarray, step: float, rng: np.random.Generator,
 
     def clear(a: float, b: float) -> bool:  # a stair climb is straight
         (pa, pb), _ = _along(poly, cum, np.array([a, b]))
-        return max(pa[2], pb[2]) > floor_z or (line_of_sight(grid, pa, pb, grid.touch)
+        return max(pa[2], pb[2]) > floor_z or ((not objects or line_of_sight(grid, pa, pb, grid.touch))
                                                 and not crosses_wall(grid.walls, pa, pb))
 
     s, door = [0.0], [False]
@@ -505,7 +506,7 @@ def plan_walk(spaces: list[list[WalkRoom]], step: float, rng: np.random.Generato
         xy = np.concatenate([legs[0]] + [g[1:] for g in legs[1:]])
         poly = np.column_stack([xy, np.full(len(xy), grid.z + eye)])
         poly = np.concatenate([poly, tail[1:]]) if len(tail) else poly
-        pos, door = sample_path(poly, step, rng, grid)
+        pos, door = sample_path(poly, step, rng, grid, objects=smooth)
         pos[:, 2] += BOUNCE_M * np.sin(rng.uniform(0, 2 * np.pi) + np.arange(len(pos)) * 2.1)
         for k, (R, t) in enumerate(zip(walk_rotations(pos, rng, smooth), pos)):
             out.append(WalkPose(R=R, t=t, room=room_of(rooms, t), jump=jump if k == 0 else ("door" if door[k] else None)))
