@@ -1,6 +1,7 @@
 """Walks against single images, side by side on the same frames.
 
-Run: ``python bench/bench_walk.py [--data ../shared/data] [--levels floor,rooms] [--threads 1]``.
+Run: ``python bench/bench_walk.py [--data ../shared/data] [--levels floor,rooms] [--threads 1]``, or
+``python bench/bench_walk.py --building [--seed 4040] [--width 1024] [--visits 2]``.
 
 The shared ZInD home (19 panoramas in capture order, the panorama number) as one walk,
 ``ldlloc run --root ... --walk``'s library path (:func:`ldlloc.walk.run.run_walk_queries`): at
@@ -9,6 +10,16 @@ of room maps (``--scene-unknown``). Maps as ``bench/bench_real.py`` builds them 
 per frame (single-image and walk errors, verdicts, whether the walk decided) and summarized:
 within 0.1 m / 5 deg and 0.25 m / 5 deg, single image against walk, confident poses and how many
 of them are wrong, frames the walk decided. Results go to ``bench/walk.json``.
+
+``--building``: a synthetic building walk, the floor not given. ``ldlmap synth --preset building
+--per-split 0 --walk tour`` (:func:`ldlmap.synth.building.generate_building`: a tour through every
+floor, ``--visits`` rooms entered a floor, up the stairwell; ``--seed``: one no test or bench uses),
+cached under ``bench/.cache/walk_building/data_s<seed>_w<width>``; ``ldlmap prepare`` at its defaults
+(one map per floor, timed, cached as ``maps_s<seed>``); the walk localized as one walk against the
+folder of floor maps (``ldlloc run --root DATA --split walk_tour --walk --scene-unknown``'s library
+path). Scored per frame against the ground truth the run never sees: within 0.1 m / 5 deg (single
+image and walk), right floor, and for the identical rooms (offices, hotel rooms) whether the pose
+is in the right copy (:func:`ldlmap.synth.building.room_at`). Results: ``bench/walk_building.json``.
 """
 
 from __future__ import annotations
@@ -26,8 +37,9 @@ ROOT = HERE.parent
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
+from bench.bench_building import cli, timed  # noqa: E402
 from bench.bench_real import build_maps, use_threads, zind_root_or_none  # noqa: E402
-from bench.common import CACHE, console  # noqa: E402
+from bench.common import CACHE, console, write_json  # noqa: E402
 
 LEVELS = ("floor", "rooms")
 
@@ -49,7 +61,6 @@ def run_level(zind_root: Path, level: str, args) -> dict:
     from ldlloc.pipeline import LocalizeParams
     from ldlloc.walk.localize import WalkParams
     from ldlloc.walk.run import run_walk_queries
-    from ldlmap.core.geometry import rotation_error_deg, translation_error
 
     map_level = "room" if level == "rooms" else level
     maps = build_maps(zind_root, map_level, None)
@@ -60,22 +71,31 @@ def run_level(zind_root: Path, level: str, args) -> dict:
     res = run_walk_queries(queries, maps, out, LocalizeParams(), WalkParams(top_maps=TOP_MAPS), "cpu",
                            meta={"dataset": "zind"}, scene_unknown=level == "rooms")
     seconds = time.perf_counter() - t0
-    gt = {q.name: q for q in queries}
-    rows = []
-    for r in sorted(res, key=lambda r: r.walk["frame"] if r.walk else -1):
-        q, w = gt[r.name], r.walk or {}
-        single = {"t": None, "r": None, "verdict": w.get("single_verdict")}
-        if w.get("single_pose"):
-            R, t = np.asarray(w["single_pose"]["R"]), np.asarray(w["single_pose"]["t"])
-            single.update(t=translation_error(t, q.center), r=rotation_error_deg(R, q.rot_cam_from_world))
-        elif r.status != "failed":
-            single.update(t=r.t_error_m, r=r.r_error_deg)
-        rows.append({"name": r.name, "map": None if r.map is None else Path(r.map).stem, "single": single,
-                     "walk": {"t": r.t_error_m, "r": r.r_error_deg, "verdict": r.verdict},
-                     "walk_decided": bool(w.get("walk_decided")), "margin": w.get("margin")})
+    rows = frame_rows(res, queries)
     return {"level": level, "seconds": seconds, "frames": rows,
             "single": counts(rows, "single"), "walk": counts(rows, "walk"),
             "walk_decided": sum(r["walk_decided"] for r in rows)}
+
+
+def frame_rows(results: list, queries: list) -> list[dict]:
+    """One row per frame of a walk run, in walk order: its single-image and walk errors and verdicts."""
+    from ldlmap.core.geometry import rotation_error_deg, translation_error
+
+    gt = {q.name: q for q in queries}
+    rows = []
+    for r in sorted(results, key=lambda r: r.walk["frame"] if r.walk else -1):
+        q, w = gt[r.name], r.walk or {}
+        single = {"t": None, "r": None, "verdict": w.get("single_verdict"), "pose": None}
+        if w.get("single_pose"):
+            R, t = np.asarray(w["single_pose"]["R"]), np.asarray(w["single_pose"]["t"])
+            single.update(t=translation_error(t, q.center), r=rotation_error_deg(R, q.rot_cam_from_world), pose=t.tolist())
+        elif r.status != "failed":
+            single.update(t=r.t_error_m, r=r.r_error_deg, pose=None if r.t is None else list(r.t))
+        rows.append({"name": r.name, "map": None if r.map is None else Path(r.map).stem, "single": single,
+                     "walk": {"t": r.t_error_m, "r": r.r_error_deg, "verdict": r.verdict,
+                              "pose": None if r.t is None else list(r.t)},
+                     "walk_decided": bool(w.get("walk_decided")), "margin": w.get("margin")})
+    return rows
 
 
 def print_level(res: dict) -> None:
@@ -101,13 +121,133 @@ def print_level(res: dict) -> None:
     console().print(f"{res['level']}: frames the walk decided {res['walk_decided']}/{n}")
 
 
+# ------------------------------------------------------------------------------ building walk
+
+WALK_CACHE = CACHE / "walk_building"
+
+
+def building_data(args) -> Path:
+    """The building with its tour (``--seed``, ``--width``, ``--visits``), generated once (timed)."""
+    from ldlmap.synth.building import generate_building
+
+    out = WALK_CACHE / (f"data_s{args.seed}_w{args.width}" + ("" if args.visits == 2 else f"_v{args.visits}"))
+    if not (out / "dataset.json").exists():
+        console().print(f"generating the building and its tour into {out}")
+        t0 = time.perf_counter()
+        generate_building(out, "building", args.seed, per_split=0, width=args.width, walk=("tour",),
+                          walk_visits=args.visits, progress=False, illumination=False)
+        write_json(out.parent / f"{out.name}_synth.json", {"wall_s": time.perf_counter() - t0})
+    return out
+
+
+def building_maps(data: Path, args) -> tuple[Path, dict]:
+    """``ldlmap prepare DATA`` at its defaults (one map per floor) into ``maps_s<seed>``, built once
+    (timed with ``/usr/bin/time``; the record of the build kept beside the maps)."""
+    maps = WALK_CACHE / f"maps_s{args.seed}"
+    record = WALK_CACHE / f"maps_s{args.seed}.json"
+    if not all((maps / f"floor_{f}.h5").exists() for f in range(3)):
+        console().print(f"building the floor maps into {maps} (ldlmap prepare defaults: tens of minutes on 2 cores)")
+        rec = timed(cli("ldlmap.cli", "prepare", str(data), "--maps", str(maps), "--overwrite"),
+                    WALK_CACHE / f"prepare_s{args.seed}.time", WALK_CACHE / f"prepare_s{args.seed}.log")
+        write_json(record, rec)
+    return maps, (json.loads(record.read_text()) if record.exists() else {})
+
+
+def copy_rows(rows: list[dict], queries: list, data: Path) -> None:
+    """Add to each frame's row its true floor, room and group and, single image and walk alike, the
+    room its pose stands in (``room_at``) and whether that is the true room (the right copy)."""
+    from ldlmap.synth.building import read_building, room_at
+
+    rooms = read_building(data)
+    by_id = {r.id: r for r in rooms}
+    gt = {q.name: q for q in queries}
+    for row in rows:
+        q = gt[row["name"]]
+        true = by_id.get(q.room)
+        row.update(floor=q.floor, room=q.room, kind=true.kind if true else None, group=true.group if true else None)
+        for key in ("single", "walk"):
+            got = None if row[key]["pose"] is None else room_at(rooms, np.asarray(row[key]["pose"]))
+            row[key]["room"] = None if got is None else got.id
+            row[key]["right_room"] = got is not None and got.id == q.room
+
+
+def building_counts(rows: list[dict]) -> dict:
+    """Per key (single | walk): all frames within 0.1 m / 5 deg, and the identical rooms' frames in the right copy."""
+    same = [r for r in rows if r["group"] in ("office", "hotel")]
+    out = {}
+    for key in ("single", "walk"):
+        ok = lambda r: r[key]["t"] is not None and r[key]["t"] < 0.1 and r[key]["r"] < 5  # noqa: E731
+        out[key] = {"0.1m_5deg": sum(map(ok, rows)), "frames": len(rows),
+                    "identical_frames": len(same), "right_copy": sum(r[key]["right_room"] for r in same),
+                    "identical_0.1m_5deg": sum(map(ok, same)),
+                    "right_floor": sum(r[key]["room"] is not None and r[key]["room"].startswith(f"f{r['floor']}_")
+                                       for r in rows),
+                    **counts(rows, key)}
+    return out
+
+
+def run_building(args) -> dict:
+    from ldlmap.datasets import open_dataset
+    from ldlloc.batch.which_map import TOP_MAPS
+    from ldlloc.pipeline import LocalizeParams
+    from ldlloc.walk.localize import WalkParams
+    from ldlloc.walk.run import run_walk_queries
+
+    data = building_data(args)
+    maps, build = building_maps(data, args)
+    queries = open_dataset(data, "omniscenes").queries("walk_tour")
+    out = WALK_CACHE / f"walk_s{args.seed}.json"
+    out.unlink(missing_ok=True)
+    t0 = time.perf_counter()
+    res = run_walk_queries(queries, maps, out, LocalizeParams(), WalkParams(top_maps=TOP_MAPS), "cpu",
+                           meta={"dataset": "synthetic"}, scene_unknown=True)
+    seconds = time.perf_counter() - t0
+    rows = frame_rows(res, queries)
+    copy_rows(rows, queries, data)
+    return {"seed": args.seed, "width": args.width, "visits": args.visits, "seconds": seconds, "prepare": build,
+            "frames": rows, **building_counts(rows), "walk_decided": sum(r["walk_decided"] for r in rows)}
+
+
+def print_building(res: dict) -> None:
+    from rich.table import Table
+
+    t = Table(title=f"building walk, seed {res['seed']}, floor not given ({res['seconds']:.0f} s)")
+    for col in ("frame", "room", "single m", "single room", "walk m", "walk room", "walk verdict", "decided"):
+        t.add_column(col)
+    f = lambda x: "-" if x is None else f"{x:.3f}"  # noqa: E731
+    for r in res["frames"]:
+        s, w = r["single"], r["walk"]
+        t.add_row(r["name"].split("/")[-1], str(r["room"]), f(s["t"]), str(s["room"]), f(w["t"]), str(w["room"]),
+                  str(w["verdict"]), "yes" if r["walk_decided"] else "")
+    console().print(t)
+    for key in ("single", "walk"):
+        c = res[key]
+        console().print(f"{key:6s}: 0.1 m / 5 deg {c['0.1m_5deg']}/{c['frames']}, identical rooms in the right copy "
+                        f"{c['right_copy']}/{c['identical_frames']} (within 0.1 m / 5 deg {c['identical_0.1m_5deg']}), "
+                        f"right floor {c['right_floor']}, confident {c['confident']} (wrong {c['confident_wrong']})")
+    console().print(f"frames the walk decided: {res['walk_decided']}/{len(res['frames'])}")
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", default=None, help="real data folder (default $LDL_REAL_DATA or ../shared/data)")
     ap.add_argument("--levels", default="floor,rooms", help="floor, rooms (comma-separated; default both)")
     ap.add_argument("--threads", type=int, default=1, help="torch intra-op threads (default 1)")
-    ap.add_argument("--output", default=str(HERE / "walk.json"))
+    ap.add_argument("--output", default=None, help="results (default bench/walk.json, bench/walk_building.json)")
+    ap.add_argument("--building", action="store_true", help="the synthetic building walk instead of ZInD")
+    ap.add_argument("--seed", type=int, default=4040, help="--building: the building's seed (no test uses 4040)")
+    ap.add_argument("--width", type=int, default=1024, help="--building: panorama width")
+    ap.add_argument("--visits", type=int, default=2, help="--building: rooms the walk enters a floor")
     args = ap.parse_args(argv)
+    if args.building:
+        use_threads(args.threads)
+        res = run_building(args)
+        print_building(res)
+        output = args.output or str(HERE / "walk_building.json")
+        write_json(Path(output), res)
+        print(f"wrote {output}")
+        return 0
+    args.output = args.output or str(HERE / "walk.json")
     zind_root = zind_root_or_none(args.data)
     if zind_root is None:
         return 0

@@ -45,6 +45,7 @@ ray_prepare = lazy_module("ldlmap.batch.ray_prepare")
 scanner_images = lazy_module("ldlmap.datasets.scanner_images")
 synth_capture = lazy_module("ldlmap.synth.capture")
 synth_generate = lazy_module("ldlmap.synth.generate")
+synth_walk = lazy_module("ldlmap.synth.walk")
 
 app = make_app("ldlmap", "Build LDL maps (3D lines, principal directions, features) and synthetic datasets.")
 
@@ -249,6 +250,12 @@ def synth(
     no_illumination: bool = typer.Option(False, "--no-illumination", help="Skip the extreme_* illumination splits."),
     width: Optional[int] = typer.Option(None, "--width", help="Panorama width (height = width / 2); default from the spec."),
     per_split: Optional[int] = typer.Option(None, "--per-split", help="Panoramas per split (default from the spec)."),
+    walk: Optional[str] = typer.Option(None, "--walk", help="Also capture a walk through the scene(s), as the split "
+                                       "walk_tour (tour: a photo every 1-3 m), walk_video (video: a frame every "
+                                       "0.1-0.3 m, motion blur, also video/walk_video.mp4) or both (tour,video); "
+                                       "through doors, down corridors and up the stairwell (docs/synthetic.md#walks)."),
+    walk_step: Optional[float] = typer.Option(None, "--walk-step", help="--walk: mean step in metres (steps are "
+                                              "0.5-1.5 x it; default 2 for tour, 0.2 for video)."),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
 ) -> None:
     """Generate a synthetic panoramic dataset: scans, meshes, 3D edges, panoramas with poses."""
@@ -260,11 +267,14 @@ def synth(
     check_range(width, "--width", synth_capture.MIN_WIDTH, synth_capture.MAX_WIDTH, integer=True,
                 why="rendering holds about 450 bytes per pixel")
     check_range(per_split, "--per-split", 0, synth_capture.MAX_PER_SPLIT, integer=True)
+    walks = synth_walk.parse_walk(walk)
+    synth_walk.check_walk_step(walk_step, walks)
     refuse_overwriting_inputs(spec or [], [out])
     synth_capture.refuse_replacing_other_dataset(out, overwrite)
     kept = synth_capture.files_not_generated(out) if overwrite and omniscenes.written_by_synth(out) else []
     s = synth_generate.generate_dataset(out, preset=preset, spec_paths=spec or [], seed=seed, overwrite=overwrite,
-                         progress=not quiet, illumination=not no_illumination, width=width, per_split=per_split)
+                         progress=not quiet, illumination=not no_illumination, width=width, per_split=per_split,
+                         walk=walks, walk_step=walk_step)
     table = Table(title=f"synthetic dataset {s.out} (seed {s.seed}, {s.width}x{s.height})")
     table.add_column("split")
     table.add_column("panoramas", justify="right")

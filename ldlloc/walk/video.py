@@ -11,14 +11,14 @@ for more frames a second than it has is a one-line error.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from fractions import Fraction
 from pathlib import Path
 from typing import Iterator
 
 import numpy as np
 
 from ldlloc.pipeline import WORK_WIDTH
-from ldlmap.core.errors import InputError, atomic_file, require_file
+from ldlmap.core.errors import InputError, require_file
+from ldlmap.io.video import write_video  # noqa: F401  (moved to ldlmap: the generator writes videos too)
 from ldlmap.core.lazy import lazy_module
 
 av = lazy_module("av")
@@ -153,22 +153,3 @@ def frames_by_index(path: str | Path, indices: set[int]) -> Iterator[tuple[int, 
                 index += 1
         except av.error.FFmpegError as exc:
             raise InputError(f"cannot decode video {info.path} at frame {index}: {exc}") from None
-
-
-def write_video(path: str | Path, frames: Iterator[np.ndarray], fps: float, codec: str = "libx264") -> Path:
-    """Encode RGB frames (H, 2H, 3) uint8 as a video (mp4: H.264, yuv420p) at ``fps``."""
-
-    target = Path(path)
-    with atomic_file(target) as tmp:
-        with av.open(str(tmp), "w") as c:
-            s = None
-            for img in frames:
-                if s is None:
-                    s = c.add_stream(codec, rate=Fraction(fps).limit_denominator(1000))
-                    s.width, s.height, s.pix_fmt = img.shape[1], img.shape[0], "yuv420p"
-                for packet in s.encode(av.VideoFrame.from_ndarray(np.ascontiguousarray(img), format="rgb24")):
-                    c.mux(packet)
-            if s is not None:
-                for packet in s.encode():
-                    c.mux(packet)
-    return target

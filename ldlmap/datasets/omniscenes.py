@@ -45,8 +45,8 @@ def written_by_synth(root: str | Path) -> bool:
 def query_rooms(root: str | Path) -> dict[tuple[str, str, str], tuple[int | None, str]]:
     """``(split, scene, image stem) -> (floor, room id)`` of the queries of a synthetic dataset
     whose scenes hold several rooms (``ldlmap synth --preset multiroom | building``: the rooms and
-    their query stems in ``dataset.json``); empty for any other dataset. Multi-room rooms have no
-    floor and are named ``room<i>``."""
+    their query stems in ``dataset.json``; a walk split's frames, ``ldlmap synth --walk``, in its
+    ``walks``); empty for any other dataset. Multi-room rooms have no floor and are named ``room<i>``."""
     try:
         meta = json.loads((Path(root) / "dataset.json").read_text())
     except (OSError, ValueError):
@@ -61,6 +61,10 @@ def query_rooms(root: str | Path) -> dict[tuple[str, str, str], tuple[int | None
             for split, stems in (room.get("queries") or {}).items():
                 for stem in stems:
                     out[(split, scene.get("name"), stem)] = (None if floor is None else int(floor), rid)
+    for split, walk in (meta.get("walks") or {}).items():  # a walk's frames name their room themselves
+        for f in walk.get("frames", []) if isinstance(walk, dict) else []:
+            if f.get("room"):
+                out[(split, f.get("scene"), f.get("stem"))] = (None if f.get("floor") is None else int(f["floor"]), f["room"])
     return out
 
 

@@ -52,6 +52,8 @@ from ldlmap.synth.scene import build_scene
 from ldlmap.synth.spec import (FRAME_WIDTH, CaptureSpec, ObjectSpec, OpeningSpec, PosterSpec, ScanSpec, SceneSpec,
                                dump_spec_toml, load_spec, validate_spec)
 from ldlmap.synth.types import SceneMesh
+from ldlmap.synth.walk import VISITS_PER_FLOOR, write_walks
+from ldlmap.synth.walkplan import CLEARANCE, WalkRoom
 
 KINDS = ("office", "hotel", "room", "corridor", "stairwell")
 
@@ -260,7 +262,7 @@ def _stairwell(rng: np.random.Generator, p: BuildingParams) -> SceneSpec:
     return spec
 
 
-def _door_segment(spec: SceneSpec, offset: np.ndarray, j: int) -> tuple[np.ndarray, np.ndarray]:
+def door_segment(spec: SceneSpec, offset: np.ndarray, j: int) -> tuple[np.ndarray, np.ndarray]:
     """World xy end points of opening ``j`` of ``spec`` standing at ``offset``."""
     fp = np.asarray(spec.footprint, dtype=np.float64) + offset[:2]
     op = spec.openings[j]
@@ -285,7 +287,7 @@ def _corridor(rng: np.random.Generator, p: BuildingParams, floor: int, length: f
     world = fp + offset[:2]
     openings, doors = [], []
     for rid, spec, off, j, wall in neighbours:
-        op = _matching_door(world, wall, _door_segment(spec, off, j))
+        op = _matching_door(world, wall, door_segment(spec, off, j))
         doors.append((len(openings), rid))
         openings.append(op)
     openings.append(OpeningSpec("window", 3, round(p.corridor_width / 2 - 0.5, 4), 1.0, 1.2, 0.9))
@@ -352,16 +354,37 @@ def plan_building(seed: int, p: BuildingParams = BuildingParams()) -> list[list[
     return floors
 
 
+def _passage(room: PlannedRoom, j: int, p: BuildingParams) -> np.ndarray:
+    """The (4, 2) world xy rectangle a walk crosses door ``j`` of ``room`` in: the door's width less
+    0.25 m a side, from ``CLEARANCE`` + 0.15 m inside the room to as far beyond the wall."""
+    a, b = door_segment(room.spec, np.asarray(room.offset, dtype=np.float64), j)
+    t = (b - a) / np.linalg.norm(b - a)
+    n = np.array([t[1], -t[0]])  # outward: the footprints run counter-clockwise
+    a, b = a + 0.25 * t, b - 0.25 * t
+    inner, outer = CLEARANCE + 0.15, p.wall + CLEARANCE + 0.15
+    return np.array([a - inner * n, b - inner * n, b + outer * n, a + outer * n])
+
+
+def walk_spaces(plan: list[list[PlannedRoom]], p: BuildingParams) -> list[list[WalkRoom]]:
+    """The building's floors as walk spaces (:mod:`ldlmap.synth.walkplan`), ground floor first."""
+    return [[WalkRoom(id=r.id, scene=floor_scene(r.floor), spec=r.spec, offset=tuple(float(x) for x in r.offset),
+                      floor=r.floor, kind=r.kind, passages=tuple(_passage(r, j, p) for j, _ in r.doors))
+             for r in rooms] for rooms in plan]
+
+
 # -------------------------------------------------------------------------------- generating
 
 
 def generate_building(out: Path, preset: str = "building", seed: int = 0, overwrite: bool = False,
                       progress: bool = True, illumination: bool = True, width: int | None = None,
-                      per_split: int | None = None, params: BuildingParams | None = None) -> DatasetSummary:
+                      per_split: int | None = None, params: BuildingParams | None = None,
+                      walk: tuple[str, ...] = (), walk_step: float | None = None,
+                      walk_visits: int = VISITS_PER_FLOOR) -> DatasetSummary:
     """Generate a building dataset into ``out`` (atomically); returns a ``DatasetSummary``.
 
     ``params`` (default: the preset's) is the plan; ``width`` and ``per_split`` (panoramas per
-    split *per room*) override it. Same seed, same bytes.
+    split *per room*) override it. ``walk``: the walk captures (:mod:`ldlmap.synth.walk`) from
+    floor to floor, ``walk_visits`` rooms entered on each. Same seed, same bytes.
     """
     start = time.perf_counter()
     out = Path(out)
@@ -383,10 +406,12 @@ def generate_building(out: Path, preset: str = "building", seed: int = 0, overwr
         (tmp / "specs").mkdir(parents=True)
         for f, rooms in enumerate(plan):
             scenes.append(_write_floor(tmp, f, rooms, params, cap0, run, tick))
+        walks = write_walks(tmp, walk_spaces(plan, params), walk, seed, cap0, split_counts, tick, walk_step,
+                            walk_visits) if walk else {}
         meta = {"generator": SYNTH_GENERATOR, "version": GENERATOR_VERSION, "seed": int(seed), "preset": preset,
                 "building": asdict(params), "illumination": sorted(cap0.illumination),
                 "layout": "omniscenes", "scenes": scenes,
-                "splits": {s: {"images": split_counts[s]} for s in splits}}
+                "splits": {s: {"images": split_counts[s]} for s in split_counts}, **({"walks": walks} if walks else {})}
         (tmp / "dataset.json").write_text(json.dumps(list_generated(tmp, meta), indent=2) + "\n")
 
     return DatasetSummary(out=out, seed=int(seed), scenes=[s["name"] for s in scenes], splits=split_counts,

@@ -99,12 +99,12 @@ def stream_rng(seed: int, spec: SceneSpec, scene: int, stage: str) -> np.random.
     return np.random.default_rng([int(seed) & 0xFFFFFFFF, int(spec.seed) & 0xFFFFFFFF, int(scene), _STREAM[stage]])
 
 
-def _write_jpeg(path: Path, rgb: np.ndarray) -> None:
+def write_jpeg(path: Path, rgb: np.ndarray) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     write_image(path, rgb[..., ::-1], quality=JPEG_QUALITY)
 
 
-def _write_pose(path: Path, R: np.ndarray, t: np.ndarray) -> None:
+def write_pose(path: Path, R: np.ndarray, t: np.ndarray) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     np.savetxt(path, np.hstack([np.asarray(R, np.float64), np.asarray(t, np.float64).reshape(3, 1)]))
 
@@ -145,16 +145,16 @@ def write_split_panoramas(tmp: Path, name: str, spec: SceneSpec, idx: int, cap: 
             pano = rend.render(R, t, W, H, supersample=cap.supersample, blur_px=blur, blur_angle=angle,
                                noise_sigma=cap.noise_sigma, rng=rng)
             stem = f"{first.get(split, 0) + k:04d}"
-            _write_jpeg(tmp / f"{split}_pano" / folder / f"{stem}.jpg", pano.rgb)
-            _write_pose(tmp / f"{split}_pose" / folder / f"{stem}.txt", R, t + shift)
+            write_jpeg(tmp / f"{split}_pano" / folder / f"{stem}.jpg", pano.rgb)
+            write_pose(tmp / f"{split}_pose" / folder / f"{stem}.txt", R, t + shift)
             split_counts[split] += 1
             written.setdefault(split, []).append(stem)
             if split == "extreme":
                 for var, (kind, params) in cap.illumination.items():
                     vfolder = f"{var}_{name}_{state}"
-                    _write_jpeg(tmp / f"{var}_pano" / vfolder / f"{stem}.jpg",
+                    write_jpeg(tmp / f"{var}_pano" / vfolder / f"{stem}.jpg",
                                 apply_illumination(pano.rgb, kind, **params))
-                    _write_pose(tmp / f"{var}_pose" / vfolder / f"{stem}.txt", R, t + shift)
+                    write_pose(tmp / f"{var}_pose" / vfolder / f"{stem}.txt", R, t + shift)
                     split_counts[var] += 1
                     written.setdefault(var, []).append(stem)
             tick(f"{name}: {split} {k + 1}/{n}")

@@ -48,6 +48,8 @@ from ldlmap.synth.render import Renderer
 from ldlmap.synth.scene import build_scene
 from ldlmap.synth.shapes import classify_room
 from ldlmap.synth.spec import SceneSpec, dump_spec_toml, load_spec
+from ldlmap.synth.walk import write_walks
+from ldlmap.synth.walkplan import WalkRoom
 
 
 def _room_name(spec: SceneSpec) -> str:
@@ -78,7 +80,8 @@ def _scene_extra(preset: str | None, spec_paths: Sequence[Path], index: int) -> 
 def generate_dataset(out: Path, preset: str | None = "demo", spec_paths: Sequence[Path] = (), seed: int = 0,
                      overwrite: bool = False, progress: bool = True, illumination: bool = True,
                      width: int | None = None, per_split: int | None = None,
-                     scenes: int | None = None) -> DatasetSummary:
+                     scenes: int | None = None, walk: tuple[str, ...] = (),
+                     walk_step: float | None = None) -> DatasetSummary:
     """Generate the dataset into ``out`` (atomically) and return a :class:`DatasetSummary`.
 
     ``width`` and ``per_split`` override the specs' panorama width and panoramas per split.
@@ -90,11 +93,11 @@ def generate_dataset(out: Path, preset: str | None = "demo", spec_paths: Sequenc
     """
     check_dataset_seed(seed)
     if not spec_paths and is_building_preset(preset):
-        return generate_building(out, preset, seed, overwrite=overwrite, progress=progress,
-                                 illumination=illumination, width=width, per_split=per_split)
+        return generate_building(out, preset, seed, overwrite=overwrite, progress=progress, illumination=illumination,
+                                 width=width, per_split=per_split, walk=walk, walk_step=walk_step)
     if not spec_paths and is_multiroom_preset(preset):
-        return generate_multiroom(out, preset, seed, overwrite=overwrite, progress=progress,
-                                  illumination=illumination, width=width, per_split=per_split)
+        return generate_multiroom(out, preset, seed, overwrite=overwrite, progress=progress, illumination=illumination,
+                                  width=width, per_split=per_split, walk=walk, walk_step=walk_step)
     start = time.perf_counter()
     out = Path(out)
     named = load_specs(preset, list(spec_paths), seed, scenes)  # bad specs fail before anything is written
@@ -109,11 +112,13 @@ def generate_dataset(out: Path, preset: str | None = "demo", spec_paths: Sequenc
         scene_info = [_write_scene(tmp, name, spec, idx, cap, seed, split_counts, tick,
                                    _scene_extra(preset, spec_paths, idx))
                       for idx, (spec, cap, name) in enumerate(zip(specs, settings, names), start=1)]
+        spaces = [[WalkRoom(id="", scene=name, spec=spec)] for name, spec in zip(names, specs)]
+        walks = write_walks(tmp, spaces, walk, seed, settings[0], split_counts, tick, walk_step) if walk else {}
         meta = {"generator": SYNTH_GENERATOR, "version": GENERATOR_VERSION, "seed": int(seed),
                 "preset": None if spec_paths else (preset or "demo"),
                 "illumination": sorted({v for c in settings for v in c.illumination}),
                 "layout": "omniscenes", "scenes": scene_info,
-                "splits": {s: {"images": split_counts[s]} for s in splits}}
+                "splits": {s: {"images": split_counts[s]} for s in split_counts}, **({"walks": walks} if walks else {})}
         (tmp / "dataset.json").write_text(json.dumps(list_generated(tmp, meta), indent=2) + "\n")
 
     return DatasetSummary(out=out, seed=int(seed), scenes=names, splits=split_counts,

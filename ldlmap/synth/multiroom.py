@@ -53,6 +53,8 @@ from ldlmap.synth.render import Renderer
 from ldlmap.synth.scene import build_scene
 from ldlmap.synth.spec import SceneSpec, dump_spec_toml, load_spec, validate_spec
 from ldlmap.synth.types import SceneMesh
+from ldlmap.synth.walk import write_walks
+from ldlmap.synth.walkplan import WalkRoom
 
 SCENE = "multiroom_1"
 
@@ -282,12 +284,14 @@ def write_union(tmp: Path, name: str, rooms: list[CapturedRoom]) -> tuple[int, S
 def generate_multiroom(out: Path, preset: str = "multiroom", seed: int = 0, rooms: int | None = None,
                        overwrite: bool = False, progress: bool = True, illumination: bool = True,
                        width: int | None = None, per_split: int | None = None,
-                       params: MultiRoomParams | None = None) -> DatasetSummary:
+                       params: MultiRoomParams | None = None, walk: tuple[str, ...] = (),
+                       walk_step: float | None = None) -> DatasetSummary:
     """Generate a multi-room dataset into ``out`` (atomically); returns a ``DatasetSummary``.
 
     ``params`` (default: the preset's, with ``rooms`` overriding its room count) places the
     rooms; ``width`` and ``per_split`` (panoramas per split *per room*) override the specs.
-    Same seed, same bytes.
+    ``walk``: the walk captures (:mod:`ldlmap.synth.walk`), a loop in each room, room after room
+    (no door joins them: each room is a jump). Same seed, same bytes.
     """
     start = time.perf_counter()
     out = Path(out)
@@ -330,6 +334,8 @@ def generate_multiroom(out: Path, preset: str = "multiroom", seed: int = 0, room
             n_points += int(len(got.points))
         tick(f"{name}: writing the union")
         points, union, segs = write_union(tmp, name, captured)
+        spaces = [[WalkRoom(id=f"room{i}", scene=name, spec=spec)] for i, spec in enumerate(specs, start=1)]
+        walks = write_walks(tmp, spaces, walk, seed, settings[0], split_counts, tick, walk_step) if walk else {}
         W, H = settings[0].width, settings[0].height
         scene_info = {"name": name, "points": points, "triangles": int(union.num_triangles),
                       "gt_lines": int(len(segs)), "width": W, "height": H, "rooms": rooms_info}
@@ -337,7 +343,7 @@ def generate_multiroom(out: Path, preset: str = "multiroom", seed: int = 0, room
                 "multiroom": asdict(params),
                 "illumination": sorted({v for c in settings for v in c.illumination}),
                 "layout": "omniscenes", "scenes": [scene_info],
-                "splits": {s: {"images": split_counts[s]} for s in splits}}
+                "splits": {s: {"images": split_counts[s]} for s in split_counts}, **({"walks": walks} if walks else {})}
         (tmp / "dataset.json").write_text(json.dumps(list_generated(tmp, meta), indent=2) + "\n")
 
     return DatasetSummary(out=out, seed=int(seed), scenes=[name], splits=split_counts, points={name: points},

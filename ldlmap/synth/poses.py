@@ -78,7 +78,7 @@ def split_pose_params(split: str, capture: Any = None) -> PoseParams:
     return p
 
 
-def _object_hulls(mesh: SceneMesh) -> list[np.ndarray]:
+def object_hulls(mesh: SceneMesh) -> list[np.ndarray]:
     """Half-plane equations (E, 3) of the xy convex hull of each object box."""
     hulls = []
     for box in mesh.object_boxes:
@@ -90,6 +90,14 @@ def _object_hulls(mesh: SceneMesh) -> list[np.ndarray]:
     return hulls
 
 
+def clear_of_objects(xy: np.ndarray, hulls: list[np.ndarray], margin: float) -> np.ndarray:
+    """Whether points (N, 2) stand more than ``margin`` metres outside every object hull (:func:`object_hulls`)."""
+    ok = np.ones(len(xy), dtype=bool)
+    for eq in hulls:
+        ok &= ~np.all(xy @ eq[:, :2].T + eq[:, 2] <= margin, axis=1)
+    return ok
+
+
 def sample_positions(mesh: SceneMesh, n: int, rng: np.random.Generator, height_min: float,
                      height_max: float, clearance: float, object_margin: float = 0.15,
                      renderer: Renderer | None = None, max_batches: int = 200) -> np.ndarray:
@@ -99,16 +107,13 @@ def sample_positions(mesh: SceneMesh, n: int, rng: np.random.Generator, height_m
     lo, hi = fp.min(axis=0), fp.max(axis=0)
     z_hi = min(height_max, float(mesh.ceiling_height) - clearance)
     z_lo = min(height_min, z_hi)
-    hulls = _object_hulls(mesh)
+    hulls = object_hulls(mesh)
     out: list[np.ndarray] = []
     count = 0
     for _ in range(max_batches):
         cand = np.column_stack([rng.uniform(lo[0], hi[0], 256), rng.uniform(lo[1], hi[1], 256),
                                 rng.uniform(z_lo, z_hi, 256)])
-        ok = points_in_polygon(cand[:, :2], fp)
-        for eq in hulls:
-            inside = np.all(cand[:, :2] @ eq[:, :2].T + eq[:, 2] <= object_margin, axis=1)
-            ok &= ~inside
+        ok = points_in_polygon(cand[:, :2], fp) & clear_of_objects(cand[:, :2], hulls, object_margin)
         if np.any(ok):
             ok[ok] = renderer.distance(cand[ok]) >= clearance
         good = cand[ok]
