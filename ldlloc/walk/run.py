@@ -156,11 +156,13 @@ def walk_order(q) -> tuple:
 
 
 def walk_groups(queries: list, scene_unknown: bool) -> dict[str, list]:
-    """A dataset run's walks: one per scene (``scene_unknown``: per folder of scenes), in walk order."""
+    """A dataset run's walks: one per split and scene (``scene_unknown``: per split and folder of scenes), in
+    walk order: a synthetic dataset's ``walk_tour`` and ``walk_video`` and its single-photo splits never mix."""
     groups: dict[str, list] = {}
-    for q in sorted(queries, key=lambda q: (q.scene, walk_order(q))):
+    splits = {q.split for q in queries}
+    for q in sorted(queries, key=lambda q: (q.split, q.scene, walk_order(q))):
         key = str(Path(q.scene).parent) if scene_unknown else q.scene
-        groups.setdefault(key, []).append(q)
+        groups.setdefault(key if len(splits) == 1 else f"{q.split}/{key}", []).append(q)
     return {k: sorted(v, key=walk_order) for k, v in sorted(groups.items())}
 
 
