@@ -325,7 +325,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.fit:
         from ldlloc.confidence import SIGNALS
 
-        out["fit"] = fit([r for k, rs in kinds.items() if not k.startswith(CHECK_ONLY) for r in rs], SIGNALS)
+        out["fit"] = fit([{**r, "kind": k} for k, rs in kinds.items() if not k.startswith(CHECK_ONLY) for r in rs],
+                         SIGNALS)
         console().print(f"fitted on every fitted kind: {out['fit']}")
     table = {name: judged(rs) for name, rs in sets.items()}
     summaries = {name: set_summary(rs) for name, rs in table.items()}

@@ -35,7 +35,9 @@ def judged(rows: list[dict], model: ConfidenceModel = MODEL) -> list[dict]:
 def fit(rows: list[dict], signals: tuple[str, ...]) -> dict:
     """L2-regularized logistic with non-negative weights on the standardized ``signals`` as the
     model weighs them (:func:`ldlloc.confidence.effective_signals`), folded back to raw weights, and
-    the smallest threshold at which the confident poses are >= :data:`TARGET_PRECISION` right.
+    the smallest threshold at which the confident poses are >= :data:`TARGET_PRECISION` right in
+    every kind of data (``row["kind"]``; one pool when the rows name none): pooled, an easy kind
+    with many right poses lowers the threshold below what a harder kind holds.
     Poses the rules that need no fitting judge (``physical`` 0: no camera there; ``tie``: never
     confident) are left out of the threshold's choice, and the unphysical ones out of the fit.
     Non-negative: no signal may lower the confidence as it grows (explainable, and a quirk of one
@@ -57,10 +59,11 @@ def fit(rows: list[dict], signals: tuple[str, ...]) -> dict:
     weights = w[1:] / sd
     bias = w[0] - float(np.sum(w[1:] * mu / sd))
     p = 1 / (1 + np.exp(-(bias + X @ weights)))
+    kind = np.array([str(r.get("kind", "")) for r in rows])
     threshold = 1.0
     for t in np.unique(p[eligible])[::-1]:  # lower the threshold while the confident ones stay right enough
         sel = (p >= t) & eligible
-        if np.mean(y[sel]) >= TARGET_PRECISION:
+        if all(np.mean(y[sel & (kind == k)]) >= TARGET_PRECISION for k in np.unique(kind[sel])):
             threshold = float(t)
         elif sel.sum() >= MIN_CONFIDENT:
             break
@@ -92,6 +95,6 @@ def leave_one_kind_out(kinds: dict[str, list[dict]], signals: tuple[str, ...],
     fitted = [k for k in kinds if not k.startswith(check_only)] if check_only else list(kinds)
     out = {}
     for kind, rows in kinds.items():
-        f = fit([r for k in fitted if k != kind for r in kinds[k]], signals)
+        f = fit([{**r, "kind": k} for k in fitted if k != kind for r in kinds[k]], signals)
         out[kind] = {**held_out_counts(judged(rows, model_of(f))), "confident_at": f["confident_at"]}
     return out

@@ -68,3 +68,16 @@ def test_rules_without_fitting_hold_after_the_fit():
     c = held_out_counts(out)
     assert (c["confident"], c["confident_right"], c["confident_wrong_copy"]) == (1, 0, 1)
     assert c["precision"] == pytest.approx(0.0)
+
+
+def test_threshold_holds_in_every_kind():
+    """Pooled, many easy right poses let the threshold fall below where a harder kind is right;
+    with the kinds named, the threshold keeps every kind at the target."""
+    easy = [{**r, "kind": "easy"} for r in _kind(1, 0.1, n=200)]
+    hard = [{**r, "kind": "hard"} for r in _kind(2, 0.3, n=40)]
+    pooled = fit([{k: v for k, v in r.items() if k != "kind"} for r in easy + hard], SIGNALS)
+    per_kind = fit(easy + hard, SIGNALS)
+    assert per_kind["confident_at"] > pooled["confident_at"]
+    for rows in (easy, hard):
+        conf = [r for r in judged(rows, model_of(per_kind)) if r["verdict"] == "confident"]
+        assert conf and np.mean([r["good"] for r in conf]) >= TARGET_PRECISION
