@@ -87,7 +87,8 @@ class ConfidenceModel:
 # Fitted by `bench/bench_confidence.py --fit` on the synthetic sets only (256 poses; docs/measurements.md#confidence):
 # a logistic with non-negative weights, L2-regularized on the standardized signals and folded back to raw
 # weights. ``confident_at``: the smallest confidence above which >= 98 % of the synthetic poses are within
-# 0.25 m / 5 deg (the confidence's target).
+# 0.25 m / 5 deg (the confidence's target). The refit judged leave-one-kind-out (docs/measurements.md#confidence)
+# is not adopted yet.
 MODEL = ConfidenceModel(bias=-8.429, weights={"gap": 2.75, "support": 0.0, "support_gap": 0.0, "margin": 24.325,
                                               "features": 8.198, "refined": 5.613}, confident_at=0.602)
 SIGNALS = ("gap", "support", "support_gap", "margin", "features", "refined")
@@ -249,7 +250,8 @@ def confidence_signals(loc, ldl_map, support_deg: float = 1.0) -> tuple[dict[str
                "refined": float(bool(loc.refined)), "inliers": float(loc.num_inliers),
                "pnp_rival": rival_share(loc), "retrieved": float(bool(getattr(loc, "retrieval", None))),
                "physical": float(physical_poses(np.asarray(loc.center, float)[None], ldl_map)[0]),
-               "tie": float(bool(tied_rivals(loc)))}
+               "tie": float(bool(tied_rivals(loc)) or (m is not None and m <= TWIN_NOISE))}  # m: the best distinct
+    # refined pose's score gap (Localizer._refine_geometric), the tie's rule whether or not its rivals were kept
     signals = {k: v if np.isfinite(v) else 0.0 for k, v in signals.items()}  # a NaN loss says nothing
     return signals, others
 
