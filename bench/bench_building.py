@@ -1,12 +1,13 @@
 """Building-scale maps: one map per floor, queries localized without their floor.
 
-Run: ``python bench/bench_building.py [--preset building] [--ray] [--threads 1] [--splits robot,...]
+Run: ``python bench/bench_building.py [--preset building] [--seed S] [--ray] [--threads 1] [--splits robot,...]
 [--max-queries N] [--rebuild] [--output bench/building.json]``.
 
 1. **Data.** ``ldlmap synth --preset PRESET`` (``building``: 3 floors of 12 rooms, 6 identical
    offices and 3 identical hotel rooms a floor, a corridor and a stairwell each; one scene per
    floor, all in one world frame), generated once under ``bench/.cache/<preset>/data``
-   (``<preset>_w<width>_n<per-split>`` when those are given) (or
+   (``<preset>_s<seed>_w<width>_n<per-split>`` when those are given: ``--seed`` other than 0 is a
+   building the confidence was never fitted on) (or
    ``--data DIR``: a building already generated).
 2. **Maps.** ``ldlmap prepare DATA --maps .../maps_plain`` (defaults: SIFT, N_t = 800, 40 views),
    one map per floor, wall and CPU seconds and peak memory from ``/usr/bin/time -v`` (kept in
@@ -26,7 +27,9 @@ Run: ``python bench/bench_building.py [--preset building] [--ray] [--threads 1] 
    ``hotel``, ``stairwell``): how often the right copy wins, the pose right *in some copy* (the
    error after moving the estimate by the offset between the copy it landed in and the true one:
    only the copy is wrong), and how often the result is marked ``ambiguous`` when the copy is wrong
-   and when it is right. Seconds per query from the results (``seconds``: ``search`` and
+   and when it is right; the ``confident`` poses, how many are right (0.25 m / 5 deg) and how many
+   lie in a wrong copy. Each row keeps the confidence's signals and competitors
+   (``bench/bench_confidence.py --building`` judges them). Seconds per query from the results (``seconds``: ``search`` and
    ``rotation`` summed over the floor maps, ``total``): median, mean and 90th percentile.
 ``--camera-height MIN:MAX`` and ``--num-trans N``: the maps built by ``prepare`` with those options
 (candidates only MIN-MAX metres above each floor; N_t per floor) into ``maps_<tag>`` beside
@@ -114,13 +117,14 @@ def dataset(args) -> Path:
    (``<preset>_w<width>_n<per-split>`` when those are given)."""
     if args.data:
         return Path(args.data)
-    tag = args.preset + (f"_w{args.width}" if args.width else "") + (f"_n{args.per_split}" if args.per_split else "")
+    tag = args.preset + (f"_s{args.seed}" if args.seed else "") + (f"_w{args.width}" if args.width else "") + (
+        f"_n{args.per_split}" if args.per_split else "")
     out = CACHE / tag / "data"
     if (out / "dataset.json").exists():
         return out
     out.parent.mkdir(parents=True, exist_ok=True)
     extra = (["--width", str(args.width)] if args.width else []) + (
-        ["--per-split", str(args.per_split)] if args.per_split else [])
+        ["--per-split", str(args.per_split)] if args.per_split else []) + (["--seed", str(args.seed)] if args.seed else [])
     console().print(f"generating {args.preset} into {out} (slow: about 5 min for the full building on 2 cores)")
     rec = timed(cli("ldlmap.cli", "synth", str(out), "--preset", args.preset, "--quiet", *extra),
                 out.parent / "synth.time", out.parent / "synth.log")
@@ -267,6 +271,7 @@ def score(results: list, queries: list, data: Path) -> list[dict[str, Any]]:
         row: dict[str, Any] = {"name": q.name, "split": q.split, "floor": q.floor, "room": q.room,
                                "kind": true.kind if true else None, "group": true.group if true else None,
                                "status": r.status, "verdict": r.verdict, "confidence": r.confidence,
+                               "signals": dict(r.confidence_signals or {}), "competitors": [c["why"] for c in r.competitors],
                                "map": Path(r.map).stem if r.map else None, "seconds": dict(r.seconds)}
         if r.status == "failed" or r.t is None:
             row.update(t_err=None, r_err=None, got_room=None, right_floor=False, right_room=False, copy_err=None,
@@ -303,6 +308,8 @@ def summarize(rows: list[dict[str, Any]]) -> dict[str, Any]:
     out["right_room"] = sum(r["right_room"] for r in rows)
     out["failed"] = sum(r["status"] == "failed" for r in rows)
     out["verdicts"] = {v: sum(r["verdict"] == v for r in rows) for v in ("confident", "ambiguous", "failed")}
+    out["confident_right"] = sum(r["verdict"] == "confident" and within(
+        None if r["t_err"] is None else (r["t_err"], r["r_err"]), 0.25, 5.0) for r in rows)
     ident = [r for r in rows if r["group"] is not None]
     if ident:
         wrong = [r for r in ident if not r["right_room"]]
@@ -311,6 +318,7 @@ def summarize(rows: list[dict[str, Any]]) -> dict[str, Any]:
         out["some_copy_pose"] = sum(within(r["copy_err"], 0.1, 5.0) or within(
             None if r["t_err"] is None else (r["t_err"], r["r_err"]), 0.1, 5.0) for r in ident)
         out["ambiguous_when_wrong_copy"] = [sum(r["verdict"] == "ambiguous" for r in wrong), len(wrong)]
+        out["confident_wrong_copy"] = sum(r["verdict"] == "confident" for r in wrong if r["t_err"] is not None)
         out["ambiguous_when_right_copy"] = [sum(r["verdict"] == "ambiguous" for r in right), len(right)]
     return out
 
@@ -334,7 +342,7 @@ def report(res: dict[str, Any]) -> None:
                     "(floor not given)")
     for col in ("part", "n", "0.1 m/5 deg", "0.25 m/5 deg", "search top-1", "right floor", "right room",
                 "right copy + pose", "pose in some copy", "ambiguous (wrong copy)", "ambiguous (right copy)",
-                "confident", "ambiguous", "failed"):
+                "confident (right 0.25 m/5 deg)", "confident in a wrong copy", "ambiguous", "failed"):
         t.add_column(col)
     for name, s in res["summary"].items():
         n = s["count"]
@@ -343,7 +351,8 @@ def report(res: dict[str, Any]) -> None:
         t.add_row(name, str(n), f("0.1m_5deg"), f("0.25m_5deg"), f("search_top1"), f("right_floor"), f("right_room"),
                   f("right_copy_pose") if "right_copy_pose" in s else "-",
                   f("some_copy_pose") if "some_copy_pose" in s else "-", pair("ambiguous_when_wrong_copy"),
-                  pair("ambiguous_when_right_copy"), str(s["verdicts"]["confident"]),
+                  pair("ambiguous_when_right_copy"), f"{s['verdicts']['confident']} ({s['confident_right']})",
+                  str(s.get("confident_wrong_copy", "-")),
                   str(s["verdicts"]["ambiguous"]), str(s["failed"]))
     c.print(t)
     for stage, v in res["seconds"].items():
@@ -379,6 +388,8 @@ def report(res: dict[str, Any]) -> None:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--preset", default="building", help="building (the 36-room building) or building_small")
+    ap.add_argument("--seed", type=int, default=0, help="--seed of the generated building (0: the preset's default;"
+                    " another: a building the confidence was never fitted on)")
     ap.add_argument("--data", default=None, help="a building already generated (default: generated under bench/.cache)")
     ap.add_argument("--width", type=int, default=None, help="panorama width when generating (default: the preset's)")
     ap.add_argument("--per-split", type=int, default=None, help="panoramas per split and room when generating")

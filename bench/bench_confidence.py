@@ -1,29 +1,39 @@
-"""Confidence of a localization, measured: synthetic data and the real ZInD home.
+"""Confidence of a localization, measured: synthetic data, the layout benchmark, the building and the
+real ZInD home, judged leave-one-kind-out.
 
-Run: ``python bench/bench_confidence.py [--data ../shared/data] [--real-maps DIR] [--fit]``.
+Run: ``python bench/bench_confidence.py [--data ../shared/data] [--real-maps DIR] [--building
+bench/building.json] [--fit]``.
 
-Sets (each run once and cached under ``bench/.cache/confidence/``; ``--rerun`` runs again):
+Sets (each run once and cached under ``bench/.cache/confidence/``; ``--rerun`` runs again), by kind:
 
-- ``synthetic rooms``: the demo-preset dataset of ``ldlmap synth`` of seed 11 (2 rooms, every
-  split, 3 panoramas per split and room: 48 queries) with SIFT maps (``ldlmap prepare``),
-  localized twice: ``--refine auto`` (features) and ``--refine geometric`` (lines alone, as the
-  real layout maps are); ``synthetic rooms wrong map``: the first panorama of each split and room
-  against the other room's map (16 queries, every pose wrong), both refinements;
-- ``synthetic multiroom``: ``--preset multiroom --per-split 2`` of seed 11 (4 demo rooms in one
-  map, a synthetic floor map: 64 queries), both refinements;
-- ``held-out multiroom``: ``--preset multiroom`` of seed 12 (64 queries, both refinements), never
-  fitted on: the synthetic check of the fit;
+- ``demo`` rooms: the demo-preset dataset of ``ldlmap synth`` of seed 11 (2 rooms, every split, 3
+  panoramas per split and room: 48 queries) with SIFT maps (``ldlmap prepare``), localized twice:
+  ``--refine auto`` (features) and ``--refine geometric`` (lines alone, as the real layout maps
+  are); and the first panorama of each split and room against the other room's map (16 queries,
+  every pose wrong), both refinements;
+- ``multiroom``: ``--preset multiroom --per-split 2`` of seeds 11 and 12 (4 demo rooms in one map,
+  a synthetic floor map: 64 queries each), both refinements;
+- ``layout <shape>``: the furnished rooms of ``bench/bench_layout.py`` (24 rooms of seed 39, one
+  robot and one handheld panorama each), maps from their layout line files alone built with
+  ``--up z --camera-height 0.3:2.2``, ``--max-tilt 10``; one kind per shape (box, sloped, stepped,
+  arched, curved, apartment: 8 queries each);
+- ``building``: the rows of a ``bench/bench_building.py`` run (``--building``: its results json,
+  single images, the floor not given; skipped when absent);
 - ``real room`` and ``real floor``: the 19 panoramas of the shared ZInD home against its room
   maps and its floor map (maps from ``--real-maps`` (folders ``room_*``/``floor_*`` as
-  ``bench/bench_real.py`` caches them), else built by bench_real's :func:`build_maps`).
+  ``bench/bench_real.py`` caches them), else built by bench_real's :func:`build_maps`): never
+  fitted, only checked.
 
 Printed per set: the verdict counts, the precision of the confident poses (within 0.25 m / 5 deg
 and 0.1 m / 5 deg), their coverage and the risk-coverage table (accuracy within 0.25 m / 5 deg of
-the x % most confident queries, x = 50, 70, 80, 90, 100). The confidence is recomputed from each
-record's ``confidence_signals`` with the current :data:`ldlloc.confidence.MODEL`, so cached runs
-stay valid when the model is refitted. ``--fit`` fits the logistic on the ``synthetic`` sets (256
-poses) and prints the constants to put into ``ldlloc/confidence.py``; the real home is never
-fitted on, only checked. Results: ``bench/confidence.json``.
+the x % most confident queries, x = 50, 70, 80, 90, 100). The confidence and verdict are recomputed
+from each record's ``confidence_signals`` and competitors with the current
+:data:`ldlloc.confidence.MODEL` (:func:`ldlloc.confidence.judge`), so cached runs stay valid when
+the model is refitted. Then the calibration judged leave-one-kind-out (:func:`ldlloc.confidence_fit.leave_one_kind_out`):
+for each fitted kind, the logistic fitted on the other kinds and tested on it (poses, confident,
+confident right, precision), for every signal set of ``SIGNAL_SETS``; the real home with the fit
+on every kind. ``--fit`` prints the model fitted on all kinds (what goes into
+``ldlloc/confidence.py``). Results: ``bench/confidence.json``.
 """
 
 from __future__ import annotations
@@ -41,15 +51,18 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 from bench.common import CACHE, console  # noqa: E402
+from ldlloc.confidence_fit import fit, judged, leave_one_kind_out  # noqa: E402
 
 SEEDS = (11,)  # demo-preset datasets (2 rooms each)
-MULTIROOM_SEED = 11
-HELD_OUT_SEED = 12  # a second multiroom dataset, never fitted on: the synthetic check of the fit
+MULTIROOM_SEEDS = (11, 12)  # multiroom datasets (4 demo rooms in one map each)
+LAYOUT_SEED, LAYOUT_ROOMS = 39, 24  # bench_layout's defaults
+LAYOUT_BAND, LAYOUT_UP = (0.3, 2.2), "z"  # its maps as the map defaults will build them
 COVERAGES = (50, 70, 80, 90, 100)
 OK_T, OK_R = 0.25, 5.0  # the confidence target: confident poses within 0.25 m / 5 deg
 TIGHT_T, TIGHT_R = 0.1, 5.0
-TARGET_PRECISION = 0.98  # --fit: the threshold keeps >= 98 % of synthetic confident poses right (the confidence's target)
-L2 = 0.1  # --fit: ridge weight on the standardized signals (the logistic must not chase a few queries)
+CHECK_ONLY = ("real",)  # kinds never fitted on, only checked
+SIGNAL_SETS = {"all signals": ("gap", "support", "support_gap", "margin", "features", "refined"),
+               "without support": ("gap", "margin", "features", "refined")}
 
 
 def synthetic_dataset(seed: int) -> Path:
@@ -88,8 +101,8 @@ def cached_run(name: str, queries: list, maps: Path, params, rerun: bool) -> lis
     path = CACHE / "confidence" / f"{name}.json"
     if path.exists() and not rerun:
         results, _ = load_results(path)
-        if all(r.status == "failed" or (r.confidence_signals and "features" in r.confidence_signals)
-               for r in results):
+        if all(r.status == "failed" or (r.confidence_signals and "physical" in r.confidence_signals)
+               for r in results):  # runs of the code before the physical check are redone
             return results
     path.parent.mkdir(parents=True, exist_ok=True)
     path.unlink(missing_ok=True)
@@ -110,30 +123,46 @@ def wrong_map_queries(queries: list) -> list:
     return [replace(q, scene=other[q.scene]) for q in first.values()]
 
 
-def synthetic_results(rerun: bool, held_out: bool = True) -> dict[str, list]:
+def synthetic_results(rerun: bool, multiroom_seeds: tuple[int, ...] = MULTIROOM_SEEDS) -> dict[str, list]:
+    """Kind ``demo`` (the demo rooms and their wrong-map queries) and ``multiroom``, both refinements:
+    ``{set name: results}``, each set name starting with its kind."""
     from dataclasses import replace
 
     from ldlmap.datasets import open_dataset
     from ldlloc.pipeline import LocalizeParams
 
     out: dict[str, list] = {}
-    roots = [synthetic_dataset(seed) for seed in SEEDS] + [multiroom_dataset(MULTIROOM_SEED)]
-    if held_out:
-        roots.append(multiroom_dataset(HELD_OUT_SEED))
+    roots = [synthetic_dataset(seed) for seed in SEEDS] + [multiroom_dataset(seed) for seed in multiroom_seeds]
     for root in roots:
         queries = open_dataset(root, "omniscenes").queries()
         runs = [(root.name, queries)]
         if len({q.scene for q in queries}) > 1:
             runs.append((f"{root.name}_wrong_map", wrong_map_queries(queries)))
         for name, qs in runs:
-            for mode, kind in (("auto", "features"), ("geometric", "geometric")):
-                label = "synthetic multiroom" if name.startswith("multiroom") else "synthetic rooms"
-                if root.name.endswith(f"_s{HELD_OUT_SEED}") and name.startswith("multiroom"):
-                    label = "held-out multiroom"  # not "synthetic ...": left out of the fit
-                key = f"{label}{' wrong map' * name.endswith('wrong_map')} {kind}"
-                out.setdefault(key, []).extend(cached_run(f"{name}_{mode}", qs, root / "maps",
-                                                          replace(LocalizeParams(), refine_mode=mode), rerun))
+            for mode, refine in (("auto", "features"), ("geometric", "geometric")):
+                kind = "multiroom" if name.startswith("multiroom") else "demo"
+                key = f"{kind} {root.name.split('_')[-1]}{' wrong map' * name.endswith('wrong_map')} {refine}"
+                out[key] = cached_run(f"{name}_{mode}", qs, root / "maps", replace(LocalizeParams(), refine_mode=mode),
+                                      rerun)
     return out
+
+
+def layout_results(rerun: bool) -> dict[str, list]:
+    """Kinds ``layout <shape>``: bench_layout's furnished rooms on their layout-only maps (``--up z
+    --camera-height 0.3:2.2``), ``--max-tilt 10``."""
+    from bench.bench_layout import MAX_TILT, SPLITS, build_maps, furnished_dataset
+    from ldlmap.datasets import open_dataset
+    from ldlloc.pipeline import LocalizeParams
+
+    root = furnished_dataset(LAYOUT_ROOMS, LAYOUT_SEED, None)
+    maps, _ = build_maps(root, LAYOUT_BAND, LAYOUT_UP)
+    queries = open_dataset(root, "omniscenes").queries(list(SPLITS))
+    results = cached_run(f"layout_s{LAYOUT_SEED}", queries, maps, LocalizeParams(max_tilt_deg=MAX_TILT), rerun)
+    shape = {s["name"]: s["shape"] for s in json.loads((root / "dataset.json").read_text())["scenes"]}
+    out: dict[str, list] = {}
+    for r in results:
+        out.setdefault(f"layout {shape[r.scene]}", []).append(r)
+    return dict(sorted(out.items()))
 
 
 def real_results(data: Path, real_maps: Path | None, rerun: bool) -> dict[str, list]:
@@ -160,21 +189,32 @@ def real_results(data: Path, real_maps: Path | None, rerun: bool) -> dict[str, l
 
 
 def rows(results: list) -> list[dict]:
-    """Per query: the signals, the confidence and verdict of the current model, right or not."""
-    from ldlloc.confidence import MODEL, RIVAL_SHARE, verdict_for
-
+    """Per query: its signals and competitors, and whether it is right (within 0.25 m / 5 deg, and
+    within 0.1 m / 5 deg); :func:`ldlloc.confidence_fit.judged` adds a model's confidence and verdict."""
     out = []
     for r in results:
         ok = r.status != "failed" and r.t_error_m is not None
-        sig = r.confidence_signals or {}
-        conf = MODEL.confidence(sig) if ok and sig else 0.0
-        out.append({"name": f"{r.scene}/{r.split}/{r.name}", "signals": sig, "confidence": conf,
-                    "verdict": verdict_for(conf, r.competitors, rival=max(
-                        sig.get("pnp_rival", 0.0), sig.get("map_rival", 0.0)) >= RIVAL_SHARE) if ok else "failed",
+        out.append({"name": f"{r.scene}/{r.split}/{r.name}", "signals": (r.confidence_signals or {}) if ok else {},
                     "competitors": [c["why"] for c in r.competitors],
                     "good": bool(ok and r.t_error_m < OK_T and r.r_error_deg < OK_R),
                     "tight": bool(ok and r.t_error_m < TIGHT_T and r.r_error_deg < TIGHT_R),
                     "t_error_m": r.t_error_m, "r_error_deg": r.r_error_deg})
+    return out
+
+
+def building_rows(path: Path) -> list[dict]:
+    """The rows of a ``bench_building.py`` run (its results json), as :func:`rows` makes them, with
+    ``wrong_copy``: the pose landed in another copy of an identical room."""
+    data = json.loads(Path(path).read_text())
+    out = []
+    for r in data["rows"]:
+        ok = r["t_err"] is not None
+        out.append({"name": r["name"], "signals": (r.get("signals") or {}) if ok else {},
+                    "competitors": list(r.get("competitors") or []),
+                    "good": bool(ok and r["t_err"] < OK_T and r["r_err"] < OK_R),
+                    "tight": bool(ok and r["t_err"] < TIGHT_T and r["r_err"] < TIGHT_R),
+                    "t_error_m": r["t_err"], "r_error_deg": r["r_err"],
+                    "wrong_copy": bool(ok and r["group"] is not None and not r["right_room"])})
     return out
 
 
@@ -195,38 +235,25 @@ def set_summary(rs: list[dict]) -> dict:
             "ambiguous_with_competitors": sum(bool(r["competitors"]) for r in rs if r["verdict"] == "ambiguous")}
 
 
-def fit(rs: list[dict], signals: tuple[str, ...]) -> dict:
-    """L2-regularized logistic with non-negative weights on the standardized ``signals`` (scipy),
-    folded back to raw weights, and the smallest threshold at which the confident poses are >=
-    TARGET_PRECISION right."""
-    from scipy.optimize import minimize
+def kind_of(set_name: str) -> str:
+    """The kind a set belongs to: ``demo``, ``multiroom``, ``layout <shape>``, ``building``, ``real``."""
+    words = set_name.split()
+    return " ".join(words[:2]) if words[0] == "layout" else words[0]
 
-    rs = [r for r in rs if r["signals"]]
-    X = np.array([[r["signals"].get(k, 0.0) for k in signals] for r in rs], float)
-    y = np.array([r["good"] for r in rs], float)
-    mu, sd = X.mean(0), X.std(0).clip(1e-6)
-    Z = (X - mu) / sd
 
-    def nll(w):
-        z = w[0] + Z @ w[1:]
-        return float(np.sum(np.logaddexp(0, z) - y * z) + L2 * np.sum(w[1:] ** 2))
+def print_loko(table: dict[str, dict[str, dict]]) -> None:
+    from rich.table import Table
 
-    # monotone: no signal may lower the confidence as it grows (an explainable model, and one that
-    # cannot learn a synthetic quirk backwards)
-    bounds = [(None, None)] + [(0.0, None)] * X.shape[1]
-    w = minimize(nll, np.zeros(X.shape[1] + 1), method="L-BFGS-B", bounds=bounds).x
-    weights = w[1:] / sd
-    bias = w[0] - float(np.sum(w[1:] * mu / sd))
-    p = 1 / (1 + np.exp(-(bias + X @ weights)))
-    threshold = 1.0
-    for t in np.unique(p)[::-1]:  # lower the threshold while the confident ones stay right enough
-        sel = p >= t
-        if np.mean(y[sel]) >= TARGET_PRECISION:
-            threshold = float(t)
-        elif sel.sum() >= 10:
-            break
-    return {"bias": round(float(bias), 3), "weights": {k: round(float(v), 3) for k, v in zip(signals, weights)},
-            "confident_at": round(threshold, 3), "n": int(len(y)), "right": int(y.sum())}
+    t = Table(title="confidence judged leave-one-kind-out: fitted without the kind, tested on it (0.25 m / 5 deg)")
+    for col in ("signals", "held-out kind", "poses", "right", "confident", "confident right", "precision",
+                "wrong copy", "threshold"):
+        t.add_column(col, justify="right")
+    for name, per in table.items():
+        for kind, c in per.items():
+            t.add_row(name, kind, str(c["poses"]), str(c["right"]), str(c["confident"]), str(c["confident_right"]),
+                      "-" if c["precision"] is None else f"{c['precision']:.3f}", str(c["confident_wrong_copy"]),
+                      f"{c['confident_at']:.3f}")
+    console().print(t)
 
 
 def print_sets(summaries: dict[str, dict]) -> None:
@@ -269,9 +296,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--data", default=None, help="real data folder (default $LDL_REAL_DATA or ../shared/data)")
     ap.add_argument("--real-maps", default=None, help="folder of cached real maps (room_*/, floor_*/), e.g. "
                     "another checkout's bench/.cache/real (default: build them like bench_real.py)")
-    ap.add_argument("--fit", action="store_true", help="fit the logistic on the synthetic sets and print it")
+    ap.add_argument("--building", default=None, help="a bench_building.py results json (its rows: the building kind)")
+    ap.add_argument("--fit", action="store_true", help="fit the logistic on every fitted kind and print it")
     ap.add_argument("--rerun", action="store_true", help="localize again instead of reading cached runs")
-    ap.add_argument("--no-held-out", action="store_true", help="skip the held-out multiroom dataset (seed 12)")
+    ap.add_argument("--no-layout", action="store_true", help="skip the layout benchmark's rooms")
+    ap.add_argument("--multiroom-seeds", default=",".join(map(str, MULTIROOM_SEEDS)),
+                    help="multiroom datasets to run (comma-separated seeds; default 11,12)")
     ap.add_argument("--threads", type=int, default=1, help="torch and OpenCV threads (default 1)")
     ap.add_argument("--output", default=str(HERE / "confidence.json"))
     args = ap.parse_args(argv)
@@ -280,20 +310,32 @@ def main(argv: list[str] | None = None) -> int:
 
     torch.set_num_threads(args.threads)
     cv2.setNumThreads(args.threads)
-    sets = synthetic_results(args.rerun, not args.no_held_out)
-    sets.update(real_results(real_data_root(args.data), Path(args.real_maps) if args.real_maps else None, args.rerun))
-    table = {name: rows(rs) for name, rs in sets.items()}
+    seeds = tuple(int(x) for x in args.multiroom_seeds.split(",") if x.strip())
+    sets = {name: rows(rs) for name, rs in synthetic_results(args.rerun, seeds).items()}
+    if not args.no_layout:
+        sets.update({name: rows(rs) for name, rs in layout_results(args.rerun).items()})
+    if args.building and Path(args.building).exists():
+        sets["building"] = building_rows(Path(args.building))
+    real = real_results(real_data_root(args.data), Path(args.real_maps) if args.real_maps else None, args.rerun)
+    sets.update({name: rows(rs) for name, rs in real.items()})
+    kinds: dict[str, list[dict]] = {}
+    for name, rs in sets.items():
+        kinds.setdefault(kind_of(name), []).extend(rs)
     out: dict = {}
-    synthetic = [r for name, rs in table.items() if name.startswith("synthetic") for r in rs]
     if args.fit:
         from ldlloc.confidence import SIGNALS
 
-        out["fit"] = fit(synthetic, SIGNALS)
-        console().print(f"fitted on synthetic: {out['fit']}")
+        out["fit"] = fit([{**r, "kind": k} for k, rs in kinds.items() if not k.startswith(CHECK_ONLY) for r in rs],
+                         SIGNALS)
+        console().print(f"fitted on every fitted kind: {out['fit']}")
+    table = {name: judged(rs) for name, rs in sets.items()}
     summaries = {name: set_summary(rs) for name, rs in table.items()}
-    if synthetic:
-        summaries["synthetic, all"] = set_summary(synthetic)
+    for kind, rs in kinds.items():
+        if sum(kind_of(n) == kind for n in sets) > 1:
+            summaries[f"{kind}, all"] = set_summary(judged(rs))
     print_sets(summaries)
+    out["leave_one_kind_out"] = {name: leave_one_kind_out(kinds, sig, CHECK_ONLY) for name, sig in SIGNAL_SETS.items()}
+    print_loko(out["leave_one_kind_out"])
     for name in ("real room", "real floor"):
         if name in table:
             print_queries(name, table[name])
@@ -301,8 +343,7 @@ def main(argv: list[str] | None = None) -> int:
 
     from ldlloc.confidence import MODEL
 
-    out.update(model=asdict(MODEL),
-               sets=summaries, queries=table)
+    out.update(model=asdict(MODEL), sets=summaries, queries=table)
     Path(args.output).write_text(json.dumps(out, indent=1))
     print(f"wrote {args.output}")
     return 0

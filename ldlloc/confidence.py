@@ -32,6 +32,17 @@ axis) whose loss comes close to it. The signals (:func:`confidence_signals`):
   room's copy explains the features as well) takes the ``features`` signal away: the features
   then do not single one pose out (docs/measurements.md#pnp-rival).
 
+Two checks need no fitting:
+
+- ``physical`` (:func:`ldlloc.refine.geometric.physical_poses`): 0 when the final pose stands
+  where no camera can (farther from every candidate translation than the map's spacing allows:
+  under a floor, above the camera band, inside a wall). Its confidence is 0 and its verdict
+  ``failed``; the geometric selection never picks such a pose when a physical one was refined;
+- ``tie``: 1 when a refined pose distinct from the final one (``Localization.refined_rivals``:
+  a 180-degree twin of a symmetric room, an identical room's copy) scores within
+  :data:`TWIN_NOISE` of it, within its map or across the maps (:func:`assess_across`): the lines
+  do not tell them apart, so the verdict is at most ``ambiguous``, with the rival named.
+
 ``confidence = sigmoid(MODEL . signals)``, a logistic fitted on synthetic data and checked on the
 real ZInD home (docs/measurements.md#confidence; ``bench/bench_confidence.py --fit`` refits it).
 """
@@ -44,7 +55,7 @@ from typing import Any
 import numpy as np
 
 from ldlmap.core.geometry import angle_from_trace_deg
-from ldlloc.refine.geometric import GeometricParams, map_line_support, selection_scores
+from ldlloc.refine.geometric import GeometricParams, map_line_support, physical_poses, selection_scores
 from ldlloc.refine.retrieval import RetrievalParams, accept_retrieved
 
 SAME_T_M = 0.5  # a candidate within 0.5 m and 20 deg of the final pose (or of its start) is that pose
@@ -66,6 +77,8 @@ class ConfidenceModel:
     failed_below: float = 0.05  # below this, a pose is rarely right: not a candidate (docs/measurements.md#confidence)
 
     def confidence(self, signals: dict[str, float]) -> float:
+        if float(signals.get("physical", 1.0)) < 0.5:  # no camera stands there: no fitting needed
+            return 0.0
         signals = effective_signals(signals)
         z = self.bias + sum(w * float(signals.get(k, 0.0)) for k, w in self.weights.items())
         return float(1.0 / (1.0 + np.exp(-np.clip(z, -50, 50))))
@@ -74,12 +87,17 @@ class ConfidenceModel:
 # Fitted by `bench/bench_confidence.py --fit` on the synthetic sets only (256 poses; docs/measurements.md#confidence):
 # a logistic with non-negative weights, L2-regularized on the standardized signals and folded back to raw
 # weights. ``confident_at``: the smallest confidence above which >= 98 % of the synthetic poses are within
-# 0.25 m / 5 deg (the confidence's target).
+# 0.25 m / 5 deg (the confidence's target). The refit judged leave-one-kind-out (docs/measurements.md#confidence)
+# is not adopted yet.
 MODEL = ConfidenceModel(bias=-8.429, weights={"gap": 2.75, "support": 0.0, "support_gap": 0.0, "margin": 24.325,
                                               "features": 8.198, "refined": 5.613}, confident_at=0.602)
 SIGNALS = ("gap", "support", "support_gap", "margin", "features", "refined")
 NO_CONTENDER_MARGIN = 0.5  # ``margin`` when no distinct refined pose came within the selection's reach (its
 # support_within, 0.25, plus a support gap); the signal is clipped to it
+
+
+TWIN_NOISE = 0.05  # a distinct refined pose whose selection score is within this of the final pose's ties with it
+# (docs/measurements.md#confidence: the lines do not tell a symmetric room's twin or a copy apart)
 
 
 RIVAL_SHARE = 0.5  # a distinct PnP pose with half the final pose's inliers or more: the features do not single it out
@@ -140,6 +158,28 @@ def distinct(R: np.ndarray, t: np.ndarray, Rs: np.ndarray, ts: np.ndarray) -> np
     d = np.linalg.norm(ts - np.asarray(t, float), axis=1)
     trace = np.einsum("kij,ij->k", Rs, np.asarray(R, float))  # trace(R^T Rk) = sum(R * Rk)
     return (d >= SAME_T_M) | (angle_from_trace_deg(trace) >= SAME_R_DEG)
+
+
+def refined_rivals(k: int, rots: np.ndarray, centers: np.ndarray, loss: np.ndarray, score: np.ndarray,
+                   limit: int = MAX_COMPETITORS) -> tuple[float, list[dict[str, Any]]]:
+    """The geometric selection's margin and rivals: pose ``k`` won among refined poses (``rots``,
+    ``centers``) on ``score`` (:func:`ldlloc.refine.geometric.selection_scores`; ``loss`` their exact
+    losses). The margin is its score over the best distinct pose's (:data:`NO_CONTENDER_MARGIN`
+    when none came within reach); the rivals are the best distinct poses within reach, one per
+    place (poses refined to the same place count once), best first, at most ``limit``:
+    ``{"R", "t", "loss", "score_gap"}``."""
+    rots, centers, score = np.asarray(rots, float), np.asarray(centers, float), np.asarray(score, float)
+    other = distinct(rots[k], centers[k], rots, centers) & np.isfinite(score)
+    if not other.any():
+        return NO_CONTENDER_MARGIN, []
+    out: list[dict[str, Any]] = []
+    for j in np.flatnonzero(other)[np.argsort(-score[other], kind="stable")]:
+        if len(out) >= limit:
+            break
+        if out and not distinct(rots[j], centers[j], [r["R"] for r in out], [r["t"] for r in out]).all():
+            continue
+        out.append({"R": rots[j], "t": centers[j], "loss": float(loss[j]), "score_gap": float(score[k] - score[j])})
+    return float(score[k] - score[other].max()), out
 
 
 def own_candidate(loc) -> int:
@@ -208,7 +248,10 @@ def confidence_signals(loc, ldl_map, support_deg: float = 1.0) -> tuple[dict[str
                "margin": 0.0 if m is None else float(np.clip(m, -1.0, NO_CONTENDER_MARGIN)),
                "features": feature_signal(loc),
                "refined": float(bool(loc.refined)), "inliers": float(loc.num_inliers),
-               "pnp_rival": rival_share(loc), "retrieved": float(bool(getattr(loc, "retrieval", None)))}
+               "pnp_rival": rival_share(loc), "retrieved": float(bool(getattr(loc, "retrieval", None))),
+               "physical": float(physical_poses(np.asarray(loc.center, float)[None], ldl_map)[0]),
+               "tie": float(bool(tied_rivals(loc)) or (m is not None and m <= TWIN_NOISE))}  # m: the best distinct
+    # refined pose's score gap (Localizer._refine_geometric), the tie's rule whether or not its rivals were kept
     signals = {k: v if np.isfinite(v) else 0.0 for k, v in signals.items()}  # a NaN loss says nothing
     return signals, others
 
@@ -243,6 +286,16 @@ def rival_dict(loc) -> dict[str, Any] | None:
                    f"against {int(loc.num_inliers)}", "inliers": int(rival["inliers"])}
 
 
+def tied_rivals(loc) -> list[dict[str, Any]]:
+    """The refined rivals (``Localization.refined_rivals``) within :data:`TWIN_NOISE` of the final
+    pose's selection score as competitors, ``why`` naming the twin or the other place."""
+    return [{"R": np.round(np.asarray(r["R"], float), 8).tolist(), "t": np.round(np.asarray(r["t"], float), 6).tolist(),
+             "loss": float(r["loss"]),
+             "why": f"{why(loc.rot_cam_from_world, loc.center, r['R'], r['t'])}, refined, score within "
+                    f"{r['score_gap']:.3f}"}
+            for r in (getattr(loc, "refined_rivals", None) or []) if r["score_gap"] <= TWIN_NOISE]
+
+
 def competitor_dicts(loc, others: np.ndarray, max_gap: float = COMPETITOR_GAP,
                      limit: int = MAX_COMPETITORS) -> list[dict[str, Any]]:
     """The distinct candidates whose loss is within ``max_gap`` of the final pose's start, best
@@ -262,26 +315,43 @@ def competitor_dicts(loc, others: np.ndarray, max_gap: float = COMPETITOR_GAP,
 
 
 def verdict_for(confidence: float | None, competitors: list, model: ConfidenceModel = MODEL,
-                rival: bool = False) -> str:
-    """``confident`` at or above the model's threshold; else ``ambiguous`` when competitors are
-    named and the pose is still plausible (``failed_below``), or when a PnP ``rival`` explains the
-    features as well (the pose is right up to which copy of an identical room); else ``failed`` (no
-    pose, a pose the model gives little chance, or a doubtful one with nothing to offer beside it)."""
+                rival: bool = False, tie: bool = False) -> str:
+    """``confident`` at or above the model's threshold unless a refined rival ties with the pose
+    (``tie``); else ``ambiguous`` when competitors are named and the pose is still plausible
+    (``failed_below``), or when a PnP ``rival`` explains the features as well or a refined one ties
+    (the pose is right up to which copy or twin); else ``failed`` (no pose, a pose the model gives
+    little chance, or a doubtful one with nothing to offer beside it)."""
     if confidence is None:
         return "failed"
-    if confidence >= model.confident_at:
+    if confidence >= model.confident_at and not tie:
         return "confident"
-    return "ambiguous" if competitors and (confidence >= model.failed_below or rival) else "failed"
+    return "ambiguous" if competitors and (confidence >= model.failed_below or rival or tie) else "failed"
+
+
+def judge(signals: dict[str, float], competitors: list, model: ConfidenceModel = MODEL) -> tuple[float, str]:
+    """``(confidence, verdict)`` of a pose from its signals and named competitors: the model's
+    confidence, 0 and ``failed`` where no camera stands (``physical`` 0), a PnP rival or another
+    map's verified twin, and a tie, as :func:`verdict_for` weighs them."""
+    conf = model.confidence(signals)
+    if float(signals.get("physical", 1.0)) < 0.5:
+        return 0.0, "failed"
+    rival = (max(float(signals.get("pnp_rival", 0.0)), float(signals.get("map_rival", 0.0))) >= RIVAL_SHARE
+             or float(signals.get("map_twin", 0.0)) > 0)
+    return conf, verdict_for(conf, competitors, model, rival=rival, tie=float(signals.get("tie", 0.0)) > 0)
 
 
 def assess(loc, ldl_map, support_deg: float = 1.0, model: ConfidenceModel = MODEL) -> None:
     """Set ``confidence``, ``verdict``, ``competitors`` and ``confidence_signals`` on ``loc``."""
     signals, others = confidence_signals(loc, ldl_map, support_deg)
     loc.confidence_signals = {k: round(v, 6) for k, v in signals.items()}
-    loc.confidence = round(model.confidence(signals), 6)
     rival = rival_dict(loc)
-    loc.competitors = ([rival] if rival else []) + competitor_dicts(loc, others, limit=MAX_COMPETITORS - bool(rival))
-    loc.verdict = verdict_for(loc.confidence, loc.competitors, model, rival=rival is not None)
+    named = ([rival] if rival else []) + tied_rivals(loc)
+    named = named[:MAX_COMPETITORS]
+    loc.competitors = named + [c for c in competitor_dicts(loc, others, limit=MAX_COMPETITORS - len(named))
+                               if not named or distinct(c["R"], c["t"], [n["R"] for n in named],
+                                                        [n["t"] for n in named]).all()]
+    conf, loc.verdict = judge(loc.confidence_signals, loc.competitors, model)
+    loc.confidence = round(conf, 6)
 
 
 def verified(loc, loss: float) -> bool:
@@ -320,7 +390,8 @@ def assess_across(locs: list, losses: list[float], names: list[str], params=None
     params = params or GeometricParams()
     support = np.array([float(loc.confidence_signals.get("support", 0.0)) for loc in locs])
     losses = np.asarray(losses, dtype=np.float64)
-    score = selection_scores(losses, params, lambda idx: support[idx])
+    physical = np.array([float(loc.confidence_signals.get("physical", 1.0)) >= 0.5 for loc in locs])
+    score = selection_scores(losses, params, lambda idx: support[idx], physical)
     sure = np.array([verified(loc, loss) for loc, loss in zip(locs, losses)])
     score_sure = np.full(len(locs), -np.inf)  # the verified poses' scores among themselves
     if sure.any():
@@ -346,17 +417,22 @@ def assess_across(locs: list, losses: list[float], names: list[str], params=None
         # a verified pose of another map, elsewhere, that explains the lines as well: an identical room's copy
         twin = sure[i] and bool(np.any([relative_gap(float(losses[j]), float(losses[i])) <= COMPETITOR_GAP
                                         for j in np.flatnonzero(other & sure)]))
+        # a line pose (the geometric selection ran) whose copy on another map scores within the noise ties with it
+        tied = (reach & (np.abs(sc[i] - sc) <= TWIN_NOISE)) if loc.selection_margin is not None and np.isfinite(sc[i]) \
+            else np.zeros(len(locs), bool)
         loc.confidence_signals = {**loc.confidence_signals, "map_margin": round(margin, 6),
-                                  "map_rival": round(map_rival, 6), "map_twin": float(twin)}
-        loc.confidence = round(model.confidence(loc.confidence_signals), 6)
+                                  "map_rival": round(map_rival, 6), "map_twin": float(twin),
+                                  "tie": float(bool(tied_rivals(loc)) or tied.any())}
         own = [c for c in loc.competitors if "map" not in c]
         across = [j for j in np.flatnonzero(other)[np.argsort(losses[other], kind="stable")]
                   if (pool[j] and relative_gap(float(losses[j]), float(losses[i])) <= COMPETITOR_GAP)
-                  or share[j] >= RIVAL_SHARE or (sure[j] and not sure[i])][:MAX_COMPETITORS]
+                  or share[j] >= RIVAL_SHARE or (sure[j] and not sure[i]) or tied[j]][:MAX_COMPETITORS]
         loc.competitors = own + [{"R": np.round(R[j], 8).tolist(), "t": np.round(t[j], 6).tolist(),
-                                  "loss": float(losses[j]), "why": f"map {names[j]}", "map": names[j]} for j in across]
-        loc.verdict = verdict_for(loc.confidence, loc.competitors, model,
-                                  rival=max(rival_share(loc), map_rival) >= RIVAL_SHARE or twin)
+                                  "loss": float(losses[j]), "why": f"map {names[j]}" + (
+                                      f", {why(R[i], t[i], R[j], t[j])} scoring within {abs(sc[i] - sc[j]):.3f}"
+                                      if tied[j] else ""), "map": names[j]} for j in across]
+        conf, loc.verdict = judge(loc.confidence_signals, loc.competitors, model)
+        loc.confidence = round(conf, 6)
 
 
 WALK_MARGIN = 3.0  # nats: a walk singles a frame's pose out when every path through a distinct pose of that frame

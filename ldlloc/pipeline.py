@@ -27,10 +27,11 @@ from ldlmap.core.timing import StageClock
 from ldlmap.features import backend_for
 from ldlmap.features.sphere import extract_in_map_frame
 from ldlmap.io.imagefile import image_header_size, read_image
-from ldlloc.confidence import NO_CONTENDER_MARGIN, assess, distinct
+from ldlloc.confidence import assess, refined_rivals
 from ldlloc.lines2d import Lines2DParams, detect_lines, filter_by_length, query_keep_ratio
 from ldlloc.refine.features import RefineParams, keep_near_lines, refine_by_retrieval, refine_candidates
-from ldlloc.refine.geometric import GeometricParams, map_line_support, refine_and_keep, selection_scores
+from ldlloc.refine.geometric import (GeometricParams, map_line_support, physical_poses, refine_and_keep,
+                                     selection_scores)
 from ldlloc.refine.retrieval import RetrievalContext, ViewIndex, accept_retrieved
 from ldlloc.rotation import (FREE_TILT_DEG, PrincipalParams, RotationCandidates, assign_arcs_to_principal,
                              candidate_rotations, check_max_tilt, filter_by_tilt, frame_rows, pair_candidates,
@@ -121,6 +122,8 @@ class Localization:
     selection_margin: float | None = None  # geometric refinement: the winner's selection score (-loss / max|loss|
     # + map-line support) over the best refined pose distinct from it (ldlloc.confidence.distinct); None: no
     # selection ran (feature refinement, or its geometric fallback)
+    refined_rivals: list = field(default_factory=list)  # geometric refinement: the best refined poses distinct from
+    # the final one, {R, t, loss, score_gap} (ldlloc.confidence.refined_rivals: a twin within the noise is named)
     pnp_rival: dict | None = None  # feature refinement: the best PnP pose distinct from the final one, {R, t,
     # inliers, candidate} (an identical room's copy; ldlloc.refine.features.Refinement.rival_inliers)
     retrieval: dict | None = None  # the feature pose came from view retrieval, {view, rank, inliers, loss,
@@ -379,11 +382,10 @@ class Localizer:
             return map_line_support(arcs, rots[top[first]], centers[top[first]], m.lines, m.line_groups,
                                     None if vis is None else vis[first], p.geometric.support_deg)[back.reshape(-1)]
 
-        score = selection_scores(loss, p.geometric, support_of)
+        score = selection_scores(loss, p.geometric, support_of, physical_poses(centers, m))  # unphysical poses drop out
         k = int(np.argmax(score))
         c = int(cand[k])
-        other = distinct(rots[k], centers[k], rots, centers) & np.isfinite(score)
-        out.selection_margin = float(score[k] - score[other].max()) if other.any() else NO_CONTENDER_MARGIN
+        out.selection_margin, out.refined_rivals = refined_rivals(k, rots, centers, loss, score)
         out.coarse_rot, out.coarse_center = res.rotations[c], res.centers[c]
         out.rot_cam_from_world, out.center = rots[k], centers[k]
         out.arc_groups = assign_arcs_to_principal(arcs, (out.rot_cam_from_world @ m.principal_directions.T).T,

@@ -35,7 +35,20 @@ def _box_map():
             if np.count_nonzero(d) == 1:
                 lines.append([corners[i], corners[j]])
                 groups.append(int(np.flatnonzero(d)[0]))
-    return SimpleNamespace(lines=np.array(lines), line_groups=np.array(groups), visibility=None)
+    return SimpleNamespace(lines=np.array(lines), line_groups=np.array(groups), visibility=None,
+                           translations=_lattice(np.zeros(3)))
+
+
+def _lattice(origin: np.ndarray, spacing: float = 0.3) -> np.ndarray:
+    """Candidate translations of the box: a lattice 0.2 m off its walls, 0.3-2.2 m above its floor."""
+    axes = [np.arange(0.2, BOX[0] - 0.19, spacing), np.arange(0.2, BOX[1] - 0.19, spacing), np.arange(0.3, 2.21, spacing)]
+    return np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3) + origin
+
+
+def _shifted(m, shift) -> SimpleNamespace:
+    """The map ``m`` moved by ``shift`` (a room alike elsewhere, another floor)."""
+    return SimpleNamespace(lines=m.lines + shift, line_groups=m.line_groups, visibility=None,
+                           translations=m.translations + shift)
 
 
 def _arcs(m, R: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -105,14 +118,15 @@ def test_maps_judged_together():
     for loc, other in ((a, "room_b"), (b, "room_a")):
         assert abs(loc.confidence_signals["map_margin"]) < 0.05
         assert loc.verdict == "ambiguous" and loc.confidence < MODEL.confident_at
-        assert [(c["why"], c["map"]) for c in loc.competitors] == [(f"map {other}", other)]
+        assert [c["map"] for c in loc.competitors] == [other]  # the twin scores within the noise: named as such
+        assert loc.competitors[0]["why"] == f"map {other}, 180-degree twin scoring within 0.010"
     assert np.allclose(a.competitors[0]["R"], twin) and a.competitors[0]["loss"] == -99.0
 
     a, b = _clear_winner(m, R0, here), _clear_winner(m, R0, here + [0.05, 0, 0])  # the same pose twice
     assess_across([a, b], [-100.0, -99.0], ["room_a", "room_b"])
     assert a.verdict == b.verdict == "confident" and a.competitors == b.competitors == []
 
-    a, b = _clear_winner(m, R0, here), _clear_winner(m, R0, there)
+    a, b = _clear_winner(m, R0, here), _clear_winner(_shifted(m, [5.0, 0.0, 0.0]), R0, there)
     assess_across([a, b], [-100.0, -60.0], ["room_a", "room_b"])  # room_b explains 40 % fewer lines
     assert a.verdict == "confident" and a.confidence_signals["map_margin"] == 0.5
     assert b.confidence_signals["map_margin"] == -1.0 and b.verdict != "confident"
@@ -150,22 +164,23 @@ def test_identical_copy_takes_the_feature_confidence_away():
     assert copy.competitors[0]["why"] == "other position (6.0 m), PnP 118 inliers against 120"
     assert np.allclose(copy.competitors[0]["t"], CENTRE + [6.0, 0, 0])
 
-    a, b = _feature_pose(m, R0, CENTRE, 120), _feature_pose(m, R0, CENTRE + [0, 0, 3.0], 115)  # the floor above
-    for loc in (a, b):
-        assess(loc, m)
+    above = _shifted(m, [0, 0, 3.0])  # the floor above
+    a, b = _feature_pose(m, R0, CENTRE, 120), _feature_pose(above, R0, CENTRE + [0, 0, 3.0], 115)
+    for loc, on in ((a, m), (b, above)):
+        assess(loc, on)
         assert loc.verdict == "confident"
     assess_across([a, b], [-100.0, -100.0], ["floor_0", "floor_1"])
     assert a.confidence_signals["map_rival"] == pytest.approx(115 / 120, abs=1e-6)
     assert a.verdict == b.verdict == "ambiguous"  # b is judged unlikely on its lines, but a copy explains its features
     assert [c["map"] for c in a.competitors if "map" in c] == ["floor_1"]
-    c = _feature_pose(m, R0, CENTRE + [0, 0, 3.0], 10)  # another floor's pose, few inliers (not verified): no rival
-    assess(c, m)
+    c = _feature_pose(above, R0, CENTRE + [0, 0, 3.0], 10)  # another floor's pose, few inliers (not verified): no rival
+    assess(c, above)
     assess_across([a, c], [-100.0, -100.0], ["floor_0", "floor_1"])
     assert a.verdict == "confident" and a.confidence_signals["map_twin"] == 0.0
     # 30 inliers: far fewer, but verified (PnP and lines back it) and as good on the lines: the copy on the floor
     # above in poor light (the building's extreme_intensity office query was once confident in a wrong copy)
-    c = _feature_pose(m, R0, CENTRE + [0, 0, 3.0], 30)
-    assess(c, m)
+    c = _feature_pose(above, R0, CENTRE + [0, 0, 3.0], 30)
+    assess(c, above)
     assess_across([a, c], [-100.0, -100.0], ["floor_0", "floor_1"])
     assert a.confidence_signals["map_twin"] == 1.0 and a.verdict == "ambiguous"
     assert [x["map"] for x in a.competitors if "map" in x] == ["floor_1"]
@@ -193,7 +208,7 @@ def test_verified_pnp_pose_is_not_outvoted_by_lines_alone_on_another_map():
     m = _box_map()
     R0 = _rz(30)
     shift = np.array([5.0, 0.0, 0.0])
-    m2 = SimpleNamespace(lines=m.lines + shift, line_groups=m.line_groups, visibility=None)  # a room alike, 5 m on
+    m2 = _shifted(m, shift)  # a room alike, 5 m on
 
     def pair(inliers: int):
         a = _feature_pose(m, R0, CENTRE, inliers)  # its search's best loss -100

@@ -39,10 +39,12 @@ import numpy as np
 
 from ldlmap.core.errors import InputError
 from ldlmap.core.lazy import lazy_module
+from ldlmap.map.translations import candidate_spacing
 from ldlloc.rotation import ARC_GROUP_TOL
 from ldlloc.search.pose_search import SearchParams, score_on_map
 
 torch = lazy_module("torch")
+spatial = lazy_module("scipy.spatial")
 
 
 @dataclass(frozen=True)
@@ -414,12 +416,42 @@ def map_line_support(arcs: np.ndarray, rotations: np.ndarray, centers: np.ndarra
     return out
 
 
-def selection_scores(loss: np.ndarray, params: GeometricParams, support_of) -> np.ndarray:
+PHYSICAL_SPACING = 2.0  # a camera stands within this many candidate spacings of a candidate translation
+# (true cameras: at most 0.84 spacings on layout lattices, 1.25 of the nearest candidate's own spacing on scans'
+# octrees; docs/measurements.md#physical-poses)
+
+
+def physical_poses(centers: np.ndarray, ldl_map, factor: float = PHYSICAL_SPACING) -> np.ndarray:
+    """(K,) whether each camera centre (K, 3) stands where a camera can: the map's candidate
+    translations fill its free space (in the camera-height band above its floors, out of walls),
+    so a centre within ``factor`` spacings of its nearest candidate is physical, one farther is
+    below a floor, above the band, inside a wall or outside the rooms. The spacing is the nearest
+    candidate's distance to its own nearest neighbour, at least the map's median
+    (:func:`ldlmap.map.translations.candidate_spacing`): an octree's large cells in open space hold
+    their candidates farther apart. A map of one candidate: every centre is physical."""
+    C = np.asarray(centers, dtype=np.float64).reshape(-1, 3)
+    T = np.asarray(ldl_map.translations, dtype=np.float64).reshape(-1, 3)
+    if len(T) < 2:
+        return np.ones(len(C), dtype=bool)
+    tree = spatial.cKDTree(T)
+    d, i = tree.query(C)
+    own = tree.query(T[i], k=2)[0][:, 1]  # each nearest candidate's own spacing
+    return d <= factor * np.maximum(own, candidate_spacing(T))
+
+
+def selection_scores(loss: np.ndarray, params: GeometricParams, support_of,
+                     allowed: np.ndarray | None = None) -> np.ndarray:
     """The score that picks the final pose among refined ones (higher is better): ``-loss /
     max|loss| + support_weight x map-line support`` for the poses whose normalized loss is within
     ``support_within`` of the best, ``-inf`` for the others (they cannot win). ``support_of(idx)``
-    returns the support of the poses ``idx`` (computed only for the contenders)."""
+    returns the support of the poses ``idx`` (computed only for the contenders). ``allowed`` (K,)
+    bool: only these poses compete (:func:`physical_poses`); when none is, all do (the caller
+    judges the winner failed)."""
     loss = np.asarray(loss, dtype=np.float64)
+    if allowed is not None and np.any(allowed):
+        score = np.full(len(loss), -np.inf)
+        score[allowed] = selection_scores(loss[allowed], params, lambda idx: support_of(np.flatnonzero(allowed)[idx]))
+        return score
     score = -loss / max(float(np.abs(loss).max()), 1e-12)
     if params.support_weight <= 0:
         return score
