@@ -58,7 +58,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--frames", type=int, default=40)
     ap.add_argument("--width", type=int, default=1024)
     ap.add_argument("--threads", type=int, default=2)
-    ap.add_argument("--track-refine", default="light", help="tracked frames refined by: light | same | geometric")
+    ap.add_argument("--track-refine", default="light", help="the restricted search's poses refined by: light | same | "
+                    "geometric")
+    ap.add_argument("--track-width", type=int, default=512, help="tracked frames' lines extracted at this width (0: "
+                    "the frame's)")
+    ap.add_argument("--no-track-lines", action="store_true", help="track by the restricted search alone (no "
+                    "refinement of the prediction from lines)")
     ap.add_argument("--no-single", action="store_true", help="skip the single-image pass")
     ap.add_argument("--output", default=str(HERE / "video.json"))
     args = ap.parse_args(argv)
@@ -103,7 +108,9 @@ def main(argv: list[str] | None = None) -> int:
     out = HERE / ".cache" / "video" / "results.json"
     out.unlink(missing_ok=True)
     t0 = time.perf_counter()
-    recs = run_walk_video(video, maps, out, params, replace(VIDEO, track_refine=args.track_refine))
+    walk = replace(VIDEO, tracking=replace(VIDEO.tracking, refine=args.track_refine, width=args.track_width,
+                                           lines=not args.no_track_lines))
+    recs = run_walk_video(video, maps, out, params, walk)
     walk_s = time.perf_counter() - t0
     recs = sorted(recs, key=lambda r: r.walk["frame"])
     tw = time.perf_counter()
