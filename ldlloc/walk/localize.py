@@ -30,7 +30,7 @@ from ldlloc.confidence import distinct, walk_judgement
 from ldlloc.pipeline import Localization, Localizer, SearchNear
 from ldlloc.search.pose_search import score_on_map
 from ldlloc.walk.hypotheses import MAX_HYPOTHESES, Hypotheses, from_choice, joined
-from ldlloc.walk.motion import MotionParams, transition_costs
+from ldlloc.walk.motion import FreeSpace, MotionParams, transition_costs
 from ldlloc.walk.track import TorchThreads, TrackParams, check_track_params, predict, track
 from ldlloc.walk.viterbi import best_path, margin
 
@@ -52,6 +52,7 @@ class WalkParams:
     near_radius_m: float = 0.6  # a search pose the path chose is searched again within this radius ...
     near_cone_deg: float = 10.0  # ... and this cone, then refined
     max_hypotheses: int = MAX_HYPOTHESES
+    walls: bool = True  # no step through a wall: the maps' free space (ldlloc.walk.motion.FreeSpace)
 
 
 VIDEO = WalkParams(track=True, motion=MotionParams(turn_deg=30.0))  # a video: frames a few tenths of a second apart
@@ -228,11 +229,12 @@ def decide(outcomes: list[FrameOutcome], maps: MapSet, params: WalkParams) -> No
     if not live:
         return
     em = [emission_costs(o, params) for o in live]
+    free = FreeSpace.of_maps([e.localizer.map for e in maps.entries]) if params.walls else None
 
     def trans(f: int) -> np.ndarray:
         a, b = live[f - 1], live[f]
         dt = None if a.frame.time is None or b.frame.time is None else b.frame.time - a.frame.time
-        return transition_costs(a.hypotheses, b.hypotheses, params.motion, dt)
+        return transition_costs(a.hypotheses, b.hypotheses, params.motion, dt, free)
 
     path = best_path(em, trans)
     for f, o in enumerate(live):
