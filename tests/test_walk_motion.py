@@ -89,7 +89,7 @@ def test_a_tour_step_through_a_wall_costs_a_jump(two_rooms):
     a, b = _hyps([[3.0, 0.8, z]], [-100]), _hyps([[5.0, 0.8, z], [3.5, 3.2, z]], [-100, -100])
     free = FreeSpace([two_rooms])
     c = transition_costs(a, b, tour, None, free)[0]
-    assert c[0] == pytest.approx(tour.jump_cost)  # 2 m, but through the wall: a walker went round by the door
+    assert c[0] == pytest.approx(tour.jump_cost)  # 2 m (free), but through the wall: round by the door, a detour
     assert c[1] == 0.0  # 2.4 m within room A
     assert transition_costs(a, b, tour, None, None)[0, 0] == 0.0  # no walls known: a short step
     assert transition_costs(a, b, tour, 60.0, free)[0, 0] == pytest.approx(tour.jump_cost)  # a minute apart

@@ -11,9 +11,9 @@ rotation costs its angle over it, capped the same way. Costs are negative log-li
 No step through a wall (:class:`FreeSpace`): where the maps know where a camera can stand (their
 candidate translations: a scan's free space kept clear of every surface, a layout's rooms and
 doorways), a step whose straight segment leaves that space (a wall between two rooms, the outside)
-costs a jump at least; between frames close in time (a video's, ``close_s``) it is all but
-forbidden (``blocked_cost``): nobody walks through a wall in a fifth of a second. A tour's
-steps cost a jump at most: its walker went round by a door.
+costs a jump more than its length does (a tour's walker went round by a door: a detour);
+between frames close in time (a video's, ``close_s``) it is all but forbidden (``blocked_cost``):
+nobody walks through a wall in a fifth of a second.
 """
 
 from __future__ import annotations
@@ -46,7 +46,7 @@ class MotionParams:
     own_cost: float = 0.5  # ... or this when it was not, unless the image named that pose as its competitor (a copy
     # of a room it cannot tell from its own pose costs nothing more: the motion decides)
     close_s: float = 2.0  # frames at most this far apart in time cannot stand on two sides of a wall ...
-    blocked_cost: float = 100.0  # ... a step through one costs this (all but forbidden; tours: the jump cost)
+    blocked_cost: float = 100.0  # ... a step through one costs this more (all but forbidden; tours: a jump more)
 
 
 def free_length(params: MotionParams, dt: float | None) -> float:
@@ -68,11 +68,11 @@ def transition_costs(prev, cur, params: MotionParams, dt: float | None = None,
         c = np.einsum("aij,bij->ab", prev.rot_cam_from_world, cur.rot_cam_from_world)  # trace(Ra^T Rb)
         ang = np.degrees(np.arccos(np.clip((c - 1.0) / 2.0, -1.0, 1.0)))
         cost = np.minimum(cost + ang / params.turn_deg, params.jump_cost)
-    if free is not None:
+    if free is not None:  # through a wall: a jump more (the way round by a door), between close frames forbidden
         close = dt is not None and np.isfinite(dt) and 0 <= dt <= params.close_s
         wall = params.blocked_cost if close else params.jump_cost
         cost = np.where(free.blocked(prev.center, prev.map_index, cur.center, cur.map_index),
-                        np.maximum(cost, wall), cost)
+                        cost + wall, cost)
     return np.where(np.abs(d[:, :, 2]) >= params.floor_dz_m, np.maximum(cost, params.floor_cost), cost)
 
 
