@@ -118,10 +118,12 @@ def main(argv: list[str] | None = None) -> int:
 
     out = HERE / ".cache" / "video" / "results.json"
     out.unlink(missing_ok=True)
-    ticks: list[tuple[float, bool, dict]] = []  # per frame: when its own localization ended, tracked, stages
-    t0 = time.perf_counter()
+    ticks: list[tuple[float, bool, dict, float]] = []  # per frame: when its own localization ended, tracked,
+    # stages, the process's CPU seconds then (a busy machine stretches wall time, far less CPU time)
+    t0, c0 = time.perf_counter(), time.process_time()
     recs = run_walk_video(video, maps, out, params, walk_params(args),
-                          progress=lambda r: ticks.append((time.perf_counter(), r.walk["tracked"], r.seconds)))
+                          progress=lambda r: ticks.append((time.perf_counter(), r.walk["tracked"], r.seconds,
+                                                           time.process_time())))
     walk_s = time.perf_counter() - t0
     recs = sorted(recs, key=lambda r: r.walk["frame"])
     tw = time.perf_counter()
@@ -132,10 +134,12 @@ def main(argv: list[str] | None = None) -> int:
     walk_ok = accuracy([np.array(recs[i].R) for i in sub], [np.array(recs[i].t) for i in sub], sub)
     tracked = sum(r.walk["tracked"] for r in recs)
     by_lines = sum("refined from lines" in r.message for r in recs)
-    per_frame = np.diff([t0] + [t for t, _, _ in ticks])
-    on_track = np.array([tr for _, tr, _ in ticks], dtype=bool)
-    stages = {k: float(np.median([sec.get(k, 0.0) for (_, tr, sec) in ticks if tr]) if on_track.any() else np.nan)
+    per_frame = np.diff([t0] + [t for t, _, _, _ in ticks])
+    cpu = np.diff([c0] + [c for _, _, _, c in ticks])
+    on_track = np.array([tr for _, tr, _, _ in ticks], dtype=bool)
+    stages = {k: float(np.median([sec.get(k, 0.0) for (_, tr, sec, _) in ticks if tr]) if on_track.any() else np.nan)
               for k in ("lines2d", "refine", "confidence", "total")}
+    track_cpu = float(np.median(cpu[on_track])) if on_track.any() else float("nan")
     t0 = time.perf_counter()
     single = [] if args.no_single else [localize_on_maps(img, maps, None)[0]
                                         for k, (_, img) in enumerate(decoded_frames(video_info(video))) if k % every == 0]
@@ -148,12 +152,13 @@ def main(argv: list[str] | None = None) -> int:
            "track_width": args.track_width, "compared_frames": m,
            "walk": {"seconds": walk_s, "frames_per_s": n / walk_s, "within_0.1m_5deg": walk_ok, "tracked": tracked,
                     "tracked_by_lines": by_lines, "tracked_frame_median_s": track_s, "tracked_stages_median_s": stages,
+                    "tracked_frame_median_cpu_s": track_cpu,
                     "global_frames_s": float(per_frame[~on_track].sum())},
            "single": {"seconds": single_s, "frames_per_s": m / single_s, "within_0.1m_5deg": single_ok},
            "peak_rss_mb": peak, "results_write_s": write_s, "results_bytes": out.stat().st_size}
     print(f"tracked walk : {n / walk_s:.2f} frames/s ({n} frames, {walk_s:.1f} s), {tracked} tracked ({by_lines} "
           f"refined from lines alone), tracked frames {1 / track_s:.1f} frames/s (median {track_s * 1000:.0f} ms: "
-          + ", ".join(f"{k} {v * 1000:.0f}" for k, v in stages.items()) + " ms), global frames "
+          + ", ".join(f"{k} {v * 1000:.0f}" for k, v in stages.items()) + f" ms; CPU {track_cpu * 1000:.0f} ms), global frames "
           f"{per_frame[~on_track].sum():.1f} s; {walk_ok}/{m} within 0.1 m / 5 deg")
     print(f"single images: {m / single_s:.2f} frames/s, {single_ok}/{m} within 0.1 m / 5 deg")
     print(f"peak memory {peak:.0f} MB; the walk's results written once: {write_s * 1000:.1f} ms, "
