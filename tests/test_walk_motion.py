@@ -65,22 +65,22 @@ def test_steps_through_the_wall_leave_the_free_space(two_rooms):
 
 
 def test_a_video_does_not_step_through_a_wall(two_rooms):
-    # frames 0.2 s apart walking along room A towards the wall; the last frame's image likes a pose
-    # in room B behind the wall (0.8 m away: a walker covers that in a few frames) a little better
+    # frames 1 s apart walking along room A towards the wall (0.8 m a frame); the last frame's image
+    # likes a pose in room B behind the wall (2.2 m away: a walker covers 1.4 m in a second) better
     # than its pose in room A: the walls keep the walk in room A, without them it goes through
     z = float(np.median(two_rooms[:, 2]))
-    frames = [_hyps([[2.6 + 0.2 * k, 0.8, z]], [-100]) for k in range(4)]
-    frames.append(_hyps([[3.4, 0.8, z], [4.8, 0.8, z]], [-95, -100]))
+    frames = [_hyps([[1.0 + 0.8 * k, 0.8, z]], [-100]) for k in range(3)]
+    frames.append(_hyps([[3.3, 0.8, z], [4.8, 0.8, z]], [-90, -100]))
     em = [h.emission_costs(VIDEO.emission_weight) for h in frames]
     free = FreeSpace([two_rooms])
 
     def path(walls):
-        return best_path(em, lambda f: transition_costs(frames[f - 1], frames[f], VIDEO, 0.2, walls)).choice
+        return best_path(em, lambda f: transition_costs(frames[f - 1], frames[f], VIDEO, 1.0, walls)).choice
 
     assert path(None)[-1] == 1
     assert path(free)[-1] == 0
-    through = transition_costs(frames[3], frames[4], VIDEO, 0.2, free)[0]
-    assert through[1] >= VIDEO.blocked_cost and through[0] < 1.0
+    through = transition_costs(frames[2], frames[3], VIDEO, 1.0, free)[0]
+    assert through[1] >= VIDEO.blocked_cost and through[0] == 0.0
 
 
 def test_a_tour_step_through_a_wall_costs_a_jump(two_rooms):
@@ -105,3 +105,16 @@ def test_free_space_of_each_map_and_of_maps_side_by_side(two_rooms):
     blocked = free.blocked(a, np.array([0, 0]), b, np.array([1, 1]))
     assert not blocked[0, 0] and blocked[1, 1]
     assert free.blocked(a[:1], np.array([0]), b[:1], np.array([0]))[0, 0]  # room A's map alone ends at the door
+
+
+def test_frames_close_in_time_skip_no_room():
+    # a tour may skip a room (a jump of 12 m costs the jump cost); a video's frames 0.2 s apart cannot:
+    # a run of frames (few lines) whose images prefer a pose 3 m away does not outweigh the motion there and back
+    a, b = _hyps([[0.0, 0, 1.5]], [-100]), _hyps([[12.0, 0, 1.5]], [-100])
+    assert transition_costs(a, b, MotionParams(), None)[0, 0] == pytest.approx(MotionParams().jump_cost)
+    assert transition_costs(a, b, VIDEO, 0.2)[0, 0] > 5 * VIDEO.jump_cost  # 12 m in 0.2 s
+    walk = [_hyps([[0.2 * k, 0, 1.5]], [-100]) for k in range(3)]
+    walk += [_hyps([[0.2 * k, 0, 1.5], [0.2 * k, 3.0, 1.5]], [-80, -100]) for k in range(3, 6)]
+    walk += [_hyps([[0.2 * k, 0, 1.5]], [-100]) for k in range(6, 9)]
+    em = [h.emission_costs(VIDEO.emission_weight) for h in walk]
+    assert best_path(em, lambda f: transition_costs(walk[f - 1], walk[f], VIDEO, 0.2)).choice == [0] * 9

@@ -55,3 +55,15 @@ def test_frames_on_another_map_give_no_velocity():
     walk = [_frame(0, object()), _frame(1, object())]
     pred = predict(walk, TrackParams())
     assert np.allclose(pred.center, walk[1].loc.center)
+
+
+def test_line_reference_is_the_median_of_recent_trusted_frames():
+    from ldlloc.walk.track import LineReference
+
+    ref = LineReference(5)
+    assert ref.loss is None
+    for v in (-300, -290, -310, -120, -305, -295):  # one weak frame (a few lines) among good ones
+        ref.add(v)
+    assert ref.loss == pytest.approx(-295.0)  # the last 5: -290, -310, -120, -305, -295
+    ref.add(float("nan"))
+    assert len(ref.recent) == 5

@@ -31,7 +31,7 @@ from ldlloc.pipeline import Localization, Localizer, SearchNear
 from ldlloc.search.pose_search import score_on_map
 from ldlloc.walk.hypotheses import MAX_HYPOTHESES, Hypotheses, from_choice, joined
 from ldlloc.walk.motion import FreeSpace, MotionParams, transition_costs
-from ldlloc.walk.track import TorchThreads, TrackParams, check_track_params, predict, track
+from ldlloc.walk.track import LineReference, TorchThreads, TrackParams, check_track_params, predict, track
 from ldlloc.walk.viterbi import best_path, margin
 
 TIE_COST = 0.01  # nats: what a pose the image named as its competitor costs more than its own (ties: its own)
@@ -98,13 +98,13 @@ def localize_walk(frames: Iterable, maps: MapSet, params: WalkParams = WalkParam
     check_track_params(params.tracking)
     trackers: dict[int, Localizer] = {}  # the localizers tracked frames are refined with, per map
     outcomes: list[FrameOutcome] = []
-    ref_loss: float | None = None  # the last global frame's final loss: what a tracked pose must come near
+    ref = LineReference(params.tracking.window)  # what a tracked pose must come near
     threads = TorchThreads()
     try:
         for i, item in enumerate(frames):
             fr, img = item if isinstance(item, tuple) else (item, None)
             out = FrameOutcome(fr)
-            ref_loss = localize_frame(out, img, outcomes, maps, params, ref_loss, trackers, threads)
+            localize_frame(out, img, outcomes, maps, params, ref, trackers, threads)
             lighten(out)
             outcomes.append(out)
             if progress:
@@ -117,18 +117,18 @@ def localize_walk(frames: Iterable, maps: MapSet, params: WalkParams = WalkParam
 
 
 def localize_frame(out: FrameOutcome, img: np.ndarray | None, outcomes: list[FrameOutcome], maps: MapSet,
-                   params: WalkParams, ref_loss: float | None, trackers: dict[int, Localizer],
-                   threads: TorchThreads) -> float | None:
+                   params: WalkParams, ref: LineReference, trackers: dict[int, Localizer],
+                   threads: TorchThreads) -> None:
     """Frame ``out`` localized after ``outcomes`` (tracked, else globally): its pose, choice and
     hypotheses, or its error. A frame localized globally where the walk predicted a pose also gets
-    that pose as a hypothesis (its image may have failed: too few lines, motion blur). Returns the
-    loss a tracked pose must come near from now on (a global frame's unless it failed)."""
+    that pose as a hypothesis (its image may have failed: too few lines, motion blur). A tracked
+    frame's loss, and a global frame's unless it failed, go to the line reference ``ref``."""
     index = {id(e): i for i, e in enumerate(maps.entries)}
     fr = out.frame
     try:
         img = fr.load() if img is None else img
         pred = predict(outcomes, params.tracking) if params.track else None
-        got = track(img, pred, fr.max_tilt_deg, params.tracking, ref_loss, trackers, threads)
+        got = track(img, pred, fr.max_tilt_deg, params.tracking, ref.loss, trackers, threads)
         if got is None:
             threads.restore()
             loc, choice = localize_on_maps(img, maps, fr.max_tilt_deg, params.top_maps)
@@ -140,8 +140,8 @@ def localize_frame(out: FrameOutcome, img: np.ndarray | None, outcomes: list[Fra
         out.single_confidence, out.single_verdict = loc.confidence, loc.verdict
         out.single_pose = (np.asarray(loc.rot_cam_from_world, float), np.asarray(loc.center, float))
         out.competitors = list(loc.competitors)
-        if got is None and loc.verdict != "failed":
-            ref_loss = own_loss(choice)
+        if got is not None or loc.verdict != "failed":
+            ref.add(own_loss(choice))
         if got is None and pred is not None:
             loz = pred.entry.localizer
             loss = score_on_map(loc.arcs, pred.rot_cam_from_world[None], pred.center[None], loz.map,
@@ -152,7 +152,6 @@ def localize_frame(out: FrameOutcome, img: np.ndarray | None, outcomes: list[Fra
         out.error = str(exc)
     except Exception as exc:  # noqa: BLE001 - one frame's failure (cv2.error, a decoder's), not the walk's
         out.error = f"internal error ({type(exc).__name__}: {exc})"
-    return ref_loss
 
 
 def own_loss(choice: MapChoice) -> float:

@@ -2,7 +2,8 @@
 
 A step costs nothing up to a free length (a tour: the metres between shots; a video: a walking
 speed times the frames' time apart), then its extra length over a step scale, capped at the jump
-cost: a jump of 8-12 m between two tour shots (a room skipped) is unlikely, not impossible. A change
+cost: a jump of 8-12 m between two tour shots (a room skipped) is unlikely, not impossible; frames
+close in time (``close_s``: a video's) skip no room: each free length more costs 1, up to ``blocked_cost``. A change
 of floor (a height change of :attr:`MotionParams.floor_dz_m` or more) costs more than any jump: floors change only on stairs
 or in a lift, rarely. With ``turn_deg`` (videos: the camera turns little between frames) a
 rotation costs its angle over it, capped the same way. Costs are negative log-likelihoods
@@ -63,13 +64,16 @@ def transition_costs(prev, cur, params: MotionParams, dt: float | None = None,
     ``free``: where the maps let a camera stand (None: no walls known)."""
     d = prev.center[:, None, :] - cur.center[None, :, :]
     dist = np.linalg.norm(d, axis=2)
-    cost = np.clip((dist - free_length(params, dt)) / params.step_m, 0.0, params.jump_cost)
+    close = dt is not None and np.isfinite(dt) and 0 <= dt <= params.close_s
+    free_m = free_length(params, dt)
+    # frames close in time skip no room: no jump; each free length more than a walker covers costs 1
+    cap, scale = (params.blocked_cost, min(free_m, params.step_m)) if close else (params.jump_cost, params.step_m)
+    cost = np.clip((dist - free_m) / scale, 0.0, cap)
     if params.turn_deg is not None:
         c = np.einsum("aij,bij->ab", prev.rot_cam_from_world, cur.rot_cam_from_world)  # trace(Ra^T Rb)
         ang = np.degrees(np.arccos(np.clip((c - 1.0) / 2.0, -1.0, 1.0)))
-        cost = np.minimum(cost + ang / params.turn_deg, params.jump_cost)
+        cost = np.minimum(cost + ang / params.turn_deg, cap)
     if free is not None:  # through a wall: a jump more (the way round by a door), between close frames forbidden
-        close = dt is not None and np.isfinite(dt) and 0 <= dt <= params.close_s
         wall = params.blocked_cost if close else params.jump_cost
         cost = np.where(free.blocked(prev.center, prev.map_index, cur.center, cur.map_index),
                         cost + wall, cost)

@@ -13,13 +13,15 @@ Three steps, cheapest first, each checked before the frame takes its pose:
 3. Neither holds: the caller localizes the frame globally.
 
 A tracked pose holds when it was refined and explains at least ``TrackParams.keep`` of the lines
-that the last globally localized frame's pose explained (its exact line loss; the losses of
-lines found at different widths compare: docs/measurements.md#walks).
+that the walk's recent trusted poses explained (:class:`LineReference`: the median exact line loss of
+the last ``window`` of them; the losses of lines found at different widths compare:
+docs/measurements.md#walks).
 """
 
 from __future__ import annotations
 
 import time
+from collections import deque
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -55,6 +57,24 @@ class TrackParams:
     keep: float = 0.7  # a tracked pose explaining fewer lines than this share of the last global frame's is lost
     max_step_m: float = 0.75  # a step (per frame) longer than this is not extrapolated (the last pose is the prediction)
     lookback: int = 5  # frames back to the last trusted pose (a frame that failed is not tracked from)
+    window: int = 10  # the line reference: the median loss of this many last trusted frames
+
+
+class LineReference:
+    """What a tracked pose's exact line loss must come near: the median loss of the walk's last
+    ``window`` trusted frames (tracked, or global and not failed). A median, not the last global
+    frame's: one weak frame (a few lines, motion blur) must not let a drifting pose pass."""
+
+    def __init__(self, window: int):
+        self.recent: deque[float] = deque(maxlen=max(1, int(window)))
+
+    def add(self, loss: float) -> None:
+        if np.isfinite(loss):
+            self.recent.append(float(loss))
+
+    @property
+    def loss(self) -> float | None:
+        return float(np.median(self.recent)) if self.recent else None
 
 
 class TorchThreads:
