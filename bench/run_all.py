@@ -30,8 +30,9 @@ Benchmarks (in this order; names for ``--only``):
   ``bench/startup.json`` (bench_startup.py)
 - ``sfm``: SfM-like Line3D++ maps: kept lines, principal directions and up axis,
   before and after (bench_sfm.py; ``--localize ROOT`` when run alone also localizes)
-- ``results``: writing a run's results file, ms per added query at 30 / 2000 / 3000 records and a
-  run of 3000 from an empty file (bench_results_write.py)
+- ``results``: writing a run's results file, ms per added query at 30 / 2000 / 3000 records, a
+  run of 3000 from an empty file and a walk of 3000 made-up frames streamed and written
+  (bench_results_write.py)
 - ``building``: the 36-room building, one map per floor, queries localized without
   their floor; writes ``bench/building.json`` (bench_building.py; an hour and more on 2 cores the
   first time, so only with ``--only building``)
@@ -74,7 +75,7 @@ BENCHES: dict[str, tuple[str, list[str], list[str]]] = {
     "sfm": ("bench_sfm.py", [], ["--seeds", "0"]),
     "building": ("bench_building.py", [], ["--preset", "building_small", "--width", "256", "--per-split", "1"]),
     "inputs": ("bench_inputs.py", [], ["--views", "4", "--num-trans", "200", "--density", "800"]),
-    "results": ("bench_results_write.py", ["--scratch", "3000"], ["--sizes", "30,300", "--adds", "3"]),
+    "results": ("bench_results_write.py", ["--scratch", "3000", "--walk", "3000"], ["--sizes", "30,300", "--adds", "3"]),
 }
 ON_REQUEST = {"ray", "building", "inputs"}  # slow: run only when named in --only
 DEVICE_AWARE = {"render", "ldf", "localize", "ablation"}

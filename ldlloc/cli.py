@@ -31,6 +31,9 @@ VIDEO = typer.Option(None, "--video", help="An equirectangular video (mp4, mov, 
 FPS = typer.Option(None, "--fps", help="--video: frames a second to localize (at most the video's rate; default: "
                    "every frame).")
 EVERY = typer.Option(None, "--every", metavar="N", help="--video: every N-th frame.")
+LAG = typer.Option(None, "--lag", metavar="FRAMES", help="--walk, --video: a frame is decided (and written) once this "
+                   "many frames after it are localized (default 100; a walk of lag + 1 frames or fewer is decided as a "
+                   "whole; ldlloc/walk/stream.py).")
 TOP_K = typer.Option(20, "--top-k", help="K poses kept by the search for refinement.")
 LOSS = typer.Option("inlier", "--loss", help="inlier (paper) | l1 | l2 | huber | median.")
 NO_DECOMPOSE = typer.Option(False, "--no-decompose", help="Do not decompose the distance functions.")
@@ -151,16 +154,17 @@ def run(
     video: Optional[Path] = VIDEO,
     fps: Optional[float] = FPS,
     every: Optional[int] = EVERY,
+    lag: Optional[int] = LAG,
 ) -> None:
     """Localize every query of a dataset split (or all splits) and print accuracy tables; or, with
     --images, your own panoramas against a map or a folder of maps (which map: --top-maps).
 
     With --ray, one Ray actor per scene map serves its queries (one GPU each with --device cuda);
-    with --images, one actor per Ray CPU slot holds all the maps."""
+    with --images, one actor per Ray CPU slot holds all the maps; with --walk, one actor per walk."""
     method = _method(top_k, loss, no_decompose, no_refine, privacy, features, weights, max_tilt, refine, query_frame)
     run_command.run(images, root, dataset, map_level, split, scene, scene_unknown, maps, output, method, top_maps,
                     device, resume, resume_any_options, save_vis, overwrite, threads, ray, walk, order, video, fps,
-                    every)
+                    every, lag)
 
 
 @app.command()

@@ -55,9 +55,8 @@ app = make_app("ldlmap", "Build LDL maps (3D lines, principal directions, featur
 TRANS_SPACING = typer.Option(None, "--trans-spacing", help="Maps without a scan (line files, ZInD layouts): "
                              "candidate translations this many metres apart (default 0.3).")
 CAMERA_HEIGHT = typer.Option(None, "--camera-height", metavar="MIN:MAX", help="Camera-height band in metres "
-                             "above the floor where the candidate translations go (e.g. 0.9:1.7; a scan's floor is its "
-                             "lowest surface, a map without a scan's is z = 0); default: ZInD's camera height, else floor "
-                             "to ceiling.")
+                             "above each floor where the candidate translations go (e.g. 0.9:1.7; floors are found where "
+                             "the vertical lines begin); default: ZInD's camera height, else 0.3:2.2.")
 UP = typer.Option(None, "--up", help="The input's up axis: x, y, z, -x, -y, -z, or auto (default: the COLMAP cameras' "
                   "down axes, else the lines' vertical structure); the map is rotated into z-up once.")
 EXTRACTION = typer.Option(None, "--feature-extraction", help="Where features of the panoramas are extracted: equirect "
@@ -142,11 +141,12 @@ def _translations_summary(header: dict) -> str:
     n, cfg = header["num_translations"], header["build_config"]
     how = cfg.get("translations") or {}
     if how.get("method") == "spacing":
-        band = how.get("camera_height")
-        z = f", camera height {band[0]:.2f}-{band[1]:.2f} m" if band else ""
+        band, floors = how.get("camera_height"), how.get("floors")
+        above = " above the floor" if floors is not None and how.get("camera_height_source") != "layout" else ""
+        z = f", camera height {band[0]:.2f}-{band[1]:.2f} m{above}" if band else ""
         return f"{n}, spaced {how['spacing']:.2f} m over the {how.get('region', 'free space')}{z}"
     method = how.get("method") or cfg.get("translation_method")
-    band = how.get("camera_height_above_floor")
+    band = how.get("camera_height", how.get("camera_height_above_floor"))  # the latter: maps before floors were found
     z = f", {band[0]:.2f}-{band[1]:.2f} m above the floor" if band else ""
     return f"{n}" + (f" ({method}, N_t = {cfg.get('num_translations')}{z})" if method else "")
 

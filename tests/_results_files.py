@@ -35,3 +35,12 @@ def write_results(path: Path, records: list[dict], **meta) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps({"format_version": 1, "meta": {"finished": True, **meta}, "queries": records}))
     return path
+
+
+def without_timings(path: Path) -> dict:
+    """Results file ``path`` parsed, without what two runs of the same work differ by: the seconds."""
+    data = json.loads(path.read_text())
+    for q in data["queries"]:
+        q.pop("seconds")
+    data["summary"].pop("median_seconds")
+    return data

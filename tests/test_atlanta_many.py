@@ -54,7 +54,7 @@ def test_room_with_three_wall_directions_gets_them_all_and_localizes(tmp_path):
     assert np.all(counts >= 4), counts  # the 60- and 120-deg walls: floor and ceiling edges of two each
     assert m.fields["distances"].shape[1] == k
     header = read_map_header(tmp_path / "hexagon.h5")
-    assert header["format_version"] == 2 and header["line_group_counts"][3] == counts[3]
+    assert header["format_version"] == 3 and header["line_group_counts"][3] == counts[3]
     for r in localize_rendered(Localizer(m, LocalizeParams()), mesh,
                                (((4.0, 1.6, 1.5), 30.0, 3.0), ((5.0, 3.0, 1.6), 100.0, 0.0))):
         assert len(set(np.unique(r.arc_groups)) - {-1}) >= 4  # the query's arcs in 4 groups or more
@@ -129,8 +129,9 @@ def test_candidate_rotations_and_labels_for_five_directions():
 
 
 def test_map_file_versions_by_direction_count(tmp_path):
-    """3 directions: written as version 1 (what every reader knows); more: version 2. A version-1
-    file claiming 4 directions is refused in one line."""
+    """Without distance fields, 3 directions: written as version 1 (what every reader knows); more:
+    version 2; with fields (stored quantized): version 3. A version-1 file claiming 4 directions is
+    refused in one line."""
     from ldlmap.map.build import BuildParams, build_lines_map
     from ldlmap.map.mapfile import read_map
 
@@ -152,3 +153,7 @@ def test_map_file_versions_by_direction_count(tmp_path):
         h5.attrs["format_version"] = 1
     with pytest.raises(InputError, match="format version 1 with 4 principal directions"):
         read_map(path)
+    fields = build_lines_map(np.concatenate(lines[:3]), tmp_path / "fields.h5", params.replaced(distance_fields=True)).path
+    with h5py.File(fields, "r") as h5:
+        assert h5.attrs["format_version"] == 3 and h5["fields/distances"].dtype == np.uint8
+    assert read_map(fields).fields["distances"].dtype == np.float16

@@ -107,7 +107,7 @@ CASES = [
     ("plain-resume-of-walk-results", None, ["run", "--images", "walk", "--maps", "map.h5", "--resume",
                                             "-o", "walk.json"], "holds the results of an --images --walk run"),
     ("video-over-unfinished-video", _unfinished_video, ["run", "--video", "v.mp4", "--maps", "map.h5",
-                                                        "-o", "video.json"], "not resumed: run it again with --overwrite"),
+                                                        "-o", "video.json"], "continue it with --resume, or replace it with --overwrite"),
     ("colmap-of-a-video", None, ["export", "video.json", "--format", "colmap", "-o", "model"], "frames of a video"),
     ("nerfstudio-of-a-video", None, ["export", "video.json", "--format", "nerfstudio", "-o", "t.json"],
      "frames of a video"),
@@ -151,7 +151,7 @@ def test_tum_export_says_what_its_poses_are(here, results, prepare, words):
     else:
         assert words in res.output, res.output
     if words == "did not finish":
-        assert "a --video run is not resumed" in res.output, res.output
+        assert "--resume` continues it" in res.output, res.output
 
 
 def test_html_report_of_a_video_shows_its_frames(here):

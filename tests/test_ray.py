@@ -27,6 +27,7 @@ from typer.testing import CliRunner
 from ldlloc.batch.results import read_results_data
 from ldlloc.cli import app as loc_app
 from ldlmap.cli import app as map_app
+from tests._results_files import without_timings
 
 pytestmark = pytest.mark.xdist_group("ray")
 runner = CliRunner()
@@ -102,14 +103,6 @@ def _kill_first_worker(title: str, after_s: float, killed: list[int], timeout_s:
     return t
 
 
-def _without_timings(path: Path) -> dict:
-    data = json.loads(path.read_text())
-    for q in data["queries"]:
-        q.pop("seconds")
-    data["summary"].pop("median_seconds")
-    return data
-
-
 def _csv_without_timings(path: Path) -> list[list[str]]:
     rows = list(csv.reader(io.StringIO(path.read_text())))
     keep = [i for i, name in enumerate(rows[0]) if not name.startswith("sec_")]
@@ -162,7 +155,7 @@ def test_run_on_ray_gives_the_same_results_with_an_actor_killed(cluster, demo_da
     after = [p for s, p in workers[1:] if s == scene]
     assert after and all(p != pid for p in after), workers  # a restarted actor served the rest of its scene
     assert len(results) == 10 and len({r.name for r in results}) == 10
-    assert _without_timings(out) == _without_timings(plain_run)  # same records, same order
+    assert without_timings(out) == without_timings(plain_run)  # same records, same order
     assert _csv_without_timings(out.with_suffix(".csv")) == _csv_without_timings(plain_run.with_suffix(".csv"))
 
 
@@ -293,3 +286,23 @@ def test_scene_unknown_run_on_ray_equals_the_plain_one(cluster, demo_dataset, tm
     strip = lambda rs: [{k: v for k, v in r.items() if k not in ("seconds", "message")} for r in rs]  # noqa: E731
     assert strip(plain) == strip(on_ray) and len(on_ray) == 5
     assert all(r["map"] == str(demo_dataset / "maps" / "synthroom_2.h5") for r in on_ray)
+
+
+def test_walks_on_ray_equal_the_plain_run_also_resumed(cluster, demo_dataset, tmp_path):
+    """`run --walk --ray`: one actor per walk (a scene's queries), never split, gives the plain run's
+    records but for the timings; resumed from a file a killed run left (the first walk's first
+    frames written), the actor goes on from its last written frame and the file is the same."""
+    base = ["run", "--root", str(demo_dataset), "--split", "robot", "--walk", "--lag", "1"]
+    plain, on_ray = tmp_path / "plain.json", tmp_path / "ray.json"
+    res = runner.invoke(loc_app, [*base, "--output", str(plain)])
+    assert res.exit_code == 0, res.output
+    data = json.loads(plain.read_text())
+    data["meta"]["finished"] = False  # as a run killed after its third frame leaves it
+    data["queries"] = data["queries"][:3]
+    on_ray.write_text(json.dumps(data))
+    res = runner.invoke(loc_app, [*base, "--output", str(on_ray), "--resume", "--ray", "local"])
+    assert res.exit_code == 0, res.output
+    assert without_timings(on_ray) == without_timings(plain)
+    assert _csv_without_timings(on_ray.with_suffix(".csv")) == _csv_without_timings(plain.with_suffix(".csv"))
+    walks = {q["walk"]["name"] for q in json.loads(on_ray.read_text())["queries"]}
+    assert walks == {"synthroom_1", "synthroom_2"}

@@ -145,7 +145,8 @@ def test_lines_only_map_records_spacing_and_info_prints_it(tmp_path):
     m = read_map(rep.path)
     assert m.lines_only and len(m.translations) == rep.counts["translations"] > 50
     assert m.config["translations"] == {"method": "spacing", "spacing": 0.4, "region": "layout polygons",
-                                        "camera_height": [1.4, 1.4]}
+                                        "floors": [0.0], "camera_height_source": "layout", "camera_height": [1.4, 1.4],
+                                        "camera_z": [[1.4, 1.4]]}
     runner = CliRunner()
     res = runner.invoke(app, ["info", str(rep.path)], terminal_width=200)
     assert res.exit_code == 0 and "spaced 0.40 m" in res.output and str(len(m.translations)) in res.output

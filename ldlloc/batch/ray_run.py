@@ -1,4 +1,6 @@
-"""``ldlloc run --ray``: one Ray actor per scene map serves its queries (:func:`run_queries_ray`).
+"""``ldlloc run --ray``: one Ray actor per scene map serves its queries (:func:`run_queries_ray`);
+``--images``: actors that hold every map (:func:`run_images_ray`); ``--walk``: one actor per walk
+(:func:`run_walks_ray`).
 
 Each :class:`SceneLocalizer` actor reads its scene's map once (the scene not given,
 ``--scene-unknown``: one actor per scene folder, holding that folder's maps), where it runs (a shared
@@ -33,6 +35,9 @@ from ldlloc.batch.run import failed_result, localize_query, open_results, query_
 from ldlloc.batch.which_map import MapSet
 from ldlloc.pipeline import LocalizeParams
 from ldlloc.record import QueryResult
+from ldlloc.walk.localize import WalkParams
+from ldlloc.walk.run import DatasetWalk, walk_groups, walk_maps, walk_meta, walk_records, written_whole
+from ldlloc.walk.stream import LAG
 from ldlmap.core.cli_common import set_threads
 from ldlmap.core.errors import LdlError
 from ldlmap.batch.ray_cluster import RETRIES, TaskDone, WorkerInfo, as_completed, check_resources, current_worker, \
@@ -194,3 +199,93 @@ def run_images_ray(queries: list, maps: str | Path, output: str | Path, params: 
         writer.reorder(key=lambda r: rank.get(r.name, -1))
         writer.finish()  # every query done (as run_images); flushes the sorted results
         return writer.results
+
+
+# ------------------------------------------------------------------ --walk: one actor per walk
+
+
+WALK_STEP = 8  # frames' records an actor hands back per call (the driver writes them, then asks for more)
+
+
+class WalkLocalizer:
+    """Ray actor of ``run --root ... --walk``: one walk (:class:`ldlloc.walk.run.DatasetWalk`), never
+    split, localized as a stream; :meth:`step` hands back the records decided since the last call.
+    Restarted after its process died, it starts again from the records given at its start (those
+    it hands back again are the same records: the driver drops them)."""
+
+    def __init__(self, cwd: str, job: DatasetWalk, records: list, threads: int = 1):
+        enter_folder(cwd)
+        set_threads(threads)
+        self.batches = job.batches(records)
+
+    def step(self, n: int = WALK_STEP) -> tuple[list[QueryResult], bool, WorkerInfo]:
+        """At least ``n`` records (fewer at the walk's end), and whether the walk is done."""
+        got: list[QueryResult] = []
+        for batch in self.batches:
+            got += batch
+            if len(got) >= n:
+                return got, False, current_worker()
+        return got, True, current_worker()
+
+
+def run_walks_ray(queries: list, maps_dir: str | Path, output: str | Path, params: LocalizeParams, walk: WalkParams,
+                  device: str = "cpu", resume: bool = False, meta: dict | None = None, scene_unknown: bool = False,
+                  progress: Callable[[TaskDone], None] | None = None, address: str = "local", threads: int = 1,
+                  any_options: bool = False, say: Callable[[str], None] | None = None,
+                  lag: int = LAG) -> list[QueryResult]:
+    """:func:`ldlloc.walk.run.run_walk_queries` on a Ray cluster: one :class:`WalkLocalizer` actor per
+    walk (as many at once as the cluster has slots of ``threads`` CPUs), whose records the driver
+    writes as they come; at the end the records are put in the plain run's order, so the file
+    equals the plain run's but for the timings. A walk whose actor died past its retries (or
+    raised) fails its frames not yet written; Ctrl-C as :func:`run_queries_ray`."""
+    meta = {**(meta or {}), "walk": walk_meta("name", walk, lag)}
+    with open_results(output, params, device, meta, resume, any_options, queries, say) as writer:
+        jobs = []
+        groups = walk_groups(queries, scene_unknown)
+        written = walk_records(writer, [[q.name for q in g] for g in groups.values()]) if resume else [[]] * len(groups)
+        for (key, group), records in zip(groups.items(), written):  # light records: what resuming reads
+            if not written_whole(records):
+                jobs.append((DatasetWalk(key, group, str(walk_maps(maps_dir, key, scene_unknown)), params, walk, lag,
+                                         device), records))
+        if jobs:
+            with ray_session(address) as ray:
+                _walks_on_ray(ray, writer, jobs, params, device, progress, threads)
+        order = {q.name: i for i, q in enumerate(q for g in groups.values() for q in g)}
+        writer.reorder(key=lambda r: order.get(r.name, -1))
+        writer.finish()
+        return writer.results
+
+
+def _walks_on_ray(ray, writer: ResultsWriter, jobs: list, params: LocalizeParams, device: str,
+                  progress: Callable[[TaskDone], None] | None, threads: int) -> None:
+    """The body of :func:`run_walks_ray`: start the actors, write their records as they come."""
+    actor_cls = ray.remote(WalkLocalizer).options(**check_resources(ray, device, max(1, threads)),
+                                                  max_restarts=RETRIES, max_task_retries=RETRIES)
+    total = sum(len(job.queries) for job, _ in jobs)
+    written: set[str] = set()  # names written by this run (an actor restarted hands some back again)
+    actors = {job.key: actor_cls.remote(os.getcwd(), job, records, threads) for job, records in jobs}
+    refs = {actors[job.key].step.remote(): job for job, _ in jobs}
+    try:
+        while refs:
+            ready, _ = ray.wait(list(refs), num_returns=1, timeout=0.5)
+            for ref in ready:
+                job = refs.pop(ref)
+                try:
+                    got, done, worker = ray.get(ref)
+                except ray.exceptions.RayError as exc:
+                    why = failure_reason(exc)
+                    got, done, worker = [failed_result(q, params, why) for q in job.queries
+                                         if q.name not in written], True, None
+                new = [r for r in got if r.name not in written]
+                writer.extend(new)
+                written.update(r.name for r in new)
+                if done:
+                    ray.kill(actors.pop(job.key))
+                else:
+                    refs[actors[job.key].step.remote()] = job
+                if progress and new:
+                    progress(TaskDone(f"{job.key}: frame {new[-1].walk['frame'] if new[-1].walk else '?'}",
+                                      worker, len(written), total))
+    except BaseException:  # Ctrl-C included: what arrived is written; stop the rest
+        stop(list(refs), list(actors.values()))
+        raise

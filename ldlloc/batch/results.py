@@ -30,6 +30,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+from dataclasses import replace
 from pathlib import Path
 from typing import Any, Callable
 
@@ -43,7 +44,7 @@ from ldlmap.core.errors import (FormatVersionError, InputError, LdlError, WriteE
 
 RESULTS_FORMAT_VERSION = 1  # top-level "format_version" of a results file (absent: written before it, read as 1)
 OPTION_KEYS = ("dataset", "root", "splits", "map_level", "device", "params", "max_tilt_deg", "maps", "top_maps",
-               "scene_unknown", "images_path")  # meta compared by --resume
+               "scene_unknown", "images_path", "walk", "video", "fps", "every")  # meta compared by --resume
 
 
 def validate_results(data: Any, source: str | Path = "results") -> tuple[list[QueryResult], dict[str, Any]]:
@@ -168,7 +169,7 @@ def refuse_replacing_results(path: str | Path, overwrite: bool = False, resume: 
     if meta.get("finished") is False:  # absent: written before the flag, or by a run that finished
         release_lock(*acquire_lock(p), lock_path(p))  # a run writing it now: ResultsBusy says so
         raise InputError(f"{p} holds {len(results)} results of a run that did not finish (killed or interrupted): "
-                         f"{continue_hint(meta, 'continue it with --resume, or replace it with --overwrite')}")
+                         "continue it with --resume, or replace it with --overwrite")
 
 
 def _is_results_csv(path: Path) -> bool:
@@ -199,6 +200,13 @@ def option_differences(old: dict[str, Any], new: dict[str, Any]) -> list[str]:
             else:
                 diffs.append(key)
     return diffs
+
+
+def light_record(r: QueryResult) -> QueryResult:
+    """``r`` without what only its JSON line needs (the candidates but the first, the competitors,
+    confidence signals and map scores): what :class:`ResultsWriter` keeps in memory for the summary,
+    the CSV and a resumed walk, a quarter of the whole record."""
+    return replace(r, candidates=r.candidates[:1], competitors=[], confidence_signals=None, map_scores=None)
 
 
 def _dict_differences(a: dict, b: dict, prefix: str = "") -> list[str]:
@@ -242,7 +250,7 @@ class ResultsWriter:
         self.csv_path = self.path.with_suffix(".csv")
         self.journal_path = journal_path(self.path)
         self.meta = {**(meta or {}), "finished": False}  # true once :meth:`finish` ran (a rerun checks it)
-        self._results: dict[str, QueryResult] = {}  # name -> result, in file order
+        self._results: dict[str, QueryResult] = {}  # name -> its light record (light_record), in file order
         self._texts: dict[str, str] = {}  # name -> its record as one line of JSON (made once per record)
         self._json_bytes = self._journal_bytes = 0
         self.warn = warn or (lambda message: None)
@@ -254,7 +262,7 @@ class ResultsWriter:
             remove_stale_temporaries(self.journal_path, ".journal")
             if resume and self.path.exists():
                 results, old_meta = load_results(self.path)
-                self._results = {r.name: r for r in results}
+                self._results = {r.name: light_record(r) for r in results}
                 self._texts = {r.name: record_json(r) for r in results}
                 self.meta = _resumed_meta(self.path, old_meta, self.meta, any_options)
                 self.flush()
@@ -264,7 +272,12 @@ class ResultsWriter:
 
     @property
     def results(self) -> list[QueryResult]:
-        """The records, in file order."""
+        """The records, in file order (whole: read back from their JSON lines)."""
+        return [QueryResult.from_dict(json.loads(text)) for text in self._texts.values()]
+
+    @property
+    def light_results(self) -> list[QueryResult]:
+        """The records, in file order, as the writer keeps them in memory (:func:`light_record`)."""
         return list(self._results.values())
 
     def __enter__(self) -> "ResultsWriter":
@@ -315,7 +328,7 @@ class ResultsWriter:
         for r in latest.values():
             self._results.pop(r.name, None)
             self._texts.pop(r.name, None)
-            self._results[r.name] = r
+            self._results[r.name] = light_record(r)
             self._texts[r.name] = record_json(r)
             if r.picture_error:
                 self.warn_once("picture", f"picture of {r.name} not written ({r.picture_error}); its result is "
@@ -346,7 +359,7 @@ class ResultsWriter:
             _remove_journal(self.journal_path)
             return
         header = journal_header(token)
-        with _naming_errors(self.journal_path, self.meta):
+        with _naming_errors(self.journal_path):
             with atomic_file(self.journal_path) as tmp:
                 tmp.write_bytes(header)
             self._journal = open(self.journal_path, "ab")
@@ -354,7 +367,7 @@ class ResultsWriter:
     def _append(self, results: list[QueryResult]) -> None:
         """Append the records of ``results`` to the journal, one line each, in one write."""
         lines = "".join(f'{{"query": {self._texts[r.name]}}}\n' for r in results).encode()
-        with _naming_errors(self.journal_path, self.meta):
+        with _naming_errors(self.journal_path):
             try:
                 self._journal.write(lines)
                 self._journal.flush()
@@ -371,13 +384,13 @@ class ResultsWriter:
         head = json_safe({
             "format_version": RESULTS_FORMAT_VERSION,
             "meta": self.meta,
-            "summary": summarize(self.results, self.meta.get("device")),
+            "summary": summarize(self.light_results, self.meta.get("device")),
             **({"journal": token} if token is not None else {}),  # the journal of this JSON (read_results_data)
         })
         text = json.dumps(head, indent=1, allow_nan=False)[:-2]  # without the closing "\n}"
         text += ',\n "queries": [\n' + ",\n".join(self._texts.values()) + "\n ]\n}" if self._texts else \
             ',\n "queries": []\n}'
-        with _naming_errors(self.path, self.meta):
+        with _naming_errors(self.path):
             with atomic_file(self.path) as tmp:
                 tmp.write_text(text)
         self._json_bytes = len(text)
@@ -386,7 +399,7 @@ class ResultsWriter:
         """Write the CSV; on failure warn once and record why in the JSON's ``meta["csv_error"]``."""
         try:
             with atomic_file(self.csv_path) as tmp:
-                tmp.write_text(results_csv(self.results), errors="surrogateescape")  # names as their bytes
+                tmp.write_text(results_csv(self.light_results), errors="surrogateescape")  # names as their bytes
         except (OSError, LdlError) as exc:
             reason = getattr(exc, "strerror", None) or str(exc)
             self.warn_once("csv", f"cannot write {self.csv_path} ({reason}); the results are in {self.path}")
@@ -399,10 +412,10 @@ class ResultsWriter:
 
 
 @contextlib.contextmanager
-def _naming_errors(path: Path, meta: dict[str, Any]):
+def _naming_errors(path: Path):
     """Turn an OSError (a full disk, a folder made read-only) into a one-line error naming ``path``
-    and how to go on (``meta``: the run's, :func:`continue_hint`)."""
-    kept = f"(the results written before are kept: {continue_hint(meta)})"
+    and how to go on (``--resume``)."""
+    kept = "(the results written before are kept: continue with --resume)"
     try:
         yield
     except WriteError as exc:  # already names the file it could not write
@@ -434,14 +447,6 @@ RUN_KINDS = {"images": "an --images run", "images walk": "an --images --walk run
              "dataset walk": "a dataset --walk run", "video": "a --video run"}  # :func:`run_kind` in words
 
 
-def continue_hint(meta: dict[str, Any], prefix: str = "continue with --resume") -> str:
-    """How to go on with the results of a run that did not finish: ``prefix`` (resume it), or for a
-    video, which is never resumed, run it again."""
-    if run_kind(meta) == "video":
-        return "a --video run is not resumed: run it again with --overwrite"
-    return prefix
-
-
 def unfinished_note(records: list, meta: dict) -> str | None:
     """What to say of a results file whose run did not finish (``meta["finished"]`` false: killed
     or interrupted), None for a finished run (or one written before the flag existed)."""
@@ -449,7 +454,7 @@ def unfinished_note(records: list, meta: dict) -> str | None:
         return None
     return (f"this run did not finish (killed or interrupted): the file holds {len(records)} "
             f"quer{'y' if len(records) == 1 else 'ies'}, not necessarily all of its run; "
-            f"{continue_hint(meta, '`ldlloc run ... --resume` continues it')}")
+            "`ldlloc run ... --resume` continues it")
 
 
 def _resumed_meta(path: Path, old: dict[str, Any], new: dict[str, Any], any_options: bool) -> dict[str, Any]:

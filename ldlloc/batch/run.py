@@ -265,10 +265,10 @@ def run_queries(queries: list, maps_dir: str | Path, output: str | Path, params:
 def open_results(output: str | Path, params: LocalizeParams, device: str, meta: dict | None, resume: bool,
                  any_options: bool, queries: list, say: Callable[[str], None] | None) -> ResultsWriter:
     """The locked :class:`ResultsWriter` of a run; on ``resume`` says how many of ``queries`` are
-    done and how many failed ones are retried."""
+    done and how many failed ones are retried (none given, a video's frames: its run says it)."""
     writer = ResultsWriter(output, meta=run_meta(params, device, meta), resume=resume, any_options=any_options,
                            warn=say)
-    if resume and say is not None:
+    if resume and say is not None and queries:
         names = {q.name for q in queries}
         done, retry = len(writer.done() & names), len(writer.failed() & names)
         say(f"resuming {writer.path}: {done} of {len(names)} queries done, {len(names) - done - retry} to run, "

@@ -21,6 +21,7 @@ from ldlloc.pipeline import LocalizeParams
 from ldlloc.walk.localize import VIDEO, WalkParams
 from ldlloc.walk.options import check_walk_options
 from ldlloc.walk.run import run_walk_images, run_walk_queries, run_walk_video, walk_photos
+from ldlloc.walk.stream import LAG
 from ldlmap.core.cli_common import (check_device, check_threads, console, dataset_label, open_dataset_root,
                                     refuse_map_level, set_threads)
 from ldlmap.core.errors import InputError, refuse_overwriting_inputs
@@ -48,13 +49,14 @@ class RunOptions:
     threads: int
     ray: str | None
     overwrite: bool
+    lag: int = LAG  # --walk, --video: frames a frame is decided after (ldlloc/walk/stream.py)
 
 
 def run(images: str | None, root: str | None, dataset: str | None, map_level: str | None, split: list[str] | None,
         scene: str | None, scene_unknown: bool, maps: str | None, output: Path | None, method: dict,
         top_maps: int | None, device: str, resume: bool, resume_any_options: bool, save_vis: str | None,
         overwrite: bool, threads: int, ray: str | None, walk: bool, order: str | None, video: Path | None,
-        fps: float | None, every: int | None) -> None:
+        fps: float | None, every: int | None, lag: int | None = None) -> None:
     """The command (its options: :func:`ldlloc.cli.run`): checks the options that go together, then
     runs the video, the images or the dataset. ``method``: :func:`localize_params`' arguments."""
     params = localize_params(**method)
@@ -62,16 +64,16 @@ def run(images: str | None, root: str | None, dataset: str | None, map_level: st
     root_path, maps_path = path_option(root, "--root"), path_option(maps, "--maps")
     save_vis_path = path_option(save_vis, "--save-vis")
     opts = RunOptions(maps_path, output, params, top_maps, device, resume, resume_any_options, save_vis_path,
-                      method["weights"], threads, ray, overwrite)
+                      method["weights"], threads, ray, overwrite, LAG if lag is None else lag)
     if output is not None:
         check_results_path(output)
     if resume_any_options and not resume:
         raise InputError("--resume-any-options goes with --resume")
     dataset_options = {"--root": root_path, "--dataset": dataset, "--split": split, "--scene": scene,
                        "--map-level": map_level, "--scene-unknown": scene_unknown}
-    if walk or video is not None or any(v is not None for v in (order, fps, every)):
+    if walk or video is not None or any(v is not None for v in (order, fps, every, lag)):
         check_walk_options(walk, order, images, ray, save_vis_path, video, fps, every, resume, opts.maps,
-                           dataset_options)
+                           dataset_options, lag)
     if video is not None:
         return run_video(video, opts, fps, every)
     if images is not None:
@@ -111,10 +113,16 @@ def run_dataset(root: Path | None, dataset: str | None, map_level: str | None, s
                       soft_wrap=True)
     args = (queries, maps, output, o.params, o.device, o.resume)
     opts = {"meta": meta, "any_options": o.any_options, "say": say, "top_maps": top_maps}
-    if walk:  # one walk per scene (ldlloc/walk/run.py)
+    walk_params = WalkParams(top_maps=top_maps or TOP_MAPS)
+    if walk and o.ray is not None:  # one Ray actor per walk (ldlloc/batch/ray_run.py)
+        with ray_cluster.ThroughputBar(console, "localizing") as bar:
+            results = ray_run.run_walks_ray(queries, maps, output, o.params, walk_params, o.device, o.resume, meta,
+                                            scene_unknown, progress=bar, address=o.ray, threads=o.threads,
+                                            any_options=o.any_options, say=say, lag=o.lag)
+    elif walk:  # one walk per scene (ldlloc/walk/run.py)
         with console.status(f"localizing {len(queries)} queries as walks"):
-            results = run_walk_queries(queries, maps, output, o.params, WalkParams(top_maps=top_maps or TOP_MAPS),
-                                       o.device, o.resume, meta, scene_unknown, any_options=o.any_options, say=say)
+            results = run_walk_queries(queries, maps, output, o.params, walk_params, o.device, o.resume, meta,
+                                       scene_unknown, any_options=o.any_options, say=say, lag=o.lag)
     elif o.ray is not None:  # one Ray actor per scene map (ldlloc/batch/ray_run.py)
         with ray_cluster.ThroughputBar(console, "localizing") as bar:
             results = ray_run.run_queries_ray(*args, o.save_vis, **opts, progress=bar, address=o.ray, threads=o.threads)
@@ -179,7 +187,7 @@ def run_images(images: str, o: RunOptions, walk_order: str | None = None) -> Non
         mapset = _warn_left_out(MapSet.load(o.maps, o.params, o.device))
         with console.status(f"localizing {len(queries)} panoramas as one walk"):
             results = run_walk_images(queries, mapset, output, o.params, WalkParams(top_maps=top_maps), walk_order,
-                                      o.device, o.resume, meta, any_options=o.any_options, say=say)
+                                      o.device, o.resume, meta, any_options=o.any_options, say=say, lag=o.lag)
     else:
         results = _localize_images_with_bar(queries, files, output, o, opts)
     print_run(results, "images", output, o.params.max_tilt_deg)
@@ -215,14 +223,14 @@ def run_video(video: Path, o: RunOptions, fps: float | None, every: int | None) 
     files, _ = map_files(o.maps)
     output = o.output or Path("results") / f"video_{video.stem}.json"
     refuse_overwriting_inputs([video, *files], results_outputs(output))
-    refuse_replacing_results(output, o.overwrite, False)
+    refuse_replacing_results(output, o.overwrite, o.resume)
     check_device(o.device, local=True)
     set_threads(o.threads)
     mapset = _warn_left_out(MapSet.load(o.maps, o.params, o.device))
     with console.status(f"localizing {video.name} as one walk"):
         results = run_walk_video(video, mapset, output, o.params, replace(VIDEO, top_maps=top_maps), fps, every,
                                  o.device, meta={"dataset": "video", "maps": str(o.maps), "top_maps": top_maps},
-                                 say=say)
+                                 say=say, resume=o.resume, any_options=o.any_options, lag=o.lag)
     print_run(results, "video", output, o.params.max_tilt_deg)
 
 

@@ -31,7 +31,7 @@ from ldlloc.pipeline import Localization, Localizer, SearchNear
 from ldlloc.search.pose_search import score_on_map
 from ldlloc.walk.hypotheses import MAX_HYPOTHESES, Hypotheses, from_choice, joined
 from ldlloc.walk.motion import FreeSpace, MotionParams, transition_costs
-from ldlloc.walk.track import LineReference, TorchThreads, TrackParams, check_track_params, predict, track
+from ldlloc.walk.track import TorchThreads, TrackBasis, TrackParams, check_track_params, next_basis, predict, track
 from ldlloc.walk.viterbi import best_path, margin
 
 TIE_COST = 0.01  # nats: what a pose the image named as its competitor costs more than its own (ties: its own)
@@ -79,6 +79,7 @@ class FrameOutcome:
     choice: MapChoice | None = None  # the frame's own (single-image or tracked) choice of map
     error: str | None = None  # why it failed
     tracked: bool = False  # found by tracking (else global)
+    track_basis: TrackBasis | None = None  # what the next frame's prediction starts from (tracking)
     single_confidence: float | None = None  # the image's own judgement
     single_verdict: str | None = None
     single_pose: tuple[np.ndarray, np.ndarray] | None = None  # (R, t) of the image's own pose
@@ -96,16 +97,15 @@ def localize_walk(frames: Iterable, maps: MapSet, params: WalkParams = WalkParam
     frame's own localization. A frame that cannot be localized gets its ``error`` and the walk goes
     on around it."""
     check_track_params(params.tracking)
+    index = {id(e): i for i, e in enumerate(maps.entries)}
     trackers: dict[int, Localizer] = {}  # the localizers tracked frames are refined with, per map
     outcomes: list[FrameOutcome] = []
-    ref = LineReference(params.tracking.window)  # what a tracked pose must come near
+    ref_loss: float | None = None  # the last trusted global frame's loss: what a tracked pose must come near
     threads = TorchThreads()
     try:
         for i, item in enumerate(frames):
-            fr, img = item if isinstance(item, tuple) else (item, None)
-            out = FrameOutcome(fr)
-            localize_frame(out, img, outcomes, maps, params, ref, trackers, threads)
-            lighten(out)
+            out, ref_loss = localize_frame(item, outcomes[-1] if outcomes else None, maps, params, ref_loss,
+                                           trackers, index, threads)
             outcomes.append(out)
             if progress:
                 progress(i, out)
@@ -116,19 +116,25 @@ def localize_walk(frames: Iterable, maps: MapSet, params: WalkParams = WalkParam
     return outcomes
 
 
-def localize_frame(out: FrameOutcome, img: np.ndarray | None, outcomes: list[FrameOutcome], maps: MapSet,
-                   params: WalkParams, ref: LineReference, trackers: dict[int, Localizer],
-                   threads: TorchThreads) -> None:
-    """Frame ``out`` localized after ``outcomes`` (tracked, else globally): its pose, choice and
-    hypotheses, or its error. A frame localized globally where the walk predicted a pose also gets
-    that pose as a hypothesis (its image may have failed: too few lines, motion blur). A tracked
-    frame's loss, and a global frame's unless it failed, go to the line reference ``ref``."""
-    index = {id(e): i for i, e in enumerate(maps.entries)}
-    fr = out.frame
+def localize_frame(item, prev: FrameOutcome | None, maps: MapSet, params: WalkParams, ref_loss: float | None,
+                   trackers: dict[int, Localizer], index: dict[int, int], threads: TorchThreads | None = None
+                   ) -> tuple[FrameOutcome, float | None]:
+    """One frame's own localization (the first pass): tracked from the walk's prediction (its basis
+    carried by ``prev``, the frame before it: :func:`ldlloc.walk.track.predict`) or global, its
+    hypotheses kept and its image dropped (:func:`lighten`). ``item``: a :class:`WalkFrame` or a
+    ``(WalkFrame, image)`` pair; ``ref_loss``: the last trusted global frame's loss (returned updated);
+    ``index``: ``id(MapEntry) -> index``; ``threads``: the walk's torch threads (None: this call's,
+    restored before it returns). A frame localized globally where the walk predicted a pose also
+    gets that pose as a hypothesis (its image may have failed: too few lines, motion blur). A frame
+    that cannot be localized gets its ``error``."""
+    fr, img = item if isinstance(item, tuple) else (item, None)
+    out = FrameOutcome(fr)
+    own_threads = threads is None
+    threads = TorchThreads() if threads is None else threads
+    pred = predict(prev, params.tracking) if params.track and prev is not None else None
     try:
         img = fr.load() if img is None else img
-        pred = predict(outcomes, params.tracking) if params.track else None
-        got = track(img, pred, fr.max_tilt_deg, params.tracking, ref.loss, trackers, threads)
+        got = track(img, pred, fr.max_tilt_deg, params.tracking, ref_loss, trackers, threads)
         if got is None:
             threads.restore()
             loc, choice = localize_on_maps(img, maps, fr.max_tilt_deg, params.top_maps)
@@ -140,8 +146,8 @@ def localize_frame(out: FrameOutcome, img: np.ndarray | None, outcomes: list[Fra
         out.single_confidence, out.single_verdict = loc.confidence, loc.verdict
         out.single_pose = (np.asarray(loc.rot_cam_from_world, float), np.asarray(loc.center, float))
         out.competitors = list(loc.competitors)
-        if got is not None or loc.verdict != "failed":
-            ref.add(own_loss(choice))
+        if got is None and loc.verdict != "failed":
+            ref_loss = own_loss(choice)
         if got is None and pred is not None:
             loz = pred.entry.localizer
             loss = score_on_map(loc.arcs, pred.rot_cam_from_world[None], pred.center[None], loz.map,
@@ -152,6 +158,12 @@ def localize_frame(out: FrameOutcome, img: np.ndarray | None, outcomes: list[Fra
         out.error = str(exc)
     except Exception as exc:  # noqa: BLE001 - one frame's failure (cv2.error, a decoder's), not the walk's
         out.error = f"internal error ({type(exc).__name__}: {exc})"
+    finally:
+        if own_threads:
+            threads.restore()
+    out.track_basis = next_basis(prev, out, params.tracking) if params.track else None
+    lighten(out)
+    return out, ref_loss
 
 
 def own_loss(choice: MapChoice) -> float:
@@ -178,31 +190,51 @@ def augment(outcomes: list[FrameOutcome], maps: MapSet, params: WalkParams) -> N
     per frame apart): the pose a search over the whole map lost among distractors (furniture the
     map lacks) is often the best of the few near where the walk was."""
     index = {id(e): i for i, e in enumerate(maps.entries)}
-    sure = [i for i, o in enumerate(outcomes) if o.single_verdict == "confident" and o.loc is not None]
+    sure = [i for i, o in enumerate(outcomes) if is_anchor(o)]
     for i, o in enumerate(outcomes):
-        if o.hypotheses is None or o.single_verdict == "confident" or o.tracked:
+        if not needs_more(o):
             continue
-        before = [a for a in sure if a < i][-1:]
-        after = [a for a in sure if a > i][:1]
-        if not before + after:
-            continue
+        near = [a for a in sure if a < i][-1:] + [a for a in sure if a > i][:1]
+        augment_frame(o, [anchor_of(a - i, outcomes[a]) for a in near], index, maps, params)
+
+
+def is_anchor(o: FrameOutcome) -> bool:
+    """Whether frame ``o``'s own pose anchors the searches of :func:`augment`: its image was confident."""
+    return o.single_verdict == "confident" and o.loc is not None
+
+
+def needs_more(o: FrameOutcome) -> bool:
+    """Whether :func:`augment` searches again for frame ``o``: it has hypotheses, its image was not
+    confident and it was not tracked."""
+    return o.hypotheses is not None and o.single_verdict != "confident" and not o.tracked
+
+
+def anchor_of(gap: int, o: FrameOutcome) -> tuple[int, MapEntry, np.ndarray]:
+    """Confident frame ``o`` as an anchor of :func:`augment_frame`: ``gap`` frames away, its map and own centre."""
+    return gap, o.entry, np.asarray(o.loc.center, float)
+
+
+def augment_frame(o: FrameOutcome, anchors: list[tuple[int, MapEntry, np.ndarray]], index: dict[int, int],
+                  maps: MapSet, params: WalkParams) -> None:
+    """:func:`augment` of one frame: ``anchors`` the confident frames before and after it, each
+    ``(frames apart, its map, its own centre)`` (:func:`anchor_of`); ``index``: ``id(MapEntry) -> index``."""
+    if not anchors:
+        return
+    try:
+        img = o.frame.load()
+        lines = maps.entries[0].localizer.detect_lines(img)
+    except LdlError:
+        return
+    for gap, entry, center in anchors:
+        radius = min(params.gap_radius_m * abs(gap), params.max_gap_radius_m)
+        loz = entry.localizer
         try:
-            img = o.frame.load()
-            lines = maps.entries[0].localizer.detect_lines(img)
-        except LdlError:
+            s = loz.search(img, o.frame.max_tilt_deg, lines, near=SearchNear(center, None, radius))
+        except InputError:
             continue
-        for a in before + after:
-            anchor = outcomes[a]
-            radius = min(params.gap_radius_m * abs(a - i), params.max_gap_radius_m)
-            loz = anchor.entry.localizer
-            try:
-                s = loz.search(img, o.frame.max_tilt_deg, lines,
-                               near=SearchNear(np.asarray(anchor.loc.center, float), None, radius))
-            except InputError:
-                continue
-            c = s.out
-            o.hypotheses = joined(o.hypotheses, index[id(anchor.entry)], c.candidates_rot, c.candidates_center,
-                                  c.candidates_loss)
+        c = s.out
+        o.hypotheses = joined(o.hypotheses, index[id(entry)], c.candidates_rot, c.candidates_center,
+                              c.candidates_loss)
 
 
 def emission_costs(o: FrameOutcome, params: WalkParams) -> np.ndarray:
@@ -227,31 +259,55 @@ def decide(outcomes: list[FrameOutcome], maps: MapSet, params: WalkParams) -> No
     live = [o for o in outcomes if o.hypotheses is not None and len(o.hypotheses)]
     if not live:
         return
-    em = [emission_costs(o, params) for o in live]
-    free = FreeSpace.of_maps([e.localizer.map for e in maps.entries]) if params.walls else None
+    path = walk_path(live, params, free=FreeSpace.of_maps([e.localizer.map for e in maps.entries])
+                     if params.walls else None)
+    for f, o in enumerate(live):
+        settle(o, path.choice[f], path.marginals[f], maps, params)
+        o.hypotheses = None  # not needed any more
+
+
+def walk_path(live: list[FrameOutcome], params: WalkParams, costs: dict | None = None, free: FreeSpace | None = None):
+    """The most likely path (:func:`ldlloc.walk.viterbi.best_path`) over ``live`` frames (each with
+    hypotheses). ``costs``: a cache of emission and transition costs by hypotheses object, for
+    windows that overlap (:mod:`ldlloc.walk.stream`); ``free``: the maps' free space (no step through
+    a wall; None: walls not known)."""
+    costs = {} if costs is None else costs
+
+    def em(o: FrameOutcome) -> np.ndarray:
+        key = id(o.hypotheses)
+        if key not in costs:
+            costs[key] = (o.hypotheses, emission_costs(o, params))
+        return costs[key][1]
 
     def trans(f: int) -> np.ndarray:
         a, b = live[f - 1], live[f]
-        dt = None if a.frame.time is None or b.frame.time is None else b.frame.time - a.frame.time
-        return transition_costs(a.hypotheses, b.hypotheses, params.motion, dt, free)
+        key = (id(a.hypotheses), id(b.hypotheses))
+        if key not in costs:
+            dt = None if a.frame.time is None or b.frame.time is None else b.frame.time - a.frame.time
+            costs[key] = (a.hypotheses, b.hypotheses,
+                          transition_costs(a.hypotheses, b.hypotheses, params.motion, dt, free))
+        return costs[key][-1]
 
-    path = best_path(em, trans)
-    for f, o in enumerate(live):
-        h, j = o.hypotheses, path.choice[f]
-        R, t = h.rot_cam_from_world[j], h.center[j]
-        o.walk_margin = margin(path.marginals[f], j, distinct(R, t, h.rot_cam_from_world, h.center))
-        changed = bool(distinct(R, t, o.single_pose[0][None], o.single_pose[1][None])[0])
-        pose_ok = bool(o.loc.refined)
-        if changed:
-            pose_ok = move_to(o, maps.entries[int(h.map_index[j])], R, t, params)
-        conf, verdict, o.walk_decided = walk_judgement(o.single_confidence, o.single_verdict, o.walk_margin,
-                                                       changed, pose_ok)
-        o.loc.confidence, o.loc.verdict = conf, verdict
-        if o.walk_decided and changed:  # the image's own pose is the walk's competitor
-            R0, t0 = o.single_pose
-            o.loc.competitors = [{"R": np.round(R0, 8).tolist(), "t": np.round(t0, 6).tolist(), "loss": None,
-                                  "why": "the image's own pose (the walk chose another)"}]
-        o.hypotheses = None  # not needed any more
+    return best_path([em(o) for o in live], trans)
+
+
+def settle(o: FrameOutcome, j: int, marginals: np.ndarray, maps: MapSet, params: WalkParams) -> None:
+    """Give frame ``o`` the pose its path chose (hypothesis ``j``; ``marginals``: the costs of the best
+    paths through each of its poses) and its judgement (:func:`ldlloc.confidence.walk_judgement`)."""
+    h = o.hypotheses
+    R, t = h.rot_cam_from_world[j], h.center[j]
+    o.walk_margin = margin(marginals, j, distinct(R, t, h.rot_cam_from_world, h.center))
+    changed = bool(distinct(R, t, o.single_pose[0][None], o.single_pose[1][None])[0])
+    pose_ok = bool(o.loc.refined)
+    if changed:
+        pose_ok = move_to(o, maps.entries[int(h.map_index[j])], R, t, params)
+    conf, verdict, o.walk_decided = walk_judgement(o.single_confidence, o.single_verdict, o.walk_margin,
+                                                   changed, pose_ok)
+    o.loc.confidence, o.loc.verdict = conf, verdict
+    if o.walk_decided and changed:  # the image's own pose is the walk's competitor
+        R0, t0 = o.single_pose
+        o.loc.competitors = [{"R": np.round(R0, 8).tolist(), "t": np.round(t0, 6).tolist(), "loss": None,
+                              "why": "the image's own pose (the walk chose another)"}]
 
 
 def move_to(o: FrameOutcome, entry: MapEntry, R: np.ndarray, t: np.ndarray, params: WalkParams) -> bool:

@@ -1,10 +1,13 @@
-"""Walk runs: ``ldlloc run --images ... --walk`` and ``ldlloc run --root ... --walk``.
+"""Walk runs: ``ldlloc run --images ... --walk``, ``ldlloc run --root ... --walk`` and ``--video``.
 
-A walk's frames are localized together (:func:`ldlloc.walk.localize.localize_walk`) and its
-records written once the walk is decided, all at once (one write per walk, not per frame);
-``--resume`` skips the walks whose frames are all in the results file and runs the others again
-whole. Each record is the single-image run's record (the same fields, the final pose) with
-``walk``: its place in the walk and the image's own judgement (:func:`walk_fields`).
+A walk's frames are localized as a stream (:mod:`ldlloc.walk.stream`): each frame is decided a
+fixed lag after it (``lag`` frames; a walk that short is decided as a whole) and its record
+written at once (:class:`ldlloc.batch.results.ResultsWriter`: appended to the journal, O(1) per
+frame whatever the walk's length). ``--resume`` goes on from a walk's last written frame
+(:func:`ldlloc.walk.stream.resume_state`), skips the walks written whole and runs again those
+whose frames all failed. Each record is the single-image run's record (the same fields, the
+final pose) with ``walk``: its place in the walk, the image's own judgement and what the stream
+carries past it (:func:`walk_fields`).
 
 Dataset runs: one walk per scene (``--scene-unknown``: per folder of maps, a ZInD floor), its
 queries in capture order (:func:`walk_order`: ZInD's panorama number).
@@ -13,30 +16,63 @@ queries in capture order (:func:`walk_order`: ZInD's panorama number).
 from __future__ import annotations
 
 from dataclasses import replace
+from itertools import islice
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Iterable, Iterator
 
 from ldlmap.core.errors import InputError, LdlError
 from ldlmap.io.imagefile import image_header_size
 from ldlloc.record import QueryResult
 from ldlloc.batch.images import ImageQuery, failed_image_result, image_result
+from ldlloc.batch.results import ResultsWriter
 from ldlloc.batch.run import failed_result, open_results, result_from_localization, tilt_bound_for
 from ldlloc.batch.which_map import MapSet
 from ldlloc.pipeline import LocalizeParams, load_image
-from ldlloc.walk.localize import MIN_FRAMES, FrameOutcome, WalkFrame, WalkParams, localize_walk
+from ldlloc.walk.localize import MIN_FRAMES, FrameOutcome, WalkFrame, WalkParams
 from ldlloc.walk.order import natural_key, ordered
+from ldlloc.walk.stream import LAG, Resume, Slot, resume_state, stream_walk
 from ldlloc.walk.video import check_sampling, decoded_frames, frame_at, video_info
 
 
-def walk_fields(out: FrameOutcome, walk: str, index: int) -> dict:
+def walk_fields(slot: Slot, walk: str) -> dict:
     """A frame's ``walk`` record: the walk's name, the frame's index and time, whether the walk
-    decided it, the image's own verdict and confidence, the path margin (nats) and tracking."""
+    decided it, the image's own verdict, confidence, pose and map, the path margin (nats),
+    tracking, and the last global frame's loss (what a resumed walk's tracking goes on from)."""
+    out = slot.out
     m = out.walk_margin
-    return {"name": walk, "frame": index, "time": out.frame.time, "walk_decided": bool(out.walk_decided),
+    return {"name": walk, "frame": slot.index, "time": out.frame.time, "walk_decided": bool(out.walk_decided),
             "single_verdict": out.single_verdict, "single_confidence": out.single_confidence,
             "margin": None if m is None else (round(m, 4) if m != float("inf") else "inf"), "tracked": out.tracked,
             "single_pose": None if out.single_pose is None else {"R": out.single_pose[0].tolist(),
-                                                                  "t": out.single_pose[1].tolist()}}
+                                                                  "t": out.single_pose[1].tolist()},
+            "single_map": None if out.choice is None else str(out.choice.chosen.entry.path),
+            "ref_loss": slot.ref_loss}
+
+
+def walk_records(writer: ResultsWriter, groups: list[list[str]]) -> list[list[QueryResult | None]]:
+    """The records ``writer`` holds (light: :func:`ldlloc.batch.results.light_record`) of each walk's
+    frames (``groups``: each walk's names, in walk order; None: not written)."""
+    have = {r.name: r for r in writer.light_results}
+    return [[have.get(n) for n in names] for names in groups]
+
+
+def written_whole(records: list[QueryResult | None]) -> bool:
+    """Whether a walk's frames are all written (and not all failed: those are run again)."""
+    return bool(records) and all(r is not None for r in records) and any(r.status != "failed" for r in records)
+
+
+def walk_resume(records: list[QueryResult | None], maps: MapSet, lag: int) -> tuple[bool, Resume | None]:
+    """Whether a walk is written whole (:func:`written_whole`: nothing to run), and else where it
+    goes on (:func:`ldlloc.walk.stream.resume_state`; None: from its first frame)."""
+    if written_whole(records):
+        return True, None
+    return False, resume_state(records, maps, lag)
+
+
+def write_walk(writer: ResultsWriter, blocks: Iterable[list[Slot]], record: Callable[[Slot], QueryResult]) -> None:
+    """Write each decided block's records as it comes (one journal write: a kill leaves whole blocks)."""
+    for block in blocks:
+        writer.extend([record(slot) for slot in block])
 
 
 def choice_fields(out: FrameOutcome) -> dict:
@@ -76,32 +112,40 @@ def walk_photos(queries: list, order: str = "name") -> tuple[list, list[float | 
 def run_walk_images(queries: list, maps: MapSet, output: str | Path, params: LocalizeParams, walk: WalkParams,
                     order: str = "name", device: str = "cpu", resume: bool = False, meta: dict | None = None,
                     progress: Callable[[QueryResult], None] | None = None, any_options: bool = False,
-                    say: Callable[[str], None] | None = None, name: str = "walk") -> list[QueryResult]:
+                    say: Callable[[str], None] | None = None, name: str = "walk", lag: int = LAG) -> list[QueryResult]:
     """Localize ``queries`` (:class:`ldlloc.batch.images.ImageQuery`) as one walk in ``order``
-    (name | time) against ``maps`` and write their records. ``progress``: after each frame's own
-    localization (its single-image record)."""
+    (name | time) against ``maps``, writing each frame's record once it is decided (``lag``).
+    ``progress``: after each frame's own localization (its single-image record)."""
     queries, times = walk_photos(queries, order)
-    meta = {**(meta or {}), "walk": {"order": order, "motion": vars(walk.motion), "track": walk.track}}
+    meta = {**(meta or {}), "walk": walk_meta(order, walk, lag)}
     with open_results(output, params, device, meta, resume, any_options, queries, say) as writer:
-        if resume and {q.name for q in queries} <= writer.done():
-            writer.finish()
-            return writer.results
-        frames = [WalkFrame(q.name, (lambda p=q.image: load_image(p)), t, params.max_tilt_deg)
-                  for q, t in zip(queries, times)]
-        tell = None if progress is None else (lambda i, o: progress(_image_record(queries[i], o, params, name, i)))
-        outs = localize_walk(frames, maps, walk, tell)
-        writer.extend([_image_record(q, o, params, name, i) for i, (q, o) in enumerate(zip(queries, outs))])
+        whole, state = walk_resume(walk_records(writer, [[q.name for q in queries]])[0], maps, lag) if resume \
+            else (False, None)
+        if not whole:
+            start = state.start if state else 0
+            frames = [WalkFrame(q.name, (lambda p=q.image: load_image(p)), t, params.max_tilt_deg)
+                      for q, t in zip(queries[start:], times[start:])]
+            tell = None if progress is None else (
+                lambda i, o: progress(image_frame_record(queries[i], Slot(i, o, None, None, False), params, name)))
+            write_walk(writer, stream_walk(frames, maps, walk, lag, state, tell),
+                       lambda s: image_frame_record(queries[s.index], s, params, name))
         writer.finish()
         return writer.results
 
 
-def _image_record(q, out: FrameOutcome, params: LocalizeParams, walk: str, index: int) -> QueryResult:
+def walk_meta(order: str, walk: WalkParams, lag: int) -> dict:
+    """The results ``meta["walk"]`` of a walk run: its order, motion model, tracking and lag."""
+    return {"order": order, "motion": vars(walk.motion), "track": walk.track, "lag": lag}
+
+
+def image_frame_record(q, slot: Slot, params: LocalizeParams, walk: str) -> QueryResult:
     """An image frame's record (before the walk is decided: its single-image record, for progress)."""
+    out = slot.out
     if out.loc is None:
         r = failed_image_result(q, params, out.error or "not localized", 0.0)
     else:
         r = replace(image_result(q, out.loc, out.choice), **choice_fields(out), scene=out.entry.scene)
-    r.walk = walk_fields(out, walk, index)
+    r.walk = walk_fields(slot, walk)
     return r
 
 
@@ -123,70 +167,118 @@ def walk_groups(queries: list, scene_unknown: bool) -> dict[str, list]:
 def run_walk_queries(queries: list, maps_dir: str | Path, output: str | Path, params: LocalizeParams, walk: WalkParams,
                      device: str = "cpu", resume: bool = False, meta: dict | None = None, scene_unknown: bool = False,
                      progress: Callable[[QueryResult], None] | None = None, any_options: bool = False,
-                     say: Callable[[str], None] | None = None) -> list[QueryResult]:
+                     say: Callable[[str], None] | None = None, lag: int = LAG) -> list[QueryResult]:
     """Dataset queries (with ground truth) localized walk by walk (:func:`walk_groups`): against
-    their scene's map, or (``scene_unknown``) the maps of its folder. A walk whose maps cannot be
-    loaded fails each of its frames; a walk of one query is localized as one image (the walk adds nothing)."""
-    meta = {**(meta or {}), "walk": {"order": "name", "motion": vars(walk.motion), "track": walk.track}}
+    their scene's map, or (``scene_unknown``) the maps of its folder, each frame written once
+    decided. A walk whose maps cannot be loaded fails each of its frames; a walk of one query is
+    localized as one image (the walk adds nothing).
+    :func:`ldlloc.batch.ray_run.run_walks_ray` does the same on a Ray cluster."""
+    meta = {**(meta or {}), "walk": walk_meta("name", walk, lag)}
     with open_results(output, params, device, meta, resume, any_options, queries, say) as writer:
-        done = writer.done()
-        for key, group in walk_groups(queries, scene_unknown).items():
-            if resume and {q.name for q in group} <= done:
-                continue
-            where = Path(maps_dir) / (key if scene_unknown else f"{key}.h5")
-            try:
-                maps = MapSet.load(where, params, device, recursive=False)
-                frames = [WalkFrame(q.name, (lambda p=q.image: load_image(p)), None, tilt_bound_for(q, params))
-                          for q in group]
-                outs = localize_walk(frames, maps, walk)
-            except LdlError as exc:
-                writer.extend([failed_result(q, params, str(exc)) for q in group])
-                continue
-            recs = [_dataset_record(q, o, params, key, i) for i, (q, o) in enumerate(zip(group, outs))]
-            writer.extend(recs)
-            for r in recs if progress else []:
-                progress(r)
+        groups = walk_groups(queries, scene_unknown)
+        written = walk_records(writer, [[q.name for q in g] for g in groups.values()]) if resume else [[]] * len(groups)
+        for (key, group), records in zip(groups.items(), written):
+            job = DatasetWalk(key, group, str(walk_maps(maps_dir, key, scene_unknown)), params, walk, lag, device)
+            job.run(lambda rs: write_records(writer, rs, progress), records)
         writer.finish()
         return writer.results
 
 
-def _dataset_record(q, out: FrameOutcome, params: LocalizeParams, walk: str, index: int) -> QueryResult:
+def write_records(writer: ResultsWriter, records: list[QueryResult],
+                  progress: Callable[[QueryResult], None] | None = None) -> None:
+    """Write ``records`` (in one journal write), then tell ``progress`` of each."""
+    writer.extend(records)
+    for r in records if progress else []:
+        progress(r)
+
+
+def walk_maps(maps_dir: str | Path, key: str, scene_unknown: bool) -> Path:
+    """The maps of a dataset walk: its scene's map, or (``scene_unknown``) its folder of maps."""
+    return Path(maps_dir) / (key if scene_unknown else f"{key}.h5")
+
+
+class DatasetWalk:
+    """One walk of a dataset run (a scene's queries in walk order), run in this process or in a Ray
+    actor (:mod:`ldlloc.batch.ray_run`): :meth:`run` hands its records on as they are decided."""
+
+    def __init__(self, key: str, queries: list, maps: str, params: LocalizeParams, walk: WalkParams, lag: int,
+                 device: str = "cpu"):
+        self.key, self.queries, self.maps, self.params, self.walk, self.lag = key, queries, maps, params, walk, lag
+        self.device = device
+
+    def run(self, write: Callable[[list[QueryResult]], None], records: list | None = None) -> None:
+        """Localize the walk, ``write``-ing each decided block's records: :meth:`batches`."""
+        for batch in self.batches(records):
+            write(batch)
+
+    def batches(self, records: list | None = None) -> Iterator[list[QueryResult]]:
+        """The records of the walk's frames as they are decided (a list per block); ``records``: the
+        frames' records already written (a resumed run: it goes on after them, or skips a walk
+        written whole). A walk whose maps cannot be loaded fails its frames not yet written."""
+        done = 0
+        try:
+            maps = MapSet.load(self.maps, self.params, self.device, recursive=False)
+            whole, state = walk_resume(records, maps, self.lag) if records else (False, None)
+            if whole:
+                return
+            done = state.written if state else 0
+            frames = [WalkFrame(q.name, (lambda p=q.image: load_image(p)), None, tilt_bound_for(q, self.params))
+                      for q in self.queries[state.start if state else 0:]]
+            for block in stream_walk(frames, maps, self.walk, self.lag, state):
+                yield [_dataset_record(self.queries[slot.index], slot, self.params, self.key) for slot in block]
+                done = block[-1].index + 1
+        except LdlError as exc:
+            yield [failed_result(q, self.params, str(exc)) for q in self.queries[done:]]
+
+
+def _dataset_record(q, slot: Slot, params: LocalizeParams, walk: str) -> QueryResult:
+    out = slot.out
     if out.loc is None:
         r = failed_result(q, params, out.error or "not localized")
     else:
         r = replace(result_from_localization(q, out.loc), **choice_fields(out))
-    r.walk = walk_fields(out, walk, index)
+    r.walk = walk_fields(slot, walk)
     return r
 
 
 def run_walk_video(video: str | Path, maps: MapSet, output: str | Path, params: LocalizeParams, walk: WalkParams,
                    fps: float | None = None, every: int | None = None, device: str = "cpu", meta: dict | None = None,
-                   say: Callable[[str], None] | None = None,
-                   progress: Callable[[QueryResult], None] | None = None) -> list[QueryResult]:
+                   say: Callable[[str], None] | None = None, progress: Callable[[QueryResult], None] | None = None,
+                   resume: bool = False, any_options: bool = False, lag: int = LAG) -> list[QueryResult]:
     """An equirectangular video localized as one walk (:mod:`ldlloc.walk.video`), its kept frames
     decoded in order (``fps`` or ``every``), each record named ``<stem>/<frame index>`` with the
-    video as its image and its timestamp in ``walk.time``. The records are written once the walk
-    is decided (a rerun localizes the video again)."""
+    video as its image and its timestamp in ``walk.time``, written once decided (``lag``);
+    ``resume`` goes on from the last written frame (the frames before it decoded, not localized)."""
     info = video_info(video)
     check_sampling(info, fps, every)
     stem = info.path.stem
     meta = {**(meta or {}), "video": str(info.path), "fps": fps, "every": every,
-            "walk": {"order": "time", "motion": vars(walk.motion), "track": walk.track}}
-    pairs = ((WalkFrame(f"{stem}/{vf.index:06d}", (lambda vf=vf: frame_at(info, vf)), vf.time, params.max_tilt_deg),
-              img) for vf, img in decoded_frames(info, fps, every))
-    queries: list = []
-    tell = None if progress is None else (lambda i, o: progress(_image_record(queries[i], o, params, stem, i)))
+            "walk": walk_meta("time", walk, lag)}
+    with open_results(output, params, device, meta, resume, any_options, [], say) as writer:
+        state = video_resume(writer, stem, maps, lag) if resume else None
+        if state is not None and say is not None:
+            say(f"resuming {writer.path}: {state.written} frames of {stem} written, going on from there")
+        start = state.start if state else 0
+        pairs = islice(decoded_frames(info, fps, every), start, None)
+        frames = ((WalkFrame(f"{stem}/{vf.index:06d}", (lambda vf=vf: frame_at(info, vf)), vf.time,
+                             params.max_tilt_deg), img) for vf, img in pairs)
+        tell = None if progress is None else (
+            lambda i, o: progress(image_frame_record(ImageQuery(info.path, o.frame.name), Slot(i, o, None, None, False),
+                                                params, stem)))
 
-    def frames():
-        for fr, img in pairs:
-            queries.append(ImageQuery(info.path, fr.name))
-            yield fr, img
+        def at_end(n: int) -> None:
+            if n < MIN_FRAMES:
+                raise InputError(f"--video {info.path}: {n} frame(s) kept; a walk needs at least {MIN_FRAMES} "
+                                 "(lower --every or raise --fps)")
 
-    outs = localize_walk(frames(), maps, walk, tell)
-    if len(outs) < MIN_FRAMES:
-        raise InputError(f"--video {info.path}: {len(outs)} frame(s) kept; a walk needs at least {MIN_FRAMES} "
-                         "(lower --every or raise --fps)")
-    with open_results(output, params, device, meta, False, False, queries, say) as writer:
-        writer.extend([_image_record(q, o, params, stem, i) for i, (q, o) in enumerate(zip(queries, outs))])
+        write_walk(writer, stream_walk(frames, maps, walk, lag, state, tell, at_end),
+                   lambda s: image_frame_record(ImageQuery(info.path, s.out.frame.name), s, params, stem))
         writer.finish()
         return writer.results
+
+
+def video_resume(writer: ResultsWriter, stem: str, maps: MapSet, lag: int) -> Resume | None:
+    """Where a resumed video goes on: after the frames of walk ``stem`` that ``writer`` holds."""
+    mine = {r.walk["frame"]: r for r in writer.light_results if r.walk and r.walk.get("name") == stem}
+    records = [mine.get(i) for i in range(len(mine))]
+    return resume_state(records, maps, lag)

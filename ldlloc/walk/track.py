@@ -13,15 +13,17 @@ Three steps, cheapest first, each checked before the frame takes its pose:
 3. Neither holds: the caller localizes the frame globally.
 
 A tracked pose holds when it was refined and explains at least ``TrackParams.keep`` of the lines
-that the walk's recent trusted poses explained (:class:`LineReference`: the median exact line loss of
-the last ``window`` of them; the losses of lines found at different widths compare:
-docs/measurements.md#walks).
+that the last trusted global frame's pose explained (its exact line loss; the losses of lines
+found at different widths compare: docs/measurements.md#walks).
+
+The prediction needs the walk's last trusted pose and velocity only: each frame carries them
+(:class:`TrackBasis`, :func:`next_basis`) for the next, so a walk decided as a stream
+(:mod:`ldlloc.walk.stream`) tracks from the frame before alone.
 """
 
 from __future__ import annotations
 
 import time
-from collections import deque
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -57,24 +59,6 @@ class TrackParams:
     keep: float = 0.7  # a tracked pose explaining fewer lines than this share of the last global frame's is lost
     max_step_m: float = 0.75  # a step (per frame) longer than this is not extrapolated (the last pose is the prediction)
     lookback: int = 5  # frames back to the last trusted pose (a frame that failed is not tracked from)
-    window: int = 10  # the line reference: the median loss of this many last trusted frames
-
-
-class LineReference:
-    """What a tracked pose's exact line loss must come near: the median loss of the walk's last
-    ``window`` trusted frames (tracked, or global and not failed). A median, not the last global
-    frame's: one weak frame (a few lines, motion blur) must not let a drifting pose pass."""
-
-    def __init__(self, window: int):
-        self.recent: deque[float] = deque(maxlen=max(1, int(window)))
-
-    def add(self, loss: float) -> None:
-        if np.isfinite(loss):
-            self.recent.append(float(loss))
-
-    @property
-    def loss(self) -> float | None:
-        return float(np.median(self.recent)) if self.recent else None
 
 
 class TorchThreads:
@@ -116,36 +100,70 @@ class Prediction:
     last: tuple[np.ndarray, np.ndarray]  # the last trusted pose (R, t)
 
 
+@dataclass(frozen=True)
+class TrackBasis:
+    """What a frame hands on to the next one's prediction: the walk's last trusted pose (on ``entry``'s
+    map), its velocity per frame (``step`` metres, ``turn`` a rotation; None: not known) and the
+    frames since that pose (0: this frame's own)."""
+
+    entry: MapEntry
+    rot_cam_from_world: np.ndarray
+    center: np.ndarray
+    step: np.ndarray | None = None
+    turn: np.ndarray | None = None
+    since: int = 0
+
+
 def trusted(o) -> bool:
-    """Whether a frame's pose may be tracked from: tracked, or localized globally and not ``failed``."""
-    return o.loc is not None and o.entry is not None and (o.tracked or o.single_verdict != "failed")
+    """Whether a frame's pose may be tracked from: tracked, or localized globally and not ``failed``
+    (a frame read back from a results file to resume a walk: its pose and map only)."""
+    return (getattr(o, "loc", None) is not None and getattr(o, "entry", None) is not None
+            and (getattr(o, "tracked", False) or getattr(o, "single_verdict", None) != "failed"))
 
 
-def predict(outcomes: list, p: TrackParams) -> Prediction | None:
-    """The pose of the frame after ``outcomes`` (the walk's frames so far, :class:`FrameOutcome`): the
-    last trusted frame's (:func:`trusted`, at most ``p.lookback`` frames back) moved on at the walk's
-    velocity for every frame since (constant velocity: a video's kept frames are evenly spaced). The
-    velocity: from the trusted frame before it (within ``lookback``, on the same map, at most
-    ``max_step_m`` a frame apart); its turn too when the two are consecutive. Without one, the last
-    trusted pose itself. None when no frame of the last ``lookback`` is trusted."""
-    n = len(outcomes)
-    found = [j for j in range(n - 1, max(n - 1 - p.lookback, -1), -1) if trusted(outcomes[j])][:2]
-    if not found:
-        return None
-    o = outcomes[found[0]]
-    R, t = np.asarray(o.loc.rot_cam_from_world, float), np.asarray(o.loc.center, float)
-    k = n - found[0]
-    if len(found) < 2 or outcomes[found[1]].entry is not o.entry:
-        return Prediction(o.entry, R, t, k, (R, t))
-    b, apart = outcomes[found[1]], found[0] - found[1]
-    step = (t - np.asarray(b.loc.center, float)) / apart
+def basis_of(prev) -> TrackBasis | None:
+    """The basis frame ``prev`` hands on: its own (:func:`next_basis`), else its pose as it is (a frame
+    read back from a results file to resume a walk), else None."""
+    b = getattr(prev, "track_basis", None)
+    if b is not None or not trusted(prev):
+        return b
+    return TrackBasis(prev.entry, np.asarray(prev.loc.rot_cam_from_world, float), np.asarray(prev.loc.center, float))
+
+
+def next_basis(prev, out, p: TrackParams) -> TrackBasis | None:
+    """The basis frame ``out`` hands on (``prev``: the frame before it): a trusted frame's own pose with
+    the velocity since the last trusted pose (on the same map, at most ``max_step_m`` a frame; its turn
+    when that pose was the frame before); else the last basis one frame older (None beyond ``lookback``)."""
+    b = basis_of(prev) if prev is not None else None
+    if not trusted(out):
+        return None if b is None or b.since + 1 >= p.lookback else replace(b, since=b.since + 1)
+    R, t = np.asarray(out.loc.rot_cam_from_world, float), np.asarray(out.loc.center, float)
+    if b is None or b.entry is not out.entry:
+        return TrackBasis(out.entry, R, t)
+    k = b.since + 1
+    step = (t - b.center) / k
     if np.linalg.norm(step) > p.max_step_m:
-        return Prediction(o.entry, R, t, k, (R, t))
+        return TrackBasis(out.entry, R, t)
+    return TrackBasis(out.entry, R, t, step, R @ b.rot_cam_from_world.T if k == 1 else None)
+
+
+def predict(prev, p: TrackParams) -> Prediction | None:
+    """The pose of the frame after ``prev`` (the walk's last frame): its basis (:func:`next_basis`) moved
+    on at the walk's velocity for every frame since (constant velocity: a video's kept frames are
+    evenly spaced; the turn too when known); without a velocity the basis pose itself. None without
+    a basis (no trusted frame in the last ``lookback``)."""
+    b = basis_of(prev)
+    if b is None:
+        return None
+    k = b.since + 1
+    R, t = b.rot_cam_from_world, b.center
+    if b.step is None:
+        return Prediction(b.entry, R, t, k, (R, t))
     Rp = R
-    if apart == 1:  # the same turn again, kept a rotation
-        U, _, Vt = np.linalg.svd(np.linalg.matrix_power(R @ np.asarray(b.loc.rot_cam_from_world, float).T, k) @ R)
+    if b.turn is not None:  # the same turn again, kept a rotation
+        U, _, Vt = np.linalg.svd(np.linalg.matrix_power(b.turn, k) @ R)
         Rp = U @ Vt
-    return Prediction(o.entry, Rp, t + k * step, k, (R, t))
+    return Prediction(b.entry, Rp, t + k * b.step, k, (R, t))
 
 
 def starts(pred: Prediction) -> tuple[np.ndarray, np.ndarray]:

@@ -55,6 +55,7 @@ from ldlmap.map.keypoints3d import view_features
 from ldlmap.map.mapfile import write_map
 from ldlmap.map.params import BuildParams
 from ldlmap.map.render import PointRenderer, RenderParams
+from ldlmap.map.floors import BAND_LEVEL_SPACING_M, DEFAULT_CAMERA_HEIGHT, band_ranges, find_floors
 from ldlmap.map.translations import (SPARSE_SPACING_M, TranslationParams, candidate_spacing, candidate_translations,
                                      spaced_translations)
 from ldlmap.map.visibility import coverage_fields, line_visibility, room_surfaces
@@ -164,41 +165,36 @@ def scene_translations(src: SceneInput, lines: np.ndarray, lines_raw: np.ndarray
                        params: BuildParams) -> tuple[np.ndarray, dict]:
     """Candidate translations of a scene and how they were chosen (stored in the map's config).
 
-    With a scan: N_t in its free space (octree or grid, the paper's), within ``camera_height`` above
-    its floor when given. Without one: a lattice of ``trans_spacing`` over where cameras stand
-    (:func:`ldlmap.map.translations.spaced_translations`).
+    Heights: ``camera_height`` above each floor the lines show (:func:`ldlmap.map.floors.find_floors`),
+    by default :data:`ldlmap.map.floors.DEFAULT_CAMERA_HEIGHT`; a layout that knows its cameras'
+    heights (``walkable.z_range``) keeps them unless ``camera_height`` is given. With a scan: N_t
+    in its free space (octree or grid, the paper's) within the band. Without one: a lattice of
+    ``trans_spacing`` over where cameras stand (:func:`ldlmap.map.translations.spaced_translations`).
     """
-
+    floors = find_floors(lines_raw)
+    band, source = params.translations.camera_height, "given"
+    known = src.walkable.z_range if src.walkable is not None else None
+    if band is None:
+        band, source = (None, "layout") if known is not None else (DEFAULT_CAMERA_HEIGHT, "default")
+    tp = TranslationParams(band_above_floor=band, floors=tuple(float(f) for f in floors),
+                           height_spacing=BAND_LEVEL_SPACING_M)
+    top = float(np.max(lines_raw[..., 2]))
+    world = [tuple(known)] if band is None else band_ranges(floors, band, top)
+    info = {"floors": [round(float(f), 4) for f in floors], "camera_height_source": source,
+            "camera_height": [float(z) for z in (band if band is not None else known)],
+            "camera_z": [[round(float(a), 4), round(float(b), 4)] for a, b in world]}
     if src.points is not None:
-        band = params.translations.camera_height
         T = candidate_translations(src.points, params.translations.num, params.translations.method,
-                                   params.translations.clearance, prior_centers=src.prior_centers,
-                                   params=TranslationParams(band_above_floor=band))
-        return T, {"method": params.translations.method, "num": int(params.translations.num),
-                   "camera_height_above_floor": [float(z) for z in band] if band is not None else None,
+                                   params.translations.clearance, prior_centers=src.prior_centers, params=tp)
+        return T, {"method": params.translations.method, "num": int(params.translations.num), **info,
                    "median_spacing_m": candidate_spacing(T)}
-    _check_band_meets_scene(params.translations.camera_height, lines_raw)
-    T = spaced_translations(lines_raw, params.translations.spacing, src.walkable, params.translations.camera_height)
+    T = spaced_translations(lines_raw, params.translations.spacing, src.walkable,
+                            known if band is None else None, params=tp)
     if src.prior_centers is not None:
         T = np.concatenate([T, np.asarray(src.prior_centers, float).reshape(-1, 3)])
-    zr = params.translations.camera_height or (src.walkable.z_range if src.walkable is not None else None)
-    info = {"method": "spacing", "spacing": float(params.translations.spacing),
-            "region": "layout polygons" if src.walkable is not None and src.walkable.polygons else "free space of the lines",
-            "camera_height": [float(z) for z in zr] if zr is not None else None}
-    return T, info
-
-
-def _check_band_meets_scene(band: tuple[float, float] | None, lines: np.ndarray) -> None:
-    """Refuse (one line) a camera-height band that lies wholly below the scene's floor or above its
-    ceiling (the lowest and highest line ends): no candidate translation could stand there."""
-    if band is None:
-        return
-    z = np.asarray(lines, dtype=np.float64)[..., 2]
-    floor, ceiling = float(z.min()), float(z.max())
-    if band[1] <= floor or band[0] >= ceiling:
-        where = "below the floor" if band[1] <= floor else "above the ceiling"
-        raise InputError(f"--camera-height {band[0]:g}:{band[1]:g} m lies {where}: the scene spans z = {floor:.2f} "
-                         f"to {ceiling:.2f} m, so no candidate translation is left")
+    return T, {"method": "spacing", "spacing": float(params.translations.spacing),
+               "region": "layout polygons" if src.walkable is not None and src.walkable.polygons else "free space of the lines",
+               **info}
 
 
 def _transformed(src: SceneInput, lines: np.ndarray | None, A: np.ndarray) -> tuple[SceneInput, np.ndarray | None]:

@@ -64,12 +64,14 @@ class LdlMap:
 
     @property
     def camera_height_band(self) -> tuple[float, float] | None:
-        """(min, max) world z of the camera when the map was built knowing it (``--camera-height``,
-        a layout's annotated camera heights), else None."""
-        band = (self.config.get("translations") or {}).get("camera_height") if isinstance(self.config, dict) else None
+        """(min, max) world z of the camera: the camera-height band above the map's floors (``camera_z``),
+        else (maps built before floors were found) the lines-only map's ``camera_height``; None when unknown."""
+        how = (self.config.get("translations") or {}) if isinstance(self.config, dict) else {}
         try:
-            lo, hi = (float(z) for z in band)
-        except (TypeError, ValueError):
+            ranges = np.asarray(how["camera_z"], dtype=np.float64).reshape(-1, 2) if "camera_z" in how else None
+            lo, hi = (ranges[:, 0].min(), ranges[:, 1].max()) if ranges is not None else (
+                float(z) for z in how.get("camera_height"))
+        except (TypeError, ValueError, IndexError):
             return None
         return (lo, hi) if np.isfinite(lo) and np.isfinite(hi) and lo <= hi else None
 

@@ -24,7 +24,9 @@ Map layout (``/fields`` group of :mod:`ldlmap.map.mapfile`):
 * ``/fields/distances`` (N_t, 3, G + 1, 2G) float16: ``f3D_g`` in radians, [0, pi]; pi where the
   group has no line (:data:`ldlmap.core.sphere_distance.EMPTY_DISTANCE`). float16 spacing is below
   2e-3 rad on [0, pi] (quantization error <= 1e-3 rad).
-* attrs ``kind`` ("equirect_nodes"), ``rows`` (G), ``num_groups`` (3), ``version`` (1).
+* attrs ``kind`` ("equirect_nodes"), ``rows`` (G), ``num_groups`` (3), ``version`` (1). The map file
+  stores them as uint8 square-root codes (format version 3, :mod:`ldlmap.map.mapfile`), half the
+  float16 size; they are read back as float16.
 
 Size: ``N_t * 3 * (G + 1) * 2G * 2`` bytes before compression; with the default G = 64,
 49.9 kB per translation: 40 MB for N_t = 800 and 85 MB for N_t = 1700, less after the map

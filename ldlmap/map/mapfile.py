@@ -1,8 +1,10 @@
 """The LDL map file: one HDF5 file per scene, versioned. This module is the only one that opens it.
 
-Schema (``FORMAT_VERSION`` 2; a map with 3 principal directions is written as version 1, the
+Schema (``FORMAT_VERSION`` 3; a map with 3 principal directions is written as version 1, the
 layout every reader since version 1 knows; one with more, an Atlanta frame of several horizontal
-directions, as version 2, which older readers refuse as newer). World frame metric, z up (docs/formats.md). All groups and
+directions, as version 2; one with distance fields as version 3, its fields stored as uint8 steps
+``q`` (``distance_quantum * q**2`` radians, ``distance_quantum`` = pi / 255**2) instead of float16, half the size; older
+readers refuse versions newer than theirs). World frame metric, z up (docs/formats.md). All groups and
 datasets are readable with plain h5py::
 
     /                       attrs: format_version (int), name (str), created_with (str),
@@ -67,8 +69,12 @@ from ldlmap.map.validate import KINDS, KIND_NAMES, check_line_header, is_int, ma
 h5py = lazy_module("h5py")
 
 
-FORMAT_VERSION = 2  # the newest version this code reads and writes (it reads every version from 1)
+FORMAT_VERSION = 3  # the newest version this code reads and writes (it reads every version from 1)
 _VERSION_3_DIRECTIONS = 1  # what maps of 3 principal directions are written as (unchanged since version 1)
+_VERSION_MANY_DIRECTIONS = 2  # maps of more principal directions, float16 fields
+_VERSION_QUANTIZED = 3  # maps with distance fields, stored as uint8 codes q of DISTANCE_QUANTUM * q**2 radians
+DISTANCE_QUANTUM = float(np.pi / 255 ** 2)  # square-root coding: steps of 0.0014 rad at 0.01 rad, 0.0044 at the search's
+# inlier threshold (0.1 rad), 0.025 at pi (no line): fine where lines are near (docs/measurements.md#fields-uint8)
 _COMPRESS = dict(compression="gzip", compression_opts=4, shuffle=True)
 
 def _library_versions() -> dict[str, str]:
@@ -82,9 +88,37 @@ def _library_versions() -> dict[str, str]:
 
 
 def map_format_version(m: LdlMap) -> int:
-    """The format version ``m`` is written as: 1 with 3 principal directions (readable by every
-    version), 2 with more."""
-    return _VERSION_3_DIRECTIONS if len(m.principal_directions) == 3 else FORMAT_VERSION
+    """The format version ``m`` is written as: 3 with distance fields (stored quantized), else 1 with 3
+    principal directions (readable by every version), 2 with more."""
+    if m.fields.get("distances") is not None:
+        return _VERSION_QUANTIZED
+    return _VERSION_3_DIRECTIONS if len(m.principal_directions) == 3 else _VERSION_MANY_DIRECTIONS
+
+
+def quantized_distances(d: np.ndarray) -> np.ndarray:
+    """Distance fields (radians in [0, pi]) as uint8 codes q, ``d ~ DISTANCE_QUANTUM * q**2`` (nearest code)."""
+    d = np.maximum(np.asarray(d, np.float32), 0.0)
+    return np.clip(np.rint(np.sqrt(d / np.float32(DISTANCE_QUANTUM))), 0, 255).astype(np.uint8)
+
+
+def dequantized_distances(q: np.ndarray, quantum: float) -> np.ndarray:
+    """Stored uint8 codes back to float16 radians, ``quantum * q**2`` (float16 fields, as version 1 and 2 maps
+    store, pass through)."""
+    if q.dtype != np.uint8:
+        return q
+    return (np.square(q.astype(np.float32)) * np.float32(quantum)).astype(np.float16)
+
+
+def stored_distances(h5, stored: np.ndarray, path: Path) -> np.ndarray:
+    """A map's distance fields as float16 radians: uint8 steps (version 3) scaled by the ``/fields``
+    attr ``distance_quantum``, float16 (versions 1-2) as stored."""
+    if stored.dtype != np.uint8:
+        return stored
+    quantum = _attr_value(h5["fields"], "distance_quantum", "float", path)
+    if quantum is None or not 0 < quantum * 255 ** 2 <= 4:
+        raise InputError(f"corrupt LDL map {path}: uint8 distance fields need a /fields distance_quantum in (0, 4 / 255**2], "
+                         f"got {quantum!r}")
+    return dequantized_distances(stored, quantum)
 
 
 def write_map(path: str | Path, m: LdlMap) -> Path:
@@ -145,8 +179,9 @@ def write_map(path: str | Path, m: LdlMap) -> Path:
                 fl = h5.create_group("fields")
                 for k, v in m.fields_attrs.items():
                     fl.attrs[k] = v
+                fl.attrs["distance_quantum"] = DISTANCE_QUANTUM
                 for k, v in m.fields.items():
-                    fl.create_dataset(k, data=v, **_COMPRESS)
+                    fl.create_dataset(k, data=quantized_distances(v) if k == "distances" else v, **_COMPRESS)
             h5.flush()
             h5.attrs[_CHECKSUMS] = json.dumps(_checksums(*_read_datasets(h5, path)), sort_keys=True)
             h5.flush()
@@ -185,7 +220,7 @@ _SCHEMA: dict[str, tuple[str, tuple]] = {
     "features/keypoints": ("f", ("K", 2)),
     "features/scores": ("f", ("K",)),
     "features/descriptors": ("d", ("K", "D")),
-    "fields/distances": ("f", ("N", "F", "G1", "G2")),
+    "fields/distances": ("d", ("N", "F", "G1", "G2")),  # float16 (versions 1-2) or uint8 steps (3)
 }
 _REQUIRED = ("cloud/bounds_min", "cloud/bounds_max", "lines/raw", "lines/segments", "lines/groups",
              "principal/directions", "translations/centers")
@@ -337,7 +372,7 @@ def _check_version(h5, path: Path) -> int:
     ds = h5.get("principal/directions")
     shape = ds.shape if isinstance(ds, h5py.Dataset) else None
     k = shape[0] if shape is not None and len(shape) == 2 and shape[1] == 3 else 3  # other shapes: _check_schema
-    if (k == 3) != (v == _VERSION_3_DIRECTIONS):
+    if v < _VERSION_QUANTIZED and (k == 3) != (v == _VERSION_3_DIRECTIONS):
         raise InputError(f"corrupt LDL map {path}: format version {v} with {k} principal directions "
                          f"(version 1 has 3, version 2 more)")
     return v
@@ -496,7 +531,7 @@ def _map_from(h5, data: dict[str, np.ndarray], path: Path, load_cloud: bool) -> 
         cloud_points=data.get("cloud/points") if load_cloud else None,
         cloud_colors=data.get("cloud/colors") if load_cloud else None,
         features=feats,
-        fields={"distances": data["fields/distances"]} if has_fields else {},
+        fields={"distances": stored_distances(h5, data["fields/distances"], path)} if has_fields else {},
         fields_attrs=dict(h5["fields"].attrs) if has_fields else {},
         config=_attr_value(h5, "build_config", "json", path, "{}"),
         visibility=get("lines/visibility", bool),

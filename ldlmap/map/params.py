@@ -111,9 +111,9 @@ class CandidateParams:
     """Maps without a scan (layouts, line files): candidates on a lattice this many metres apart
     (a true camera is then within spacing / sqrt(2) in xy)."""
     camera_height: tuple[float, float] | None = None
-    """Camera-height band (metres above the floor) for candidates: a scan's N_t go to its free space in the
-    band (its floor: the robust lowest z); maps without a scan: world z. None: a scan's free space from floor to
-    ceiling; the layout's band when known."""
+    """Camera-height band (metres above each floor the lines show, :mod:`ldlmap.map.floors`) for candidates:
+    a scan's N_t go to its free space in the band, a map without a scan gets lattice levels in it. None: the
+    layout's known camera heights when it has them, else ``DEFAULT_CAMERA_HEIGHT`` (0.3-2.2 m)."""
 
     def check(self) -> None:
         """Refuse (one line) a count, a spacing or a camera-height band no build can use."""

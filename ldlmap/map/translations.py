@@ -34,6 +34,7 @@ from ldlmap.core.errors import InputError
 from ldlmap.core.frame import check_memory
 from ldlmap.core.lazy import lazy_module
 from ldlmap.core.polygon import distance_to_boundary, points_in_polygon
+from ldlmap.map.floors import band_ranges, in_band
 from ldlmap.lines3d import robust_bounds
 
 ndimage = lazy_module("scipy.ndimage")
@@ -50,8 +51,12 @@ class TranslationParams:
     z_percentiles: tuple[float, float] = (0.5, 99.5)  # floor / ceiling from the z distribution
     min_component: float = 0.2  # keep free components with at least this fraction of the largest
     band_above_floor: tuple[float, float] | None = None  # keep only free space this many metres above
-    # the floor (the robust z percentile), e.g. (0.9, 1.7) where a camera stands: the N_t candidates
-    # of a floor map spread over the cameras' heights only (docs/measurements.md#building-bench)
+    # a floor, e.g. (0.3, 2.2) where a camera stands: the N_t candidates of a floor map spread over the
+    # cameras' heights only (docs/measurements.md#building-bench)
+    height_spacing: float | None = None  # maps without a scan: levels in band_above_floor at most this far apart in
+    # height (None: the lattice's spacing; known camera heights always use the lattice's)
+    floors: tuple[float, ...] | None = None  # the floors' heights (ldlmap.map.floors.find_floors); None: the
+    # robust lowest z of the points (z_percentiles)
 
 
 def _free_space(P: np.ndarray, clearance: float, params: TranslationParams):
@@ -75,8 +80,7 @@ def _free_space(P: np.ndarray, clearance: float, params: TranslationParams):
     zc = lo[2] + (np.arange(dims[2]) + 0.5) * h
     zok = (zc >= z0 + clearance) & (zc <= z1 - clearance)
     if params.band_above_floor is not None:
-        b0, b1 = params.band_above_floor
-        zok &= (zc >= z0 + b0) & (zc <= z0 + b1)
+        zok &= in_band(zc, np.asarray(params.floors if params.floors is not None else [z0]), params.band_above_floor)
     dist = ndimage.distance_transform_edt(~occ) * h
     # The occupied voxel may hold a point anywhere inside it: subtract half a diagonal.
     free = foot[:, :, None] & zok[None, None, :] & (dist - 0.87 * h >= clearance)
@@ -329,6 +333,22 @@ def _region_interior_point(poly: np.ndarray) -> np.ndarray:
     return g[np.argmax(distance_to_boundary(g, poly))]
 
 
+def band_heights(lines: np.ndarray, params: TranslationParams, clearance: float) -> list[tuple[float, float]] | None:
+    """The world-z ranges of ``params.band_above_floor`` above each floor (``params.floors``, else the
+    lowest line end), under the highest line end less ``clearance``; None without a band. One-line
+    error when every band lies above the lines."""
+    if params.band_above_floor is None:
+        return None
+    z = lines[..., 2]
+    floors = np.asarray(params.floors if params.floors is not None else [z.min()], dtype=np.float64)
+    ranges = band_ranges(floors, params.band_above_floor, float(z.max()) - clearance)
+    if not ranges:
+        b0, b1 = params.band_above_floor
+        raise InputError(f"--camera-height {b0:g}:{b1:g} m lies above the ceiling: the floor is at z = {floors[0]:.2f}, "
+                         f"the lines reach z = {float(z.max()):.2f} m, so no candidate translation is left")
+    return ranges
+
+
 def spaced_translations(lines: np.ndarray, spacing: float = 0.3, walkable: Walkable | None = None,
                         z_range: tuple[float, float] | None = None, portal_depth: float = 1.0, portal_widen: float = 0.3,
                         clearance: float = 0.05, params: TranslationParams = TranslationParams()) -> np.ndarray:
@@ -337,7 +357,8 @@ def spaced_translations(lines: np.ndarray, spacing: float = 0.3, walkable: Walka
     Where cameras can stand: the ``walkable`` polygons (and ``portal_depth`` on both sides of
     each portal, widened by ``portal_widen`` at both ends) when given, else the free space of the lines (the footprint their points
     enclose, as for scans). Heights: ``z_range`` (or ``walkable.z_range``) when known, else
-    the free space's floor-to-ceiling band; levels at most ``spacing`` apart. Lattice points
+    ``params.band_above_floor`` above each of ``params.floors`` (:func:`band_heights`), else the free
+    space's floor-to-ceiling band; levels at most ``spacing`` apart. Lattice points
     closer than ``clearance`` to a 3D line are dropped. Never empty: a region that no lattice
     point falls in (a room smaller than the spacing) gets its interior point.
     """
@@ -349,6 +370,9 @@ def spaced_translations(lines: np.ndarray, spacing: float = 0.3, walkable: Walka
     zr = z_range if z_range is not None else (walkable.z_range if walkable is not None else None)
     if zr is not None and not (len(zr) == 2 and np.all(np.isfinite(zr))):
         raise InputError(f"camera-height band must be two finite heights, got {zr}")
+    ranges = [zr] if zr is not None else band_heights(L, params, clearance)
+    banded = zr is None and ranges is not None  # levels in the band above the floors (known heights: the lattice's)
+    dz = params.height_spacing if banded and params.height_spacing else spacing
     regions: list[np.ndarray] = []
     if walkable is not None and walkable.polygons:
         regions = [np.asarray(p, dtype=np.float64).reshape(-1, 2) for p in walkable.polygons]
@@ -379,7 +403,8 @@ def spaced_translations(lines: np.ndarray, spacing: float = 0.3, walkable: Walka
         xy = lo3[:2] + G[foot[ij[:, 0], ij[:, 1]]]
         if len(xy) == 0:
             xy = (P[:, :2].min(0) + P[:, :2].max(0))[None] / 2
-    C = np.concatenate([np.column_stack([xy, np.full(len(xy), z)]) for z in _z_levels(zr, spacing)])
+    levels = np.concatenate([_z_levels(r, dz) for r in (ranges if ranges is not None else [zr])])
+    C = np.concatenate([np.column_stack([xy, np.full(len(xy), z)]) for z in levels])
     if clearance <= 0:
         return C
     # Away from the lines (sampled every clearance / 2: a point's distance is off by at most a quarter).

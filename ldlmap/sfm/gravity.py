@@ -16,8 +16,9 @@ Sources, first that applies:
 
 Scans, meshes and layouts are z-up by convention (docs/inputs.md): when a principal
 direction lies within ``keep_deg`` of the input's z axis, z stays the vertical unless another
-direction, nearly perpendicular to z, beats it by ``override_margin`` with more vertical
-structure *and* a smaller extent (rooms are wider than tall; sloped ceiling edges and beams run
+direction, nearly perpendicular to z, beats it by ``override_margin`` with at least
+``override_structure`` more vertical structure *and* a smaller extent (a bare layout shell's
+proportions cannot tell: z then stays) (rooms are wider than tall; sloped ceiling edges and beams run
 long and obliquely, so they cannot turn an upright room over); the note says why. When z is kept
 although another direction scores higher, or has more structure and a smaller extent, the build
 warns. Without such a direction (SfM frames) the best score wins, with a warning when it barely
@@ -55,6 +56,8 @@ class GravityParams:
     axis_tol_deg: float = 5.0  # a line is vertical / horizontal within this angle
     max_lines: int = 3000  # the longest lines used (voting cost)
     override_margin: float = 0.1  # score lead another axis needs to turn an input whose z is a principal direction
+    override_structure: float = 0.2  # ... and its vertical structure lead over z: bare layout shells reach 0.17, a
+    # room with doors or furniture turned sideways 0.23-0.32 (docs/measurements.md#up-axis-rule)
     across_deg: float = 15.0  # ... and it must be this close to perpendicular to z (z then a wall direction)
     weak_margin: float = 0.05  # a lead smaller than this barely tells the axis (warning)
     weak_share: float = 0.55  # a floor-side share smaller than this barely tells the sign (warning)
@@ -161,7 +164,8 @@ def _z_kept_or_overridden(P: np.ndarray, s: AxisScores, kz: int, params: Gravity
     lead = float(total[best] - total[kz])
     across = np.abs(P @ P[kz]) <= np.sin(np.radians(params.across_deg))
     rival = across & (s.structure > s.structure[kz]) & (s.extent < s.extent[kz])
-    if best != kz and rival[best] and lead >= params.override_margin:
+    told = s.structure[best] - s.structure[kz] >= params.override_structure  # else the lines cannot tell: z stays
+    if best != kz and rival[best] and told and lead >= params.override_margin:
         up, share = _signed(P, s, best)
         weak = share < params.weak_share
         sign = f"; the sign is a guess, {share:.0%} of the length on the floor side" if weak else ""
