@@ -259,11 +259,17 @@ def decide(outcomes: list[FrameOutcome], maps: MapSet, params: WalkParams) -> No
     live = [o for o in outcomes if o.hypotheses is not None and len(o.hypotheses)]
     if not live:
         return
-    path = walk_path(live, params, free=FreeSpace.of_maps([e.localizer.map for e in maps.entries])
-                     if params.walls else None)
+    path = walk_path(live, params, free=free_space(maps, params))
     for f, o in enumerate(live):
         settle(o, path.choice[f], path.marginals[f], maps, params)
         o.hypotheses = None  # not needed any more
+
+
+def free_space(maps: MapSet, params: WalkParams) -> FreeSpace | None:
+    """The free space of the walk's maps (:class:`ldlloc.walk.motion.FreeSpace`); None with ``walls`` off
+    or where the map set holds no maps (a stand-in without localizers)."""
+    found = [getattr(getattr(e, "localizer", None), "map", None) for e in maps.entries]
+    return FreeSpace.of_maps(found) if params.walls and found and None not in found else None
 
 
 def walk_path(live: list[FrameOutcome], params: WalkParams, costs: dict | None = None, free: FreeSpace | None = None):
