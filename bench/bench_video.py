@@ -1,14 +1,17 @@
 """A 360 video localized as a tracked walk against frame-by-frame single images.
 
-Run: ``python bench/bench_video.py --root DEMO [--scene synthroom_1] [--frames 40] [--threads 2]``.
+Run: ``python bench/bench_video.py --root DEMO [--scene synthroom_1] [--frames 40] [--threads 2] [--single-every N]``.
 
 ``DEMO``: a synthetic dataset with maps (``ldlmap synth DEMO --preset demo`` then ``ldlmap prepare
 DEMO``). A walk is rendered in one room from its mesh (a loop around the room's middle at a walking
 speed of 1 m/s, 5 frames a second, the camera turning slowly, 1-2 degrees of tilt, motion blur
 along the way), encoded as an mp4 (PyAV), and localized twice on the same frames: as a tracked walk
 (:func:`ldlloc.walk.run.run_walk_video`: a search near the previous pose, global only when lost)
-and one frame at a time (:func:`ldlloc.batch.which_map.localize_on_maps`). Printed: frames a second,
-within 0.1 m / 5 deg, tracked frames, peak memory, the results write. Results: ``bench/video.json``.
+and one frame at a time (:func:`ldlloc.batch.which_map.localize_on_maps`; ``--single-every N``: every
+N-th frame only, both compared on those frames). Printed: frames a second (the whole walk, and its
+tracked frames alone: the median seconds from one frame's decoding to the next, and their stages),
+within 0.1 m / 5 deg, tracked frames (of them refined from lines alone), peak memory, the results
+write. Results: ``bench/video.json``.
 """
 
 from __future__ import annotations
@@ -51,6 +54,14 @@ def walk_poses(center0: np.ndarray, middle: np.ndarray, rot0: np.ndarray, n: int
     return out
 
 
+def walk_params(args):
+    """The video walk's parameters with the command line's tracking options."""
+    from ldlloc.walk.localize import VIDEO
+
+    return replace(VIDEO, tracking=replace(VIDEO.tracking, refine=args.track_refine, width=args.track_width,
+                                           lines=not args.no_track_lines))
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--root", required=True, help="synthetic dataset with maps (ldlmap synth + prepare)")
@@ -58,8 +69,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--frames", type=int, default=40)
     ap.add_argument("--width", type=int, default=1024)
     ap.add_argument("--threads", type=int, default=2)
-    ap.add_argument("--track-refine", default="light", help="tracked frames refined by: light | same | geometric")
+    ap.add_argument("--track-refine", default="light", help="the restricted search's poses refined by: light | same | "
+                    "geometric")
+    ap.add_argument("--track-width", type=int, default=512, help="tracked frames' lines extracted at this width (0: "
+                    "the frame's)")
+    ap.add_argument("--no-track-lines", action="store_true", help="track by the restricted search alone (no "
+                    "refinement of the prediction from lines)")
     ap.add_argument("--no-single", action="store_true", help="skip the single-image pass")
+    ap.add_argument("--single-every", type=int, default=1, help="the single-image pass on every N-th frame only")
     ap.add_argument("--output", default=str(HERE / "video.json"))
     args = ap.parse_args(argv)
     import cv2
@@ -75,7 +92,6 @@ def main(argv: list[str] | None = None) -> int:
     from ldlmap.synth.spec import load_spec
     from ldlloc.batch.which_map import MapSet, localize_on_maps
     from ldlloc.pipeline import LocalizeParams
-    from ldlloc.walk.localize import VIDEO
     from ldlloc.walk.run import run_walk_video
     from ldlloc.walk.video import decoded_frames, video_info, write_video
 
@@ -96,34 +112,55 @@ def main(argv: list[str] | None = None) -> int:
     params = LocalizeParams()
     maps = MapSet.load(map_path, params)
 
-    def accuracy(Rs, ts) -> int:
-        return int(sum(translation_error(t, gt[1]) < 0.1 and rotation_error_deg(R, gt[0]) < 5
-                       for R, t, gt in zip(Rs, ts, poses)))
+    def accuracy(Rs, ts, frames) -> int:
+        return int(sum(translation_error(t, poses[k][1]) < 0.1 and rotation_error_deg(R, poses[k][0]) < 5
+                       for R, t, k in zip(Rs, ts, frames)))
 
     out = HERE / ".cache" / "video" / "results.json"
     out.unlink(missing_ok=True)
-    t0 = time.perf_counter()
-    recs = run_walk_video(video, maps, out, params, replace(VIDEO, track_refine=args.track_refine))
+    ticks: list[tuple[float, bool, dict, float]] = []  # per frame: when its own localization ended, tracked,
+    # stages, the process's CPU seconds then (a busy machine stretches wall time, far less CPU time)
+    t0, c0 = time.perf_counter(), time.process_time()
+    recs = run_walk_video(video, maps, out, params, walk_params(args),
+                          progress=lambda r: ticks.append((time.perf_counter(), r.walk["tracked"], r.seconds,
+                                                           time.process_time())))
     walk_s = time.perf_counter() - t0
     recs = sorted(recs, key=lambda r: r.walk["frame"])
     tw = time.perf_counter()
     out.write_text(out.read_text())  # the one write of the walk's records, timed again
     write_s = time.perf_counter() - tw
-    walk_ok = accuracy([np.array(r.R) for r in recs], [np.array(r.t) for r in recs])
+    every = max(1, args.single_every)
+    sub = list(range(0, len(recs), every))
+    walk_ok = accuracy([np.array(recs[i].R) for i in sub], [np.array(recs[i].t) for i in sub], sub)
     tracked = sum(r.walk["tracked"] for r in recs)
+    by_lines = sum("refined from lines" in r.message for r in recs)
+    per_frame = np.diff([t0] + [t for t, _, _, _ in ticks])
+    cpu = np.diff([c0] + [c for _, _, _, c in ticks])
+    on_track = np.array([tr for _, tr, _, _ in ticks], dtype=bool)
+    stages = {k: float(np.median([sec.get(k, 0.0) for (_, tr, sec, _) in ticks if tr]) if on_track.any() else np.nan)
+              for k in ("lines2d", "refine", "confidence", "total")}
+    track_cpu = float(np.median(cpu[on_track])) if on_track.any() else float("nan")
     t0 = time.perf_counter()
     single = [] if args.no_single else [localize_on_maps(img, maps, None)[0]
-                                        for _, img in decoded_frames(video_info(video))]
+                                        for k, (_, img) in enumerate(decoded_frames(video_info(video))) if k % every == 0]
     single_s = time.perf_counter() - t0 if single else float("nan")
-    single_ok = accuracy([s.rot_cam_from_world for s in single], [s.center for s in single])
+    single_ok = accuracy([s.rot_cam_from_world for s in single], [s.center for s in single], sub)
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-    n = args.frames
+    n, m = args.frames, len(sub)
+    track_s = float(np.median(per_frame[on_track])) if on_track.any() else float("nan")
     res = {"frames": n, "width": args.width, "threads": args.threads, "track_refine": args.track_refine,
-           "walk": {"seconds": walk_s, "frames_per_s": n / walk_s, "within_0.1m_5deg": walk_ok, "tracked": tracked},
-           "single": {"seconds": single_s, "frames_per_s": n / single_s, "within_0.1m_5deg": single_ok},
+           "track_width": args.track_width, "compared_frames": m,
+           "walk": {"seconds": walk_s, "frames_per_s": n / walk_s, "within_0.1m_5deg": walk_ok, "tracked": tracked,
+                    "tracked_by_lines": by_lines, "tracked_frame_median_s": track_s, "tracked_stages_median_s": stages,
+                    "tracked_frame_median_cpu_s": track_cpu,
+                    "global_frames_s": float(per_frame[~on_track].sum())},
+           "single": {"seconds": single_s, "frames_per_s": m / single_s, "within_0.1m_5deg": single_ok},
            "peak_rss_mb": peak, "results_write_s": write_s, "results_bytes": out.stat().st_size}
-    print(f"tracked walk : {n / walk_s:.2f} frames/s, {walk_ok}/{n} within 0.1 m / 5 deg, {tracked} tracked")
-    print(f"single images: {n / single_s:.2f} frames/s, {single_ok}/{n} within 0.1 m / 5 deg")
+    print(f"tracked walk : {n / walk_s:.2f} frames/s ({n} frames, {walk_s:.1f} s), {tracked} tracked ({by_lines} "
+          f"refined from lines alone), tracked frames {1 / track_s:.1f} frames/s (median {track_s * 1000:.0f} ms: "
+          + ", ".join(f"{k} {v * 1000:.0f}" for k, v in stages.items()) + f" ms; CPU {track_cpu * 1000:.0f} ms), global frames "
+          f"{per_frame[~on_track].sum():.1f} s; {walk_ok}/{m} within 0.1 m / 5 deg")
+    print(f"single images: {m / single_s:.2f} frames/s, {single_ok}/{m} within 0.1 m / 5 deg")
     print(f"peak memory {peak:.0f} MB; the walk's results written once: {write_s * 1000:.1f} ms, "
           f"{out.stat().st_size / 1024:.0f} kB")
     Path(args.output).write_text(json.dumps(res, indent=1))

@@ -300,6 +300,7 @@ def test_video_is_tracked_frame_by_frame(video, demo_dataset, tmp_path):
     assert [r["walk"]["time"] for r in recs] == pytest.approx([k / 5 for k in range(6)], abs=1e-3)
     assert all(r["image"] == str(path) for r in recs)
     assert sum(r["walk"]["tracked"] for r in recs) >= 4  # found near the previous frame, not by a global search
+    assert sum("refined from lines" in r["message"] for r in recs) >= 3  # the prediction refined: no search
     for r, (R, t) in zip(recs, truth):
         assert translation_error(np.array(r["t"]), t) < 0.1 and rotation_error_deg(np.array(r["R"]), R) < 5, r["name"]
     half = tmp_path / "h.json"

@@ -1,11 +1,11 @@
 """Localize a walk: ``localize_walk(frames, maps, params) -> list[FrameOutcome]`` (offline: the whole walk).
 
 1. Each frame is localized alone (:func:`ldlloc.batch.which_map.localize_on_maps`: every map
-   searched, the best refined), or, with tracking on (dense frames: videos), first near the
-   previous frame's pose (:class:`ldlloc.pipeline.SearchNear`: translations within a radius,
-   rotations within a cone, on that pose's map), falling back to the global search when the
-   tracked pose is lost (not refined, or explaining fewer lines than ``track_keep`` of the last
-   global frame's). Its hypotheses (:mod:`ldlloc.walk.hypotheses`) are kept, not its image.
+   searched, the best refined), or, with tracking on (dense frames: videos), first near the pose
+   the walk predicts (:mod:`ldlloc.walk.track`: the prediction refined from lines, else a search
+   restricted to its neighbourhood), falling back to the global search when the tracked pose is
+   lost (not refined, or explaining too few of the lines the last global frame's pose explained).
+   Its hypotheses (:mod:`ldlloc.walk.hypotheses`) are kept, not its image.
 2. The most likely path over the hypotheses (:func:`ldlloc.walk.viterbi.best_path` with the
    motion model of :mod:`ldlloc.walk.motion`) chooses one pose per frame, with its margin.
 3. Where the path chose another pose than the image's own, the frame takes it: another map's
@@ -19,21 +19,22 @@ frame (the corridor it came out into) decide an earlier one (the copy of a room 
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Callable, Iterable
 
 import numpy as np
 
 from ldlmap.core.errors import InputError, LdlError
-from ldlloc.batch.which_map import TOP_MAPS, MapChoice, MapEntry, MapOption, MapSet, final_pose_loss, localize_on_maps
+from ldlloc.batch.which_map import TOP_MAPS, MapChoice, MapEntry, MapSet, final_pose_loss, localize_on_maps
 from ldlloc.confidence import distinct, walk_judgement
 from ldlloc.pipeline import Localization, Localizer, SearchNear
+from ldlloc.search.pose_search import score_on_map
 from ldlloc.walk.hypotheses import MAX_HYPOTHESES, Hypotheses, from_choice, joined
-from ldlloc.walk.motion import MotionParams, transition_costs
+from ldlloc.walk.motion import FreeSpace, MotionParams, transition_costs
+from ldlloc.walk.track import TorchThreads, TrackBasis, TrackParams, check_track_params, next_basis, predict, track
 from ldlloc.walk.viterbi import best_path, margin
 
 TIE_COST = 0.01  # nats: what a pose the image named as its competitor costs more than its own (ties: its own)
-TRACK_REFINES = ("light", "same", "geometric")
 MIN_FRAMES = 2  # a walk of one frame is a single image (the runs refuse it)
 
 
@@ -43,19 +44,15 @@ class WalkParams:
 
     motion: MotionParams = field(default_factory=MotionParams)
     top_maps: int = TOP_MAPS  # maps refined per frame after the ranking (several maps)
-    track: bool = False  # search near the previous frame's pose first (dense frames: videos)
-    track_radius_m: float = 0.75  # tracking: candidate translations within this of the previous pose ...
-    track_cone_deg: float = 15.0  # ... and candidate rotations within this of its rotation
-    track_keep: float = 0.8  # a tracked pose explaining fewer lines than this share of the last global frame's is lost
-    track_refine: str = "light"  # how a tracked pose is refined: light (features in one query frame, PnP on 2 views, no
-    # retrieval fallback: the tracked pose is near) | same (as the global localization) | geometric (lines alone)
-    # (docs/measurements.md#walks)
+    track: bool = False  # dense frames (videos): each frame first tracked near the walk's prediction
+    tracking: TrackParams = field(default_factory=TrackParams)  # how (ldlloc.walk.track)
     gap_radius_m: float = 4.5  # a frame whose image was not confident is searched again within this radius of the
     max_gap_radius_m: float = 12.0  # confident frames before and after it, times their distance in frames (at most
     # this)
     near_radius_m: float = 0.6  # a search pose the path chose is searched again within this radius ...
     near_cone_deg: float = 10.0  # ... and this cone, then refined
     max_hypotheses: int = MAX_HYPOTHESES
+    walls: bool = True  # no step through a wall: the maps' free space (ldlloc.walk.motion.FreeSpace)
 
 
 VIDEO = WalkParams(track=True, motion=MotionParams(turn_deg=30.0))  # a video: frames a few tenths of a second apart
@@ -82,6 +79,7 @@ class FrameOutcome:
     choice: MapChoice | None = None  # the frame's own (single-image or tracked) choice of map
     error: str | None = None  # why it failed
     tracked: bool = False  # found by tracking (else global)
+    track_basis: TrackBasis | None = None  # what the next frame's prediction starts from (tracking)
     single_confidence: float | None = None  # the image's own judgement
     single_verdict: str | None = None
     single_pose: tuple[np.ndarray, np.ndarray] | None = None  # (R, t) of the image's own pose
@@ -98,37 +96,48 @@ def localize_walk(frames: Iterable, maps: MapSet, params: WalkParams = WalkParam
     video's decoder: frames are read once, in order). ``progress(index, outcome)``: after each
     frame's own localization. A frame that cannot be localized gets its ``error`` and the walk goes
     on around it."""
-    if params.track_refine not in TRACK_REFINES:
-        raise InputError(f"unknown track_refine {params.track_refine!r}; valid: {', '.join(TRACK_REFINES)}")
+    check_track_params(params.tracking)
     index = {id(e): i for i, e in enumerate(maps.entries)}
     trackers: dict[int, Localizer] = {}  # the localizers tracked frames are refined with, per map
     outcomes: list[FrameOutcome] = []
-    ref_loss: float | None = None  # the last global frame's final loss: what a tracked pose must come near
-    for i, item in enumerate(frames):
-        out, ref_loss = localize_frame(item, outcomes[-1] if outcomes else None, maps, params, ref_loss, trackers,
-                                       index)
-        outcomes.append(out)
-        if progress:
-            progress(i, out)
+    ref_loss: float | None = None  # the last trusted global frame's loss: what a tracked pose must come near
+    threads = TorchThreads()
+    try:
+        for i, item in enumerate(frames):
+            out, ref_loss = localize_frame(item, outcomes[-1] if outcomes else None, maps, params, ref_loss,
+                                           trackers, index, threads)
+            outcomes.append(out)
+            if progress:
+                progress(i, out)
+    finally:
+        threads.restore()
     augment(outcomes, maps, params)
     decide(outcomes, maps, params)
     return outcomes
 
 
 def localize_frame(item, prev: FrameOutcome | None, maps: MapSet, params: WalkParams, ref_loss: float | None,
-                   trackers: dict[int, Localizer], index: dict[int, int]) -> tuple[FrameOutcome, float | None]:
-    """One frame's own localization (the first pass): tracked near ``prev`` (the frame before it) or
-    global, its hypotheses kept and its image dropped (:func:`lighten`). ``item``: a :class:`WalkFrame`
-    or a ``(WalkFrame, image)`` pair; ``ref_loss``: the last global frame's loss (returned updated);
-    ``index``: ``id(MapEntry) -> index``. A frame that cannot be localized gets its ``error``."""
+                   trackers: dict[int, Localizer], index: dict[int, int], threads: TorchThreads | None = None
+                   ) -> tuple[FrameOutcome, float | None]:
+    """One frame's own localization (the first pass): tracked from the walk's prediction (its basis
+    carried by ``prev``, the frame before it: :func:`ldlloc.walk.track.predict`) or global, its
+    hypotheses kept and its image dropped (:func:`lighten`). ``item``: a :class:`WalkFrame` or a
+    ``(WalkFrame, image)`` pair; ``ref_loss``: the last trusted global frame's loss (returned updated);
+    ``index``: ``id(MapEntry) -> index``; ``threads``: the walk's torch threads (None: this call's,
+    restored before it returns). A frame localized globally where the walk predicted a pose also
+    gets that pose as a hypothesis (its image may have failed: too few lines, motion blur). A frame
+    that cannot be localized gets its ``error``."""
     fr, img = item if isinstance(item, tuple) else (item, None)
     out = FrameOutcome(fr)
+    own_threads = threads is None
+    threads = TorchThreads() if threads is None else threads
+    pred = predict(prev, params.tracking) if params.track and prev is not None else None
     try:
         img = fr.load() if img is None else img
-        got = track(img, prev, fr, params, ref_loss, trackers) if params.track and prev is not None else None
+        got = track(img, pred, fr.max_tilt_deg, params.tracking, ref_loss, trackers, threads)
         if got is None:
+            threads.restore()
             loc, choice = localize_on_maps(img, maps, fr.max_tilt_deg, params.top_maps)
-            ref_loss = own_loss(choice)
         else:
             loc, choice = got
             out.tracked = True
@@ -137,10 +146,22 @@ def localize_frame(item, prev: FrameOutcome | None, maps: MapSet, params: WalkPa
         out.single_confidence, out.single_verdict = loc.confidence, loc.verdict
         out.single_pose = (np.asarray(loc.rot_cam_from_world, float), np.asarray(loc.center, float))
         out.competitors = list(loc.competitors)
+        if got is None and loc.verdict != "failed":
+            ref_loss = own_loss(choice)
+        if got is None and pred is not None:
+            loz = pred.entry.localizer
+            loss = score_on_map(loc.arcs, pred.rot_cam_from_world[None], pred.center[None], loz.map,
+                                loz.params.search, loz.device, loz.params.principal.group_tol)
+            out.hypotheses = joined(out.hypotheses, index[id(pred.entry)], pred.rot_cam_from_world[None],
+                                    pred.center[None], loss)
     except LdlError as exc:
         out.error = str(exc)
     except Exception as exc:  # noqa: BLE001 - one frame's failure (cv2.error, a decoder's), not the walk's
         out.error = f"internal error ({type(exc).__name__}: {exc})"
+    finally:
+        if own_threads:
+            threads.restore()
+    out.track_basis = next_basis(prev, out, params.tracking) if params.track else None
     lighten(out)
     return out, ref_loss
 
@@ -149,42 +170,6 @@ def own_loss(choice: MapChoice) -> float:
     """The loss of the chosen map's final pose (its exact loss; lower is better)."""
     o = choice.chosen
     return float(o.loss) if o.loss is not None else final_pose_loss(o.entry.localizer, o.loc)
-
-
-def tracker(entry: MapEntry, params: WalkParams, trackers: dict[int, Localizer]) -> Localizer:
-    """The localizer that refines tracked frames on ``entry``'s map (``track_refine``), made once."""
-    if params.track_refine == "same" or entry.localizer.refine_mode == "geometric":
-        return entry.localizer
-    if id(entry) not in trackers:
-        loz, p = entry.localizer, entry.localizer.params
-        if params.track_refine == "light":
-            p = replace(p, max_query_frames=1, refine=replace(p.refine, pnp_views=2,
-                                                              retrieval=replace(p.refine.retrieval, views=0)))
-        else:
-            p = replace(p, refine_mode="geometric")
-        trackers[id(entry)] = Localizer(loz.map, p, loz.device)
-    return trackers[id(entry)]
-
-
-def track(img: np.ndarray, prev: FrameOutcome, fr: WalkFrame, params: WalkParams,
-          ref_loss: float | None, trackers: dict[int, Localizer]) -> tuple[Localization, MapChoice] | None:
-    """The frame localized near ``prev``'s pose on its map, or None when it is lost there (no
-    previous pose, no candidate near it, a pose not refined or explaining too few lines)."""
-    if prev.loc is None or prev.entry is None or ref_loss is None:
-        return None
-    loz = tracker(prev.entry, params, trackers)
-    near = SearchNear(np.asarray(prev.loc.center, float), np.asarray(prev.loc.rot_cam_from_world, float),
-                      params.track_radius_m, params.track_cone_deg)
-    try:
-        s = loz.search(img, fr.max_tilt_deg, near=near)
-    except InputError:
-        return None
-    loc = loz.localize(img, fr.max_tilt_deg, searched=s)
-    loss = final_pose_loss(loz, loc)
-    if not loc.refined or loc.verdict == "failed" or loss > params.track_keep * ref_loss:
-        return None
-    opt = MapOption(prev.entry, float(s.best_loss), loc, loss=loss, searched=loc)
-    return loc, MapChoice(opt, [opt], seconds=dict(loc.seconds))
 
 
 def lighten(out: FrameOutcome) -> None:
@@ -274,16 +259,24 @@ def decide(outcomes: list[FrameOutcome], maps: MapSet, params: WalkParams) -> No
     live = [o for o in outcomes if o.hypotheses is not None and len(o.hypotheses)]
     if not live:
         return
-    path = walk_path(live, params)
+    path = walk_path(live, params, free=free_space(maps, params))
     for f, o in enumerate(live):
         settle(o, path.choice[f], path.marginals[f], maps, params)
         o.hypotheses = None  # not needed any more
 
 
-def walk_path(live: list[FrameOutcome], params: WalkParams, costs: dict | None = None):
+def free_space(maps: MapSet, params: WalkParams) -> FreeSpace | None:
+    """The free space of the walk's maps (:class:`ldlloc.walk.motion.FreeSpace`); None with ``walls`` off
+    or where the map set holds no maps (a stand-in without localizers)."""
+    found = [getattr(getattr(e, "localizer", None), "map", None) for e in maps.entries]
+    return FreeSpace.of_maps(found) if params.walls and found and None not in found else None
+
+
+def walk_path(live: list[FrameOutcome], params: WalkParams, costs: dict | None = None, free: FreeSpace | None = None):
     """The most likely path (:func:`ldlloc.walk.viterbi.best_path`) over ``live`` frames (each with
     hypotheses). ``costs``: a cache of emission and transition costs by hypotheses object, for
-    windows that overlap (:mod:`ldlloc.walk.stream`)."""
+    windows that overlap (:mod:`ldlloc.walk.stream`); ``free``: the maps' free space (no step through
+    a wall; None: walls not known)."""
     costs = {} if costs is None else costs
 
     def em(o: FrameOutcome) -> np.ndarray:
@@ -297,7 +290,8 @@ def walk_path(live: list[FrameOutcome], params: WalkParams, costs: dict | None =
         key = (id(a.hypotheses), id(b.hypotheses))
         if key not in costs:
             dt = None if a.frame.time is None or b.frame.time is None else b.frame.time - a.frame.time
-            costs[key] = (a.hypotheses, b.hypotheses, transition_costs(a.hypotheses, b.hypotheses, params.motion, dt))
+            costs[key] = (a.hypotheses, b.hypotheses,
+                          transition_costs(a.hypotheses, b.hypotheses, params.motion, dt, free))
         return costs[key][-1]
 
     return best_path([em(o) for o in live], trans)

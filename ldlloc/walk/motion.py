@@ -2,11 +2,19 @@
 
 A step costs nothing up to a free length (a tour: the metres between shots; a video: a walking
 speed times the frames' time apart), then its extra length over a step scale, capped at the jump
-cost: a jump of 8-12 m between two tour shots (a room skipped) is unlikely, not impossible. A change
+cost: a jump of 8-12 m between two tour shots (a room skipped) is unlikely, not impossible; frames
+close in time (``close_s``: a video's) skip no room: each free length more costs 1, up to ``blocked_cost``. A change
 of floor (a height change of :attr:`MotionParams.floor_dz_m` or more) costs more than any jump: floors change only on stairs
 or in a lift, rarely. With ``turn_deg`` (videos: the camera turns little between frames) a
 rotation costs its angle over it, capped the same way. Costs are negative log-likelihoods
 (nats), added to the frames' emission costs (:mod:`ldlloc.walk.hypotheses`).
+
+No step through a wall (:class:`FreeSpace`): where the maps know where a camera can stand (their
+candidate translations: a scan's free space kept clear of every surface, a layout's rooms and
+doorways), a step whose straight segment leaves that space (a wall between two rooms, the outside)
+costs a jump more than its length does (a tour's walker went round by a door: a detour);
+between frames close in time (a video's, ``close_s``) it is all but forbidden (``blocked_cost``):
+nobody walks through a wall in a fifth of a second.
 """
 
 from __future__ import annotations
@@ -14,6 +22,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+
+from ldlmap.core.lazy import lazy_module
+from ldlmap.map.translations import candidate_spacing
+
+ndimage = lazy_module("scipy.ndimage")
 
 
 @dataclass(frozen=True)
@@ -33,6 +46,8 @@ class MotionParams:
     # a confident pose in the wrong copy of a room, reached and left by jumps, still gives way)
     own_cost: float = 0.5  # ... or this when it was not, unless the image named that pose as its competitor (a copy
     # of a room it cannot tell from its own pose costs nothing more: the motion decides)
+    close_s: float = 2.0  # frames at most this far apart in time cannot stand on two sides of a wall ...
+    blocked_cost: float = 100.0  # ... a step through one costs this more (all but forbidden; tours: a jump more)
 
 
 def free_length(params: MotionParams, dt: float | None) -> float:
@@ -42,14 +57,88 @@ def free_length(params: MotionParams, dt: float | None) -> float:
     return max(params.min_free_m, params.speed_mps * float(dt))
 
 
-def transition_costs(prev, cur, params: MotionParams, dt: float | None = None) -> np.ndarray:
+def transition_costs(prev, cur, params: MotionParams, dt: float | None = None,
+                     free: "FreeSpace | None" = None) -> np.ndarray:
     """(H_prev, H_cur) costs of moving from each pose of ``prev`` to each of ``cur`` (both
-    :class:`ldlloc.walk.hypotheses.Hypotheses`); ``dt``: their time apart in seconds (None: unknown)."""
+    :class:`ldlloc.walk.hypotheses.Hypotheses`); ``dt``: their time apart in seconds (None: unknown);
+    ``free``: where the maps let a camera stand (None: no walls known)."""
     d = prev.center[:, None, :] - cur.center[None, :, :]
     dist = np.linalg.norm(d, axis=2)
-    cost = np.clip((dist - free_length(params, dt)) / params.step_m, 0.0, params.jump_cost)
+    close = dt is not None and np.isfinite(dt) and 0 <= dt <= params.close_s
+    free_m = free_length(params, dt)
+    # frames close in time skip no room: no jump; each free length more than a walker covers costs 1
+    cap, scale = (params.blocked_cost, min(free_m, params.step_m)) if close else (params.jump_cost, params.step_m)
+    cost = np.clip((dist - free_m) / scale, 0.0, cap)
     if params.turn_deg is not None:
         c = np.einsum("aij,bij->ab", prev.rot_cam_from_world, cur.rot_cam_from_world)  # trace(Ra^T Rb)
         ang = np.degrees(np.arccos(np.clip((c - 1.0) / 2.0, -1.0, 1.0)))
-        cost = np.minimum(cost + ang / params.turn_deg, params.jump_cost)
-    return np.where(np.abs(d[:, :, 2]) >= params.floor_dz_m, params.floor_cost, cost)
+        cost = np.minimum(cost + ang / params.turn_deg, cap)
+    if free is not None:  # through a wall: a jump more (the way round by a door), between close frames forbidden
+        wall = params.blocked_cost if close else params.jump_cost
+        cost = np.where(free.blocked(prev.center, prev.map_index, cur.center, cur.map_index),
+                        cost + wall, cost)
+    return np.where(np.abs(d[:, :, 2]) >= params.floor_dz_m, np.maximum(cost, params.floor_cost), cost)
+
+
+REACH = 1.0  # a point within this many candidate spacings of a candidate is free space: a gap of two spacings is
+# bridged (a doorway narrower than the spacing may hold no candidate), a wider one is a wall (a scan's wall and the
+# clearance on both sides of it: 0.2 m + 2 x 0.25 m at a 0.3 m spacing)
+CELLS_PER_SPACING = 4  # the grid's cell: a quarter of the smallest candidate spacing
+MAX_CELLS = 40_000_000  # the grid's cells over all maps (coarser cells beyond: memory bounded)
+MAX_SAMPLES = 4_000_000  # segment points looked up at once
+
+
+class FreeSpace:
+    """Where a camera can stand on each map of a walk, in the maps' common frame: the xy of its
+    candidate translations, each grown by ``REACH`` times the map's candidate spacing, rasterized
+    on one grid (``CELLS_PER_SPACING`` cells to the smallest spacing). :meth:`blocked` tells the steps that leave it."""
+
+    def __init__(self, translations: list[np.ndarray]):
+        T = [np.unique(np.asarray(t, dtype=np.float64).reshape(-1, 3)[:, :2].round(4), axis=0)
+             for t in translations]  # their xy (a scan's candidates stand at several heights)
+        spacing = [candidate_spacing(np.c_[t, np.zeros(len(t))]) for t in T]
+        every = np.concatenate(T)
+        self.reach = [REACH * max(s, 1e-3) for s in spacing]
+        self.lo = every.min(0) - max(self.reach) - 1e-6
+        span = every.max(0) + max(self.reach) + 1e-6 - self.lo
+        cell = max(min(self.reach) / (REACH * CELLS_PER_SPACING), 0.01)
+        cell = max(cell, float(np.sqrt(np.prod(span) * len(T) / MAX_CELLS)))
+        self.cell, self.shape = cell, tuple(int(v) for v in np.ceil(span / cell).astype(int) + 1)
+        self.masks = np.stack([self._mask(t, r) for t, r in zip(T, self.reach)])  # (M, X, Y) bool
+
+    @classmethod
+    def of_maps(cls, maps: list) -> "FreeSpace | None":
+        """The free space of these maps (:class:`ldlmap.map.contents.LdlMap`); None when one has fewer than two
+        candidate translations (nothing to tell a wall by)."""
+        T = [np.asarray(m.translations, dtype=np.float64).reshape(-1, 3) for m in maps]
+        return cls(T) if T and all(len(t) >= 2 for t in T) else None
+
+    def _mask(self, xy: np.ndarray, reach: float) -> np.ndarray:
+        marked = np.zeros(self.shape, dtype=bool)
+        ij = np.floor((xy - self.lo) / self.cell).astype(int)
+        marked[ij[:, 0], ij[:, 1]] = True
+        return ndimage.distance_transform_edt(~marked) * self.cell <= reach + self.cell * 0.71  # + a cell's half diagonal
+
+    def blocked(self, a: np.ndarray, map_a: np.ndarray, b: np.ndarray, map_b: np.ndarray) -> np.ndarray:
+        """(P, Q) whether the straight step from each ``a`` (P, 3) on map ``map_a`` (P,) to each ``b``
+        (Q, 3) on ``map_b`` leaves the free space of both maps somewhere between its ends (its points
+        a cell apart; the ends themselves are where the poses are: not judged)."""
+        a, b = np.asarray(a, float)[:, :2], np.asarray(b, float)[:, :2]
+        P, Q = len(a), len(b)
+        longest = float(np.max(np.linalg.norm(a[:, None] - b[None], axis=2))) if P and Q else 0.0
+        n = int(np.ceil(longest / self.cell))
+        if n < 2:
+            return np.zeros((P, Q), dtype=bool)
+        f = np.arange(1, n) / n  # interior points
+        out = np.zeros((P, Q), dtype=bool)
+        rows = max(1, MAX_SAMPLES // max(1, Q * len(f)))
+        for s in range(0, P, rows):  # chunks of the previous frame's poses: memory bounded
+            pts = a[s:s + rows, None, None] + f[None, None, :, None] * (b[None, :, None] - a[s:s + rows, None, None])
+            ij = np.floor((pts - self.lo) / self.cell).astype(int)
+            inside = np.all((ij >= 0) & (ij < np.array(self.shape)), axis=-1)
+            ij = np.where(inside[..., None], ij, 0)
+            ma = np.asarray(map_a)[s:s + rows, None, None]
+            mb = np.asarray(map_b)[None, :, None]
+            free = inside & (self.masks[ma, ij[..., 0], ij[..., 1]] | self.masks[mb, ij[..., 0], ij[..., 1]])
+            out[s:s + rows] = ~free.all(-1)
+        return out

@@ -37,8 +37,8 @@ from ldlmap.core.errors import InputError
 from ldlloc.batch.which_map import MapSet
 from ldlloc.record import QueryResult
 from ldlloc.walk.hypotheses import Hypotheses
-from ldlloc.walk.localize import (FrameOutcome, WalkFrame, WalkParams, augment_frame, is_anchor, localize_frame,
-                                  needs_more, settle, walk_path)
+from ldlloc.walk.localize import (FrameOutcome, WalkFrame, WalkParams, augment_frame, free_space, is_anchor,
+                                  localize_frame, needs_more, settle, walk_path)
 
 LAG = 100  # frames: a frame is decided once this many after it are localized (a walk of lag + 1 frames or fewer:
 # decided as a whole, offline); its window also holds this many before it
@@ -110,6 +110,7 @@ class WalkStream:
         self.anchor, self.finals = r.anchor, dict(r.finals)
         self.slots: deque[Slot] = deque()
         self.costs: dict = {}
+        self.free = free_space(maps, params)  # no step through a wall
 
     def push(self, item) -> list[list[Slot]]:
         """Localize the next frame (a :class:`WalkFrame` or ``(WalkFrame, image)``); the blocks decided now."""
@@ -171,7 +172,7 @@ class WalkStream:
         live = ([self.anchor] if self.anchor is not None else []) + window
         if self.anchor is not None:
             self.costs[id(self.anchor.hypotheses)] = (self.anchor.hypotheses, np.zeros(1))
-        path = walk_path(live, self.params, self.costs)
+        path = walk_path(live, self.params, self.costs, self.free)
         for k, o in enumerate(live):
             if id(o) in mine:
                 settle(o, path.choice[k], path.marginals[k], self.maps, self.params)

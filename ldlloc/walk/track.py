@@ -1,0 +1,268 @@
+"""Tracking a dense walk (a video): each frame localized near where the walk predicts it.
+
+Three steps, cheapest first, each checked before the frame takes its pose:
+
+1. **Lines from the prediction** (:func:`track_by_lines`): the pose predicted from the last two
+   frames (constant velocity, :func:`predict`) is refined from the frame's lines alone
+   (:func:`ldlloc.refine.geometric.refine_and_keep`, a short refinement: few rounds from a small
+   association angle), the lines extracted at a reduced width (``TrackParams.width``). No
+   vanishing points, no candidate rotations, no search, no features.
+2. **A restricted search** (:func:`track_by_search`): the map's candidate translations within
+   ``radius_m`` of the prediction and its candidate rotations within ``cone_deg`` (the distance
+   fields subset, not the full search filtered), refined as ``TrackParams.refine`` says.
+3. Neither holds: the caller localizes the frame globally.
+
+A tracked pose holds when it was refined and explains at least ``TrackParams.keep`` of the lines
+that the last trusted global frame's pose explained (its exact line loss; the losses of lines
+found at different widths compare: docs/measurements.md#walks).
+
+The prediction needs the walk's last trusted pose and velocity only: each frame carries them
+(:class:`TrackBasis`, :func:`next_basis`) for the next, so a walk decided as a stream
+(:mod:`ldlloc.walk.stream`) tracks from the frame before alone.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from ldlmap.core.errors import InputError
+from ldlmap.core.frame import is_identity
+from ldlmap.core.lazy import lazy_module
+from ldlloc.batch.which_map import MapChoice, MapEntry, MapOption, final_pose_loss
+from ldlloc.confidence import NO_CONTENDER_MARGIN, assess
+from ldlloc.lines2d import filter_by_length, query_keep_ratio
+from ldlloc.pipeline import Localization, Localizer, QueryLines, SearchNear, rotation_prior_name
+from ldlloc.refine.geometric import refine_and_keep
+
+cv2 = lazy_module("cv2")
+torch = lazy_module("torch")
+
+TRACK_REFINES = ("light", "same", "geometric")
+
+
+@dataclass(frozen=True)
+class TrackParams:
+    """How the frames of a dense walk are tracked (module docstring)."""
+
+    lines: bool = True  # first refine the predicted pose from lines alone (step 1)
+    width: int = 512  # step 1 extracts the lines at this width (a wider frame is resized; 0: as it is)
+    rounds: int = 4  # step 1's association rounds ...
+    assoc_deg: float = 6.0  # ... from this association angle, the rotation free from the first (the prediction is
+    # a few degrees and centimetres off)
+    radius_m: float = 0.75  # step 2: candidate translations within this of the prediction ...
+    cone_deg: float = 15.0  # ... and candidate rotations within this of its rotation
+    refine: str = "light"  # how step 2's pose is refined: light (features in one query frame, PnP on 2 views, no
+    # retrieval fallback: the tracked pose is near) | same (as the global localization) | geometric (lines alone)
+    keep: float = 0.7  # a tracked pose explaining fewer lines than this share of the last global frame's is lost
+    max_step_m: float = 0.75  # a step (per frame) longer than this is not extrapolated (the last pose is the prediction)
+    lookback: int = 5  # frames back to the last trusted pose (a frame that failed is not tracked from)
+
+
+class TorchThreads:
+    """torch's CPU threads switched lazily: one while frames are tracked from lines (a pose and a hundred
+    lines: more threads only wait on each other, 3-10 times slower on a busy 2-core machine:
+    docs/measurements.md#walks), the caller's count again before a search or a global localization
+    (switching costs about 10 ms: only when the kind of work changes). :meth:`restore` at the end."""
+
+    def __init__(self) -> None:
+        self.caller: int | None = None  # the caller's count while switched to one
+
+    def one(self) -> None:
+        if self.caller is None:
+            self.caller = torch.get_num_threads()
+            if self.caller != 1:
+                torch.set_num_threads(1)
+
+    def restore(self) -> None:
+        if self.caller is not None:
+            if self.caller != 1:
+                torch.set_num_threads(self.caller)
+            self.caller = None
+
+
+def check_track_params(p: TrackParams) -> None:
+    """One-line InputError for an unknown refinement of the restricted search."""
+    if p.refine not in TRACK_REFINES:
+        raise InputError(f"unknown track refine {p.refine!r}; valid: {', '.join(TRACK_REFINES)}")
+
+
+@dataclass(frozen=True)
+class Prediction:
+    """Where the walk expects its next frame: a pose on one map, from ``frames`` frames after the last trusted one."""
+
+    entry: MapEntry
+    rot_cam_from_world: np.ndarray
+    center: np.ndarray
+    frames: int  # 1: the last frame was trusted
+    last: tuple[np.ndarray, np.ndarray]  # the last trusted pose (R, t)
+
+
+@dataclass(frozen=True)
+class TrackBasis:
+    """What a frame hands on to the next one's prediction: the walk's last trusted pose (on ``entry``'s
+    map), its velocity per frame (``step`` metres, ``turn`` a rotation; None: not known) and the
+    frames since that pose (0: this frame's own)."""
+
+    entry: MapEntry
+    rot_cam_from_world: np.ndarray
+    center: np.ndarray
+    step: np.ndarray | None = None
+    turn: np.ndarray | None = None
+    since: int = 0
+
+
+def trusted(o) -> bool:
+    """Whether a frame's pose may be tracked from: tracked, or localized globally and not ``failed``
+    (a frame read back from a results file to resume a walk: its pose and map only)."""
+    return (getattr(o, "loc", None) is not None and getattr(o, "entry", None) is not None
+            and (getattr(o, "tracked", False) or getattr(o, "single_verdict", None) != "failed"))
+
+
+def basis_of(prev) -> TrackBasis | None:
+    """The basis frame ``prev`` hands on: its own (:func:`next_basis`), else its pose as it is (a frame
+    read back from a results file to resume a walk), else None."""
+    b = getattr(prev, "track_basis", None)
+    if b is not None or not trusted(prev):
+        return b
+    return TrackBasis(prev.entry, np.asarray(prev.loc.rot_cam_from_world, float), np.asarray(prev.loc.center, float))
+
+
+def next_basis(prev, out, p: TrackParams) -> TrackBasis | None:
+    """The basis frame ``out`` hands on (``prev``: the frame before it): a trusted frame's own pose with
+    the velocity since the last trusted pose (on the same map, at most ``max_step_m`` a frame; its turn
+    when that pose was the frame before); else the last basis one frame older (None beyond ``lookback``)."""
+    b = basis_of(prev) if prev is not None else None
+    if not trusted(out):
+        return None if b is None or b.since + 1 >= p.lookback else replace(b, since=b.since + 1)
+    R, t = np.asarray(out.loc.rot_cam_from_world, float), np.asarray(out.loc.center, float)
+    if b is None or b.entry is not out.entry:
+        return TrackBasis(out.entry, R, t)
+    k = b.since + 1
+    step = (t - b.center) / k
+    if np.linalg.norm(step) > p.max_step_m:
+        return TrackBasis(out.entry, R, t)
+    return TrackBasis(out.entry, R, t, step, R @ b.rot_cam_from_world.T if k == 1 else None)
+
+
+def predict(prev, p: TrackParams) -> Prediction | None:
+    """The pose of the frame after ``prev`` (the walk's last frame): its basis (:func:`next_basis`) moved
+    on at the walk's velocity for every frame since (constant velocity: a video's kept frames are
+    evenly spaced; the turn too when known); without a velocity the basis pose itself. None without
+    a basis (no trusted frame in the last ``lookback``)."""
+    b = basis_of(prev)
+    if b is None:
+        return None
+    k = b.since + 1
+    R, t = b.rot_cam_from_world, b.center
+    if b.step is None:
+        return Prediction(b.entry, R, t, k, (R, t))
+    Rp = R
+    if b.turn is not None:  # the same turn again, kept a rotation
+        U, _, Vt = np.linalg.svd(np.linalg.matrix_power(b.turn, k) @ R)
+        Rp = U @ Vt
+    return Prediction(b.entry, Rp, t + k * b.step, k, (R, t))
+
+
+def starts(pred: Prediction) -> tuple[np.ndarray, np.ndarray]:
+    """The poses step 1 refines, (S, 3, 3) and (S, 3): the prediction, and the last trusted pose
+    when it is another (a velocity that a wrong pose skewed must not carry the walk away)."""
+    R, t = pred.last
+    if np.allclose(R, pred.rot_cam_from_world) and np.allclose(t, pred.center):
+        return pred.rot_cam_from_world[None], pred.center[None]
+    return np.stack([pred.rot_cam_from_world, R]), np.stack([pred.center, t])
+
+
+def tracking_lines(img: np.ndarray, loz: Localizer, width: int) -> QueryLines:
+    """The frame's 2D lines at ``width`` (a wider frame resized with area averaging; 0: as it is)."""
+    if 0 < width < img.shape[1]:
+        img = cv2.resize(img, (int(width), int(width) // 2), interpolation=cv2.INTER_AREA)
+    return loz.detect_lines(img)
+
+
+def track_by_lines(img: np.ndarray, pred: Prediction, p: TrackParams, ref_loss: float,
+                   max_tilt_deg: float | None = None) -> tuple[Localization, MapChoice] | None:
+    """Step 1: the predicted pose refined on its map from the frame's lines alone; None when the
+    refinement was not kept or its pose explains too few lines (:class:`TrackParams`)."""
+    entry = pred.entry
+    loz, m = entry.localizer, entry.localizer.map
+    tick = time.perf_counter()
+    lines = tracking_lines(img, loz, p.width)
+    secs = {"lines2d": time.perf_counter() - tick}
+    arcs = filter_by_length(lines.arcs, query_keep_ratio(m.kept_ratio, loz.params.lines2d))
+    R0, t0 = starts(pred)
+    geo = replace(loz.params.geometric, rounds=p.rounds, assoc_deg=p.assoc_deg, fixed_rotation_rounds=0, wide_poses=0)
+    tick = time.perf_counter()
+    g, kept, loss = refine_and_keep(arcs, R0, t0, m.nearest_translation(t0), len(t0), m, geo,
+                                    loz.params.search, loz.device, loz.params.principal.group_tol)
+    secs["refine"] = time.perf_counter() - tick
+    k = int(np.argmin(np.where(kept, loss, np.inf)))
+    if not kept[k] or loss[k] > p.keep * ref_loss:
+        return None
+    R, t = g.rotations[k], g.centers[k]
+    loc = Localization(R, t, R0[k], t0[k], R[None], t[None], secs, num_rotations=0, num_lines=len(arcs), refined=True,
+                       num_matches=int(g.matched[k]), refine_method="geometric",
+                       refine_residual_deg=float(g.residual_deg[k]), arcs=arcs,
+                       candidates_loss=np.array([loss[k]]), rotation_prior=rotation_prior_name(max_tilt_deg),
+                       input_to_map=None if is_identity(m.input_to_map) else m.input_to_map,
+                       selection_margin=NO_CONTENDER_MARGIN,
+                       message=f"tracked: the {('predicted', 'last')[k]} pose refined from lines ({int(g.matched[k])} "
+                               f"line points, median residual {float(g.residual_deg[k]):.2f} deg)")
+    tick = time.perf_counter()
+    assess(loc, m, support_deg=loz.params.geometric.support_deg)
+    secs["confidence"] = time.perf_counter() - tick
+    secs["total"] = sum(secs.values())
+    opt = MapOption(entry, float(loss[k]), loc, loss=float(loss[k]), searched=loc)
+    return loc, MapChoice(opt, [opt], seconds=dict(secs))
+
+
+def restricted_localizer(entry: MapEntry, refine: str, cache: dict[int, Localizer]) -> Localizer:
+    """The localizer that refines step 2's poses on ``entry``'s map (``refine``: :class:`TrackParams`), made once."""
+    if refine == "same" or entry.localizer.refine_mode == "geometric":
+        return entry.localizer
+    if id(entry) not in cache:
+        loz, p = entry.localizer, entry.localizer.params
+        if refine == "light":
+            p = replace(p, max_query_frames=1, refine=replace(p.refine, pnp_views=2,
+                                                              retrieval=replace(p.refine.retrieval, views=0)))
+        else:
+            p = replace(p, refine_mode="geometric")
+        cache[id(entry)] = Localizer(loz.map, p, loz.device)
+    return cache[id(entry)]
+
+
+def track_by_search(img: np.ndarray, pred: Prediction, p: TrackParams, ref_loss: float,
+                    max_tilt_deg: float | None, cache: dict[int, Localizer]) -> tuple[Localization, MapChoice] | None:
+    """Step 2: the frame searched near the predicted pose on its map and refined; None when no
+    candidate lies there or the pose is not refined, failed, or explains too few lines."""
+    entry = pred.entry
+    loz = restricted_localizer(entry, p.refine, cache)
+    near = SearchNear(pred.center, pred.rot_cam_from_world, p.radius_m * pred.frames, p.cone_deg)
+    try:
+        s = loz.search(img, max_tilt_deg, near=near)
+    except InputError:
+        return None
+    loc = loz.localize(img, max_tilt_deg, searched=s)
+    loss = final_pose_loss(loz, loc)
+    if not loc.refined or loc.verdict == "failed" or loss > p.keep * ref_loss:
+        return None
+    opt = MapOption(entry, float(s.best_loss), loc, loss=loss, searched=loc)
+    return loc, MapChoice(opt, [opt], seconds=dict(loc.seconds))
+
+
+def track(img: np.ndarray, pred: Prediction | None, max_tilt_deg: float | None, p: TrackParams,
+          ref_loss: float | None, cache: dict[int, Localizer], threads: TorchThreads
+          ) -> tuple[Localization, MapChoice] | None:
+    """The frame tracked from the walk's prediction ``pred``: step 1, else step 2 (module docstring);
+    None when there is nothing to track from (no prediction, no trusted global frame yet) or both fail."""
+    if pred is None or ref_loss is None:
+        return None
+    if p.lines and pred.frames == 1:  # after a lost frame the prediction is too loose for a short refinement
+        threads.one()
+        got = track_by_lines(img, pred, p, ref_loss, max_tilt_deg)
+        if got is not None:
+            return got
+    threads.restore()
+    return track_by_search(img, pred, p, ref_loss, max_tilt_deg, cache)
