@@ -13,12 +13,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from ldlmap.lines3d.principal import line_directions
+from ldlmap.lines3d.principal import HORIZONTAL_DEG, line_directions
 
 DEFAULT_CAMERA_HEIGHT = (0.3, 2.2)  # metres above a floor: a person's or a robot's camera, by default
 BAND_LEVEL_SPACING_M = 0.65  # maps without a scan: lattice levels in a band at most this far apart in height (three
 # over the default band: 0.62, 1.25, 1.88 m); measured against 0.3 and 0.5 in docs/benchmarks.md (layout maps)
-VERTICAL_DEG = 10.0  # a line within this of the z axis is vertical
 LEVEL_BIN_M = 0.1  # bottom ends are histogrammed in bins of this height (a level: a bin and its neighbours)
 FLOOR_SHARE = 0.15  # a floor holds at least this share of the vertical lines' bottom-end length
 MIN_STOREY_M = 2.0  # a second floor stands at least this far above the one below it
@@ -29,7 +28,7 @@ def find_floors(lines: np.ndarray) -> np.ndarray:
     """The floors' heights (z, ascending, at least one) of 3D segments (N, 2, 3) in a z-up frame."""
     L = np.asarray(lines, dtype=np.float64).reshape(-1, 2, 3)
     d, length = line_directions(L)
-    vertical = (np.abs(d[:, 2]) >= np.cos(np.radians(VERTICAL_DEG))) & (length > 0)
+    vertical = (np.abs(d[:, 2]) >= np.cos(np.radians(HORIZONTAL_DEG))) & (length > 0)  # the same tolerance
     if not vertical.any():
         return np.array([float(np.percentile(L[..., 2], LOW_PERCENTILE))])
     bottoms, w = L[vertical, :, 2].min(1), length[vertical]

@@ -115,7 +115,7 @@ def stored_distances(h5, stored: np.ndarray, path: Path) -> np.ndarray:
     if stored.dtype != np.uint8:
         return stored
     quantum = _attr_value(h5["fields"], "distance_quantum", "float", path)
-    if quantum is None or not 0 < quantum * 255 ** 2 <= 4:
+    if not 0 < quantum * 255 ** 2 <= 4:  # a missing attribute is refused by _attr_value
         raise InputError(f"corrupt LDL map {path}: uint8 distance fields need a /fields distance_quantum in (0, 4 / 255**2], "
                          f"got {quantum!r}")
     return dequantized_distances(stored, quantum)
