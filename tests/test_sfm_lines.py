@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import shutil
 
+import cv2
 import numpy as np
 import pytest
 from typer.testing import CliRunner
@@ -16,8 +17,8 @@ from typer.testing import CliRunner
 from ldlmap.cli import app as map_app
 from ldlmap.core.errors import InputError
 from ldlmap.lines3d import line_precision_recall
-from ldlmap.sfm.photo_lines import (_Segments, detect_segments, join_segments, reconstruct_lines, refine_with_planes,
-                                    robust_extent, segment_support, triangulate_pair)
+from ldlmap.sfm.photo_lines import (_Segments, detect_segments, join_segments, read_gray, reconstruct_lines,
+                                    refine_with_planes, robust_extent, segment_support, triangulate_pair)
 
 pytestmark = pytest.mark.xdist_group("sfm_lines")  # one worker photographs the room (``workspace``)
 runner = CliRunner()
@@ -204,3 +205,18 @@ def test_model_without_photos_or_dense_cloud(workspace, tmp_path) -> None:
     (tmp_path / "lines.txt").write_text("# ldl lines v1\n0 0 0 1 0 0\n0 0 0 0 1 0\n0 0 0 0 0 1\n")
     assert "COLMAP" in _one_error_line(runner.invoke(map_app, ["build", str(tmp_path / "lines.txt"), "--images",
                                                                str(tmp_path / "empty")]))
+
+
+def test_read_gray_takes_any_file_name_and_skips_bad_photos(tmp_path) -> None:
+    """A photo whose name is not ASCII is read (OpenCV's own file reading fails on some); a missing
+    or damaged photo is skipped (None), not a crash."""
+    img = np.zeros((60, 80, 3), np.uint8)
+    img[20:40, 30:50] = 200
+    good = tmp_path / "café_é.jpg"
+    ok, data = cv2.imencode(".jpg", img)
+    good.write_bytes(data.tobytes())
+    gray = read_gray(good, 40)
+    assert gray is not None and gray.shape == (30, 40) and gray.max() > gray.min()
+    assert read_gray(tmp_path / "missing.jpg", 40) is None
+    (tmp_path / "damaged.jpg").write_bytes(data.tobytes()[: len(data) // 3])
+    assert read_gray(tmp_path / "damaged.jpg", 40) is None

@@ -43,6 +43,7 @@ from ldlmap.core.imageproc import stretch_contrast
 from ldlmap.core.lazy import lazy_module
 from ldlmap.core.timing import StageClock
 from ldlmap.io.colmap import ColmapViews, read_colmap_views
+from ldlmap.io.imagefile import read_image
 from ldlmap.lines3d import merge_collinear
 
 cv2 = lazy_module("cv2")
@@ -100,7 +101,10 @@ def read_gray(path: Path, max_size: int, size_hint: int = 0) -> np.ndarray | Non
     None when it cannot be read. ``size_hint``: the photo's longer side when known (the camera's):
     a large JPEG is then decoded at a reduced scale directly."""
     r = max([k for k in _REDUCED if size_hint >= k * max_size], default=1)
-    img = cv2.imread(str(path), getattr(cv2, _REDUCED[r]) if r > 1 else cv2.IMREAD_GRAYSCALE)
+    try:  # through Python's open(): any file name; a missing or damaged photo is skipped
+        img = read_image(path, getattr(cv2, _REDUCED[r]) if r > 1 else cv2.IMREAD_GRAYSCALE)
+    except (OSError, InputError):
+        return None
     if img is None:
         return None
     s = min(1.0, max_size / max(img.shape))
