@@ -137,7 +137,6 @@ def test_bad_lag_is_one_line(demo_dataset, tmp_path, args, why):
 
 @pytest.mark.parametrize("args, why", [
     (["--images", "{demo}/robot", "--walk"], "--images --walk is one walk, localized in this process: drop --ray"),
-    (["--video", "v.mp4"], "--video is one walk, localized in this process: drop --ray"),
 ])
 def test_one_walk_on_ray_is_one_line(demo_dataset, tmp_path, args, why):
     args = [a.replace("{demo}", str(demo_dataset)) for a in args]
@@ -168,11 +167,11 @@ def _fake_frames(n: int, copies: int = 2) -> tuple[list, dict]:
 class _Loc:
     def __init__(self, h: Hypotheses):
         self.rot_cam_from_world, self.center, self.refined = h.rot_cam_from_world[0], h.center[0], True
-        self.confidence, self.verdict, self.competitors = 0.5, "ambiguous", []
+        self.confidence, self.verdict, self.competitors, self.message = 0.5, "ambiguous", [], ""
 
 
 def _fake_localize(hyps: dict, held: list, streams: list):
-    def localize_frame(item, prev, maps, params, ref_loss, trackers, index):
+    def localize_frame(item, prev, maps, params, ref_loss, trackers, index, threads=None):
         h = hyps[item.name]
         loc = _Loc(h)
         out = FrameOutcome(item, loc=loc, entry=_ENTRY, hypotheses=h, single_confidence=0.5,

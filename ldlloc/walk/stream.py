@@ -39,6 +39,7 @@ from ldlloc.record import QueryResult
 from ldlloc.walk.hypotheses import Hypotheses
 from ldlloc.walk.localize import (FrameOutcome, WalkFrame, WalkParams, augment_frame, free_space, is_anchor,
                                   localize_frame, needs_more, settle, walk_path)
+from ldlloc.walk.track import TorchThreads, is_lost
 
 LAG = 100  # frames: a frame is decided once this many after it are localized (a walk of lag + 1 frames or fewer:
 # decided as a whole, offline); its window also holds this many before it
@@ -111,15 +112,17 @@ class WalkStream:
         self.slots: deque[Slot] = deque()
         self.costs: dict = {}
         self.free = free_space(maps, params)  # no step through a wall
+        self.threads = TorchThreads(pinned=True)  # torch on one thread for the whole walk (:meth:`close`)
 
     def push(self, item) -> list[list[Slot]]:
         """Localize the next frame (a :class:`WalkFrame` or ``(WalkFrame, image)``); the blocks decided now."""
         i = self.next
         self.next += 1
         prev = self.slots[-1].out if self.slots else self.prev
+        self.threads.one()
         out, self.ref_loss = localize_frame(item, prev, self.maps, self.params, self.ref_loss, self.trackers,
-                                            self.index)
-        slot = Slot(i, out, self.ref_loss, self.confident, needs_more(out), i < self.written)
+                                            self.index, self.threads)
+        slot = Slot(i, out, self.ref_loss, self.confident, needs_more(out) and not is_lost(out.loc), i < self.written)
         if is_anchor(out):
             here = (i, out.entry, np.asarray(out.loc.center, float))
             for s in self.slots:
@@ -143,6 +146,10 @@ class WalkStream:
         while self.decide_next < self.next:
             done.append(self._decide_block())
         return [b for b in done if b]
+
+    def close(self) -> None:
+        """Give torch's threads back to the caller (the walk ended or was abandoned)."""
+        self.threads.release()
 
     def _augment(self, s: Slot, after: list[tuple]) -> None:
         near = ([s.before] if s.before is not None else []) + after
@@ -200,11 +207,14 @@ def stream_walk(frames: Iterable, maps: MapSet, params: WalkParams, lag: int = L
     called with the walk's frame count once its frames are all localized, before the last ones are
     decided (it may refuse the walk). Write a block at once: a kill then leaves whole blocks."""
     stream = WalkStream(maps, params, lag, resume, progress, block)
-    for item in frames:
-        yield from _handed_on(stream.push(item))
-    if at_end is not None:
-        at_end(stream.next)
-    yield from _handed_on(stream.finish())
+    try:
+        for item in frames:
+            yield from _handed_on(stream.push(item))
+        if at_end is not None:
+            at_end(stream.next)
+        yield from _handed_on(stream.finish())
+    finally:
+        stream.close()
 
 
 def _handed_on(blocks: list[list[Slot]]) -> Iterator[list[Slot]]:
