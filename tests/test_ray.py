@@ -339,6 +339,7 @@ def test_videos_on_ray_one_actor_each_killed_then_resumed(cluster, demo_dataset,
     after it handed back its first block, with no restart left: the run ends with one error line and
     the records written; `--resume` completes every walk, and the file equals an uninterrupted run's
     but for the timings."""
+    from dataclasses import replace
     from ldlloc.batch import ray_run
     from ldlloc.walk.localize import VIDEO
     from ldlloc.pipeline import LocalizeParams
@@ -356,10 +357,11 @@ def test_videos_on_ray_one_actor_each_killed_then_resumed(cluster, demo_dataset,
             killed.append(event.worker.pid)
 
     monkeypatch.setattr(ray_run, "RETRIES", 0)  # no restart: the walk stops where it was killed
-    meta = {"dataset": "video", "maps": str(demo_dataset / "maps" / "synthroom_1.h5"), "top_maps": 3}
+    meta = {k: json.loads(plain.read_text())["meta"][k] for k in ("dataset", "maps", "top_maps")}  # as the CLI's
     with pytest.raises(LdlError, match="the walk of a stopped .*--resume"):
         ray_run.run_video_walks_ray(sorted(two_videos.glob("*.mp4")), demo_dataset / "maps" / "synthroom_1.h5", out,
-                                    LocalizeParams(), VIDEO, meta=meta, progress=progress, lag=1)
+                                    LocalizeParams(), replace(VIDEO, top_maps=meta["top_maps"]), meta=meta,
+                                    progress=progress, lag=1)
     assert killed
     first = read_results_data(out)["queries"]
     frames = {w: sorted(q["walk"]["frame"] for q in first if q["walk"]["name"] == w) for w in ("a", "b")}

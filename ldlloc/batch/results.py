@@ -204,11 +204,19 @@ def option_differences(old: dict[str, Any], new: dict[str, Any]) -> list[str]:
     return diffs
 
 
-def light_record(r: QueryResult) -> QueryResult:
-    """``r`` without what only its JSON line needs (the candidates but the first, the competitors,
-    confidence signals and map scores): what :class:`ResultsWriter` keeps in memory for the summary,
-    the CSV and a resumed walk, a quarter of the whole record."""
-    return replace(r, candidates=r.candidates[:1], competitors=[], confidence_signals=None, map_scores=None)
+WALK_KEPT = ("name", "frame")  # a walk record's fields a run reads back from the records it added itself
+
+
+def light_record(r: QueryResult, resumed: bool = True) -> QueryResult:
+    """``r`` without what only its JSON line needs (the candidates, but an empty one standing for them:
+    the summary counts the records that have candidates; the competitors, confidence signals, map
+    scores and message): what :class:`ResultsWriter` keeps in memory for the summary, the CSV and a
+    resumed walk (the whole records are on disk only). ``resumed`` false (a record added by the run
+    itself, not read back from the file): its ``walk`` only its name and frame (a walk resumes from
+    the records read when the file was opened)."""
+    walk = r.walk if resumed or r.walk is None else {k: r.walk.get(k) for k in WALK_KEPT}
+    return replace(r, candidates=[{}] if r.candidates else [], competitors=[], confidence_signals=None,
+                   map_scores=None, message="", walk=walk)
 
 
 def _dict_differences(a: dict, b: dict, prefix: str = "") -> list[str]:
@@ -355,7 +363,7 @@ class ResultsWriter:
         for r in latest.values():
             self._results.pop(r.name, None)
             self._where.pop(r.name, None)
-            self._results[r.name] = light_record(r)
+            self._results[r.name] = light_record(r, resumed=False)
             self._pending[r.name] = record_json(r)
             if r.picture_error:
                 self.warn_once("picture", f"picture of {r.name} not written ({r.picture_error}); its result is "

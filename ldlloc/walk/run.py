@@ -30,7 +30,7 @@ from ldlloc.batch.which_map import MapSet
 from ldlloc.pipeline import LocalizeParams, load_image
 from ldlloc.walk.localize import MIN_FRAMES, FrameOutcome, WalkFrame, WalkParams
 from ldlloc.walk.order import natural_key, ordered
-from ldlloc.walk.stream import LAG, Resume, Slot, resume_state, stream_walk
+from ldlloc.walk.stream import LAG, Resume, Slot, basis_record, resume_state, stream_walk
 from ldlloc.walk.track import is_lost
 from ldlloc.walk.video import check_sampling, decoded_frames, frame_at, video_info
 
@@ -39,14 +39,15 @@ def walk_fields(slot: Slot, walk: str) -> dict:
     """A frame's ``walk`` record: the walk's name, the frame's index and time, whether the walk
     decided it, the image's own verdict, confidence, pose and map, the path margin (nats),
     tracking (``lost``: tracking lost the frame, its pose the walk's prediction:
-    :func:`ldlloc.walk.track.is_lost`), and the last global frame's loss (what a resumed walk's
-    tracking goes on from)."""
+    :func:`ldlloc.walk.track.is_lost`; ``basis``: what the next frame's prediction starts from), and
+    the last global frame's loss (what a resumed walk's tracking goes on from)."""
     out = slot.out
     m = out.walk_margin
     return {"name": walk, "frame": slot.index, "time": out.frame.time, "walk_decided": bool(out.walk_decided),
             "single_verdict": out.single_verdict, "single_confidence": out.single_confidence,
             "margin": None if m is None else (round(m, 4) if m != float("inf") else "inf"), "tracked": out.tracked,
             "lost": is_lost(out.loc),
+            "basis": basis_record(out.track_basis),
             "single_pose": None if out.single_pose is None else {"R": out.single_pose[0].tolist(),
                                                                   "t": out.single_pose[1].tolist()},
             "single_map": None if out.choice is None else str(out.choice.chosen.entry.path),
