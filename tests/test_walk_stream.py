@@ -172,6 +172,9 @@ class _Loc:
 
 def _fake_localize(hyps: dict, held: list, streams: list):
     def localize_frame(item, prev, maps, params, ref_loss, trackers, index, threads=None):
+        if threads is not None:  # as the tracker does: one thread for a line refinement, back before a search
+            threads.one()
+            threads.restore()
         h = hyps[item.name]
         loc = _Loc(h)
         out = FrameOutcome(item, loc=loc, entry=_ENTRY, hypotheses=h, single_confidence=0.5,
@@ -231,3 +234,22 @@ def test_a_walk_shorter_than_the_lag_is_decided_as_a_whole(monkeypatch):
                                      o.hypotheses.rot_cam_from_world, o.hypotheses.center))
                for m, o in zip(path.marginals, live)]
     assert np.allclose([g[1] for g in got], margins) and min(margins) > 0
+
+
+def test_torch_threads_are_switched_once_per_walk(monkeypatch):
+    """The walk runs torch on one thread, switched at its start and given back at its end: not twice a
+    frame (about 11 ms a frame with a caller's 2 threads)."""
+    import torch
+    from ldlloc.walk import track
+
+    before = torch.get_num_threads()
+    torch.set_num_threads(2)
+    calls = []
+    real = torch.set_num_threads
+    track.torch.get_num_threads  # noqa: B018 - loaded: the module's names copied in, then one replaced
+    monkeypatch.setattr(track.torch, "set_num_threads", lambda n: calls.append(n) or real(n))
+    try:
+        got, _ = _streamed(monkeypatch, 60, 10)
+        assert len(got) == 60 and calls == [1, 2] and torch.get_num_threads() == 2
+    finally:
+        real(before)
