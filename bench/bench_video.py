@@ -11,7 +11,8 @@ and one frame at a time (:func:`ldlloc.batch.which_map.localize_on_maps`; ``--si
 N-th frame only, both compared on those frames). Printed: frames a second (the whole walk, and its
 tracked frames alone: the median seconds from one frame's decoding to the next, and their stages),
 within 0.1 m / 5 deg (all frames, and the compared ones), tracked, lost and global frames, peak memory, the results
-write. Results: ``bench/video.json``.
+write. ``--repeat N``: the rendered walk played N times in a row as one video (a long walk without
+rendering it; each loop jumps back to the start). Results: ``bench/video.json``.
 """
 
 from __future__ import annotations
@@ -75,6 +76,8 @@ def main(argv: list[str] | None = None) -> int:
                     "the frame's)")
     ap.add_argument("--no-track-lines", action="store_true", help="track by the restricted search alone (no "
                     "refinement of the prediction from lines)")
+    ap.add_argument("--repeat", type=int, default=1, help="the rendered walk played this many times in a row (a long "
+                    "video without rendering it: the loop jumps back to its start each time)")
     ap.add_argument("--no-single", action="store_true", help="skip the single-image pass")
     ap.add_argument("--single-every", type=int, default=1, help="the single-image pass on every N-th frame only")
     ap.add_argument("--output", default=str(HERE / "video.json"))
@@ -108,6 +111,12 @@ def main(argv: list[str] | None = None) -> int:
         write_video(video, (render.render(R, t, args.width, supersample=1, blur_px=2.0, blur_angle=0.0).rgb
                             for R, t in poses), fps=FPS)
         print(f"rendered and encoded {args.frames} frames ({args.width} px) in {time.perf_counter() - t0:.1f} s")
+    if args.repeat > 1:  # the same frames again and again, one video (decoded and encoded once, cached)
+        looped = video.with_name(f"{video.stem}_x{args.repeat}.mp4")
+        if not looped.exists():
+            write_video(looped, (img for _ in range(args.repeat) for _, img in decoded_frames(video_info(video))),
+                        fps=FPS)
+        video, poses = looped, poses * args.repeat
     print(f"video: {video}")
     params = LocalizeParams()
     maps = MapSet.load(map_path, params)
@@ -150,7 +159,7 @@ def main(argv: list[str] | None = None) -> int:
     single_s = time.perf_counter() - t0 if single else float("nan")
     single_ok = accuracy([s.rot_cam_from_world for s in single], [s.center for s in single], sub)
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-    n, m = args.frames, len(sub)
+    n, m = len(poses), len(sub)
     track_s = float(np.median(per_frame[on_track])) if on_track.any() else float("nan")
     res = {"frames": n, "width": args.width, "threads": args.threads, "track_refine": args.track_refine,
            "track_width": args.track_width, "compared_frames": m,
