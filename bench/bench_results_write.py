@@ -132,7 +132,7 @@ def walk_frame(i: int, maps):
     h = Hypotheses(rng.integers(0, 2, 48), rots, centers, np.r_[-60.0, rng.uniform(-55, -10, 47)],
                    np.r_[True, np.zeros(47, bool)])
     loc = type("Loc", (), {"rot_cam_from_world": rots[0], "center": centers[0], "refined": True, "confidence": 0.9,
-                           "verdict": "confident", "competitors": []})()
+                           "verdict": "confident", "competitors": [], "message": ""})()
     return FrameOutcome(None, loc=loc, entry=maps.entries[0], hypotheses=h, single_confidence=0.9,
                         single_verdict="confident", single_pose=(rots[0], centers[0]))
 

@@ -10,8 +10,9 @@ along the way), encoded as an mp4 (PyAV), and localized twice on the same frames
 and one frame at a time (:func:`ldlloc.batch.which_map.localize_on_maps`; ``--single-every N``: every
 N-th frame only, both compared on those frames). Printed: frames a second (the whole walk, and its
 tracked frames alone: the median seconds from one frame's decoding to the next, and their stages),
-within 0.1 m / 5 deg, tracked frames (of them refined from lines alone), peak memory, the results
-write. Results: ``bench/video.json``.
+within 0.1 m / 5 deg (all frames, and the compared ones), tracked, lost and global frames, peak memory, the results
+write. ``--repeat N``: the rendered walk played N times in a row as one video (a long walk without
+rendering it; each loop jumps back to the start). Results: ``bench/video.json``.
 """
 
 from __future__ import annotations
@@ -75,6 +76,8 @@ def main(argv: list[str] | None = None) -> int:
                     "the frame's)")
     ap.add_argument("--no-track-lines", action="store_true", help="track by the restricted search alone (no "
                     "refinement of the prediction from lines)")
+    ap.add_argument("--repeat", type=int, default=1, help="the rendered walk played this many times in a row (a long "
+                    "video without rendering it: the loop jumps back to its start each time)")
     ap.add_argument("--no-single", action="store_true", help="skip the single-image pass")
     ap.add_argument("--single-every", type=int, default=1, help="the single-image pass on every N-th frame only")
     ap.add_argument("--output", default=str(HERE / "video.json"))
@@ -108,6 +111,12 @@ def main(argv: list[str] | None = None) -> int:
         write_video(video, (render.render(R, t, args.width, supersample=1, blur_px=2.0, blur_angle=0.0).rgb
                             for R, t in poses), fps=FPS)
         print(f"rendered and encoded {args.frames} frames ({args.width} px) in {time.perf_counter() - t0:.1f} s")
+    if args.repeat > 1:  # the same frames again and again, one video (decoded and encoded once, cached)
+        looped = video.with_name(f"{video.stem}_x{args.repeat}.mp4")
+        if not looped.exists():
+            write_video(looped, (img for _ in range(args.repeat) for _, img in decoded_frames(video_info(video))),
+                        fps=FPS)
+        video, poses = looped, poses * args.repeat
     print(f"video: {video}")
     params = LocalizeParams()
     maps = MapSet.load(map_path, params)
@@ -116,7 +125,7 @@ def main(argv: list[str] | None = None) -> int:
         return int(sum(translation_error(t, poses[k][1]) < 0.1 and rotation_error_deg(R, poses[k][0]) < 5
                        for R, t, k in zip(Rs, ts, frames)))
 
-    out = HERE / ".cache" / "video" / "results.json"
+    out = HERE / ".cache" / "video" / f"results_{Path(args.output).stem}.json"  # a run of its own per --output
     out.unlink(missing_ok=True)
     ticks: list[tuple[float, bool, dict, float]] = []  # per frame: when its own localization ended, tracked,
     # stages, the process's CPU seconds then (a busy machine stretches wall time, far less CPU time)
@@ -124,7 +133,7 @@ def main(argv: list[str] | None = None) -> int:
     recs = run_walk_video(video, maps, out, params, walk_params(args),
                           progress=lambda r: ticks.append((time.perf_counter(), r.walk["tracked"], r.seconds,
                                                            time.process_time())))
-    walk_s = time.perf_counter() - t0
+    walk_s, walk_cpu = time.perf_counter() - t0, time.process_time() - c0
     recs = sorted(recs, key=lambda r: r.walk["frame"])
     tw = time.perf_counter()
     out.write_text(out.read_text())  # the one write of the walk's records, timed again
@@ -132,7 +141,11 @@ def main(argv: list[str] | None = None) -> int:
     every = max(1, args.single_every)
     sub = list(range(0, len(recs), every))
     walk_ok = accuracy([np.array(recs[i].R) for i in sub], [np.array(recs[i].t) for i in sub], sub)
+    posed = [i for i, r in enumerate(recs) if r.R is not None]
+    all_ok = accuracy([np.array(recs[i].R) for i in posed], [np.array(recs[i].t) for i in posed], posed)
     tracked = sum(r.walk["tracked"] for r in recs)
+    lost = sum(bool(r.walk.get("lost")) for r in recs)
+    global_frames = len(recs) - tracked - lost
     by_lines = sum("refined from lines" in r.message for r in recs)
     per_frame = np.diff([t0] + [t for t, _, _, _ in ticks])
     cpu = np.diff([c0] + [c for _, _, _, c in ticks])
@@ -146,17 +159,22 @@ def main(argv: list[str] | None = None) -> int:
     single_s = time.perf_counter() - t0 if single else float("nan")
     single_ok = accuracy([s.rot_cam_from_world for s in single], [s.center for s in single], sub)
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-    n, m = args.frames, len(sub)
+    n, m = len(poses), len(sub)
     track_s = float(np.median(per_frame[on_track])) if on_track.any() else float("nan")
     res = {"frames": n, "width": args.width, "threads": args.threads, "track_refine": args.track_refine,
            "track_width": args.track_width, "compared_frames": m,
-           "walk": {"seconds": walk_s, "frames_per_s": n / walk_s, "within_0.1m_5deg": walk_ok, "tracked": tracked,
+           "walk": {"seconds": walk_s, "cpu_s": walk_cpu, "frames_per_s": n / walk_s, "frames_per_cpu_s": n / walk_cpu,
+                    "within_0.1m_5deg": walk_ok, "all_within_0.1m_5deg": all_ok, "tracked": tracked, "lost": lost,
+                    "global": global_frames,
                     "tracked_by_lines": by_lines, "tracked_frame_median_s": track_s, "tracked_stages_median_s": stages,
                     "tracked_frame_median_cpu_s": track_cpu,
                     "global_frames_s": float(per_frame[~on_track].sum())},
            "single": {"seconds": single_s, "frames_per_s": m / single_s, "within_0.1m_5deg": single_ok},
            "peak_rss_mb": peak, "results_write_s": write_s, "results_bytes": out.stat().st_size}
-    print(f"tracked walk : {n / walk_s:.2f} frames/s ({n} frames, {walk_s:.1f} s), {tracked} tracked ({by_lines} "
+    print(f"tracked walk : {n / walk_s:.2f} frames/s ({n} frames, {walk_s:.1f} s; CPU {walk_cpu:.1f} s: "
+          f"{n / walk_cpu:.2f} frames per CPU s), {all_ok}/{n} within 0.1 m / 5 deg; {global_frames} global, {lost} lost "
+          "(the prediction, no search)")
+    print(f"             : {tracked} tracked ({by_lines} "
           f"refined from lines alone), tracked frames {1 / track_s:.1f} frames/s (median {track_s * 1000:.0f} ms: "
           + ", ".join(f"{k} {v * 1000:.0f}" for k, v in stages.items()) + f" ms; CPU {track_cpu * 1000:.0f} ms), global frames "
           f"{per_frame[~on_track].sum():.1f} s; {walk_ok}/{m} within 0.1 m / 5 deg")

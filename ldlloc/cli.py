@@ -26,8 +26,10 @@ WALK = typer.Option(False, "--walk", help="The panoramas are one walk (a capture
                     "per folder of maps), in capture order (ZInD: the panorama number).")
 ORDER = typer.Option(None, "--order", help="--images --walk: name (natural file-name order, the default) | time "
                      "(EXIF capture time).")
-VIDEO = typer.Option(None, "--video", help="An equirectangular video (mp4, mov, ...) localized as one walk, tracked "
-                     "frame to frame (needs --maps; ldlloc/walk/video.py).")
+VIDEO = typer.Option(None, "--video", metavar="FILE|DIR|GLOB", help="An equirectangular video (mp4, mov, ...) "
+                     "localized as one walk, tracked frame to frame (needs --maps; ldlloc/walk/video.py); a folder "
+                     "of videos or a quoted glob, or --video repeated: one walk per video (with --ray, one actor "
+                     "each), into one results file.")
 FPS = typer.Option(None, "--fps", help="--video: frames a second to localize (at most the video's rate; default: "
                    "every frame).")
 EVERY = typer.Option(None, "--every", metavar="N", help="--video: every N-th frame.")
@@ -151,7 +153,7 @@ def run(
     ray: Optional[str] = ray_option(),
     walk: bool = WALK,
     order: Optional[str] = ORDER,
-    video: Optional[Path] = VIDEO,
+    video: Optional[list[str]] = VIDEO,
     fps: Optional[float] = FPS,
     every: Optional[int] = EVERY,
     lag: Optional[int] = LAG,
@@ -160,7 +162,7 @@ def run(
     --images, your own panoramas against a map or a folder of maps (which map: --top-maps).
 
     With --ray, one Ray actor per scene map serves its queries (one GPU each with --device cuda);
-    with --images, one actor per Ray CPU slot holds all the maps; with --walk, one actor per walk."""
+    with --images, one actor per Ray CPU slot holds all the maps; with --walk or --video, one actor per walk."""
     method = _method(top_k, loss, no_decompose, no_refine, privacy, features, weights, max_tilt, refine, query_frame)
     run_command.run(images, root, dataset, map_level, split, scene, scene_unknown, maps, output, method, top_maps,
                     device, resume, resume_any_options, save_vis, overwrite, threads, ray, walk, order, video, fps,

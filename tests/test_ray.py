@@ -306,3 +306,68 @@ def test_walks_on_ray_equal_the_plain_run_also_resumed(cluster, demo_dataset, tm
     assert _csv_without_timings(on_ray.with_suffix(".csv")) == _csv_without_timings(plain.with_suffix(".csv"))
     walks = {q["walk"]["name"] for q in json.loads(on_ray.read_text())["queries"]}
     assert walks == {"synthroom_1", "synthroom_2"}
+
+
+@pytest.fixture(scope="module")
+def two_videos(demo_dataset, tmp_path_factory) -> Path:
+    """A folder of two 5 fps videos (512 x 256) in demo room 1: ``a.mp4`` walks 0.1 m a frame towards the
+    room's middle for 14 frames, turning 3 degrees a frame; ``b.mp4`` is its first 6 frames."""
+    import numpy as np
+    from ldlmap.core.geometry import rotation_from_axis_angle
+    from ldlmap.datasets import open_dataset
+    from ldlmap.map.mapfile import read_map
+    from ldlmap.synth.render import Renderer
+    from ldlmap.synth.scene import build_scene
+    from ldlmap.synth.spec import load_spec
+    from ldlloc.walk.video import write_video
+
+    q = [q for q in open_dataset(demo_dataset, "omniscenes").queries(["robot"]) if q.scene == "synthroom_1"][0]
+    middle = read_map(demo_dataset / "maps" / "synthroom_1.h5", load_cloud=False).translations.mean(0)
+    step = (middle - q.center) * [1, 1, 0]
+    step = 0.1 * step / np.linalg.norm(step)
+    render = Renderer(build_scene(load_spec(demo_dataset / "specs" / "synthroom_1.toml")))
+    frames = [render.render(q.rot_cam_from_world @ rotation_from_axis_angle(np.array([0, 0, 1.0]), np.radians(3 * k)),
+                            q.center + k * step, 512, supersample=1).rgb for k in range(14)]
+    folder = tmp_path_factory.mktemp("videos")
+    write_video(folder / "a.mp4", iter(frames), fps=5)
+    write_video(folder / "b.mp4", iter(frames[:6]), fps=5)
+    return folder
+
+
+def test_videos_on_ray_one_actor_each_killed_then_resumed(cluster, demo_dataset, two_videos, tmp_path, monkeypatch):
+    """`run --video DIR --ray`: one actor per video; the actor of the longer walk is killed (SIGKILL)
+    after it handed back its first block, with no restart left: the run ends with one error line and
+    the records written; `--resume` completes every walk, and the file equals an uninterrupted run's
+    but for the timings."""
+    from dataclasses import replace
+    from ldlloc.batch import ray_run
+    from ldlloc.walk.localize import VIDEO
+    from ldlloc.pipeline import LocalizeParams
+    from ldlmap.core.errors import LdlError
+
+    base = ["run", "--video", str(two_videos), "--maps", str(demo_dataset / "maps" / "synthroom_1.h5"), "--lag", "1"]
+    plain, out = tmp_path / "plain.json", tmp_path / "ray.json"
+    res = runner.invoke(loc_app, [*base, "--output", str(plain)])
+    assert res.exit_code == 0, res.output
+    killed: list[int] = []
+
+    def progress(event) -> None:
+        if not killed and event.label.startswith("a:") and event.worker is not None:
+            os.kill(event.worker.pid, signal.SIGKILL)
+            killed.append(event.worker.pid)
+
+    monkeypatch.setattr(ray_run, "RETRIES", 0)  # no restart: the walk stops where it was killed
+    meta = {k: json.loads(plain.read_text())["meta"][k] for k in ("dataset", "maps", "top_maps")}  # as the CLI's
+    with pytest.raises(LdlError, match="the walk of a stopped .*--resume"):
+        ray_run.run_video_walks_ray(sorted(two_videos.glob("*.mp4")), demo_dataset / "maps" / "synthroom_1.h5", out,
+                                    LocalizeParams(), replace(VIDEO, top_maps=meta["top_maps"]), meta=meta,
+                                    progress=progress, lag=1)
+    assert killed
+    first = read_results_data(out)["queries"]
+    frames = {w: sorted(q["walk"]["frame"] for q in first if q["walk"]["name"] == w) for w in ("a", "b")}
+    assert frames["b"] == list(range(6)) and 0 < len(frames["a"]) < 14 and frames["a"] == list(range(len(frames["a"])))
+    res = runner.invoke(loc_app, [*base, "--output", str(out), "--resume"])
+    assert res.exit_code == 0, res.output
+    assert without_timings(out) == without_timings(plain)
+    names = [q["name"] for q in json.loads(out.read_text())["queries"]]
+    assert names == [f"a/{k:06d}" for k in range(14)] + [f"b/{k:06d}" for k in range(6)]

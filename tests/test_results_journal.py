@@ -186,7 +186,9 @@ def test_a_full_disk_while_the_json_is_rewritten_names_it(tmp_path, monkeypatch)
     w = ResultsWriter(path, meta={"device": "cpu", "dataset": "images"})
     w.add(result(0))
     full = OSError(28, "No space left on device")
-    monkeypatch.setattr(Path, "write_text", lambda self, *a, **k: (_ for _ in ()).throw(full))
+    opened = Path.open  # the JSON is written record by record through Path.open
+    monkeypatch.setattr(Path, "open", lambda self, mode="r", *a, **k: (_ for _ in ()).throw(full) if "w" in mode
+                        else opened(self, mode, *a, **k))
     with pytest.raises(LdlError, match=rf"no space left on device writing {path} .*--resume"):
         w.finish()
     monkeypatch.undo()

@@ -137,7 +137,6 @@ def test_bad_lag_is_one_line(demo_dataset, tmp_path, args, why):
 
 @pytest.mark.parametrize("args, why", [
     (["--images", "{demo}/robot", "--walk"], "--images --walk is one walk, localized in this process: drop --ray"),
-    (["--video", "v.mp4"], "--video is one walk, localized in this process: drop --ray"),
 ])
 def test_one_walk_on_ray_is_one_line(demo_dataset, tmp_path, args, why):
     args = [a.replace("{demo}", str(demo_dataset)) for a in args]
@@ -168,11 +167,14 @@ def _fake_frames(n: int, copies: int = 2) -> tuple[list, dict]:
 class _Loc:
     def __init__(self, h: Hypotheses):
         self.rot_cam_from_world, self.center, self.refined = h.rot_cam_from_world[0], h.center[0], True
-        self.confidence, self.verdict, self.competitors = 0.5, "ambiguous", []
+        self.confidence, self.verdict, self.competitors, self.message = 0.5, "ambiguous", [], ""
 
 
 def _fake_localize(hyps: dict, held: list, streams: list):
-    def localize_frame(item, prev, maps, params, ref_loss, trackers, index):
+    def localize_frame(item, prev, maps, params, ref_loss, trackers, index, threads=None):
+        if threads is not None:  # as the tracker does: one thread for a line refinement, back before a search
+            threads.one()
+            threads.restore()
         h = hyps[item.name]
         loc = _Loc(h)
         out = FrameOutcome(item, loc=loc, entry=_ENTRY, hypotheses=h, single_confidence=0.5,
@@ -232,3 +234,22 @@ def test_a_walk_shorter_than_the_lag_is_decided_as_a_whole(monkeypatch):
                                      o.hypotheses.rot_cam_from_world, o.hypotheses.center))
                for m, o in zip(path.marginals, live)]
     assert np.allclose([g[1] for g in got], margins) and min(margins) > 0
+
+
+def test_torch_threads_are_switched_once_per_walk(monkeypatch):
+    """The walk runs torch on one thread, switched at its start and given back at its end: not twice a
+    frame (about 11 ms a frame with a caller's 2 threads)."""
+    import torch
+    from ldlloc.walk import track
+
+    before = torch.get_num_threads()
+    torch.set_num_threads(2)
+    calls = []
+    real = torch.set_num_threads
+    track.torch.get_num_threads  # noqa: B018 - loaded: the module's names copied in, then one replaced
+    monkeypatch.setattr(track.torch, "set_num_threads", lambda n: calls.append(n) or real(n))
+    try:
+        got, _ = _streamed(monkeypatch, 60, 10)
+        assert len(got) == 60 and calls == [1, 2] and torch.get_num_threads() == 2
+    finally:
+        real(before)

@@ -1,6 +1,6 @@
 """``ldlloc run --ray``: one Ray actor per scene map serves its queries (:func:`run_queries_ray`);
 ``--images``: actors that hold every map (:func:`run_images_ray`); ``--walk``: one actor per walk
-(:func:`run_walks_ray`).
+(:func:`run_walks_ray`); ``--video`` (several): one actor per video (:func:`run_video_walks_ray`).
 
 Each :class:`SceneLocalizer` actor reads its scene's map once (the scene not given,
 ``--scene-unknown``: one actor per scene folder, holding that folder's maps), where it runs (a shared
@@ -36,7 +36,8 @@ from ldlloc.batch.which_map import MapSet
 from ldlloc.pipeline import LocalizeParams
 from ldlloc.record import QueryResult
 from ldlloc.walk.localize import WalkParams
-from ldlloc.walk.run import DatasetWalk, walk_groups, walk_maps, walk_meta, walk_records, written_whole
+from ldlloc.walk.run import (DatasetWalk, VideoWalk, video_meta, video_order, video_records, walk_groups, walk_maps,
+                             walk_meta, walk_records, written_whole)
 from ldlloc.walk.stream import LAG
 from ldlmap.core.cli_common import set_threads
 from ldlmap.core.errors import LdlError
@@ -257,8 +258,10 @@ def run_walks_ray(queries: list, maps_dir: str | Path, output: str | Path, param
 
 
 def _walks_on_ray(ray, writer: ResultsWriter, jobs: list, params: LocalizeParams, device: str,
-                  progress: Callable[[TaskDone], None] | None, threads: int) -> None:
-    """The body of :func:`run_walks_ray`: start the actors, write their records as they come."""
+                  progress: Callable[[TaskDone], None] | None, threads: int) -> list[str]:
+    """The body of :func:`run_walks_ray`: start the actors, write their records as they come. Returns
+    what stopped the walks whose actor died past its retries and that left no record of it (a video's)."""
+    stopped: list[str] = []
     actor_cls = ray.remote(WalkLocalizer).options(**check_resources(ray, device, max(1, threads)),
                                                   max_restarts=RETRIES, max_task_retries=RETRIES)
     total = sum(len(job.queries) for job, _ in jobs)
@@ -274,8 +277,9 @@ def _walks_on_ray(ray, writer: ResultsWriter, jobs: list, params: LocalizeParams
                     got, done, worker = ray.get(ref)
                 except ray.exceptions.RayError as exc:
                     why = failure_reason(exc)
-                    got, done, worker = [failed_result(q, params, why) for q in job.queries
-                                         if q.name not in written], True, None
+                    got, done, worker = job.failed(why, written), True, None
+                    if not got:  # nothing to record it by (a video's frames not decoded): said at the end
+                        stopped.append(f"the walk of {job.key} stopped ({why})")
                 new = [r for r in got if r.name not in written]
                 writer.extend(new)
                 written.update(r.name for r in new)
@@ -289,3 +293,27 @@ def _walks_on_ray(ray, writer: ResultsWriter, jobs: list, params: LocalizeParams
     except BaseException:  # Ctrl-C included: what arrived is written; stop the rest
         stop(list(refs), list(actors.values()))
         raise
+    return stopped
+
+
+def run_video_walks_ray(videos: list, maps: str | Path, output: str | Path, params: LocalizeParams, walk: WalkParams,
+                        fps: float | None = None, every: int | None = None, device: str = "cpu", resume: bool = False,
+                        meta: dict | None = None, progress: Callable[[TaskDone], None] | None = None,
+                        address: str = "local", threads: int = 1, any_options: bool = False,
+                        say: Callable[[str], None] | None = None, lag: int = LAG) -> list[QueryResult]:
+    """:func:`ldlloc.walk.run.run_walk_videos` on a Ray cluster: one :class:`WalkLocalizer` actor per video
+    (:class:`ldlloc.walk.run.VideoWalk`, never split), its records written by the driver as they come and
+    put in the plain run's order at the end. A walk whose actor died past its retries leaves its frames
+    not yet written out, and the run is not finished: a one-line error after the other walks end
+    (``--resume`` goes on from the last written frame)."""
+    meta = {**(meta or {}), **video_meta(videos, fps, every), "walk": walk_meta("time", walk, lag)}
+    with open_results(output, params, device, meta, resume, any_options, [], say) as writer:
+        jobs = [(VideoWalk(v, str(maps), params, walk, fps, every, lag, device),
+                 video_records(writer, Path(v).stem) if resume else None) for v in videos]
+        with ray_session(address) as ray:
+            stopped = _walks_on_ray(ray, writer, jobs, params, device, progress, threads)
+        if stopped:
+            raise LdlError(f"{'; '.join(stopped)}: the records written are kept (continue with --resume)")
+        video_order(writer, [job.key for job, _ in jobs])
+        writer.finish()
+        return writer.results

@@ -42,6 +42,8 @@ from ldlmap.core.errors import (FormatVersionError, InputError, LdlError, WriteE
                                 require_file)
 
 
+_IN_JSON, _IN_JOURNAL = 0, 1  # where a record's line of JSON is (ResultsWriter._where)
+_JOURNAL_LINE = '{"query": '  # a journal line: this, the record's JSON, "}" and a newline
 RESULTS_FORMAT_VERSION = 1  # top-level "format_version" of a results file (absent: written before it, read as 1)
 OPTION_KEYS = ("dataset", "root", "splits", "map_level", "device", "params", "max_tilt_deg", "maps", "top_maps",
                "scene_unknown", "images_path", "walk", "video", "fps", "every")  # meta compared by --resume
@@ -202,11 +204,19 @@ def option_differences(old: dict[str, Any], new: dict[str, Any]) -> list[str]:
     return diffs
 
 
-def light_record(r: QueryResult) -> QueryResult:
-    """``r`` without what only its JSON line needs (the candidates but the first, the competitors,
-    confidence signals and map scores): what :class:`ResultsWriter` keeps in memory for the summary,
-    the CSV and a resumed walk, a quarter of the whole record."""
-    return replace(r, candidates=r.candidates[:1], competitors=[], confidence_signals=None, map_scores=None)
+WALK_KEPT = ("name", "frame")  # a walk record's fields a run reads back from the records it added itself
+
+
+def light_record(r: QueryResult, resumed: bool = True) -> QueryResult:
+    """``r`` without what only its JSON line needs (the candidates, but an empty one standing for them:
+    the summary counts the records that have candidates; the competitors, confidence signals, map
+    scores and message): what :class:`ResultsWriter` keeps in memory for the summary, the CSV and a
+    resumed walk (the whole records are on disk only). ``resumed`` false (a record added by the run
+    itself, not read back from the file): its ``walk`` only its name and frame (a walk resumes from
+    the records read when the file was opened)."""
+    walk = r.walk if resumed or r.walk is None else {k: r.walk.get(k) for k in WALK_KEPT}
+    return replace(r, candidates=[{}] if r.candidates else [], competitors=[], confidence_signals=None,
+                   map_scores=None, message="", walk=walk)
 
 
 def _dict_differences(a: dict, b: dict, prefix: str = "") -> list[str]:
@@ -251,7 +261,10 @@ class ResultsWriter:
         self.journal_path = journal_path(self.path)
         self.meta = {**(meta or {}), "finished": False}  # true once :meth:`finish` ran (a rerun checks it)
         self._results: dict[str, QueryResult] = {}  # name -> its light record (light_record), in file order
-        self._texts: dict[str, str] = {}  # name -> its record as one line of JSON (made once per record)
+        self._where: dict[str, tuple[int, int, int]] = {}  # name -> where its line of JSON is on disk: (_IN_JSON
+        # or _IN_JOURNAL, byte offset, length); the whole records are not kept in memory
+        self._pending: dict[str, str] = {}  # name -> its line of JSON, made once, until it is on disk
+        self._journal_pos = 0  # the journal's bytes (where the next record's line starts)
         self._json_bytes = self._journal_bytes = 0
         self.warn = warn or (lambda message: None)
         self._warned: set[str] = set()
@@ -263,7 +276,8 @@ class ResultsWriter:
             if resume and self.path.exists():
                 results, old_meta = load_results(self.path)
                 self._results = {r.name: light_record(r) for r in results}
-                self._texts = {r.name: record_json(r) for r in results}
+                self._pending = {r.name: record_json(r) for r in results}
+                del results
                 self.meta = _resumed_meta(self.path, old_meta, self.meta, any_options)
                 self.flush()
         except BaseException:
@@ -272,8 +286,30 @@ class ResultsWriter:
 
     @property
     def results(self) -> list[QueryResult]:
-        """The records, in file order (whole: read back from their JSON lines)."""
-        return [QueryResult.from_dict(json.loads(text)) for text in self._texts.values()]
+        """The records, in file order (whole: read back from their lines of JSON on disk)."""
+        with self._texts() as text:
+            return [QueryResult.from_dict(json.loads(text(name))) for name in self._results]
+
+    @contextlib.contextmanager
+    def _texts(self):
+        """``text(name)``: a record's line of JSON, from memory or read back from the JSON or the journal
+        (each opened once, when first needed, for the block)."""
+        files: dict[int, Any] = {}
+        try:
+            def text(name: str) -> str:
+                if name in self._pending:
+                    return self._pending[name]
+                source, offset, length = self._where[name]
+                if source not in files:
+                    files[source] = open(self.path if source == _IN_JSON else self.journal_path, "rb")
+                fh = files[source]
+                fh.seek(offset)
+                return fh.read(length).decode()
+            with _naming_errors(self.path):
+                yield text
+        finally:
+            for fh in files.values():
+                fh.close()
 
     @property
     def light_results(self) -> list[QueryResult]:
@@ -317,7 +353,6 @@ class ResultsWriter:
     def reorder(self, key: Callable[[QueryResult], Any]) -> None:
         """Put the records in the order of ``key`` (written at the next rewrite, e.g. :meth:`finish`)."""
         self._results = {r.name: r for r in sorted(self._results.values(), key=key)}
-        self._texts = {name: self._texts[name] for name in self._results}
 
     def add(self, result: QueryResult) -> None:
         self.extend([result])
@@ -327,9 +362,9 @@ class ResultsWriter:
         latest = {r.name: r for r in results}  # one record per query, the last one given
         for r in latest.values():
             self._results.pop(r.name, None)
-            self._texts.pop(r.name, None)
-            self._results[r.name] = light_record(r)
-            self._texts[r.name] = record_json(r)
+            self._where.pop(r.name, None)
+            self._results[r.name] = light_record(r, resumed=False)
+            self._pending[r.name] = record_json(r)
             if r.picture_error:
                 self.warn_once("picture", f"picture of {r.name} not written ({r.picture_error}); its result is "
                                "kept (later picture failures: picture_error in the results file)")
@@ -363,10 +398,17 @@ class ResultsWriter:
             with atomic_file(self.journal_path) as tmp:
                 tmp.write_bytes(header)
             self._journal = open(self.journal_path, "ab")
+        self._journal_pos = len(header)
 
     def _append(self, results: list[QueryResult]) -> None:
         """Append the records of ``results`` to the journal, one line each, in one write."""
-        lines = "".join(f'{{"query": {self._texts[r.name]}}}\n' for r in results).encode()
+        lines, where, pos = [], {}, self._journal_pos
+        for r in results:
+            text = self._pending[r.name]
+            where[r.name] = (_IN_JOURNAL, pos + len(_JOURNAL_LINE), len(text))
+            lines.append(f"{_JOURNAL_LINE}{text}}}\n")
+            pos += len(_JOURNAL_LINE) + len(text) + 2
+        lines = "".join(lines).encode()
         with _naming_errors(self.journal_path):
             try:
                 self._journal.write(lines)
@@ -377,6 +419,10 @@ class ResultsWriter:
                     journal.close()
                 raise
         self._journal_bytes += len(lines)
+        self._journal_pos += len(lines)
+        self._where.update(where)
+        for name in where:
+            del self._pending[name]
 
     def _write_json(self, token: str | None) -> None:
         """The JSON: its head indented, then ``"queries"`` with one record per line (each serialized
@@ -387,13 +433,19 @@ class ResultsWriter:
             "summary": summarize(self.light_results, self.meta.get("device")),
             **({"journal": token} if token is not None else {}),  # the journal of this JSON (read_results_data)
         })
-        text = json.dumps(head, indent=1, allow_nan=False)[:-2]  # without the closing "\n}"
-        text += ',\n "queries": [\n' + ",\n".join(self._texts.values()) + "\n ]\n}" if self._texts else \
-            ',\n "queries": []\n}'
-        with _naming_errors(self.path):
-            with atomic_file(self.path) as tmp:
-                tmp.write_text(text)
-        self._json_bytes = len(text)
+        start = json.dumps(head, indent=1, allow_nan=False)[:-2]  # without the closing "\n}"
+        start += ',\n "queries": [\n' if self._results else ',\n "queries": []\n}'
+        where, pos = {}, len(start)
+        with _naming_errors(self.path), self._texts() as text:
+            with atomic_file(self.path) as tmp, tmp.open("w", encoding="ascii") as fh:
+                fh.write(start)
+                for k, name in enumerate(self._results):
+                    line = text(name) + (",\n" if k + 1 < len(self._results) else "\n ]\n}")
+                    fh.write(line)
+                    where[name] = (_IN_JSON, pos, len(line) - (2 if k + 1 < len(self._results) else 4))
+                    pos += len(line)
+        self._where, self._pending = where, {}
+        self._json_bytes = pos
 
     def _write_csv(self, token: str | None) -> None:
         """Write the CSV; on failure warn once and record why in the JSON's ``meta["csv_error"]``."""

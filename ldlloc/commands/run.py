@@ -20,7 +20,8 @@ from ldlloc.commands.show import print_run, say, shown
 from ldlloc.pipeline import LocalizeParams
 from ldlloc.walk.localize import VIDEO, WalkParams
 from ldlloc.walk.options import check_walk_options
-from ldlloc.walk.run import run_walk_images, run_walk_queries, run_walk_video, walk_photos
+from ldlloc.walk.run import run_walk_images, run_walk_queries, run_walk_videos, walk_photos
+from ldlloc.walk.video import find_videos, video_info
 from ldlloc.walk.stream import LAG
 from ldlmap.core.cli_common import (check_device, check_threads, console, dataset_label, open_dataset_root,
                                     refuse_map_level, set_threads)
@@ -55,7 +56,7 @@ class RunOptions:
 def run(images: str | None, root: str | None, dataset: str | None, map_level: str | None, split: list[str] | None,
         scene: str | None, scene_unknown: bool, maps: str | None, output: Path | None, method: dict,
         top_maps: int | None, device: str, resume: bool, resume_any_options: bool, save_vis: str | None,
-        overwrite: bool, threads: int, ray: str | None, walk: bool, order: str | None, video: Path | None,
+        overwrite: bool, threads: int, ray: str | None, walk: bool, order: str | None, video: list[str] | None,
         fps: float | None, every: int | None, lag: int | None = None) -> None:
     """The command (its options: :func:`ldlloc.cli.run`): checks the options that go together, then
     runs the video, the images or the dataset. ``method``: :func:`localize_params`' arguments."""
@@ -71,6 +72,7 @@ def run(images: str | None, root: str | None, dataset: str | None, map_level: st
         raise InputError("--resume-any-options goes with --resume")
     dataset_options = {"--root": root_path, "--dataset": dataset, "--split": split, "--scene": scene,
                        "--map-level": map_level, "--scene-unknown": scene_unknown}
+    video = video or None  # typer gives an empty list for a repeatable option not given
     if walk or video is not None or any(v is not None for v in (order, fps, every, lag)):
         check_walk_options(walk, order, images, ray, save_vis_path, video, fps, every, resume, opts.maps,
                            dataset_options, lag)
@@ -217,20 +219,34 @@ def _warn_left_out(mapset: MapSet) -> MapSet:
     return mapset
 
 
-def run_video(video: Path, o: RunOptions, fps: float | None, every: int | None) -> None:
-    """`run --video`: the video as one tracked walk against the maps (ldlloc/walk/run.py)."""
+def run_video(video: list[str], o: RunOptions, fps: float | None, every: int | None) -> None:
+    """`run --video`: each video as one tracked walk against the maps (ldlloc/walk/run.py), in this
+    process one after the other, or with --ray one actor each (ldlloc/batch/ray_run.py)."""
+    videos = find_videos(video, warn=say)
     top_maps = top_maps_or_default(o.top_maps)
     files, _ = map_files(o.maps)
-    output = o.output or Path("results") / f"video_{video.stem}.json"
-    refuse_overwriting_inputs([video, *files], results_outputs(output))
+    output = o.output or Path("results") / (f"video_{videos[0].stem}.json" if len(videos) == 1 else "videos.json")
+    refuse_overwriting_inputs([*videos, *files], results_outputs(output))
     refuse_replacing_results(output, o.overwrite, o.resume)
-    check_device(o.device, local=True)
+    for v in videos:  # every video's one-line error before any work
+        video_info(v)
+    check_device(o.device, local=o.ray is None)
     set_threads(o.threads)
-    mapset = _warn_left_out(MapSet.load(o.maps, o.params, o.device))
-    with console.status(f"localizing {video.name} as one walk"):
-        results = run_walk_video(video, mapset, output, o.params, replace(VIDEO, top_maps=top_maps), fps, every,
-                                 o.device, meta={"dataset": "video", "maps": str(o.maps), "top_maps": top_maps},
-                                 say=say, resume=o.resume, any_options=o.any_options, lag=o.lag)
+    meta = {"dataset": "video", "maps": str(o.maps), "top_maps": top_maps}
+    walk = replace(VIDEO, top_maps=top_maps)
+    if o.ray is not None:
+        with console.status(f"checking {len(files)} map(s)"):  # the actors load them; bad maps are said here
+            _warn_left_out(MapSet.load(o.maps, o.params, "cpu"))
+        with console.status(f"localizing {len(videos)} videos, one walk each, on Ray"):
+            results = ray_run.run_video_walks_ray(videos, o.maps, output, o.params, walk, fps, every, o.device,
+                                                  o.resume, meta, address=o.ray, threads=o.threads,
+                                                  any_options=o.any_options, say=say, lag=o.lag)
+    else:
+        mapset = _warn_left_out(MapSet.load(o.maps, o.params, o.device))
+        what = videos[0].name if len(videos) == 1 else f"{len(videos)} videos"
+        with console.status(f"localizing {what}, one walk each"):
+            results = run_walk_videos(videos, mapset, output, o.params, walk, fps, every, o.device, meta=meta, say=say,
+                                      resume=o.resume, any_options=o.any_options, lag=o.lag)
     print_run(results, "video", output, o.params.max_tilt_deg)
 
 

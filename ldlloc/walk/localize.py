@@ -140,7 +140,7 @@ def localize_frame(item, prev: FrameOutcome | None, maps: MapSet, params: WalkPa
             loc, choice = localize_on_maps(img, maps, fr.max_tilt_deg, params.top_maps)
         else:
             loc, choice = got
-            out.tracked = True
+            out.tracked = bool(loc.refined)  # else lost (ldlloc.walk.track.is_lost): the prediction
         out.loc, out.choice, out.entry = loc, choice, choice.chosen.entry
         out.hypotheses = from_choice(choice, index, params.max_hypotheses)
         out.single_confidence, out.single_verdict = loc.confidence, loc.verdict

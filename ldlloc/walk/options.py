@@ -13,8 +13,8 @@ def check_walk_options(walk: bool, order: str | None, images, ray, save_vis, vid
                        dataset_options: dict[str, Any] | None = None, lag: int | None = None) -> None:
     """``--order`` goes with ``--walk --images`` and is one of :data:`~ldlloc.walk.order.ORDERS`; ``--lag``
     (frames, >= 1) goes with ``--walk`` or ``--video``; walks run on Ray one walk per actor, so only
-    a dataset's walks (``--root ... --walk``: one per scene) do, never one walk (``--images``,
-    ``--video``); a walk writes no pictures; ``--fps`` and ``--every`` go with ``--video``, which runs
+    a dataset's walks (``--root ... --walk``: one per scene) and videos (one walk each) do, never the
+    one walk of ``--images --walk``; a walk writes no pictures; ``--fps`` and ``--every`` go with ``--video``, which runs
     alone (no dataset or images; ``dataset_options``: the dataset run's other options by name, e.g.
     ``--split``) and needs ``--maps``."""
     if order is not None and not walk:
@@ -27,9 +27,9 @@ def check_walk_options(walk: bool, order: str | None, images, ray, save_vis, vid
         raise InputError("--lag goes with --walk or --video")
     if lag is not None and lag < 1:
         raise InputError(f"--lag must be a whole number of frames >= 1, got {lag}")
-    if ray is not None and (video is not None or (walk and images is not None)):
-        raise InputError(f"{'--video' if video is not None else '--images --walk'} is one walk, localized in this "
-                         "process: drop --ray (Ray runs many walks, one per actor: --root ... --walk)")
+    if ray is not None and walk and images is not None:
+        raise InputError("--images --walk is one walk, localized in this process: drop --ray (Ray runs many walks, "
+                         "one per actor: --root ... --walk, --video)")
     if (walk or video is not None) and save_vis is not None:
         raise InputError(f"{'--walk' if walk else '--video'} writes no pictures: drop --save-vis")
     if video is None and (fps is not None or every is not None):

@@ -30,19 +30,24 @@ from ldlloc.batch.which_map import MapSet
 from ldlloc.pipeline import LocalizeParams, load_image
 from ldlloc.walk.localize import MIN_FRAMES, FrameOutcome, WalkFrame, WalkParams
 from ldlloc.walk.order import natural_key, ordered
-from ldlloc.walk.stream import LAG, Resume, Slot, resume_state, stream_walk
+from ldlloc.walk.stream import LAG, Resume, Slot, basis_record, resume_state, stream_walk
+from ldlloc.walk.track import is_lost
 from ldlloc.walk.video import check_sampling, decoded_frames, frame_at, video_info
 
 
 def walk_fields(slot: Slot, walk: str) -> dict:
     """A frame's ``walk`` record: the walk's name, the frame's index and time, whether the walk
     decided it, the image's own verdict, confidence, pose and map, the path margin (nats),
-    tracking, and the last global frame's loss (what a resumed walk's tracking goes on from)."""
+    tracking (``lost``: tracking lost the frame, its pose the walk's prediction:
+    :func:`ldlloc.walk.track.is_lost`; ``basis``: what the next frame's prediction starts from), and
+    the last global frame's loss (what a resumed walk's tracking goes on from)."""
     out = slot.out
     m = out.walk_margin
     return {"name": walk, "frame": slot.index, "time": out.frame.time, "walk_decided": bool(out.walk_decided),
             "single_verdict": out.single_verdict, "single_confidence": out.single_confidence,
             "margin": None if m is None else (round(m, 4) if m != float("inf") else "inf"), "tracked": out.tracked,
+            "lost": is_lost(out.loc),
+            "basis": basis_record(out.track_basis),
             "single_pose": None if out.single_pose is None else {"R": out.single_pose[0].tolist(),
                                                                   "t": out.single_pose[1].tolist()},
             "single_map": None if out.choice is None else str(out.choice.chosen.entry.path),
@@ -208,6 +213,10 @@ class DatasetWalk:
         self.key, self.queries, self.maps, self.params, self.walk, self.lag = key, queries, maps, params, walk, lag
         self.device = device
 
+    def failed(self, why: str, written: set[str]) -> list[QueryResult]:
+        """The records of the walk's frames not in ``written`` when it cannot go on: failed, with ``why``."""
+        return [failed_result(q, self.params, why) for q in self.queries if q.name not in written]
+
     def run(self, write: Callable[[list[QueryResult]], None], records: list | None = None) -> None:
         """Localize the walk, ``write``-ing each decided block's records: :meth:`batches`."""
         for batch in self.batches(records):
@@ -243,44 +252,95 @@ def _dataset_record(q, slot: Slot, params: LocalizeParams, walk: str) -> QueryRe
     return r
 
 
-def run_walk_video(video: str | Path, maps: MapSet, output: str | Path, params: LocalizeParams, walk: WalkParams,
-                   fps: float | None = None, every: int | None = None, device: str = "cpu", meta: dict | None = None,
-                   say: Callable[[str], None] | None = None, progress: Callable[[QueryResult], None] | None = None,
-                   resume: bool = False, any_options: bool = False, lag: int = LAG) -> list[QueryResult]:
-    """An equirectangular video localized as one walk (:mod:`ldlloc.walk.video`), its kept frames
-    decoded in order (``fps`` or ``every``), each record named ``<stem>/<frame index>`` with the
-    video as its image and its timestamp in ``walk.time``, written once decided (``lag``);
-    ``resume`` goes on from the last written frame (the frames before it decoded, not localized)."""
-    info = video_info(video)
-    check_sampling(info, fps, every)
-    stem = info.path.stem
-    meta = {**(meta or {}), "video": str(info.path), "fps": fps, "every": every,
-            "walk": walk_meta("time", walk, lag)}
-    with open_results(output, params, device, meta, resume, any_options, [], say) as writer:
-        state = video_resume(writer, stem, maps, lag) if resume else None
+class VideoWalk:
+    """One video's walk (:mod:`ldlloc.walk.video`), run in this process or in a Ray actor
+    (:mod:`ldlloc.batch.ray_run`): :meth:`batches` hands its records on as they are decided."""
+
+    def __init__(self, video: str | Path, maps: str | Path, params: LocalizeParams, walk: WalkParams,
+                 fps: float | None = None, every: int | None = None, lag: int = LAG, device: str = "cpu"):
+        self.path, self.key = Path(video), Path(video).stem
+        self.maps, self.params, self.walk, self.fps, self.every, self.lag, self.device = \
+            maps, params, walk, fps, every, lag, device
+        self.queries: list = []  # its frames are known once decoded
+
+    def failed(self, why: str, written: set[str]) -> list[QueryResult]:
+        """The records of the frames not written when the walk cannot go on: none (its frames are not
+        known without decoding; ``--resume`` goes on from the last written one)."""
+        return []
+
+    def batches(self, records: list | None = None, maps: MapSet | None = None,
+                progress: Callable[[QueryResult], None] | None = None,
+                say: Callable[[str], None] | None = None) -> Iterator[list[QueryResult]]:
+        """The records of the kept frames (``fps`` or ``every``) as they are decided, a list per block,
+        each named ``<stem>/<frame index>`` with the video as its image and its timestamp in
+        ``walk.time``; ``records``: the walk's frames already written, by frame (a resumed run goes on
+        after them: the frames before decoded, not localized); ``maps``: loaded already (else read)."""
+        info = video_info(self.path)
+        check_sampling(info, self.fps, self.every)
+        maps = maps if maps is not None else MapSet.load(self.maps, self.params, self.device)
+        state = resume_state(records, maps, self.lag) if records else None
         if state is not None and say is not None:
-            say(f"resuming {writer.path}: {state.written} frames of {stem} written, going on from there")
-        start = state.start if state else 0
-        pairs = islice(decoded_frames(info, fps, every), start, None)
-        frames = ((WalkFrame(f"{stem}/{vf.index:06d}", (lambda vf=vf: frame_at(info, vf)), vf.time,
-                             params.max_tilt_deg), img) for vf, img in pairs)
-        tell = None if progress is None else (
-            lambda i, o: progress(image_frame_record(ImageQuery(info.path, o.frame.name), Slot(i, o, None, None, False),
-                                                params, stem)))
+            say(f"resuming: {state.written} frames of {self.key} written, going on from there")
+        pairs = islice(decoded_frames(info, self.fps, self.every), state.start if state else 0, None)
+        frames = ((WalkFrame(f"{self.key}/{vf.index:06d}", (lambda vf=vf: frame_at(info, vf)), vf.time,
+                             self.params.max_tilt_deg), img) for vf, img in pairs)
+        record = lambda s: image_frame_record(ImageQuery(info.path, s.out.frame.name), s, self.params,  # noqa: E731
+                                              self.key)
+        tell = None if progress is None else (lambda i, o: progress(record(Slot(i, o, None, None, False))))
 
         def at_end(n: int) -> None:
             if n < MIN_FRAMES:
                 raise InputError(f"--video {info.path}: {n} frame(s) kept; a walk needs at least {MIN_FRAMES} "
                                  "(lower --every or raise --fps)")
 
-        write_walk(writer, stream_walk(frames, maps, walk, lag, state, tell, at_end),
-                   lambda s: image_frame_record(ImageQuery(info.path, s.out.frame.name), s, params, stem))
+        for block in stream_walk(frames, maps, self.walk, self.lag, state, tell, at_end):
+            yield [record(slot) for slot in block]
+
+
+def run_walk_video(video: str | Path, maps: MapSet, output: str | Path, params: LocalizeParams, walk: WalkParams,
+                   fps: float | None = None, every: int | None = None, device: str = "cpu", meta: dict | None = None,
+                   say: Callable[[str], None] | None = None, progress: Callable[[QueryResult], None] | None = None,
+                   resume: bool = False, any_options: bool = False, lag: int = LAG) -> list[QueryResult]:
+    """An equirectangular video localized as one walk (:class:`VideoWalk`), each frame's record written
+    once decided (``lag``); ``resume`` goes on from the last written frame. :func:`run_walk_videos` of one."""
+    return run_walk_videos([video], maps, output, params, walk, fps, every, device, meta, say, progress, resume,
+                           any_options, lag)
+
+
+def run_walk_videos(videos: list, maps: MapSet, output: str | Path, params: LocalizeParams, walk: WalkParams,
+                    fps: float | None = None, every: int | None = None, device: str = "cpu", meta: dict | None = None,
+                    say: Callable[[str], None] | None = None, progress: Callable[[QueryResult], None] | None = None,
+                    resume: bool = False, any_options: bool = False, lag: int = LAG) -> list[QueryResult]:
+    """Equirectangular videos localized in this process, one walk each (:class:`VideoWalk`), in turn,
+    into one results file; ``resume`` goes on in each from its last written frame."""
+    jobs = [VideoWalk(v, "", params, walk, fps, every, lag, device) for v in videos]
+    for job in jobs:
+        check_sampling(video_info(job.path), fps, every)  # every video's errors before the first is run
+    meta = {**(meta or {}), **video_meta(videos, fps, every), "walk": walk_meta("time", walk, lag)}
+    with open_results(output, params, device, meta, resume, any_options, [], say) as writer:
+        for job in jobs:
+            records = video_records(writer, job.key) if resume else None
+            for batch in job.batches(records, maps, progress, say):
+                writer.extend(batch)  # one journal write a block: a kill leaves whole blocks
+        video_order(writer, [job.key for job in jobs])
         writer.finish()
         return writer.results
 
 
-def video_resume(writer: ResultsWriter, stem: str, maps: MapSet, lag: int) -> Resume | None:
-    """Where a resumed video goes on: after the frames of walk ``stem`` that ``writer`` holds."""
+def video_order(writer: ResultsWriter, keys: list[str]) -> None:
+    """Put a video run's records in the order of its videos (``keys``: their stems), each by frame
+    (a resumed or a Ray run writes them as they come)."""
+    rank = {k: i for i, k in enumerate(keys)}
+    writer.reorder(key=lambda r: (rank.get(r.walk["name"], -1), r.walk["frame"]) if r.walk else (-1, 0))
+
+
+def video_meta(videos: list, fps: float | None, every: int | None) -> dict:
+    """A video run's ``meta``: its video (several: their list), ``fps`` and ``every``."""
+    paths = [str(Path(v)) for v in videos]
+    return {"video": paths[0] if len(paths) == 1 else paths, "fps": fps, "every": every}
+
+
+def video_records(writer: ResultsWriter, stem: str) -> list[QueryResult | None]:
+    """The records ``writer`` holds of the frames of walk ``stem`` (a video), by frame (None: not written)."""
     mine = {r.walk["frame"]: r for r in writer.light_results if r.walk and r.walk.get("name") == stem}
-    records = [mine.get(i) for i in range(len(mine))]
-    return resume_state(records, maps, lag)
+    return [mine.get(i) for i in range(max(mine, default=-1) + 1)]

@@ -19,10 +19,14 @@ yet decided (at most ``lag`` + B), never the images, whatever the walk's length.
 A frame's decision depends on the frames of its window, on the anchor, and on the state the
 first pass carries from frame to frame (the previous frame's own pose and map for tracking,
 the last global frame's loss, the last confident frame): all in the written records
-(``walk.single_pose``, ``walk.single_map``, ``walk.ref_loss``, the record's pose and map). A
+(``walk.single_pose``, ``walk.single_map``, ``walk.basis``, ``walk.ref_loss``, the record's pose and map). A
 resumed walk (:func:`resume_state`) localizes again the ``lag`` frames (rounded to whole blocks)
-before its first unwritten block (their hypotheses: the window's past) without writing them,
-and goes on: its records equal an uninterrupted run's.
+before its first unwritten block (their hypotheses: the window's past) without writing them, and
+goes on from the tracking basis the frame before them handed on (``walk.basis``: the last trusted
+pose, the walk's velocity, the frames since): its records equal an uninterrupted run's.
+
+torch runs on one thread for the whole walk (:class:`ldlloc.walk.track.TorchThreads`, switched
+once, given back when the stream ends or is abandoned).
 """
 
 from __future__ import annotations
@@ -39,6 +43,7 @@ from ldlloc.record import QueryResult
 from ldlloc.walk.hypotheses import Hypotheses
 from ldlloc.walk.localize import (FrameOutcome, WalkFrame, WalkParams, augment_frame, free_space, is_anchor,
                                   localize_frame, needs_more, settle, walk_path)
+from ldlloc.walk.track import TorchThreads, TrackBasis, is_lost
 
 LAG = 100  # frames: a frame is decided once this many after it are localized (a walk of lag + 1 frames or fewer:
 # decided as a whole, offline); its window also holds this many before it
@@ -111,15 +116,17 @@ class WalkStream:
         self.slots: deque[Slot] = deque()
         self.costs: dict = {}
         self.free = free_space(maps, params)  # no step through a wall
+        self.threads = TorchThreads(pinned=True)  # torch on one thread for the whole walk (:meth:`close`)
 
     def push(self, item) -> list[list[Slot]]:
         """Localize the next frame (a :class:`WalkFrame` or ``(WalkFrame, image)``); the blocks decided now."""
         i = self.next
         self.next += 1
         prev = self.slots[-1].out if self.slots else self.prev
+        self.threads.one()
         out, self.ref_loss = localize_frame(item, prev, self.maps, self.params, self.ref_loss, self.trackers,
-                                            self.index)
-        slot = Slot(i, out, self.ref_loss, self.confident, needs_more(out), i < self.written)
+                                            self.index, self.threads)
+        slot = Slot(i, out, self.ref_loss, self.confident, needs_more(out) and not is_lost(out.loc), i < self.written)
         if is_anchor(out):
             here = (i, out.entry, np.asarray(out.loc.center, float))
             for s in self.slots:
@@ -143,6 +150,10 @@ class WalkStream:
         while self.decide_next < self.next:
             done.append(self._decide_block())
         return [b for b in done if b]
+
+    def close(self) -> None:
+        """Give torch's threads back to the caller (the walk ended or was abandoned)."""
+        self.threads.release()
 
     def _augment(self, s: Slot, after: list[tuple]) -> None:
         near = ([s.before] if s.before is not None else []) + after
@@ -200,11 +211,14 @@ def stream_walk(frames: Iterable, maps: MapSet, params: WalkParams, lag: int = L
     called with the walk's frame count once its frames are all localized, before the last ones are
     decided (it may refuse the walk). Write a block at once: a kill then leaves whole blocks."""
     stream = WalkStream(maps, params, lag, resume, progress, block)
-    for item in frames:
-        yield from _handed_on(stream.push(item))
-    if at_end is not None:
-        at_end(stream.next)
-    yield from _handed_on(stream.finish())
+    try:
+        for item in frames:
+            yield from _handed_on(stream.push(item))
+        if at_end is not None:
+            at_end(stream.next)
+        yield from _handed_on(stream.finish())
+    finally:
+        stream.close()
 
 
 def _handed_on(blocks: list[list[Slot]]) -> Iterator[list[Slot]]:
@@ -213,6 +227,26 @@ def _handed_on(blocks: list[list[Slot]]) -> Iterator[list[Slot]]:
         yield got
         for slot in got:
             release(slot)
+
+
+def basis_from_record(b: dict | None, by_path: dict) -> TrackBasis | None:
+    """A written frame's tracking basis (``walk.basis``: :func:`basis_record`) on the map of that path in
+    ``by_path``; None when not written (earlier files) or its map is not among the walk's."""
+    if not b or str(b.get("map")) not in by_path:
+        return None
+    turn = b.get("turn")
+    return TrackBasis(by_path[str(b["map"])], np.asarray(b["R"], float), np.asarray(b["t"], float),
+                      None if b.get("step") is None else np.asarray(b["step"], float),
+                      None if turn is None else np.asarray(turn, float), int(b.get("since", 0)))
+
+
+def basis_record(b: TrackBasis | None) -> dict | None:
+    """A frame's tracking basis as its record's ``walk.basis`` (what the next frame predicts from)."""
+    if b is None:
+        return None
+    return {"map": str(b.entry.path), "R": b.rot_cam_from_world.tolist(), "t": b.center.tolist(),
+            "step": None if b.step is None else b.step.tolist(), "turn": None if b.turn is None else b.turn.tolist(),
+            "since": b.since}
 
 
 def resume_state(records: list[QueryResult | None], maps: MapSet, lag: int = LAG, block: int | None = None
@@ -249,6 +283,9 @@ def resume_state(records: list[QueryResult | None], maps: MapSet, lag: int = LAG
         got = own(last)
         state.prev = None if got is None else FrameOutcome(WalkFrame(last.name, _no_image), loc=OwnPose(*got[:2]),
                                                            entry=got[2])
+        basis = basis_from_record(last.walk.get("basis"), by_path)
+        if basis is not None:  # tracking goes on as it did (else from the frame's own pose)
+            state.prev = FrameOutcome(WalkFrame(last.name, _no_image), track_basis=basis)
         state.ref_loss = last.walk.get("ref_loss")
         sure = [i for i in range(start) if done[i].walk.get("single_verdict") == "confident" and own(done[i])]
         if sure:

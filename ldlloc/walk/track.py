@@ -5,12 +5,17 @@ Three steps, cheapest first, each checked before the frame takes its pose:
 1. **Lines from the prediction** (:func:`track_by_lines`): the pose predicted from the last two
    frames (constant velocity, :func:`predict`) is refined from the frame's lines alone
    (:func:`ldlloc.refine.geometric.refine_and_keep`, a short refinement: few rounds from a small
-   association angle), the lines extracted at a reduced width (``TrackParams.width``). No
-   vanishing points, no candidate rotations, no search, no features.
+   association angle, wider after lost frames), the lines extracted at a reduced width
+   (``TrackParams.width``). No vanishing points, no candidate rotations, no search, no features.
 2. **A restricted search** (:func:`track_by_search`): the map's candidate translations within
-   ``radius_m`` of the prediction and its candidate rotations within ``cone_deg`` (the distance
-   fields subset, not the full search filtered), refined as ``TrackParams.refine`` says.
-3. Neither holds: the caller localizes the frame globally.
+   ``radius_m`` per frame since the last trusted pose of the prediction and its candidate rotations
+   within ``cone_deg`` (the distance fields subset, not the full search filtered), refined as
+   ``TrackParams.refine`` says.
+3. Neither holds: the frame is **lost** (:func:`lost_frame`: the predicted pose, unrefined,
+   ``failed``; no search) while fewer than ``max_lost`` frames in a row were, and always when it has
+   fewer than ``min_lines`` lines (a blurred frame, on which every search fails at seconds each);
+   tracking resumes from the last trusted pose, the restricted search's radius growing with the
+   frames lost. After ``max_lost`` lost frames in a row the caller localizes the frame globally.
 
 A tracked pose holds when it was refined and explains at least ``TrackParams.keep`` of the lines
 that the last trusted global frame's pose explained (its exact line loss; the losses of lines
@@ -36,6 +41,7 @@ from ldlloc.confidence import NO_CONTENDER_MARGIN, assess
 from ldlloc.lines2d import filter_by_length, query_keep_ratio
 from ldlloc.pipeline import Localization, Localizer, QueryLines, SearchNear, rotation_prior_name
 from ldlloc.refine.geometric import refine_and_keep
+from ldlloc.search.pose_search import score_on_map
 
 cv2 = lazy_module("cv2")
 torch = lazy_module("torch")
@@ -58,17 +64,21 @@ class TrackParams:
     # retrieval fallback: the tracked pose is near) | same (as the global localization) | geometric (lines alone)
     keep: float = 0.7  # a tracked pose explaining fewer lines than this share of the last global frame's is lost
     max_step_m: float = 0.75  # a step (per frame) longer than this is not extrapolated (the last pose is the prediction)
-    lookback: int = 5  # frames back to the last trusted pose (a frame that failed is not tracked from)
+    lookback: int = 10  # frames back to the last trusted pose (a frame that failed or was lost is not tracked from)
+    min_lines: int = 20  # a frame with fewer lines (step 1's, after the length filter) is lost at once: no search
+    max_lost: int = 6  # frames lost in a row (each tracked at a growing radius) before a global search
 
 
 class TorchThreads:
-    """torch's CPU threads switched lazily: one while frames are tracked from lines (a pose and a hundred
-    lines: more threads only wait on each other, 3-10 times slower on a busy 2-core machine:
-    docs/measurements.md#walks), the caller's count again before a search or a global localization
-    (switching costs about 10 ms: only when the kind of work changes). :meth:`restore` at the end."""
+    """torch's CPU threads for a walk: one (a pose and a hundred lines: more threads only wait on each
+    other, 3-10 times slower on a busy 2-core machine: docs/measurements.md#walks), switched once
+    (:meth:`one`; switching costs about 10 ms) and given back by :meth:`release`. ``pinned``: held for
+    the whole walk (a stream: one switch per walk, searches included); else :meth:`restore` gives the
+    caller's count back before a search or a global localization (one frame's work)."""
 
-    def __init__(self) -> None:
+    def __init__(self, pinned: bool = False) -> None:
         self.caller: int | None = None  # the caller's count while switched to one
+        self.pinned = pinned
 
     def one(self) -> None:
         if self.caller is None:
@@ -77,6 +87,10 @@ class TorchThreads:
                 torch.set_num_threads(1)
 
     def restore(self) -> None:
+        if not self.pinned:
+            self.release()
+
+    def release(self) -> None:
         if self.caller is not None:
             if self.caller != 1:
                 torch.set_num_threads(self.caller)
@@ -182,22 +196,31 @@ def tracking_lines(img: np.ndarray, loz: Localizer, width: int) -> QueryLines:
     return loz.detect_lines(img)
 
 
-def track_by_lines(img: np.ndarray, pred: Prediction, p: TrackParams, ref_loss: float,
-                   max_tilt_deg: float | None = None) -> tuple[Localization, MapChoice] | None:
-    """Step 1: the predicted pose refined on its map from the frame's lines alone; None when the
-    refinement was not kept or its pose explains too few lines (:class:`TrackParams`)."""
-    entry = pred.entry
-    loz, m = entry.localizer, entry.localizer.map
+def frame_arcs(img: np.ndarray, entry: MapEntry, p: TrackParams) -> tuple[np.ndarray, dict[str, float]]:
+    """The frame's arcs as the tracker uses them (:func:`tracking_lines`, then ``entry``'s map's length
+    filter) and the seconds it took (``lines2d``)."""
+    loz = entry.localizer
     tick = time.perf_counter()
     lines = tracking_lines(img, loz, p.width)
     secs = {"lines2d": time.perf_counter() - tick}
-    arcs = filter_by_length(lines.arcs, query_keep_ratio(m.kept_ratio, loz.params.lines2d))
+    return filter_by_length(lines.arcs, query_keep_ratio(loz.map.kept_ratio, loz.params.lines2d)), secs
+
+
+def track_by_lines(arcs: np.ndarray, secs: dict[str, float], pred: Prediction, p: TrackParams, ref_loss: float,
+                   max_tilt_deg: float | None = None) -> tuple[Localization, MapChoice] | None:
+    """Step 1: the predicted pose refined on its map from the frame's lines ``arcs`` (:func:`frame_arcs`)
+    alone; None when the refinement was not kept or its pose explains too few lines (:class:`TrackParams`).
+    After lost frames the first association angle grows with the frames since the last trusted pose
+    (at most the single-image refinement's)."""
+    entry = pred.entry
+    loz, m = entry.localizer, entry.localizer.map
     R0, t0 = starts(pred)
-    geo = replace(loz.params.geometric, rounds=p.rounds, assoc_deg=p.assoc_deg, fixed_rotation_rounds=0, wide_poses=0)
+    assoc = min(p.assoc_deg * pred.frames, max(p.assoc_deg, loz.params.geometric.assoc_deg))
+    geo = replace(loz.params.geometric, rounds=p.rounds, assoc_deg=assoc, fixed_rotation_rounds=0, wide_poses=0)
     tick = time.perf_counter()
     g, kept, loss = refine_and_keep(arcs, R0, t0, m.nearest_translation(t0), len(t0), m, geo,
                                     loz.params.search, loz.device, loz.params.principal.group_tol)
-    secs["refine"] = time.perf_counter() - tick
+    secs = {**secs, "refine": time.perf_counter() - tick}
     k = int(np.argmin(np.where(kept, loss, np.inf)))
     if not kept[k] or loss[k] > p.keep * ref_loss:
         return None
@@ -216,6 +239,33 @@ def track_by_lines(img: np.ndarray, pred: Prediction, p: TrackParams, ref_loss: 
     secs["total"] = sum(secs.values())
     opt = MapOption(entry, float(loss[k]), loc, loss=float(loss[k]), searched=loc)
     return loc, MapChoice(opt, [opt], seconds=dict(secs))
+
+
+LOST = "lost"  # the message of a lost frame's localization starts with it (:func:`is_lost`)
+
+
+def lost_frame(arcs: np.ndarray, secs: dict[str, float], pred: Prediction, max_tilt_deg: float | None,
+               why: str) -> tuple[Localization, MapChoice]:
+    """Step 3 without a search: the frame takes the predicted pose, not refined, ``failed`` (confidence
+    0), its only hypothesis (the walk's path keeps it); ``why``: why tracking lost it."""
+    entry = pred.entry
+    loz, m = entry.localizer, entry.localizer.map
+    R, t = pred.rot_cam_from_world, pred.center
+    loss = float(score_on_map(arcs, R[None], t[None], m, loz.params.search, loz.device,
+                              loz.params.principal.group_tol)[0]) if len(arcs) else 0.0
+    loc = Localization(R, t, R, t, R[None], t[None], {**secs, "total": sum(secs.values())}, num_rotations=0,
+                       num_lines=len(arcs), refined=False, candidates_loss=np.array([loss]),
+                       rotation_prior=rotation_prior_name(max_tilt_deg),
+                       input_to_map=None if is_identity(m.input_to_map) else m.input_to_map, confidence=0.0,
+                       verdict="failed", message=f"{LOST}: {why}; the pose the walk predicted ({pred.frames} frame(s) "
+                                                 "after its last trusted pose), not refined")
+    opt = MapOption(entry, loss, loc, loss=loss)
+    return loc, MapChoice(opt, [opt], seconds=dict(loc.seconds))
+
+
+def is_lost(loc) -> bool:
+    """Whether a frame's localization is a lost frame's (:func:`lost_frame`)."""
+    return loc is not None and not loc.refined and loc.message.startswith(f"{LOST}: ")
 
 
 def restricted_localizer(entry: MapEntry, refine: str, cache: dict[int, Localizer]) -> Localizer:
@@ -255,14 +305,25 @@ def track_by_search(img: np.ndarray, pred: Prediction, p: TrackParams, ref_loss:
 def track(img: np.ndarray, pred: Prediction | None, max_tilt_deg: float | None, p: TrackParams,
           ref_loss: float | None, cache: dict[int, Localizer], threads: TorchThreads
           ) -> tuple[Localization, MapChoice] | None:
-    """The frame tracked from the walk's prediction ``pred``: step 1, else step 2 (module docstring);
-    None when there is nothing to track from (no prediction, no trusted global frame yet) or both fail."""
+    """The frame tracked from the walk's prediction ``pred``: step 1, else step 2, else lost (module
+    docstring; a lost frame's localization is not refined: :func:`is_lost`); None when there is
+    nothing to track from (no prediction, no trusted global frame yet) or ``max_lost`` frames in a
+    row were lost before this one (the caller searches globally)."""
     if pred is None or ref_loss is None:
         return None
-    if p.lines and pred.frames == 1:  # after a lost frame the prediction is too loose for a short refinement
-        threads.one()
-        got = track_by_lines(img, pred, p, ref_loss, max_tilt_deg)
+    threads.one()
+    arcs, secs = frame_arcs(img, pred.entry, p)
+    if p.lines:
+        got = track_by_lines(arcs, secs, pred, p, ref_loss, max_tilt_deg)
         if got is not None:
             return got
+    if len(arcs) < p.min_lines:
+        return lost_frame(arcs, secs, pred, max_tilt_deg, f"{len(arcs)} lines, fewer than {p.min_lines}")
+    if pred.frames > p.max_lost:
+        threads.restore()
+        return None
     threads.restore()
-    return track_by_search(img, pred, p, ref_loss, max_tilt_deg, cache)
+    got = track_by_search(img, pred, p, ref_loss, max_tilt_deg, cache)
+    if got is not None:
+        return got
+    return lost_frame(arcs, secs, pred, max_tilt_deg, "neither its lines nor a search near the prediction held")

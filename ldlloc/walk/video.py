@@ -1,4 +1,7 @@
-"""Equirectangular videos as walks: ``ldlloc run --video FILE [--fps F | --every N]``.
+"""Equirectangular videos as walks: ``ldlloc run --video FILE|DIR|GLOB [--video ...] [--fps F | --every N]``.
+
+Several videos (``--video`` repeated, a folder of videos or a quoted glob: :func:`find_videos`)
+are one walk each.
 
 Decoded in-process with PyAV (FFmpeg) frame by frame, never written to disk: the first pass
 (:func:`ldlloc.walk.localize.localize_walk`) reads the kept frames in order from one decoder
@@ -10,6 +13,7 @@ for more frames a second than it has is a one-line error.
 
 from __future__ import annotations
 
+import glob
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterator
@@ -20,9 +24,50 @@ from ldlloc.pipeline import WORK_WIDTH
 from ldlmap.core.errors import InputError, require_file
 from ldlmap.io.video import write_video  # noqa: F401  (moved to ldlmap: the generator writes videos too)
 from ldlmap.core.lazy import lazy_module
+from ldlloc.walk.order import natural_key
 
 av = lazy_module("av")
 cv2 = lazy_module("cv2")
+
+
+VIDEO_SUFFIXES = (".mp4", ".mov", ".m4v", ".mkv", ".avi", ".webm")  # what a folder or a glob of videos takes
+
+
+def find_videos(specs: list[str | Path], warn=None) -> list[Path]:
+    """The videos of ``--video`` (each a file, a folder of videos or a quoted glob), in natural name
+    order, each once. One-line errors: a value that names nothing, a folder or glob without videos
+    (:data:`VIDEO_SUFFIXES`), two videos of one name (a frame's record is ``<stem>/<frame>``); a
+    video that does not decode is refused where it is opened (:func:`video_info`). A folder's other
+    files are left out (``warn`` says how many; hidden files silently)."""
+    found: list[Path] = []
+    for spec in specs:
+        text = str(spec)
+        p = Path(text)
+        if p.is_file():
+            found.append(p)
+            continue
+        if p.is_dir():
+            files = [f for f in p.iterdir() if f.is_file() and not f.name.startswith(".")]
+            where = f"in the folder {p}"
+        elif glob.has_magic(text):
+            files = [Path(f) for f in glob.glob(text, recursive=True) if Path(f).is_file()]
+            where = f"matching {text}"
+        else:
+            raise InputError(f"--video not found: {text} (a video, a folder of videos or a quoted glob)")
+        videos = [f for f in files if f.suffix.lower() in VIDEO_SUFFIXES]
+        if not videos:
+            raise InputError(f"no video ({', '.join(s[1:] for s in VIDEO_SUFFIXES)}) {where}")
+        if len(videos) < len(files) and warn is not None:
+            warn(f"warning: {len(files) - len(videos)} file(s) {where} left out (not {'/'.join(VIDEO_SUFFIXES)})")
+        found += videos
+    unique = {f.resolve(): f for f in sorted(found, key=lambda f: natural_key(str(f)))}
+    stems: dict[str, Path] = {}
+    for f in unique.values():
+        if f.stem in stems:
+            raise InputError(f"two videos named {f.stem}: {stems[f.stem]} and {f} (a frame's record is named "
+                             "<video name>/<frame>: rename one)")
+        stems[f.stem] = f
+    return list(unique.values())
 
 
 @dataclass(frozen=True)
