@@ -34,7 +34,8 @@ ROOT = HERE.parent
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from bench.common import CACHE, console, load_line, machine_info, map_tag, set_threads, synth_tag, write_json  # noqa: E402
+from bench.common import (CACHE, console, load_line, machine_info, map_tag, parse_field, set_threads, synth_tag,  # noqa: E402
+                          write_json)
 
 SPLITS = ("robot", "handheld")
 MAX_TILT = 10.0
@@ -94,8 +95,11 @@ def miss_mode(row: dict) -> str | None:
     return "turn" if 75 < row["r_error_deg"] < 105 else "other"
 
 
-def localize(root: Path, maps: Path) -> list[dict]:
-    """Every query of :data:`SPLITS` on its room's map, ``ldlloc run``'s defaults and ``--max-tilt 10``."""
+def localize(root: Path, maps: Path, geometric: list[str] | None = None) -> list[dict]:
+    """Every query of :data:`SPLITS` on its room's map, ``ldlloc run``'s defaults and ``--max-tilt 10``
+    (``geometric``: ``field=value`` overrides of the geometric refinement's parameters, experiments)."""
+    from dataclasses import replace
+
     from ldlloc.batch.run import run_queries
     from ldlloc.pipeline import LocalizeParams
     from ldlmap.datasets import open_dataset
@@ -104,7 +108,13 @@ def localize(root: Path, maps: Path) -> list[dict]:
     out = maps / "results.json"
     if out.exists():
         out.unlink()
-    results = run_queries(queries, maps, out, LocalizeParams(max_tilt_deg=MAX_TILT), "cpu", meta={"dataset": "layout"})
+    params = LocalizeParams(max_tilt_deg=MAX_TILT)
+    geo = {}
+    for kv in geometric or []:
+        key, value = kv.split("=", 1)
+        geo[key] = parse_field(getattr(params.geometric, key), value)
+    params = replace(params, geometric=replace(params.geometric, **geo))
+    results = run_queries(queries, maps, out, params, "cpu", meta={"dataset": "layout"})
     truth = {q.name: q for q in queries}
     rows = []
     for r in results:
@@ -163,6 +173,7 @@ def main() -> None:
     ap.add_argument("--camera-height", default=None, metavar="MIN:MAX",
                     help="build the maps with ldlmap build's --camera-height MIN:MAX (default: not given)")
     ap.add_argument("--up", default=None, help="build the maps with ldlmap build's --up (default: auto)")
+    ap.add_argument("--geometric", action="append", help="GeometricParams field=value (repeatable, for experiments)")
     ap.add_argument("--output", type=Path, default=HERE / "layout.json")
     args = ap.parse_args()
     set_threads(args.threads)
@@ -172,7 +183,7 @@ def main() -> None:
     band = tuple(float(x) for x in args.camera_height.split(":")) if args.camera_height else None
     maps, rooms = build_maps(root, band, args.up)
     t2 = time.perf_counter()
-    rows = localize(root, maps)
+    rows = localize(root, maps, args.geometric)
     t3 = time.perf_counter()
     scenes = {s["name"]: s for s in json.loads((root / "dataset.json").read_text())["scenes"]}
     for row in rows:
