@@ -352,7 +352,7 @@ def _huber_weights(r, huber):
     return torch.where(a < huber, torch.ones_like(a), huber / a.clamp_min(1e-12))
 
 
-def _mixture_weights(r, valid, scale, thr, floor, iters: int = 5):
+def mixture_weights(r, valid, scale, thr, floor, iters: int = 5):
     """Inlier probabilities (K, X) of the residuals ``r`` of the ``valid`` points under a zero-mean
     Gaussian inlier (sigma from ``scale``, at least ``floor``) and a uniform outlier on
     ``[-thr, thr]`` (the association window), sigma and the inlier share fitted by EM per pose: a
@@ -374,7 +374,7 @@ def _robust_weights(r, valid, kernel: str, scale, thr, floor):
     """Weights (K, X) of the matched (``valid``) points' residuals ``r`` by :attr:`GeometricParams.kernel`:
     ``scale`` (K, 1) the kernel's scale, ``thr`` (K, 1) the association window, ``floor`` the least sigma."""
     if kernel == "mixture":
-        return _mixture_weights(r, valid, scale, thr, floor)
+        return mixture_weights(r, valid, scale, thr, floor)
     if kernel == "geman":
         return valid / (1 + (r / scale) ** 2) ** 2
     return _huber_weights(r, scale) * valid
