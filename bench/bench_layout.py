@@ -1,6 +1,7 @@
 """Furnished rooms against maps of their layout alone: the ``layout`` benchmark.
 
-Run: ``python bench/bench_layout.py [--per-kind 6] [--seed 39] [--per-split N] [--out bench/layout.json]``.
+Run: ``python bench/bench_layout.py [--per-kind 6] [--seed 39] [--per-split N] [--output bench/layout.json]
+[--geometric FIELD=VALUE ...] [--from-truth]``.
 
 It generates ``4 x --per-kind`` rooms of ``ldlmap synth --preset furnished`` (kitchens, bathrooms,
 bedrooms, living rooms, cycling through the box, sloped, stepped, arched, curved and L-shaped
@@ -16,7 +17,10 @@ are right (0.25 m / 5 deg), the misses (beyond 0.25 m / 5 deg) by failure mode (
 150-210 deg, the 180-degree twin; ``slide``: rotation within 5 deg, the height within 0.3 m, the
 centre elsewhere; ``height``: the camera more than 0.3 m off in height; ``turn``: a quarter turn,
 75-105 deg; ``other``), map size (MB) and
-build seconds per room. Per-query rows go to ``bench/layout.json``.
+build seconds per room. Per-query rows go to ``bench/layout.json``. ``--geometric FIELD=VALUE``
+sets a field of the geometric refinement's parameters (``GeometricParams``, experiments);
+``--from-truth`` localizes nothing but starts the geometric refinement at each true pose and
+reports, per kind, how many stay within 5 cm and 0.1 m (a slide there is the refinement's).
 """
 
 from __future__ import annotations
@@ -34,7 +38,8 @@ ROOT = HERE.parent
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from bench.common import CACHE, console, load_line, machine_info, map_tag, set_threads, synth_tag, write_json  # noqa: E402
+from bench.common import (CACHE, console, load_line, machine_info, map_tag, parse_field, set_threads, synth_tag,  # noqa: E402
+                          write_json)
 
 SPLITS = ("robot", "handheld")
 MAX_TILT = 10.0
@@ -94,17 +99,58 @@ def miss_mode(row: dict) -> str | None:
     return "turn" if 75 < row["r_error_deg"] < 105 else "other"
 
 
-def localize(root: Path, maps: Path) -> list[dict]:
-    """Every query of :data:`SPLITS` on its room's map, ``ldlloc run``'s defaults and ``--max-tilt 10``."""
-    from ldlloc.batch.run import run_queries
+def localize_params(geometric: list[str] | None = None):
+    """``ldlloc run``'s defaults with ``--max-tilt 10`` and the ``field=value`` overrides of the
+    geometric refinement's parameters (experiments)."""
+    from dataclasses import replace
+
     from ldlloc.pipeline import LocalizeParams
+
+    params = LocalizeParams(max_tilt_deg=MAX_TILT)
+    geo = {}
+    for kv in geometric or []:
+        key, value = kv.split("=", 1)
+        geo[key] = parse_field(getattr(params.geometric, key), value)
+    return replace(params, geometric=replace(params.geometric, **geo))
+
+
+def truth_starts(root: Path, maps: Path, geometric: list[str] | None = None) -> list[dict]:
+    """The geometric refinement started at each query's true pose (its search arcs, the lines seen from
+    the candidate translation nearest the truth): how far it moves (``move_m``) and the exact loss
+    there and at the truth. A refinement that leaves the truth slides in the method, not the search."""
+    from ldlloc.pipeline import Localizer, load_image
+    from ldlloc.refine.geometric import refine_poses_geometric
+    from ldlloc.search.pose_search import score_on_map
+    from ldlmap.datasets import open_dataset
+    from ldlmap.map.mapfile import read_map
+
+    params, rows, localizers = localize_params(geometric), [], {}
+    for q in open_dataset(root, "omniscenes").queries(list(SPLITS)):
+        if q.scene not in localizers:
+            localizers[q.scene] = Localizer(read_map(maps / f"{q.scene}.h5", load_cloud=False), params)
+        loc = localizers[q.scene]
+        m, arcs = loc.map, loc.search(load_image(q.image), MAX_TILT).arcs
+        R, t = q.rot_cam_from_world[None], q.center[None]
+        vis = m.visibility[m.nearest_translation(t)] if m.visibility is not None else None
+        g = refine_poses_geometric(arcs, R, t, m.lines, m.line_groups, m.principal_directions, vis, params.geometric,
+                                   m.camera_height_band)
+        loss = score_on_map(arcs, np.concatenate([R, g.rotations]), np.concatenate([t, g.centers]), m)
+        rows.append({"name": q.name, "scene": q.scene, "move_m": float(np.linalg.norm(g.centers[0] - t[0])),
+                     "loss_truth": float(loss[0]), "loss_refined": float(loss[1])})
+    return rows
+
+
+def localize(root: Path, maps: Path, geometric: list[str] | None = None) -> list[dict]:
+    """Every query of :data:`SPLITS` on its room's map, ``ldlloc run``'s defaults and ``--max-tilt 10``
+    (``geometric``: ``field=value`` overrides of the geometric refinement's parameters, experiments)."""
+    from ldlloc.batch.run import run_queries
     from ldlmap.datasets import open_dataset
 
     queries = open_dataset(root, "omniscenes").queries(list(SPLITS))
     out = maps / "results.json"
     if out.exists():
         out.unlink()
-    results = run_queries(queries, maps, out, LocalizeParams(max_tilt_deg=MAX_TILT), "cpu", meta={"dataset": "layout"})
+    results = run_queries(queries, maps, out, localize_params(geometric), "cpu", meta={"dataset": "layout"})
     truth = {q.name: q for q in queries}
     rows = []
     for r in results:
@@ -154,6 +200,25 @@ def print_table(table: dict) -> None:
     console().print(t)
 
 
+def report_truth_starts(root: Path, rows: list[dict], args) -> None:
+    """Per kind: how many refinements started at the truth stay within 5 cm and 0.1 m, the median move,
+    and how often the truth has the strictly better exact loss; rows to ``--output``."""
+    scenes = {s["name"]: s for s in json.loads((root / "dataset.json").read_text())["scenes"]}
+    table = {}
+    for key in ("function", "shape", None):
+        for value in sorted({scenes[r["scene"]][key] for r in rows}) if key else ["all"]:
+            sel = [r for r in rows if key is None or scenes[r["scene"]][key] == value]
+            move = np.array([r["move_m"] for r in sel])
+            table[value] = {"queries": len(sel), "within_0.05m": int(np.sum(move < 0.05)),
+                            "within_0.1m": int(np.sum(move < 0.1)), "median_move_m": float(np.median(move)),
+                            "truth_better": int(sum(r["loss_truth"] < r["loss_refined"] for r in sel))}
+            console().print(f"{value:10s} {len(sel):3d} queries: within 5 cm {table[value]['within_0.05m']}, "
+                            f"0.1 m {table[value]['within_0.1m']}, median move {table[value]['median_move_m']:.3f} m, "
+                            f"truth's loss better {table[value]['truth_better']}")
+    write_json(args.output, {"machine": machine_info(), "args": {k: str(v) for k, v in vars(args).items()},
+                             "from_truth": table, "queries": rows})
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--per-kind", type=int, default=6, help="rooms per room function (4 functions)")
@@ -163,6 +228,9 @@ def main() -> None:
     ap.add_argument("--camera-height", default=None, metavar="MIN:MAX",
                     help="build the maps with ldlmap build's --camera-height MIN:MAX (default: not given)")
     ap.add_argument("--up", default=None, help="build the maps with ldlmap build's --up (default: auto)")
+    ap.add_argument("--geometric", action="append", help="GeometricParams field=value (repeatable, for experiments)")
+    ap.add_argument("--from-truth", action="store_true",
+                    help="instead of localizing: the geometric refinement started at each true pose, per kind")
     ap.add_argument("--output", type=Path, default=HERE / "layout.json")
     args = ap.parse_args()
     set_threads(args.threads)
@@ -172,7 +240,10 @@ def main() -> None:
     band = tuple(float(x) for x in args.camera_height.split(":")) if args.camera_height else None
     maps, rooms = build_maps(root, band, args.up)
     t2 = time.perf_counter()
-    rows = localize(root, maps)
+    if args.from_truth:
+        report_truth_starts(root, truth_starts(root, maps, args.geometric), args)
+        return
+    rows = localize(root, maps, args.geometric)
     t3 = time.perf_counter()
     scenes = {s["name"]: s for s in json.loads((root / "dataset.json").read_text())["scenes"]}
     for row in rows:

@@ -46,6 +46,8 @@ from ldlloc.search.pose_search import SearchParams, score_on_map
 torch = lazy_module("torch")
 spatial = lazy_module("scipy.spatial")
 
+KERNELS = ("huber", "geman", "mixture")  # GeometricParams.kernel
+
 
 @dataclass(frozen=True)
 class GeometricParams:
@@ -99,6 +101,12 @@ class GeometricParams:
     """With a known camera-height band, each step keeps the camera within this of it."""
     keep_within: float = 0.15
     """A refined pose is kept when its exact loss is at most this fraction worse than its start's."""
+    kernel: str = "huber"
+    """Weights of the matched points (:data:`KERNELS`): huber, geman (Geman-McClure) or mixture
+    (an outlier process: a Gaussian inlier and a uniform outlier, fitted per pose and step;
+    docs/benchmarks.md#furnished-rooms-layout-only-maps)."""
+    length_power: float = 0.0
+    """Each point is weighted by its arc's length (over the mean) to this power (0: all arcs alike)."""
 
 
 @dataclass
@@ -163,6 +171,8 @@ def refine_poses_geometric(arcs: np.ndarray, rotations: np.ndarray, centers: np.
     A = np.asarray(arcs, dtype=np.float64)
     if A.ndim != 3 or A.shape[1:] != (2, 3) or not np.isfinite(A).all():
         raise InputError(f"arcs must be finite with shape (N, 2, 3), got {A.shape}")
+    if params.kernel not in KERNELS:
+        raise InputError(f"unknown refinement kernel {params.kernel!r} (one of {', '.join(KERNELS)})")
     # float32 throughout (faster than float64: docs/measurements.md#geometric-float32), about an origin
     # at the poses' mean centre so that maps in large coordinates (UTM) keep their precision.
     dt = torch.float32
@@ -182,6 +192,7 @@ def refine_poses_geometric(arcs: np.ndarray, rotations: np.ndarray, centers: np.
     arcs_t = torch.as_tensor(A, dtype=dt)
     X, arc_of = _sample_arcs(arcs_t, max(1, int(params.samples)))
     XX = (X[:, :, None] * X[:, None, :]).reshape(-1, 9)
+    point_w = _length_weights(arcs_t, params.length_power)[arc_of]
     n2 = torch.linalg.cross(arcs_t[:, 0], arcs_t[:, 1], dim=-1)
     n2 = n2 / torch.linalg.vector_norm(n2, dim=-1, keepdim=True).clamp_min(1e-12)
     margin = np.sin(np.radians(params.extent_margin_deg))
@@ -206,7 +217,8 @@ def refine_poses_geometric(arcs: np.ndarray, rotations: np.ndarray, centers: np.
         match, arc_group = _associate(R, t, X, arc_of, n2, L, G3, P3, params.group_tol, margin, thr)
         vp = (n2, P3, arc_group, params.vp_weight) if params.vp_weight > 0 else None
         for _ in range(max(1, int(params.steps))):
-            R, t = _gauss_newton_step(R, t, X, XX, L, match, (thr / 3).clamp_min(huber)[:, None], params.damping,
+            robust = (params.kernel, (thr / 3).clamp_min(huber)[:, None], thr[:, None], huber, point_w)
+            R, t = _gauss_newton_step(R, t, X, XX, L, match, robust, params.damping,
                                       fix_rotation=k < params.fixed_rotation_rounds, vp=vp)
             if z_lo is not None:
                 t[:, 2].clamp_(z_lo, z_hi)
@@ -340,16 +352,54 @@ def _huber_weights(r, huber):
     return torch.where(a < huber, torch.ones_like(a), huber / a.clamp_min(1e-12))
 
 
-def _gauss_newton_step(R, t, X, XX, L, match, huber, damping, fix_rotation=False, vp=None):
-    """One damped, Huber-weighted Gauss-Newton step for all K poses; ``XX`` (X, 9): the points'
-    outer products ``x x^T``; ``fix_rotation``: the translation only; ``vp``: ``(n2, P3, arc_group,
-    weight)`` adds the vanishing-point residuals. The normal equations gather the points per line
+def mixture_weights(r, valid, scale, thr, floor, iters: int = 5):
+    """Inlier probabilities (K, X) of the residuals ``r`` of the ``valid`` points under a zero-mean
+    Gaussian inlier (sigma from ``scale``, at least ``floor``) and a uniform outlier on
+    ``[-thr, thr]`` (the association window), sigma and the inlier share fitted by EM per pose: a
+    point far from its line in a pose whose other points fit tightly counts for little (clutter),
+    while a start far off, whose points all lie far, keeps a wide sigma and the pull of them all."""
+    v = valid.to(r.dtype)
+    sig, share = scale.clone(), torch.full_like(scale, 0.5)
+    w = v
+    for _ in range(iters):
+        g = share * torch.exp(-0.5 * (r / sig) ** 2) / (sig * np.sqrt(2 * np.pi))
+        w = g / (g + (1 - share) / (2 * thr)) * v
+        n = w.sum(1, keepdim=True).clamp_min(1e-6)
+        sig = torch.minimum(((w * r ** 2).sum(1, keepdim=True) / n).sqrt().clamp_min(floor), thr)
+        share = (n / v.sum(1, keepdim=True).clamp_min(1)).clamp(0.01, 0.99)
+    return w
+
+
+def _robust_weights(r, valid, kernel: str, scale, thr, floor):
+    """Weights (K, X) of the matched (``valid``) points' residuals ``r`` by :attr:`GeometricParams.kernel`:
+    ``scale`` (K, 1) the kernel's scale, ``thr`` (K, 1) the association window, ``floor`` the least sigma."""
+    if kernel == "mixture":
+        return mixture_weights(r, valid, scale, thr, floor)
+    if kernel == "geman":
+        return valid / (1 + (r / scale) ** 2) ** 2
+    return _huber_weights(r, scale) * valid
+
+
+def _length_weights(arcs, power: float):
+    """(N,) weight of each arc: its length over the mean length, to ``power`` (0: ones)."""
+    if power == 0:
+        return torch.ones(len(arcs), dtype=arcs.dtype, device=arcs.device)
+    length = torch.arccos((arcs[:, 0] * arcs[:, 1]).sum(-1).clamp(-1, 1))
+    return (length / length.mean().clamp_min(1e-12)) ** power
+
+
+def _gauss_newton_step(R, t, X, XX, L, match, robust, damping, fix_rotation=False, vp=None):
+    """One damped, robustly weighted Gauss-Newton step for all K poses; ``XX`` (X, 9): the points'
+    outer products ``x x^T``; ``robust``: ``(kernel, scale (K, 1), window (K, 1), least sigma, point
+    weights (X,))`` (:func:`_robust_weights`); ``fix_rotation``: the translation only; ``vp``:
+    ``(n2, P3, arc_group, weight)`` adds the vanishing-point residuals (Huber-weighted at ``scale``). The normal equations gather the points per line
     (:func:`_line_operators`): ``H = sum_l D_l S_l D_l^T`` and ``b = -sum_l D_l S_l n_l`` with
     ``S_l = sum_x w_x x x^T`` over the points matched to line ``l``."""
     n, D = _line_operators(R, t, L)  # (K, L, 3), (K, L, 6, 3)
     K, nl = n.shape[:2]
     r0 = _point_residuals(n, X, match)
-    w = _huber_weights(r0, huber) * (match >= 0)
+    kernel, huber, window, floor, point_w = robust
+    w = _robust_weights(r0, match >= 0, kernel, huber, window, floor) * point_w
     slot = (match.clamp_min(0) + nl * torch.arange(K, device=match.device)[:, None]).reshape(-1)
     S = torch.zeros((K * nl, 9), dtype=X.dtype, device=X.device).index_add_(
         0, slot, (w[..., None] * XX).reshape(-1, 9)).reshape(K, nl, 3, 3)
