@@ -33,7 +33,9 @@ the model is refitted. Then the calibration judged leave-one-kind-out (:func:`ld
 for each fitted kind, the logistic fitted on the other kinds and tested on it (poses, confident,
 confident right, precision), for every signal set of ``SIGNAL_SETS``; the real home with the fit
 on every kind. ``--fit`` prints the model fitted on all kinds (what goes into
-``ldlloc/confidence.py``). Results: ``bench/confidence.json``.
+``ldlloc/confidence.py``). Each leave-one-kind-out table is given twice: as judged, and without the
+copies of identical rooms (``copies`` and the copies named, :func:`without_copies`: the code before
+that check, from the same runs). Results: ``bench/confidence.json``.
 """
 
 from __future__ import annotations
@@ -51,6 +53,7 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 from bench.common import CACHE, console  # noqa: E402
+from ldlloc.confidence import COPY_WHY  # noqa: E402
 from ldlloc.confidence_fit import fit, judged, leave_one_kind_out  # noqa: E402
 
 SEEDS = (11,)  # demo-preset datasets (2 rooms each)
@@ -218,6 +221,13 @@ def building_rows(path: Path) -> list[dict]:
     return out
 
 
+def without_copies(rs: list[dict]) -> list[dict]:
+    """The rows as the code before the copies check judged them (:mod:`ldlloc.refine.copies`): without
+    the ``copies`` signal and the copies named among the competitors."""
+    return [{**r, "signals": {k: v for k, v in r["signals"].items() if k != "copies"},
+             "competitors": [c for c in r["competitors"] if not str(c).startswith(COPY_WHY)]} for r in rs]
+
+
 def set_summary(rs: list[dict]) -> dict:
     n = len(rs)
     conf = [r for r in rs if r["verdict"] == "confident"]
@@ -335,6 +345,9 @@ def main(argv: list[str] | None = None) -> int:
             summaries[f"{kind}, all"] = set_summary(judged(rs))
     print_sets(summaries)
     out["leave_one_kind_out"] = {name: leave_one_kind_out(kinds, sig, CHECK_ONLY) for name, sig in SIGNAL_SETS.items()}
+    before = {kind: without_copies(rs) for kind, rs in kinds.items()}
+    out["leave_one_kind_out"].update({f"{name}, no copies (before)": leave_one_kind_out(before, sig, CHECK_ONLY)
+                                      for name, sig in SIGNAL_SETS.items()})
     print_loko(out["leave_one_kind_out"])
     for name in ("real room", "real floor"):
         if name in table:
