@@ -11,8 +11,9 @@ floor): one image cannot tell the copies apart, whatever its score. No fitting i
    length and direction (one vote per seen line and motion), then kept where the moved seen lines
    lie on the target map's lines (``cover``: the share of their points within :data:`COPY_TOL` of
    a map line) for :data:`COPY_COVER` or more. The pose's own place (no motion) and a symmetric
-   room's twin within itself (the moved lines land on the seen lines again: the refined rivals'
-   tie judges those) are not copies;
+   room's twin within itself (the moved lines land on the seen lines again, or, on a map that
+   stores visibility, the moved camera sees mostly the same lines: the refined rivals' tie judges
+   those) are not copies;
 3. the **copy's pose** (the pose moved the same way) must stand where a camera can
    (:func:`ldlloc.refine.geometric.physical_poses` on its map) and explain the image about as well,
    both ways, within :data:`COPY_NOISE` of the pose's own: its map-line support
@@ -130,6 +131,15 @@ def visible_at(ldl_map, center: np.ndarray) -> np.ndarray | None:
     return np.asarray(ldl_map.visibility[ldl_map.nearest_translation(np.asarray(center, float)[None])], bool)
 
 
+def same_room(ldl_map, a: np.ndarray, b: np.ndarray) -> bool:
+    """Whether two places of a map that stores visibility see mostly the same lines (:data:`SELF_SHARE`
+    of the fewer: one room, a symmetric twin within it, not a copy); False without visibility."""
+    va, vb = visible_at(ldl_map, a), visible_at(ldl_map, b)
+    if va is None:
+        return False
+    return bool((va & vb).sum() >= SELF_SHARE * max(min(va.sum(), vb.sum()), 1))
+
+
 def explained_share(arcs: np.ndarray, R: np.ndarray, center: np.ndarray, ldl_map, tol_deg: float = 1.0) -> float:
     """Share of the image's arc points (within the horizon band) that lie on one of the map's grouped
     lines seen from the pose: :func:`ldlloc.refine.geometric.seen_line_points` with the roles swapped
@@ -223,7 +233,8 @@ def find_copies(arcs: np.ndarray, R: np.ndarray, center: np.ndarray, own_map, ma
         same = m is own_map
         for Q, off, c in copy_motions(seen, line_index(m), same):
             Rc, tc = R @ Q.T, Q @ center + off
-            if (same and np.linalg.norm(tc - center) < 2 * VOTE_CELL_M) or not physical_poses(tc[None], m)[0]:
+            if (same and (np.linalg.norm(tc - center) < 2 * VOTE_CELL_M or same_room(m, center, tc))
+                    or not physical_poses(tc[None], m)[0]):
                 continue
             if any(f["map"] == name and np.linalg.norm(np.asarray(f["t"]) - tc) < 2 * VOTE_CELL_M for f in found):
                 continue  # the same copy voted twice
