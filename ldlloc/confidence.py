@@ -46,8 +46,8 @@ Two checks need no fitting:
   confirms there, found again elsewhere in the pose's map or the other maps under a turn by a
   multiple of 90 degrees and a translation, with a pose there that explains the image within
   :data:`ldlloc.refine.copies.COPY_NOISE` as well) :func:`add_copies` found: an identical room
-  one image cannot tell apart. The verdict is then at most ``ambiguous``, each copy named
-  (``copy``: its map and position).
+  one image cannot tell apart. A confident verdict then becomes ``ambiguous`` (a doubtful pose
+  stays ``failed`` where the rest says so), each copy named (``copy``: its map and position).
 
 ``confidence = sigmoid(MODEL . signals)``, a logistic fitted on synthetic data and checked on the
 real ZInD home (docs/measurements.md#confidence; ``bench/bench_confidence.py --fit`` refits it).
@@ -340,15 +340,17 @@ def verdict_for(confidence: float | None, competitors: list, model: ConfidenceMo
 def judge(signals: dict[str, float], competitors: list, model: ConfidenceModel = MODEL) -> tuple[float, str]:
     """``(confidence, verdict)`` of a pose from its signals and named competitors: the model's
     confidence, 0 and ``failed`` where no camera stands (``physical`` 0), a PnP rival or another
-    map's verified twin, and a tie or a copy of the pose's room (``copies``), as :func:`verdict_for`
-    weighs them."""
+    map's verified twin, and a tie, as :func:`verdict_for` weighs them; a copy of the pose's room
+    (``copies``) makes a confident pose ``ambiguous`` (a doubtful one stays as the rest judges it)."""
     conf = model.confidence(signals)
     if float(signals.get("physical", 1.0)) < 0.5:
         return 0.0, "failed"
     rival = (max(float(signals.get("pnp_rival", 0.0)), float(signals.get("map_rival", 0.0))) >= RIVAL_SHARE
              or float(signals.get("map_twin", 0.0)) > 0)
-    tie = float(signals.get("tie", 0.0)) > 0 or float(signals.get("copies", 0.0)) > 0
-    return conf, verdict_for(conf, competitors, model, rival=rival, tie=tie)
+    verdict = verdict_for(conf, competitors, model, rival=rival, tie=float(signals.get("tie", 0.0)) > 0)
+    if verdict == "confident" and float(signals.get("copies", 0.0)) > 0:  # right up to which copy at best
+        verdict = "ambiguous"
+    return conf, verdict
 
 
 def assess(loc, ldl_map, support_deg: float = 1.0, model: ConfidenceModel = MODEL) -> None:
