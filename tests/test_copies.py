@@ -118,13 +118,15 @@ def test_turned_copy_on_another_floor():
 
 
 def test_image_that_tells_the_copies_apart():
-    """Identical walls, but the image shows a poster only the first room has (a map line the copy
-    lacks): the copy explains the image less well and is not named."""
+    """Identical walls, but the image shows a wall of shelves only the first room has (map lines the
+    copy lacks): the copy explains the image less well, and is not named."""
     L, g = _room()
-    poster = np.array([[[4.0, 2.0, 1.2], [4.0, 3.5, 1.2]], [[4.0, 2.0, 2.0], [4.0, 3.5, 2.0]],
-                       [[4.0, 2.0, 1.2], [4.0, 2.0, 2.0]], [[4.0, 3.5, 1.2], [4.0, 3.5, 2.0]],
-                       [[4.0, 2.3, 1.4], [4.0, 3.2, 1.4]], [[4.0, 2.3, 1.8], [4.0, 3.2, 1.8]]])
-    first = np.concatenate([L, poster - [0.01, 0, 0]])
-    m = _map([(np.zeros(3), first, np.concatenate([g, [1, 1, 2, 2, 1, 1]])), (NEXT_DOOR, L, g)])
+    shelves = [[[3.99, 1.5, z], [3.99, 4.5, z]] for z in np.arange(0.3, 2.6, 0.2)]
+    shelves += [[[3.99, y, 0.3], [3.99, y, 2.5]] for y in np.arange(1.5, 4.6, 0.4)]
+    first = np.concatenate([L, np.array(shelves, float)])
+    groups = np.concatenate([g, [1] * 12, [2] * (len(shelves) - 12)])
+    m = _map([(np.zeros(3), first, groups), (NEXT_DOOR, L, g)])
     loc = _localization(m, R0, T0)
     assert find_copies(loc.arcs, R0, T0, m, [(None, m)], 1.0) == []
+    assess(loc, m)
+    assert loc.verdict == "confident"
