@@ -14,7 +14,7 @@ floor): one image cannot tell the copies apart, whatever its score. No fitting i
    :data:`COPY_COVER` or more. The pose's own place (no motion) and a symmetric
    room's twin within itself (the moved lines land on the seen lines again, or, on a map that
    stores visibility, the moved camera sees mostly the same lines: the refined rivals' tie judges
-   those) are not copies;
+   those) are not copies, nor is the pose's own place on another map (maps that share a frame);
 3. the **copy's pose** (the pose moved the same way) must stand where a camera can
    (:func:`ldlloc.refine.geometric.physical_poses` on its map) and explain the image about as well,
    both ways: its map-line support (:func:`ldlloc.refine.geometric.map_line_support`: the map's lines
@@ -252,9 +252,10 @@ def find_copies(arcs: np.ndarray, R: np.ndarray, center: np.ndarray, own_map, ma
         same = m is own_map
         for Q, off, c in copy_motions(seen, line_index(m), same):
             Rc, tc = R @ Q.T, Q @ center + off
-            if (same and (np.linalg.norm(tc - center) < 2 * VOTE_CELL_M or same_room(m, center, tc))
-                    or not physical_poses(tc[None], m)[0]):
-                continue
+            if np.linalg.norm(tc - center) < 2 * VOTE_CELL_M or not physical_poses(tc[None], m)[0]:
+                continue  # the pose itself (maps sharing a frame: the same room on another room's map), or no camera
+            if physical_poses(tc[None], own_map)[0] and same_room(own_map, center, tc):
+                continue  # within the pose's own room: a twin
             if any(f["map"] == name and np.linalg.norm(np.asarray(f["t"]) - tc) < 2 * VOTE_CELL_M for f in found):
                 continue  # the same copy voted twice
             s = float(map_line_support(arcs, Rc[None], tc[None], m.lines, m.line_groups, visible_at(m, tc), tol_deg)[0])
