@@ -17,10 +17,10 @@ floor): one image cannot tell the copies apart, whatever its score. No fitting i
    those) are not copies, nor is the pose's own place on another map (maps that share a frame);
 3. the **copy's pose** (the pose moved the same way) must stand where a camera can
    (:func:`ldlloc.refine.geometric.physical_poses` on its map) and explain the image about as well,
-   both ways, at least :data:`COPY_SHARE` of the pose's own: its map-line support
-   (:func:`ldlloc.refine.geometric.map_line_support`: the map's lines the image confirms) and the
-   share of the image's lines its map explains (:func:`explained_share`: a wall of shelves only one
-   copy has tells them apart).
+   both ways: its map-line support (:func:`ldlloc.refine.geometric.map_line_support`: the map's lines
+   the image confirms) within :data:`COPY_NOISE` of the pose's own, and the share of the image's
+   lines its map explains (:func:`explained_share`) at least :data:`EXPLAINED_SHARE` of the pose's
+   (a wall of shelves only one copy has tells them apart).
 
 :func:`find_copies` runs the three on the pose's map and on other maps (a folder of floor maps);
 :func:`ldlloc.confidence.add_copies` names them and makes the verdict at most ``ambiguous``.
@@ -54,9 +54,9 @@ COPY_TOL = 0.15  # m: a moved seen-line point lies on a target line within this
 COPY_COVER = 0.6  # a motion is a copy when this share of the seen lines' points lie on the target's lines
 FIT_RADIUS_M = 0.3  # the voted translation is refined on the points within this of a target line
 SELF_SHARE = 0.5  # a motion that lands this share on the seen lines themselves is the room's own symmetry
-COPY_SHARE = 0.6  # a copy explains the image as well when its map-line support and the share of the image its map
-# explains are at least this much of the pose's (two scans of one synthetic office differ: 0.20 / 0.23 against
-# 0.26 / 0.32 at the pose)
+COPY_NOISE = 0.05  # a copy's map-line support within this of the pose's explains the image as well (the tie's noise)
+EXPLAINED_SHARE = 0.6  # ... and the share of the image its map explains at least this much of the pose's (two scans of
+# one room differ: the copy of a synthetic office explains 0.23 of the image where the pose explains 0.32)
 MAX_COPIES = 3
 
 
@@ -259,12 +259,12 @@ def find_copies(arcs: np.ndarray, R: np.ndarray, center: np.ndarray, own_map, ma
             if any(f["map"] == name and np.linalg.norm(np.asarray(f["t"]) - tc) < 2 * VOTE_CELL_M for f in found):
                 continue  # the same copy voted twice
             s = float(map_line_support(arcs, Rc[None], tc[None], m.lines, m.line_groups, visible_at(m, tc), tol_deg)[0])
-            if s < COPY_SHARE * own_support:
+            if s < own_support - COPY_NOISE:
                 continue
             if own_share is None:
                 own_share = explained_share(arcs, R, center, own_map, tol_deg)
             share = explained_share(arcs, Rc, tc, m, tol_deg)
-            if share >= COPY_SHARE * own_share:
+            if share >= EXPLAINED_SHARE * own_share:
                 found.append({"map": name, "R": Rc, "t": tc, "support": s, "explained": share, "cover": c,
                               "turn_deg": int(round(np.degrees(np.arctan2(Q[1, 0], Q[0, 0])))) % 360})
     found.sort(key=lambda f: -f["support"])
