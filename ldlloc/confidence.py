@@ -44,8 +44,8 @@ Two checks need no fitting:
   do not tell them apart, so the verdict is at most ``ambiguous``, with the rival named;
 - ``copies``: how many copies of the pose's room (:mod:`ldlloc.refine.copies`: the lines the image
   confirms there, found again elsewhere in the pose's map or the other maps under a turn by a
-  multiple of 90 degrees and a translation, with a pose there that explains the image within
-  :data:`ldlloc.refine.copies.COPY_NOISE` as well) :func:`add_copies` found: an identical room
+  multiple of 90 degrees and a translation, with a pose there that explains the image about as
+  well: :func:`ldlloc.refine.copies.find_copies`) :func:`add_copies` found: an identical room
   one image cannot tell apart. A confident verdict then becomes ``ambiguous`` (a doubtful pose
   stays ``failed`` where the rest says so), each copy named (``copy``: its map and position).
 
