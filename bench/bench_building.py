@@ -28,7 +28,8 @@ Run: ``python bench/bench_building.py [--preset building] [--seed S] [--ray] [--
    error after moving the estimate by the offset between the copy it landed in and the true one:
    only the copy is wrong), and how often the result is marked ``ambiguous`` when the copy is wrong
    and when it is right; the ``confident`` poses, how many are right (0.25 m / 5 deg) and how many
-   lie in a wrong copy. Each row keeps the confidence's signals and competitors
+   lie in a wrong copy; the same counts before the check for copies of identical rooms (the verdict
+   judged again without it: :func:`verdict_without_copies`) and how many poses named a copy. Each row keeps the confidence's signals and competitors
    (``bench/bench_confidence.py --building`` judges them). Seconds per query from the results (``seconds``: ``search`` and
    ``rotation`` summed over the floor maps, ``total``): median, mean and 90th percentile.
 ``--camera-height MIN:MAX`` and ``--num-trans N``: the maps built by ``prepare`` with those options
@@ -273,6 +274,7 @@ def score(results: list, queries: list, data: Path) -> list[dict[str, Any]]:
                                "status": r.status, "verdict": r.verdict, "confidence": r.confidence,
                                "signals": dict(r.confidence_signals or {}), "competitors": [c["why"] for c in r.competitors],
                                "map": Path(r.map).stem if r.map else None, "seconds": dict(r.seconds)}
+        row["verdict_before"] = verdict_without_copies(r)
         if r.status == "failed" or r.t is None:
             row.update(t_err=None, r_err=None, got_room=None, right_floor=False, right_room=False, copy_err=None,
                        search_err=None)
@@ -290,6 +292,18 @@ def score(results: list, queries: list, data: Path) -> list[dict[str, Any]]:
             translation_error(np.asarray(c["t"]), q.center), rotation_error_deg(np.asarray(c["R"]), q.rot_cam_from_world))
         rows.append(row)
     return rows
+
+
+def verdict_without_copies(r) -> str | None:
+    """The verdict of a record as the code before the copies check gave it (:mod:`ldlloc.refine.copies`):
+    judged again without the ``copies`` signal and the copies named (the same run)."""
+    from ldlloc.confidence import COPY_WHY, judge
+
+    sig = dict(r.confidence_signals or {})
+    if r.verdict is None or "copies" not in sig:
+        return r.verdict
+    del sig["copies"]
+    return judge(sig, [c for c in r.competitors if not str(c.get("why", "")).startswith(COPY_WHY)])[1]
 
 
 def within(e, m: float, d: float) -> bool:
@@ -310,6 +324,11 @@ def summarize(rows: list[dict[str, Any]]) -> dict[str, Any]:
     out["verdicts"] = {v: sum(r["verdict"] == v for r in rows) for v in ("confident", "ambiguous", "failed")}
     out["confident_right"] = sum(r["verdict"] == "confident" and within(
         None if r["t_err"] is None else (r["t_err"], r["r_err"]), 0.25, 5.0) for r in rows)
+    before = [r for r in rows if r.get("verdict_before", r["verdict"]) == "confident"]
+    out["confident_before"] = len(before)
+    out["confident_right_before"] = sum(within(None if r["t_err"] is None else (r["t_err"], r["r_err"]), 0.25, 5.0)
+                                        for r in before)
+    out["copies_named"] = sum(bool((r["signals"] or {}).get("copies")) for r in rows)
     ident = [r for r in rows if r["group"] is not None]
     if ident:
         wrong = [r for r in ident if not r["right_room"]]
@@ -319,6 +338,8 @@ def summarize(rows: list[dict[str, Any]]) -> dict[str, Any]:
             None if r["t_err"] is None else (r["t_err"], r["r_err"]), 0.1, 5.0) for r in ident)
         out["ambiguous_when_wrong_copy"] = [sum(r["verdict"] == "ambiguous" for r in wrong), len(wrong)]
         out["confident_wrong_copy"] = sum(r["verdict"] == "confident" for r in wrong if r["t_err"] is not None)
+        out["confident_wrong_copy_before"] = sum(r.get("verdict_before", r["verdict"]) == "confident" for r in wrong
+                                                 if r["t_err"] is not None)
         out["ambiguous_when_right_copy"] = [sum(r["verdict"] == "ambiguous" for r in right), len(right)]
     return out
 
@@ -342,7 +363,8 @@ def report(res: dict[str, Any]) -> None:
                     "(floor not given)")
     for col in ("part", "n", "0.1 m/5 deg", "0.25 m/5 deg", "search top-1", "right floor", "right room",
                 "right copy + pose", "pose in some copy", "ambiguous (wrong copy)", "ambiguous (right copy)",
-                "confident (right 0.25 m/5 deg)", "confident in a wrong copy", "ambiguous", "failed"):
+                "confident (right 0.25 m/5 deg)", "confident in a wrong copy", "before copies: confident (right), "
+                "wrong copy", "copies named", "ambiguous", "failed"):
         t.add_column(col)
     for name, s in res["summary"].items():
         n = s["count"]
@@ -353,7 +375,8 @@ def report(res: dict[str, Any]) -> None:
                   f("some_copy_pose") if "some_copy_pose" in s else "-", pair("ambiguous_when_wrong_copy"),
                   pair("ambiguous_when_right_copy"), f"{s['verdicts']['confident']} ({s['confident_right']})",
                   str(s.get("confident_wrong_copy", "-")),
-                  str(s["verdicts"]["ambiguous"]), str(s["failed"]))
+                  f"{s['confident_before']} ({s['confident_right_before']}), {s.get('confident_wrong_copy_before', '-')}",
+                  str(s["copies_named"]), str(s["verdicts"]["ambiguous"]), str(s["failed"]))
     c.print(t)
     for stage, v in res["seconds"].items():
         c.print(f"  {stage:9s} median {fmt(v['median'])} s, mean {fmt(v['mean'])}, p90 {fmt(v['p90'])}, "
@@ -403,6 +426,8 @@ def main(argv: list[str] | None = None) -> int:
                     help="prepare's --camera-height: candidates only MIN-MAX m above each floor (maps_<tag>)")
     ap.add_argument("--num-trans", type=int, default=None, help="prepare's --num-trans: N_t per floor map (maps_<tag>)")
     ap.add_argument("--timing-queries", type=int, default=40, help="queries of the in-process search timing (0: none)")
+    ap.add_argument("--rescore", action="store_true", help="score the run already made against these maps again "
+                    "(no localization)")
     ap.add_argument("--output", default=str(HERE / "building.json"))
     args = ap.parse_args(argv)
     if not Path(TIME_BIN).exists():
@@ -427,7 +452,10 @@ def main(argv: list[str] | None = None) -> int:
     images, queries = select_images(data, args.splits.split(",") if args.splits else None, args.max_queries)
     res["queries"] = len(queries)
     run_json = work / ("run.json" if maps_dir.name == "maps_plain" else f"run_{maps_dir.name}.json")
-    res["run"] = localize(images, maps_dir, run_json, args)
+    if args.rescore and run_json.exists() and run_json.with_suffix(".time").exists():
+        res["run"] = {**parse_time(run_json.with_suffix(".time")), "uptime_before": "rescored", "uptime_after": "-"}
+    else:
+        res["run"] = localize(images, maps_dir, run_json, args)
     from ldlloc.batch.results import load_results
 
     results, _ = load_results(run_json)

@@ -2,7 +2,7 @@
 real ZInD home, judged leave-one-kind-out.
 
 Run: ``python bench/bench_confidence.py [--data ../shared/data] [--real-maps DIR] [--building
-bench/building.json] [--fit]``.
+bench/building.json] [--results SET=RESULTS.json ...] [--skip synthetic,layout,real] [--fit]``.
 
 Sets (each run once and cached under ``bench/.cache/confidence/``; ``--rerun`` runs again), by kind:
 
@@ -33,7 +33,9 @@ the model is refitted. Then the calibration judged leave-one-kind-out (:func:`ld
 for each fitted kind, the logistic fitted on the other kinds and tested on it (poses, confident,
 confident right, precision), for every signal set of ``SIGNAL_SETS``; the real home with the fit
 on every kind. ``--fit`` prints the model fitted on all kinds (what goes into
-``ldlloc/confidence.py``). Results: ``bench/confidence.json``.
+``ldlloc/confidence.py``). Each leave-one-kind-out table is given twice: as judged, and without the
+copies of identical rooms (``copies`` and the copies named, :func:`without_copies`: the code before
+that check, from the same runs). Results: ``bench/confidence.json``.
 """
 
 from __future__ import annotations
@@ -51,6 +53,7 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 from bench.common import CACHE, console  # noqa: E402
+from ldlloc.confidence import COPY_WHY  # noqa: E402
 from ldlloc.confidence_fit import fit, judged, leave_one_kind_out  # noqa: E402
 
 SEEDS = (11,)  # demo-preset datasets (2 rooms each)
@@ -202,6 +205,19 @@ def rows(results: list) -> list[dict]:
     return out
 
 
+def given_results(specs: list[str]) -> dict[str, list[dict]]:
+    """``--results SET=PATH``: each results file's rows (:func:`rows`) under its set name."""
+    from ldlloc.batch.results import load_results
+
+    out = {}
+    for spec in specs:
+        name, _, path = spec.partition("=")
+        if not path:
+            raise SystemExit(f"--results {spec}: expected SET=PATH")
+        out[name] = rows(load_results(Path(path))[0])
+    return out
+
+
 def building_rows(path: Path) -> list[dict]:
     """The rows of a ``bench_building.py`` run (its results json), as :func:`rows` makes them, with
     ``wrong_copy``: the pose landed in another copy of an identical room."""
@@ -216,6 +232,13 @@ def building_rows(path: Path) -> list[dict]:
                     "t_error_m": r["t_err"], "r_error_deg": r["r_err"],
                     "wrong_copy": bool(ok and r["group"] is not None and not r["right_room"])})
     return out
+
+
+def without_copies(rs: list[dict]) -> list[dict]:
+    """The rows as the code before the copies check judged them (:mod:`ldlloc.refine.copies`): without
+    the ``copies`` signal and the copies named among the competitors."""
+    return [{**r, "signals": {k: v for k, v in r["signals"].items() if k != "copies"},
+             "competitors": [c for c in r["competitors"] if not str(c).startswith(COPY_WHY)]} for r in rs]
 
 
 def set_summary(rs: list[dict]) -> dict:
@@ -296,12 +319,16 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--data", default=None, help="real data folder (default $LDL_REAL_DATA or ../shared/data)")
     ap.add_argument("--real-maps", default=None, help="folder of cached real maps (room_*/, floor_*/), e.g. "
                     "another checkout's bench/.cache/real (default: build them like bench_real.py)")
-    ap.add_argument("--building", default=None, help="a bench_building.py results json (its rows: the building kind)")
+    ap.add_argument("--building", action="append", metavar="[KIND=]PATH",
+                    help="a bench_building.py results json (its rows: the kind KIND, default building), repeatable")
     ap.add_argument("--fit", action="store_true", help="fit the logistic on every fitted kind and print it")
     ap.add_argument("--rerun", action="store_true", help="localize again instead of reading cached runs")
     ap.add_argument("--no-layout", action="store_true", help="skip the layout benchmark's rooms")
     ap.add_argument("--multiroom-seeds", default=",".join(map(str, MULTIROOM_SEEDS)),
                     help="multiroom datasets to run (comma-separated seeds; default 11,12)")
+    ap.add_argument("--results", action="append", metavar="SET=PATH", help="an `ldlloc run` results file with ground "
+                    "truth as a set (its kind: the set name's first word; 'real ...' is checked only), repeatable")
+    ap.add_argument("--skip", default="", help="comma-separated: synthetic, layout, real (sets not run)")
     ap.add_argument("--threads", type=int, default=1, help="torch and OpenCV threads (default 1)")
     ap.add_argument("--output", default=str(HERE / "confidence.json"))
     args = ap.parse_args(argv)
@@ -311,13 +338,18 @@ def main(argv: list[str] | None = None) -> int:
     torch.set_num_threads(args.threads)
     cv2.setNumThreads(args.threads)
     seeds = tuple(int(x) for x in args.multiroom_seeds.split(",") if x.strip())
-    sets = {name: rows(rs) for name, rs in synthetic_results(args.rerun, seeds).items()}
-    if not args.no_layout:
+    skip = {x.strip() for x in args.skip.split(",") if x.strip()}
+    sets = {} if "synthetic" in skip else {name: rows(rs) for name, rs in synthetic_results(args.rerun, seeds).items()}
+    if not args.no_layout and "layout" not in skip:
         sets.update({name: rows(rs) for name, rs in layout_results(args.rerun).items()})
-    if args.building and Path(args.building).exists():
-        sets["building"] = building_rows(Path(args.building))
-    real = real_results(real_data_root(args.data), Path(args.real_maps) if args.real_maps else None, args.rerun)
-    sets.update({name: rows(rs) for name, rs in real.items()})
+    for spec in args.building or []:  # [KIND=]PATH
+        kind, _, path = spec.rpartition("=")
+        if Path(path).exists():
+            sets[kind or "building"] = building_rows(Path(path))
+    sets.update(given_results(args.results or []))
+    if "real" not in skip:
+        real = real_results(real_data_root(args.data), Path(args.real_maps) if args.real_maps else None, args.rerun)
+        sets.update({name: rows(rs) for name, rs in real.items()})
     kinds: dict[str, list[dict]] = {}
     for name, rs in sets.items():
         kinds.setdefault(kind_of(name), []).extend(rs)
@@ -335,6 +367,9 @@ def main(argv: list[str] | None = None) -> int:
             summaries[f"{kind}, all"] = set_summary(judged(rs))
     print_sets(summaries)
     out["leave_one_kind_out"] = {name: leave_one_kind_out(kinds, sig, CHECK_ONLY) for name, sig in SIGNAL_SETS.items()}
+    before = {kind: without_copies(rs) for kind, rs in kinds.items()}
+    out["leave_one_kind_out"].update({f"{name}, no copies (before)": leave_one_kind_out(before, sig, CHECK_ONLY)
+                                      for name, sig in SIGNAL_SETS.items()})
     print_loko(out["leave_one_kind_out"])
     for name in ("real room", "real floor"):
         if name in table:

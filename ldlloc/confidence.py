@@ -41,7 +41,13 @@ Two checks need no fitting:
 - ``tie``: 1 when a refined pose distinct from the final one (``Localization.refined_rivals``:
   a 180-degree twin of a symmetric room, an identical room's copy) scores within
   :data:`TWIN_NOISE` of it, within its map or across the maps (:func:`assess_across`): the lines
-  do not tell them apart, so the verdict is at most ``ambiguous``, with the rival named.
+  do not tell them apart, so the verdict is at most ``ambiguous``, with the rival named;
+- ``copies``: how many copies of the pose's room (:mod:`ldlloc.refine.copies`: the lines the image
+  confirms there, found again elsewhere in the pose's map or the other maps under a turn by a
+  multiple of 90 degrees and a translation, with a pose there that explains the image about as
+  well: :func:`ldlloc.refine.copies.find_copies`) :func:`add_copies` found: an identical room
+  one image cannot tell apart. A confident verdict then becomes ``ambiguous`` (a doubtful pose
+  stays ``failed`` where the rest says so), each copy named (``copy``: its map and position).
 
 ``confidence = sigmoid(MODEL . signals)``, a logistic fitted on synthetic data and checked on the
 real ZInD home (docs/measurements.md#confidence; ``bench/bench_confidence.py --fit`` refits it).
@@ -55,6 +61,7 @@ from typing import Any
 import numpy as np
 
 from ldlmap.core.geometry import angle_from_trace_deg
+from ldlloc.refine.copies import find_copies
 from ldlloc.refine.geometric import GeometricParams, map_line_support, physical_poses, selection_scores
 from ldlloc.refine.retrieval import RetrievalParams, accept_retrieved
 
@@ -104,6 +111,8 @@ RIVAL_SHARE = 0.5  # a distinct PnP pose with half the final pose's inliers or m
 # A feature pose is verified by the retrieval's acceptance rule (VERIFIED_INLIERS, VERIFIED_LINE_SHARE in
 # ldlloc.refine.retrieval); across maps only verified poses compete with it (docs/measurements.md#verified-across-maps)
 VERIFIED_RULE = RetrievalParams()  # its defaults are the rule
+
+COPY_WHY = "copy of this room"  # how a competitor that is a copy of the pose's room begins its ``why`` (add_copies)
 
 
 def effective_signals(signals: dict[str, float]) -> dict[str, float]:
@@ -331,13 +340,17 @@ def verdict_for(confidence: float | None, competitors: list, model: ConfidenceMo
 def judge(signals: dict[str, float], competitors: list, model: ConfidenceModel = MODEL) -> tuple[float, str]:
     """``(confidence, verdict)`` of a pose from its signals and named competitors: the model's
     confidence, 0 and ``failed`` where no camera stands (``physical`` 0), a PnP rival or another
-    map's verified twin, and a tie, as :func:`verdict_for` weighs them."""
+    map's verified twin, and a tie, as :func:`verdict_for` weighs them; a copy of the pose's room
+    (``copies``) makes a confident pose ``ambiguous`` (a doubtful one stays as the rest judges it)."""
     conf = model.confidence(signals)
     if float(signals.get("physical", 1.0)) < 0.5:
         return 0.0, "failed"
     rival = (max(float(signals.get("pnp_rival", 0.0)), float(signals.get("map_rival", 0.0))) >= RIVAL_SHARE
              or float(signals.get("map_twin", 0.0)) > 0)
-    return conf, verdict_for(conf, competitors, model, rival=rival, tie=float(signals.get("tie", 0.0)) > 0)
+    verdict = verdict_for(conf, competitors, model, rival=rival, tie=float(signals.get("tie", 0.0)) > 0)
+    if verdict == "confident" and float(signals.get("copies", 0.0)) > 0:  # right up to which copy at best
+        verdict = "ambiguous"
+    return conf, verdict
 
 
 def assess(loc, ldl_map, support_deg: float = 1.0, model: ConfidenceModel = MODEL) -> None:
@@ -350,6 +363,40 @@ def assess(loc, ldl_map, support_deg: float = 1.0, model: ConfidenceModel = MODE
     loc.competitors = named + [c for c in competitor_dicts(loc, others, limit=MAX_COMPETITORS - len(named))
                                if not named or distinct(c["R"], c["t"], [n["R"] for n in named],
                                                         [n["t"] for n in named]).all()]
+    conf, loc.verdict = judge(loc.confidence_signals, loc.competitors, model)
+    loc.confidence = round(conf, 6)
+    add_copies(loc, ldl_map, [(None, ldl_map)], support_deg, model)
+
+
+def add_copies(loc, own_map, maps: list, support_deg: float = 1.0, model: ConfidenceModel = MODEL) -> None:
+    """Look for copies of the room ``loc``'s pose stands in (:func:`ldlloc.refine.copies.find_copies`)
+    on ``maps`` (``(name, map)``; name None: the pose's own map ``own_map``); each found is named as a
+    competitor (``copy``: ``{"map", "t"}``; ``map`` too when it is another map), ``copies`` counts all
+    found so far, and the verdict is judged again (:func:`judge`: at most ``ambiguous``). A pose that
+    is not refined, or stands where no camera can, is not looked at."""
+    sig = loc.confidence_signals
+    if not loc.refined or loc.arcs is None or float(sig.get("physical", 1.0)) < 0.5:
+        return
+    found = find_copies(loc.arcs, loc.rot_cam_from_world, loc.center, own_map, maps,
+                        float(sig.get("support", 0.0)), support_deg)
+    if not found:
+        return
+    named = []
+    for f in found:
+        where = f["map"] if f["map"] is not None else getattr(own_map, "name", None) or "this map"
+        d = float(np.linalg.norm(f["t"] - np.asarray(loc.center, float)))
+        c = {"R": np.round(f["R"], 8).tolist(), "t": np.round(f["t"], 6).tolist(), "loss": None,
+             "why": f"{COPY_WHY} on {where}, {d:.1f} m away" + (f", turned {f['turn_deg']} deg" if f["turn_deg"]
+                                                                      else "")
+             + f", map-line support {f['support']:.3f} against {float(sig.get('support', 0.0)):.3f}",
+             "copy": {"map": where, "t": np.round(f["t"], 3).tolist()}}
+        if f["map"] is not None:
+            c["map"] = f["map"]
+        named.append(c)
+    keep = [c for c in loc.competitors if "copy" in c or distinct(c["R"], c["t"], [n["R"] for n in named],
+                                                                   [n["t"] for n in named]).all()]
+    loc.competitors = (named + keep)[:max(MAX_COMPETITORS, len(named))]
+    loc.confidence_signals = {**sig, "copies": float(sig.get("copies", 0.0)) + len(found)}
     conf, loc.verdict = judge(loc.confidence_signals, loc.competitors, model)
     loc.confidence = round(conf, 6)
 

@@ -38,12 +38,13 @@ def fit(rows: list[dict], signals: tuple[str, ...]) -> dict:
     the smallest threshold at which the confident poses are >= :data:`TARGET_PRECISION` right in
     every kind of data (``row["kind"]``; one pool when the rows name none): pooled, an easy kind
     with many right poses lowers the threshold below what a harder kind holds.
-    Poses the rules that need no fitting judge (``physical`` 0: no camera there; ``tie``: never
-    confident) are left out of the threshold's choice, and the unphysical ones out of the fit.
+    Poses the rules that need no fitting judge (``physical`` 0: no camera there; ``tie`` or
+    ``copies``: never confident) are left out of the threshold's choice, and the unphysical ones out of the fit.
     Non-negative: no signal may lower the confidence as it grows (explainable, and a quirk of one
     kind of data cannot be learnt backwards)."""
     rows = [r for r in rows if r["signals"] and float(r["signals"].get("physical", 1.0)) >= 0.5]
-    eligible = np.array([float(r["signals"].get("tie", 0.0)) == 0 for r in rows], dtype=bool)
+    eligible = np.array([float(r["signals"].get("tie", 0.0)) == 0 and float(r["signals"].get("copies", 0.0)) == 0
+                         for r in rows], dtype=bool)
     X = np.array([[effective_signals(r["signals"]).get(k, 0.0) for k in signals] for r in rows], float).reshape(
         len(rows), len(signals))
     y = np.array([r["good"] for r in rows], float)

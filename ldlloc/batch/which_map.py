@@ -13,7 +13,9 @@ panorama against them:
    the paper's multi-room mode (one search over the poses of every room, sec. 4.2 and the
    supplement's 20 offices) split per map;
 3. the ``top_maps`` best are refined (:meth:`~ldlloc.pipeline.Localizer.localize` from their search)
-   and :func:`choose_map` keeps the most confident (:mod:`ldlloc.confidence`).
+   and :func:`choose_map` keeps the most confident (:mod:`ldlloc.confidence`); copies of its
+   room on the other maps (:func:`ldlloc.confidence.add_copies`: an identical room on another
+   floor) make it at most ``ambiguous``.
 
 A single map skips the ranking and the choice: it is plain ``localize``.
 """
@@ -29,7 +31,7 @@ import numpy as np
 
 from ldlmap.core.errors import InputError, LdlError
 from ldlmap.map.mapfile import read_map
-from ldlloc.confidence import assess_across, verified
+from ldlloc.confidence import add_copies, assess_across, verified
 from ldlloc.pipeline import Localization, LocalizeParams, Localizer, Searched
 from ldlloc.refine.geometric import GeometricParams
 from ldlloc.search.pose_search import score_on_map
@@ -211,6 +213,8 @@ def localize_on_maps(img: np.ndarray, maps: MapSet, max_tilt_deg: float | None, 
     ranked = [o for o, _ in searched]
     tick = time.perf_counter()
     chosen = choose_map([o for o in ranked if o.loc is not None], first.params.geometric)
+    others = [(e.scene, e.localizer.map) for e in maps.entries if e is not chosen.entry]
+    add_copies(chosen.loc, chosen.entry.localizer.map, others, first.params.geometric.support_deg)  # other floors
     secs["choose"] += time.perf_counter() - tick
     secs["total"] = sum(secs.values())
     loc = chosen.loc

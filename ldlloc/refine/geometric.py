@@ -436,34 +436,51 @@ def map_line_support(arcs: np.ndarray, rotations: np.ndarray, centers: np.ndarra
     explains; this counts the map's lines that the query confirms, so a symmetric twin that puts a
     door or window frame where the image shows a plain wall loses support. One float32 matmul per
     pose (the three dot products of the points with each arc's normal and end planes)."""
+    L_all = np.asarray(lines, dtype=np.float64)
+    grouped = np.asarray(line_groups) >= 0
+    out = np.zeros(len(rotations))
+    if len(arcs) == 0:
+        return out
+    planes = arc_planes(arcs)
+    for k in range(len(rotations)):
+        L = L_all[grouped if visible is None else grouped & np.asarray(visible[k], dtype=bool)]
+        near, shown = seen_line_points(planes, rotations[k], centers[k], L, tol_deg, samples, band_deg)
+        if shown.any():
+            out[k] = float(near[shown].mean())
+    return out
+
+
+def arc_planes(arcs: np.ndarray) -> np.ndarray:
+    """(3, 3N) float32 tensor of the arcs' great-circle normals and end planes (:func:`seen_line_points`)."""
     A = np.asarray(arcs, dtype=np.float64)
-    if len(A) == 0:
-        return np.zeros(len(rotations))
     s, e = A[:, 0], A[:, 1]
     n = np.cross(s, e)
     n /= np.linalg.norm(n, axis=1, keepdims=True).clip(1e-12)
-    V = torch.as_tensor(np.concatenate([n, np.cross(n, s), np.cross(e, n)], 0).T, dtype=torch.float32)  # (3, 3N)
-    N = len(A)
-    tol = np.sin(np.radians(tol_deg))
-    L_all = np.asarray(lines, dtype=np.float64)
-    grouped = np.asarray(line_groups) >= 0
+    return torch.as_tensor(np.concatenate([n, np.cross(n, s), np.cross(e, n)], 0).T, dtype=torch.float32)
+
+
+def seen_line_points(planes, R: np.ndarray, center: np.ndarray, lines: np.ndarray, tol_deg: float = 1.0,
+                     samples: int = 24, band_deg: float = 70.0) -> tuple[np.ndarray, np.ndarray]:
+    """Which of ``samples`` points along each map line (L, 2, 3) lie on a query arc (``planes``:
+    :func:`arc_planes`) seen from the pose ``(R, center)``: ``near`` (L, samples), within ``tol_deg``
+    of an arc's great circle and extent, and ``shown`` (L, samples), within ``band_deg`` of the horizon
+    (the detector's cap hides the poles). What :func:`map_line_support` averages, per line."""
+    L = np.asarray(lines, dtype=np.float64).reshape(-1, 2, 3)
+    near = np.zeros((len(L), samples), dtype=bool)
+    if len(L) == 0:
+        return near, near.copy()
     f = (np.arange(samples) + 0.5) / samples
-    sin_band = np.sin(np.radians(band_deg))
-    out = np.zeros(len(rotations))
-    for k in range(len(rotations)):
-        L = L_all[grouped if visible is None else grouped & np.asarray(visible[k], dtype=bool)]
-        if len(L) == 0:
-            continue
-        P = (L[:, None, 0] + f[None, :, None] * (L[:, None, 1] - L[:, None, 0])).reshape(-1, 3)
-        d = (P - centers[k]) @ np.asarray(rotations[k]).T
-        d /= np.linalg.norm(d, axis=1, keepdims=True).clip(1e-12)
-        d = d[np.abs(d[:, 2]) < sin_band]
-        if len(d) == 0:
-            continue
-        D = torch.as_tensor(d, dtype=torch.float32) @ V  # (P, 4N)
-        near = (D[:, :N].abs() < tol) & (torch.minimum(D[:, N:2 * N], D[:, 2 * N:]) > -tol)  # arcs < 180 deg: one lune
-        out[k] = float(near.any(1).float().mean())
-    return out
+    P = (L[:, None, 0] + f[None, :, None] * (L[:, None, 1] - L[:, None, 0])).reshape(-1, 3)
+    d = (P - np.asarray(center, dtype=np.float64)) @ np.asarray(R, dtype=np.float64).T
+    d /= np.linalg.norm(d, axis=1, keepdims=True).clip(1e-12)
+    shown = np.abs(d[:, 2]) < np.sin(np.radians(band_deg))
+    if shown.any():
+        N = planes.shape[1] // 3
+        tol = np.sin(np.radians(tol_deg))
+        D = torch.as_tensor(d[shown], dtype=torch.float32) @ planes  # (P, 3N)
+        hit = (D[:, :N].abs() < tol) & (torch.minimum(D[:, N:2 * N], D[:, 2 * N:]) > -tol)  # arcs < 180 deg: one lune
+        near.reshape(-1)[np.flatnonzero(shown)] = hit.any(1).numpy()
+    return near, shown.reshape(len(L), samples)
 
 
 PHYSICAL_SPACING = 2.0  # a camera stands within this many candidate spacings of a candidate translation

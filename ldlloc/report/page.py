@@ -5,7 +5,8 @@ thumbnails as data URIs; no script, no network), sections in this order:
 2. per split (ground truth): the accuracy table;
 3. plots: the confidence histogram (records with ``confidence``), error CDFs per split (ground truth);
 4. the median seconds of each stage;
-5. one row per query, worst first (:func:`worst_first`), with its thumbnail (:mod:`.thumbnails`).
+5. one row per query, worst first (:func:`worst_first`), with its thumbnail (:mod:`.thumbnails`) and,
+   beside its verdict, why each competing pose competes (an identical room's copy: its map and place).
 """
 
 from __future__ import annotations
@@ -190,7 +191,8 @@ def _query_rows(records: list[dict], thumbs: dict, limit: int) -> str:
                  + "".join(f'<div class="note">{escape(n)}</div>' for n in note) + "</td>",
                  f'<td>{_badge(q.get("status", "ok"), STATUS_COLORS.get(q.get("status", "ok"), "#8a8a8a"))}</td>']
         if with_verdict:
-            cells.append(f'<td>{_badge(verdict or "none", VERDICT_COLORS.get(verdict or "none", "#8a8a8a"))}</td>')
+            named = "".join(f'<div class="note">{escape(str(c.get("why", "")))}</div>' for c in q.get("competitors") or [])
+            cells.append(f'<td>{_badge(verdict or "none", VERDICT_COLORS.get(verdict or "none", "#8a8a8a"))}{named}</td>')
         if with_conf:
             cells.append(f'<td>{_fmt(q.get("confidence"), ".2f")}</td>')
         if gt:
