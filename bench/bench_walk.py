@@ -208,6 +208,118 @@ def run_building(args) -> dict:
             "frames": rows, **building_counts(rows), "walk_decided": sum(r["walk_decided"] for r in rows)}
 
 
+def walk_frames(queries: list, params) -> list:
+    """The walk's frames (:class:`ldlloc.walk.localize.WalkFrame`) of dataset ``queries`` in walk order."""
+    from ldlloc.batch.run import tilt_bound_for
+    from ldlloc.batch.images import load_image
+    from ldlloc.walk.localize import WalkFrame
+
+    return [WalkFrame(q.name, (lambda p=q.image: load_image(p)), None, tilt_bound_for(q, params)) for q in queries]
+
+
+def first_pass(queries: list, maps_path: Path, cache: Path, chunk: tuple[int, int] | None = None) -> dict:
+    """The walk's first pass (each frame's own localization and the searches near confident frames:
+    what :func:`ldlloc.walk.localize.localize_walk` does before it chooses the path) against the map
+    or folder of maps ``maps_path``, saved once to ``cache`` (pickle): :func:`redecide` chooses the
+    path again from it in seconds."""
+    import pickle
+
+    from ldlloc.batch.which_map import MapSet
+    from ldlloc.pipeline import LocalizeParams
+    from ldlloc.walk.localize import FrameOutcome, WalkFrame, WalkParams, augment, localize_frame
+
+    if cache.exists():
+        return pickle.loads(cache.read_bytes())
+    params, walk = LocalizeParams(), WalkParams()
+    maps = MapSet.load(maps_path, params, "cpu", recursive=False)
+    index = {id(e): i for i, e in enumerate(maps.entries)}
+    outs, ref, trackers = [], None, {}
+    frames = walk_frames(queries, params)
+    for k, fr in enumerate(frames):
+        part = cache.with_name(f"{cache.stem}_{k:04d}.pkl")  # each frame's own localization, kept (runs in parallel)
+        if part.exists():
+            o = pickle.loads(part.read_bytes())
+            o.frame = fr
+        elif chunk is not None and not chunk[0] <= k < chunk[1]:
+            continue
+        else:
+            o, ref = localize_frame(fr, outs[-1] if outs else None, maps, walk, ref, trackers, index)
+            o.own_count = 0 if o.hypotheses is None else len(o.hypotheses)
+            keep = FrameOutcome(WalkFrame(fr.name, None), loc=o.loc, hypotheses=o.hypotheses, error=o.error,
+                                single_confidence=o.single_confidence, single_verdict=o.single_verdict,
+                                single_pose=o.single_pose, competitors=o.competitors)
+            keep.own_count, keep.map = o.own_count, None if o.entry is None else index[id(o.entry)]
+            part.write_bytes(pickle.dumps(keep))
+            o.map = keep.map
+        if o.map is not None:
+            o.entry = maps.entries[o.map]
+        outs.append(o)
+        console().print(f"first pass {k + 1}/{len(queries)}: {o.single_verdict}")
+    if chunk is not None:
+        return {}
+    augment(outs, maps, walk)
+    saved = [{"name": o.frame.name, "error": o.error, "verdict": o.single_verdict, "confidence": o.single_confidence,
+              "pose": o.single_pose, "competitors": o.competitors, "tracked": o.tracked, "own_count": o.own_count,
+              "map": o.map, "refined": bool(o.loc and o.loc.refined),
+              "hyp": None if o.hypotheses is None else vars(o.hypotheses)} for o in outs]
+    cache.write_bytes(pickle.dumps({"maps": [str(e.path) for e in maps.entries], "frames": saved}))
+    return pickle.loads(cache.read_bytes())
+
+
+def redecide(saved: dict, queries: list, walk=None, data: Path | None = None) -> dict:
+    """The walk's path chosen again from the saved first pass (:func:`first_pass`) with ``walk``
+    (:class:`ldlloc.walk.localize.WalkParams`), scored per frame on the chosen hypothesis (a final pose
+    as refined, a search pose coarse: the walk refines it near itself), with where the truth is among
+    the hypotheses (``near_own``: among the frame's own search poses, ``near_any``: also among those
+    of the searches near confident frames; within 0.5 m / 10 deg). ``data``: a synthetic building
+    (the rooms the poses stand in)."""
+    from ldlmap.core.geometry import rotation_error_deg
+    from ldlmap.synth.building import read_building, room_at
+    from ldlloc.walk.hypotheses import Hypotheses
+    from ldlloc.walk.localize import FrameOutcome, WalkFrame, WalkParams, walk_path
+    from ldlloc.walk.motion import FreeSpace
+
+    walk = walk or WalkParams()
+    free = FreeSpace.of_maps([map_contents(Path(p)) for p in saved["maps"]]) if walk.walls else None
+    live = []
+    for s in saved["frames"]:
+        if s["hyp"] is None or not len(s["hyp"]["loss"]):
+            continue
+        o = FrameOutcome(WalkFrame(s["name"], None), hypotheses=Hypotheses(**s["hyp"]), single_pose=s["pose"],
+                         single_verdict=s["verdict"], competitors=s["competitors"], tracked=s["tracked"])
+        o.saved = s
+        live.append(o)
+    path = walk_path(live, walk, free=free)
+    rooms = read_building(data) if data is not None else None
+    at = lambda p: None if rooms is None or (r := room_at(rooms, p)) is None else r.id  # noqa: E731
+    gt, rows = {q.name: q for q in queries}, []
+    for o, j in zip(live, path.choice):
+        q, h = gt[o.saved["name"]], o.hypotheses
+        te = np.linalg.norm(h.center - q.center, axis=1)
+        re = np.array([rotation_error_deg(R, q.rot_cam_from_world) for R in h.rot_cam_from_world])
+        good = (te < 0.5) & (re < 10)
+        rows.append({"name": q.name, "room": getattr(q, "room", None), "floor": getattr(q, "floor", None),
+                     "verdict": o.saved["verdict"], "single_t": float(np.linalg.norm(o.saved["pose"][1] - q.center)),
+                     "single_r": float(rotation_error_deg(o.saved["pose"][0], q.rot_cam_from_world)),
+                     "single_room": at(o.saved["pose"][1]), "t": float(te[j]), "r": float(re[j]),
+                     "final": bool(h.final[j]), "chosen": j, "map": int(h.map_index[j]), "walk_room": at(h.center[j]),
+                     "near_own": bool(good[:o.saved["own_count"]].any()), "near_any": bool(good.any()),
+                     "good_idx": np.flatnonzero(good).tolist(), "n": len(h)})
+    return {"rows": rows, "cost": path.cost}
+
+
+def map_contents(path: Path):
+    """The map at ``path`` (:class:`ldlmap.map.contents.LdlMap`), cached per process."""
+    from ldlmap.map.mapfile import read_map
+
+    if path not in MAPS:
+        MAPS[path] = read_map(path, load_cloud=False)
+    return MAPS[path]
+
+
+MAPS: dict = {}
+
+
 def print_building(res: dict) -> None:
     from rich.table import Table
 
