@@ -52,6 +52,13 @@ def test_octree_candidates_tell_no_walls_but_the_stairs_are_known():
     off = free.off_stairs(a, np.array([0, 0]), b, np.array([1, 1]))
     assert not off[0, 0] and off[1, 1]  # up at the stairs; up 8 m away from them
     assert not free.blocked(a, np.array([0, 0]), b, np.array([1, 1])).any()
+    lattice = _maps()
+    for m in lattice:  # the same candidates as a lattice at their spacing (a layout's): walls are known
+        m.config = {"translations": {"method": "spacing", "spacing": 0.5}}
+    walled = FreeSpace.of_maps(lattice)
+    assert walled.masks is not None and walled.reach == [0.5, 0.5]
+    out = walled.blocked(a[:1], np.array([0]), np.array([[11.0, 4.0, 1.5]]), np.array([0]))
+    assert out[0, 0]  # 3 m off the corridor's candidates: out of its free space
 
 
 def test_the_walk_changes_floor_at_the_stairs():
