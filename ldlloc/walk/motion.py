@@ -33,6 +33,7 @@ from ldlmap.core.lazy import lazy_module
 from ldlmap.map.translations import candidate_spacing
 
 ndimage = lazy_module("scipy.ndimage")
+spatial = lazy_module("scipy.spatial")
 
 
 @dataclass(frozen=True)
@@ -118,7 +119,8 @@ class FreeSpace:
             return
         T = [np.unique(np.asarray(t, dtype=np.float64).reshape(-1, 3)[:, :2].round(4), axis=0)
              for t in translations]  # their xy (a scan's candidates stand at several heights)
-        spacing = spacings or [candidate_spacing(np.asarray(t, dtype=np.float64).reshape(-1, 3)) for t in translations]
+        spacing = spacings or [candidate_spacing(np.asarray(t, dtype=np.float64).reshape(-1, 3))
+                               for t in translations]
         every = np.concatenate(T)
         self.reach = [REACH * max(s, 1e-3) for s in spacing]
         self.lo = every.min(0) - max(self.reach) - 1e-6
@@ -202,32 +204,40 @@ def lattice_spacing(m) -> float | None:
 RISE_M = (0.1, 0.25)  # a stair's step: this much higher than the one before ...
 RUN_M = (0.15, 0.45)  # ... and this far on (across its edge): shelves stand straight above each other
 MIN_STEPS = 5  # steps in a run (fewer: furniture)
+STEP_WIDTH_M = (0.5, 3.0)  # a step's edge: as long as a flight is wide
 PARALLEL_DEG = 5.0
 STAIR_REACH_M = 3.0  # a floor change within this of a stair's steps (xy) is on the stairs: its landings
 
 
 def stair_points(lines: np.ndarray) -> np.ndarray:
-    """(S, 2) xy of the stairs in 3D segments (N, 2, 3): the midpoints of the horizontal segments (0.5 m
-    or longer: a step's edge) that end a run of at least :data:`MIN_STEPS` parallel ones, each
-    ``RISE_M`` above and ``RUN_M`` on from the one before (and overlapping it along its length)."""
+    """(S, 2) xy of the stairs in 3D segments (N, 2, 3): the midpoints of the horizontal segments
+    (:data:`STEP_WIDTH_M` long: a step's edge) that end a run of at least :data:`MIN_STEPS` parallel ones, each
+    ``RISE_M`` above and ``RUN_M`` on from the one before (and overlapping it along its length). The
+    pairs compared are the midpoints within one step of each other (memory bounded in the map's size)."""
     L = np.asarray(lines, dtype=np.float64).reshape(-1, 2, 3)
     d = L[:, 1] - L[:, 0]
     n = np.linalg.norm(d, axis=1)
-    keep = (n >= 0.5) & (np.abs(d[:, 2]) < 0.05 * n)
+    keep = (n >= STEP_WIDTH_M[0]) & (n <= STEP_WIDTH_M[1]) & (np.abs(d[:, 2]) < 0.05 * n)
     L, d, n = L[keep], d[keep], n[keep]
     if len(L) < MIN_STEPS:
         return np.zeros((0, 2))
     u = d[:, :2] / np.linalg.norm(d[:, :2], axis=1, keepdims=True)
     mid = L.mean(1)
-    off = mid[None, :, :2] - mid[:, None, :2]  # (i, j): from step i to step j
-    along = np.abs(np.einsum("ik,ijk->ij", u, off))
-    across = np.abs(np.einsum("ik,ijk->ij", u[:, ::-1] * np.array([1.0, -1.0]), off))
-    dz = mid[None, :, 2] - mid[:, None, 2]
-    nxt = ((np.abs(u @ u.T) > np.cos(np.radians(PARALLEL_DEG))) & (dz >= RISE_M[0]) & (dz <= RISE_M[1])
-           & (across >= RUN_M[0]) & (across <= RUN_M[1]) & (along < 0.5 * n[:, None]))
+    pairs = spatial.cKDTree(mid).query_pairs(float(np.hypot(RISE_M[1], RUN_M[1])) + 0.5 * float(n.max()),
+                                             output_type="ndarray")
+    i, j = np.r_[pairs[:, 0], pairs[:, 1]], np.r_[pairs[:, 1], pairs[:, 0]]  # both ways: i below j
+    off, dz = mid[j, :2] - mid[i, :2], mid[j, 2] - mid[i, 2]
+    along = np.abs(np.einsum("ek,ek->e", u[i], off))
+    across = np.abs(np.einsum("ek,ek->e", u[i, ::-1] * np.array([1.0, -1.0]), off))
+    step = ((np.abs(np.einsum("ek,ek->e", u[i], u[j])) > np.cos(np.radians(PARALLEL_DEG)))
+            & (dz >= RISE_M[0]) & (dz <= RISE_M[1]) & (across >= RUN_M[0]) & (across <= RUN_M[1])
+            & (along < 0.5 * n[i]))
+    i, j = i[step], j[step]
     run = np.ones(len(L))  # steps in the longest run ending at each segment
     for _ in range(MIN_STEPS):
-        run = np.maximum(run, 1 + np.max(np.where(nxt, run[:, None], 0), axis=0))
+        nxt = run.copy()
+        np.maximum.at(nxt, j, run[i] + 1)
+        run = nxt
     return mid[run >= MIN_STEPS, :2]
 
 
