@@ -222,6 +222,10 @@ def run_building(args) -> dict:
         out["truth_in_hypotheses"] = {"own_search": sum(r["near_own"] for r in hyp),
                                       "any": sum(r["near_any"] for r in hyp), "frames": len(hyp),
                                       "within": "0.5 m / 10 deg"}
+        T = {f: map_contents(maps / f"floor_{f}.h5").translations for f in {q.floor for q in queries}}
+        d = np.array([np.linalg.norm(T[q.floor] - q.center, axis=1).min() for q in queries])
+        out["nearest_candidate_m"] = {"median": float(np.median(d)), "p90": float(np.percentile(d, 90)),
+                                      "over_0.3m": int((d > 0.3).sum())}  # to each frame's true position
     return out
 
 
@@ -399,7 +403,8 @@ def print_building(res: dict) -> None:
     if "truth_in_hypotheses" in res:
         h = res["truth_in_hypotheses"]
         console().print(f"the true pose among the frame's hypotheses ({h['within']}): {h['any']}/{h['frames']} "
-                        f"({h['own_search']} from its own search)")
+                        f"({h['own_search']} from its own search); the nearest candidate translation to the "
+                        f"true position: {res['nearest_candidate_m']}")
 
 
 def main(argv: list[str] | None = None) -> int:
