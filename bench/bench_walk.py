@@ -17,7 +17,12 @@ floor, ``--visits`` rooms entered a floor, up the stairwell; ``--seed``: one no 
 cached under ``bench/.cache/walk_building/data_s<seed>_w<width>``; ``ldlmap prepare`` at its defaults
 (one map per floor, timed, cached as ``maps_s<seed>``); the walk localized as one walk against the
 folder of floor maps (``ldlloc run --root DATA --split walk_tour --walk --scene-unknown``'s library
-path). Scored per frame against the ground truth the run never sees: within 0.1 m / 5 deg (single
+path). ``--first-pass``: the walk's first pass (each frame's own localization, the searches near
+confident frames) saved once under ``bench/.cache/walk_building/first_s<seed>*.pkl`` and the walk
+decided from it (:func:`decided`: the same path and refinement, without localizing every frame
+again): a change of the motion model or the decision measured in minutes, not half an hour, with
+where the true pose is among the frames' hypotheses (:func:`redecide`). Scored per frame against
+the ground truth the run never sees: within 0.1 m / 5 deg (single
 image and walk), right floor, and for the identical rooms (offices, hotel rooms) whether the pose
 is in the right copy (:func:`ldlmap.synth.building.room_at`). Results: ``bench/walk_building.json``.
 """
@@ -199,13 +204,182 @@ def run_building(args) -> dict:
     out = WALK_CACHE / f"walk_s{args.seed}.json"
     out.unlink(missing_ok=True)
     t0 = time.perf_counter()
-    res = run_walk_queries(queries, maps, out, LocalizeParams(), WalkParams(top_maps=TOP_MAPS), "cpu",
-                           meta={"dataset": "synthetic"}, scene_unknown=True)
+    if args.first_pass:  # the walk decided again from its saved first pass (computed once)
+        rows = decided(queries, maps, WALK_CACHE / f"first_s{args.seed}.pkl", WalkParams(top_maps=TOP_MAPS))
+    else:
+        res = run_walk_queries(queries, maps, out, LocalizeParams(), WalkParams(top_maps=TOP_MAPS), "cpu",
+                               meta={"dataset": "synthetic"}, scene_unknown=True)
+        rows = frame_rows(res, queries)
     seconds = time.perf_counter() - t0
-    rows = frame_rows(res, queries)
     copy_rows(rows, queries, data)
-    return {"seed": args.seed, "width": args.width, "visits": args.visits, "seconds": seconds, "prepare": build,
-            "frames": rows, **building_counts(rows), "walk_decided": sum(r["walk_decided"] for r in rows)}
+    out = {"seed": args.seed, "width": args.width, "visits": args.visits, "seconds": seconds, "prepare": build,
+           "frames": rows, **building_counts(rows), "walk_decided": sum(r["walk_decided"] for r in rows)}
+    if args.first_pass:  # where the truth is among the hypotheses the walk chose from
+        import pickle
+
+        cache = WALK_CACHE / f"first_s{args.seed}.pkl"
+        hyp = redecide(pickle.loads(cache.read_bytes()), queries, WalkParams(top_maps=TOP_MAPS), data)["rows"]
+        out["truth_in_hypotheses"] = {"own_search": sum(r["near_own"] for r in hyp),
+                                      "any": sum(r["near_any"] for r in hyp), "frames": len(hyp),
+                                      "within": "0.5 m / 10 deg"}
+        T = {f: map_contents(maps / f"floor_{f}.h5").translations for f in {q.floor for q in queries}}
+        d = np.array([np.linalg.norm(T[q.floor] - q.center, axis=1).min() for q in queries])
+        out["nearest_candidate_m"] = {"median": float(np.median(d)), "p90": float(np.percentile(d, 90)),
+                                      "over_0.3m": int((d > 0.3).sum())}  # to each frame's true position
+    return out
+
+
+def walk_frames(queries: list, params) -> list:
+    """The walk's frames (:class:`ldlloc.walk.localize.WalkFrame`) of dataset ``queries`` in walk order."""
+    from ldlloc.batch.run import tilt_bound_for
+    from ldlloc.batch.images import load_image
+    from ldlloc.walk.localize import WalkFrame
+
+    return [WalkFrame(q.name, (lambda p=q.image: load_image(p)), None, tilt_bound_for(q, params)) for q in queries]
+
+
+def first_pass(queries: list, maps_path: Path, cache: Path, chunk: tuple[int, int] | None = None) -> dict:
+    """The walk's first pass (each frame's own localization and the searches near confident frames:
+    what :func:`ldlloc.walk.localize.localize_walk` does before it chooses the path) against the map
+    or folder of maps ``maps_path``, saved once to ``cache`` (pickle): :func:`redecide` chooses the
+    path again from it in seconds. Each frame's own localization is kept beside it as it is done
+    (``<cache stem>_<frame>.pkl``): ``chunk`` (first, end) localizes only those frames (processes
+    side by side), and a call without it then reads them and runs the searches near confident frames."""
+    import pickle
+
+    from ldlloc.batch.which_map import MapSet
+    from ldlloc.pipeline import LocalizeParams
+    from ldlloc.walk.localize import FrameOutcome, WalkFrame, WalkParams, augment, localize_frame
+
+    if cache.exists():
+        return pickle.loads(cache.read_bytes())
+    params, walk = LocalizeParams(), WalkParams()
+    maps = MapSet.load(maps_path, params, "cpu", recursive=False)
+    index = {id(e): i for i, e in enumerate(maps.entries)}
+    outs, ref, trackers = [], None, {}
+    frames = walk_frames(queries, params)
+    for k, fr in enumerate(frames):
+        part = cache.with_name(f"{cache.stem}_{k:04d}.pkl")  # each frame's own localization, kept (runs in parallel)
+        if part.exists():
+            o = pickle.loads(part.read_bytes())
+            o.frame = fr
+        elif chunk is not None and not chunk[0] <= k < chunk[1]:
+            continue
+        else:
+            o, ref = localize_frame(fr, outs[-1] if outs else None, maps, walk, ref, trackers, index)
+            o.own_count = 0 if o.hypotheses is None else len(o.hypotheses)
+            keep = FrameOutcome(WalkFrame(fr.name, None), loc=o.loc, hypotheses=o.hypotheses, error=o.error,
+                                single_confidence=o.single_confidence, single_verdict=o.single_verdict,
+                                single_pose=o.single_pose, competitors=o.competitors)
+            keep.own_count, keep.map = o.own_count, None if o.entry is None else index[id(o.entry)]
+            part.write_bytes(pickle.dumps(keep))
+            o.map = keep.map
+        if o.map is not None:
+            o.entry = maps.entries[o.map]
+        outs.append(o)
+        console().print(f"first pass {k + 1}/{len(queries)}: {o.single_verdict}")
+    if chunk is not None:
+        return {}
+    augment(outs, maps, walk)
+    saved = [{"name": o.frame.name, "error": o.error, "verdict": o.single_verdict, "confidence": o.single_confidence,
+              "pose": o.single_pose, "competitors": o.competitors, "tracked": o.tracked, "own_count": o.own_count,
+              "map": o.map, "refined": bool(o.loc and o.loc.refined),
+              "hyp": None if o.hypotheses is None else vars(o.hypotheses)} for o in outs]
+    cache.write_bytes(pickle.dumps({"maps": [str(e.path) for e in maps.entries], "frames": saved}))
+    return pickle.loads(cache.read_bytes())
+
+
+def redecide(saved: dict, queries: list, walk=None, data: Path | None = None) -> dict:
+    """The walk's path chosen again from the saved first pass (:func:`first_pass`) with ``walk``
+    (:class:`ldlloc.walk.localize.WalkParams`), scored per frame on the chosen hypothesis (a final pose
+    as refined, a search pose coarse: the walk refines it near itself), with where the truth is among
+    the hypotheses (``near_own``: among the frame's own search poses, ``near_any``: also among those
+    of the searches near confident frames; within 0.5 m / 10 deg). ``data``: a synthetic building
+    (the rooms the poses stand in)."""
+    from ldlmap.core.geometry import rotation_error_deg
+    from ldlmap.synth.building import read_building, room_at
+    from ldlloc.walk.hypotheses import Hypotheses
+    from ldlloc.walk.localize import FrameOutcome, WalkFrame, WalkParams, walk_path
+    from ldlloc.walk.motion import FreeSpace
+
+    walk = walk or WalkParams()
+    free = FreeSpace.of_maps([map_contents(Path(p)) for p in saved["maps"]]) if walk.walls else None
+    live = []
+    for s in saved["frames"]:
+        if s["hyp"] is None or not len(s["hyp"]["loss"]):
+            continue
+        o = FrameOutcome(WalkFrame(s["name"], None), hypotheses=Hypotheses(**s["hyp"]), single_pose=s["pose"],
+                         single_verdict=s["verdict"], competitors=s["competitors"], tracked=s["tracked"])
+        o.saved = s
+        live.append(o)
+    path = walk_path(live, walk, free=free)
+    rooms = read_building(data) if data is not None else None
+    at = lambda p: None if rooms is None or (r := room_at(rooms, p)) is None else r.id  # noqa: E731
+    gt, rows = {q.name: q for q in queries}, []
+    for o, j in zip(live, path.choice):
+        q, h = gt[o.saved["name"]], o.hypotheses
+        te = np.linalg.norm(h.center - q.center, axis=1)
+        re = np.array([rotation_error_deg(R, q.rot_cam_from_world) for R in h.rot_cam_from_world])
+        good = (te < 0.5) & (re < 10)
+        rows.append({"name": q.name, "room": getattr(q, "room", None), "floor": getattr(q, "floor", None),
+                     "verdict": o.saved["verdict"], "single_t": float(np.linalg.norm(o.saved["pose"][1] - q.center)),
+                     "single_r": float(rotation_error_deg(o.saved["pose"][0], q.rot_cam_from_world)),
+                     "single_room": at(o.saved["pose"][1]), "t": float(te[j]), "r": float(re[j]),
+                     "final": bool(h.final[j]), "chosen": j, "map": int(h.map_index[j]), "walk_room": at(h.center[j]),
+                     "near_own": bool(good[:o.saved["own_count"]].any()), "near_any": bool(good.any()),
+                     "good_idx": np.flatnonzero(good).tolist(), "n": len(h)})
+    return {"rows": rows, "cost": path.cost}
+
+
+def decided(queries: list, maps_path: Path, cache: Path, walk=None) -> list[dict]:
+    """The walk decided from the saved first pass (:func:`first_pass`, its frames' own localizations
+    read back) as :func:`ldlloc.walk.localize.decide` decides it (the path, a chosen search pose
+    searched and refined near itself), one row per frame as :func:`frame_rows` gives them."""
+    import pickle
+
+    from ldlmap.core.geometry import rotation_error_deg, translation_error
+    from ldlloc.batch.which_map import MapSet
+    from ldlloc.pipeline import LocalizeParams
+    from ldlloc.walk.hypotheses import Hypotheses
+    from ldlloc.walk.localize import WalkParams, decide
+
+    walk = walk or WalkParams()
+    saved = first_pass(queries, maps_path, cache)
+    maps = MapSet.load(maps_path, LocalizeParams(), "cpu", recursive=False)
+    assert [str(e.path) for e in maps.entries] == saved["maps"], "the maps changed since the first pass"
+    outs = []
+    for k, (fr, s) in enumerate(zip(walk_frames(queries, LocalizeParams()), saved["frames"])):
+        o = pickle.loads(cache.with_name(f"{cache.stem}_{k:04d}.pkl").read_bytes())
+        o.frame, o.entry = fr, None if o.map is None else maps.entries[o.map]
+        o.hypotheses = None if s["hyp"] is None else Hypotheses(**s["hyp"])
+        outs.append(o)
+    decide(outs, maps, walk)
+    gt, rows = {q.name: q for q in queries}, []
+    for o in outs:
+        q = gt[o.frame.name]
+        err = lambda R, t: (float(translation_error(t, q.center)),  # noqa: E731
+                            float(rotation_error_deg(R, q.rot_cam_from_world)))
+        st, sr = err(*o.single_pose) if o.single_pose is not None else (None, None)
+        wt, wr = err(o.loc.rot_cam_from_world, o.loc.center) if o.loc is not None else (None, None)
+        rows.append({"name": q.name, "map": None if o.entry is None else Path(o.entry.path).stem,
+                     "single": {"t": st, "r": sr, "verdict": o.single_verdict,
+                                "pose": None if o.single_pose is None else np.asarray(o.single_pose[1]).tolist()},
+                     "walk": {"t": wt, "r": wr, "verdict": None if o.loc is None else o.loc.verdict,
+                              "pose": None if o.loc is None else np.asarray(o.loc.center).tolist()},
+                     "walk_decided": bool(o.walk_decided), "margin": o.walk_margin})
+    return rows
+
+
+def map_contents(path: Path):
+    """The map at ``path`` (:class:`ldlmap.map.contents.LdlMap`), cached per process."""
+    from ldlmap.map.mapfile import read_map
+
+    if path not in MAPS:
+        MAPS[path] = read_map(path, load_cloud=False)
+    return MAPS[path]
+
+
+MAPS: dict = {}
 
 
 def print_building(res: dict) -> None:
@@ -226,6 +400,11 @@ def print_building(res: dict) -> None:
                         f"{c['right_copy']}/{c['identical_frames']} (within 0.1 m / 5 deg {c['identical_0.1m_5deg']}), "
                         f"right floor {c['right_floor']}, confident {c['confident']} (wrong {c['confident_wrong']})")
     console().print(f"frames the walk decided: {res['walk_decided']}/{len(res['frames'])}")
+    if "truth_in_hypotheses" in res:
+        h = res["truth_in_hypotheses"]
+        console().print(f"the true pose among the frame's hypotheses ({h['within']}): {h['any']}/{h['frames']} "
+                        f"({h['own_search']} from its own search); the nearest candidate translation to the "
+                        f"true position: {res['nearest_candidate_m']}")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -238,6 +417,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=4040, help="--building: the building's seed (no test uses 4040)")
     ap.add_argument("--width", type=int, default=1024, help="--building: panorama width")
     ap.add_argument("--visits", type=int, default=2, help="--building: rooms the walk enters a floor")
+    ap.add_argument("--first-pass", action="store_true",
+                    help="--building: decide the walk from its first pass saved under bench/.cache (computed once: "
+                         "each frame's own localization and the searches near confident frames), in minutes")
     args = ap.parse_args(argv)
     if args.building:
         use_threads(args.threads)

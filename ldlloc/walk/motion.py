@@ -14,7 +14,13 @@ candidate translations: a scan's free space kept clear of every surface, a layou
 doorways), a step whose straight segment leaves that space (a wall between two rooms, the outside)
 costs a jump more than its length does (a tour's walker went round by a door: a detour);
 between frames close in time (a video's, ``close_s``) it is all but forbidden (``blocked_cost``):
-nobody walks through a wall in a fifth of a second.
+nobody walks through a wall in a fifth of a second. Only maps whose candidates are a lattice (a
+layout's rooms and doorways, ``spacing`` translations) tell walls so: a scan's octree candidates
+are a sample of its free space, their gaps no walls (and a scan may see its doors closed).
+
+Floors change on stairs (:func:`stair_points`: the steps' edges in the maps' lines): where the
+maps show stairs, a change of floor farther than :data:`STAIR_REACH_M` from them costs
+``off_stairs_cost`` more (a lift: rare); maps without stairs say nothing of where floors change.
 """
 
 from __future__ import annotations
@@ -27,6 +33,7 @@ from ldlmap.core.lazy import lazy_module
 from ldlmap.map.translations import candidate_spacing
 
 ndimage = lazy_module("scipy.ndimage")
+spatial = lazy_module("scipy.spatial")
 
 
 @dataclass(frozen=True)
@@ -48,6 +55,8 @@ class MotionParams:
     # of a room it cannot tell from its own pose costs nothing more: the motion decides)
     close_s: float = 2.0  # frames at most this far apart in time cannot stand on two sides of a wall ...
     blocked_cost: float = 100.0  # ... a step through one costs this more (all but forbidden; tours: a jump more)
+    off_stairs_cost: float = 16.0  # a change of floor away from the maps' stairs costs this more (a lift, or a
+    # floor taken for another: more than two floor changes by the stairs)
 
 
 def free_length(params: MotionParams, dt: float | None) -> float:
@@ -73,11 +82,16 @@ def transition_costs(prev, cur, params: MotionParams, dt: float | None = None,
         c = np.einsum("aij,bij->ab", prev.rot_cam_from_world, cur.rot_cam_from_world)  # trace(Ra^T Rb)
         ang = np.degrees(np.arccos(np.clip((c - 1.0) / 2.0, -1.0, 1.0)))
         cost = np.minimum(cost + ang / params.turn_deg, cap)
-    if free is not None:  # through a wall: a jump more (the way round by a door), between close frames forbidden
-        wall = params.blocked_cost if close else params.jump_cost
+    if free is not None and free.masks is not None:  # through a wall: a jump more (the way round by a door),
+        wall = params.blocked_cost if close else params.jump_cost  # between close frames forbidden
         cost = np.where(free.blocked(prev.center, prev.map_index, cur.center, cur.map_index),
                         cost + wall, cost)
-    return np.where(np.abs(d[:, :, 2]) >= params.floor_dz_m, np.maximum(cost, params.floor_cost), cost)
+    floor = np.abs(d[:, :, 2]) >= params.floor_dz_m
+    cost = np.where(floor, np.maximum(cost, params.floor_cost), cost)
+    if free is not None and floor.any():  # floors change on the stairs
+        cost = np.where(floor & free.off_stairs(prev.center, prev.map_index, cur.center, cur.map_index),
+                        cost + params.off_stairs_cost, cost)
+    return cost
 
 
 REACH = 1.0  # a point within this many candidate spacings of a candidate is free space: a gap of two spacings is
@@ -91,12 +105,22 @@ MAX_SAMPLES = 4_000_000  # segment points looked up at once
 class FreeSpace:
     """Where a camera can stand on each map of a walk, in the maps' common frame: the xy of its
     candidate translations, each grown by ``REACH`` times the map's candidate spacing, rasterized
-    on one grid (``CELLS_PER_SPACING`` cells to the smallest spacing). :meth:`blocked` tells the steps that leave it."""
+    on one grid (``CELLS_PER_SPACING`` cells to the smallest spacing). :meth:`blocked` tells the steps
+    that leave it. ``translations`` None: the walls are not known (``masks`` None). ``stairs``: each
+    map's stairs (:func:`stair_points`, None: none known); :meth:`off_stairs` tells the floor changes
+    away from them."""
 
-    def __init__(self, translations: list[np.ndarray]):
+    def __init__(self, translations: list[np.ndarray] | None, stairs: list[np.ndarray] | None = None,
+                 spacings: list[float] | None = None):
+        self.stairs = None if stairs is None or not any(len(s) for s in stairs) else \
+            [np.asarray(s, dtype=np.float64).reshape(-1, 2) for s in stairs]
+        self.masks = None
+        if translations is None:
+            return
         T = [np.unique(np.asarray(t, dtype=np.float64).reshape(-1, 3)[:, :2].round(4), axis=0)
              for t in translations]  # their xy (a scan's candidates stand at several heights)
-        spacing = [candidate_spacing(np.c_[t, np.zeros(len(t))]) for t in T]
+        spacing = spacings or [candidate_spacing(np.asarray(t, dtype=np.float64).reshape(-1, 3))
+                               for t in translations]
         every = np.concatenate(T)
         self.reach = [REACH * max(s, 1e-3) for s in spacing]
         self.lo = every.min(0) - max(self.reach) - 1e-6
@@ -108,10 +132,29 @@ class FreeSpace:
 
     @classmethod
     def of_maps(cls, maps: list) -> "FreeSpace | None":
-        """The free space of these maps (:class:`ldlmap.map.contents.LdlMap`); None when one has fewer than two
-        candidate translations (nothing to tell a wall by)."""
+        """The free space of these maps (:class:`ldlmap.map.contents.LdlMap`): walls where every map's
+        candidates are a lattice (:func:`lattice_spacing`), stairs from their lines; None when neither is known."""
         T = [np.asarray(m.translations, dtype=np.float64).reshape(-1, 3) for m in maps]
-        return cls(T) if T and all(len(t) >= 2 for t in T) else None
+        spacings = [lattice_spacing(m) for m in maps]
+        walls = bool(T) and all(len(t) >= 2 for t in T) and None not in spacings
+        stairs = [stair_points(m.lines) for m in maps]
+        if not walls and not any(len(s) for s in stairs):
+            return None
+        return cls(T if walls else None, stairs, spacings if walls else None)
+
+    def off_stairs(self, a: np.ndarray, map_a: np.ndarray, b: np.ndarray, map_b: np.ndarray) -> np.ndarray:
+        """(P, Q) whether neither end of the step from each ``a`` (P, 3) on map ``map_a`` (P,) to each
+        ``b`` (Q, 3) on ``map_b`` stands within :data:`STAIR_REACH_M` (xy) of a stair of either map
+        (all False when no map shows stairs)."""
+        P, Q = len(a), len(b)
+        if self.stairs is None:
+            return np.zeros((P, Q), dtype=bool)
+        near_a = np.stack([near_any(a, s) for s in self.stairs], 1)  # (P, M): a within reach of map m's stairs
+        near_b = np.stack([near_any(b, s) for s in self.stairs], 1)  # (Q, M)
+        ma, mb = np.asarray(map_a)[:, None], np.asarray(map_b)[None, :]
+        at = (near_a[np.arange(P)[:, None], ma] | near_a[np.arange(P)[:, None], mb]
+              | near_b[np.arange(Q)[None, :], ma] | near_b[np.arange(Q)[None, :], mb])
+        return ~at
 
     def _mask(self, xy: np.ndarray, reach: float) -> np.ndarray:
         marked = np.zeros(self.shape, dtype=bool)
@@ -122,9 +165,12 @@ class FreeSpace:
     def blocked(self, a: np.ndarray, map_a: np.ndarray, b: np.ndarray, map_b: np.ndarray) -> np.ndarray:
         """(P, Q) whether the straight step from each ``a`` (P, 3) on map ``map_a`` (P,) to each ``b``
         (Q, 3) on ``map_b`` leaves the free space of both maps somewhere between its ends (its points
-        a cell apart; the ends themselves are where the poses are: not judged)."""
+        a cell apart; the ends themselves are where the poses are: not judged); all False when the
+        walls are not known."""
         a, b = np.asarray(a, float)[:, :2], np.asarray(b, float)[:, :2]
         P, Q = len(a), len(b)
+        if self.masks is None:
+            return np.zeros((P, Q), dtype=bool)
         longest = float(np.max(np.linalg.norm(a[:, None] - b[None], axis=2))) if P and Q else 0.0
         n = int(np.ceil(longest / self.cell))
         if n < 2:
@@ -142,3 +188,61 @@ class FreeSpace:
             free = inside & (self.masks[ma, ij[..., 0], ij[..., 1]] | self.masks[mb, ij[..., 0], ij[..., 1]])
             out[s:s + rows] = ~free.all(-1)
         return out
+
+
+def lattice_spacing(m) -> float | None:
+    """The spacing (m) of map ``m``'s candidate translations when they are a lattice (``spacing``
+    translations: a layout's rooms and doorways, a line map's free space), else None: a scan's octree
+    candidates sample its free space unevenly (gaps of a metre in open space, none in doorways its
+    scan saw closed), so their gaps tell no walls."""
+    how = (m.config.get("translations") or {}) if isinstance(getattr(m, "config", None), dict) else {}
+    if how.get("method") != "spacing" or not how.get("spacing"):
+        return None
+    return float(how["spacing"])
+
+
+RISE_M = (0.1, 0.25)  # a stair's step: this much higher than the one before ...
+RUN_M = (0.15, 0.45)  # ... and this far on (across its edge): shelves stand straight above each other
+MIN_STEPS = 5  # steps in a run (fewer: furniture)
+STEP_WIDTH_M = (0.5, 3.0)  # a step's edge: as long as a flight is wide
+PARALLEL_DEG = 5.0
+STAIR_REACH_M = 3.0  # a floor change within this of a stair's steps (xy) is on the stairs: its landings
+
+
+def stair_points(lines: np.ndarray) -> np.ndarray:
+    """(S, 2) xy of the stairs in 3D segments (N, 2, 3): the midpoints of the horizontal segments
+    (:data:`STEP_WIDTH_M` long: a step's edge) that end a run of at least :data:`MIN_STEPS` parallel ones, each
+    ``RISE_M`` above and ``RUN_M`` on from the one before (and overlapping it along its length). The
+    pairs compared are the midpoints within one step of each other (memory bounded in the map's size)."""
+    L = np.asarray(lines, dtype=np.float64).reshape(-1, 2, 3)
+    d = L[:, 1] - L[:, 0]
+    n = np.linalg.norm(d, axis=1)
+    keep = (n >= STEP_WIDTH_M[0]) & (n <= STEP_WIDTH_M[1]) & (np.abs(d[:, 2]) < 0.05 * n)
+    L, d, n = L[keep], d[keep], n[keep]
+    if len(L) < MIN_STEPS:
+        return np.zeros((0, 2))
+    u = d[:, :2] / np.linalg.norm(d[:, :2], axis=1, keepdims=True)
+    mid = L.mean(1)
+    pairs = spatial.cKDTree(mid).query_pairs(float(np.hypot(RISE_M[1], RUN_M[1])) + 0.5 * float(n.max()),
+                                             output_type="ndarray")
+    i, j = np.r_[pairs[:, 0], pairs[:, 1]], np.r_[pairs[:, 1], pairs[:, 0]]  # both ways: i below j
+    off, dz = mid[j, :2] - mid[i, :2], mid[j, 2] - mid[i, 2]
+    along = np.abs(np.einsum("ek,ek->e", u[i], off))
+    across = np.abs(np.einsum("ek,ek->e", u[i, ::-1] * np.array([1.0, -1.0]), off))
+    step = ((np.abs(np.einsum("ek,ek->e", u[i], u[j])) > np.cos(np.radians(PARALLEL_DEG)))
+            & (dz >= RISE_M[0]) & (dz <= RISE_M[1]) & (across >= RUN_M[0]) & (across <= RUN_M[1])
+            & (along < 0.5 * n[i]))
+    i, j = i[step], j[step]
+    run = np.ones(len(L))  # steps in the longest run ending at each segment
+    for _ in range(MIN_STEPS):
+        nxt = run.copy()
+        np.maximum.at(nxt, j, run[i] + 1)
+        run = nxt
+    return mid[run >= MIN_STEPS, :2]
+
+
+def near_any(p: np.ndarray, q: np.ndarray, reach: float = STAIR_REACH_M) -> np.ndarray:
+    """(P,) whether each point ``p`` (P, >= 2) stands within ``reach`` (xy) of any of ``q`` (S, 2)."""
+    if not len(q):
+        return np.zeros(len(p), dtype=bool)
+    return np.linalg.norm(np.asarray(p, float)[:, None, :2] - q[None], axis=2).min(1) <= reach

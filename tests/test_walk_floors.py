@@ -1,0 +1,86 @@
+"""A walk changes floors on the stairs (ldlloc.walk.motion: stair_points, FreeSpace.off_stairs).
+
+The scene: two identical floors 3 m apart (a corridor along x), a stair flight at x 10-11.7 m
+(its steps' edges: 1.2 m segments rising 0.17 m and running 0.28 m each), a bookshelf (shelves
+0.35 m apart, straight above each other) at x 2 m. A walk along the corridor on floor 0 to the
+stairs and back along floor 1; each frame's image likes both floors (the floors look the same),
+a little more the wrong one on some frames before the stairs.
+"""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+
+from ldlloc.walk.hypotheses import Hypotheses
+from ldlloc.walk.motion import FreeSpace, MotionParams, stair_points, transition_costs
+from ldlloc.walk.viterbi import best_path
+
+STOREY = 3.0
+
+
+def _floor_lines(z0: float) -> np.ndarray:
+    """(N, 2, 3) a floor's lines: the corridor's edges, a stair flight up from it, a bookshelf."""
+    L = [[[0, 0, z0], [14, 0, z0]], [[0, 2, z0], [14, 2, z0]], [[0, 0, z0 + 2.6], [14, 0, z0 + 2.6]],
+         [[0, 0, z0], [0, 0, z0 + 2.6]], [[14, 2, z0], [14, 2, z0 + 2.6]]]
+    for k in range(1, 8):  # the flight: nosings across the corridor (along y), rising along x
+        x, z = 10.0 + 0.28 * k, z0 + 0.17 * k
+        L.append([[x, 0.4, z], [x, 1.6, z]])
+    for k in range(6):  # a bookshelf's shelves: stacked straight up
+        L.append([[2.0, 0.1, z0 + 0.3 + 0.35 * k], [3.0, 0.1, z0 + 0.3 + 0.35 * k]])
+    return np.array(L, dtype=float)
+
+
+def _maps() -> list:
+    return [SimpleNamespace(translations=np.array([[x, 1.0, 1.5 + f * STOREY] for x in np.arange(0.5, 14, 0.5)]),
+                            config={"translations": {"method": "octree", "num": 28}},
+                            lines=_floor_lines(f * STOREY)) for f in range(2)]
+
+
+def test_stairs_are_found_in_the_lines_not_in_a_bookshelf():
+    s = stair_points(_floor_lines(0.0))
+    assert len(s) >= 1
+    assert np.all((s[:, 0] > 10.5) & (s[:, 0] < 12.0))  # the flight's upper steps, nothing at the shelf (x 2-3)
+    assert len(stair_points(_floor_lines(0.0)[:5])) == 0  # a corridor without stairs
+
+
+def test_octree_candidates_tell_no_walls_but_the_stairs_are_known():
+    free = FreeSpace.of_maps(_maps())
+    assert free is not None and free.masks is None  # a scan's candidates: no walls from them
+    a, b = np.array([[11.0, 1.0, 1.5], [3.0, 1.0, 1.5]]), np.array([[11.0, 1.0, 4.5], [3.0, 1.0, 4.5]])
+    off = free.off_stairs(a, np.array([0, 0]), b, np.array([1, 1]))
+    assert not off[0, 0] and off[1, 1]  # up at the stairs; up 8 m away from them
+    assert not free.blocked(a, np.array([0, 0]), b, np.array([1, 1])).any()
+    lattice = _maps()
+    for m in lattice:  # the same candidates as a lattice at their spacing (a layout's): walls are known
+        m.config = {"translations": {"method": "spacing", "spacing": 0.5}}
+    walled = FreeSpace.of_maps(lattice)
+    assert walled.masks is not None and walled.reach == [0.5, 0.5]
+    out = walled.blocked(a[:1], np.array([0]), np.array([[11.0, 4.0, 1.5]]), np.array([0]))
+    assert out[0, 0]  # 3 m off the corridor's candidates: out of its free space
+
+
+def test_the_walk_changes_floor_at_the_stairs():
+    # frames at x 0, 2, ..., 10 on floor 0, then back x 10, 8, ..., 0 on floor 1; each frame's two
+    # hypotheses are the same spot on both floors; the first and last frames know their floor (a sign
+    # on a wall), frames 1-3 like the wrong floor a little better (identical floors: noise), the others
+    # the right one as little. Without stairs known the walk goes up after frame 0 (one floor change
+    # either way, and the noise says so); with them it goes up at the stairs only
+    xs = [0, 2, 4, 6, 8, 10, 10, 8, 6, 4, 2, 0]
+    true_floor = [0] * 6 + [1] * 6
+    frames = []
+    for k, (x, f) in enumerate(zip(xs, true_floor)):
+        worse = -20.0 if k in (0, len(xs) - 1) else -95.0
+        loss = [worse, -100.0] if (k in (1, 2, 3)) == (f == 0) else [-100.0, worse]  # loss of floor 0, floor 1
+        frames.append(Hypotheses(np.array([0, 1]), np.repeat(np.eye(3)[None], 2, 0),
+                                 np.array([[x, 1.0, 1.5], [x, 1.0, 1.5 + STOREY]]), np.array(loss), np.zeros(2, bool)))
+    tour = MotionParams()
+    em = [h.emission_costs(tour.emission_weight) for h in frames]
+    free = FreeSpace.of_maps(_maps())
+
+    def path(known):
+        return best_path(em, lambda f: transition_costs(frames[f - 1], frames[f], tour, None, known)).choice
+
+    assert path(free) == true_floor
+    assert path(None) != true_floor  # the floors' noise alone decides otherwise
