@@ -23,7 +23,7 @@ from ldlmap.map.mapfile import read_map
 
 pytestmark = pytest.mark.xdist_group("end_to_end")  # shares the demo maps' worker with test_end_to_end
 DEVICES = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
-SPLITS = ("robot", "extreme")
+SPLITS = {"default": ("robot", "extreme"), "exact_lines": ("robot",)}  # the exact search costs ~2 s a query on a CPU
 
 
 # The product's defaults (distance fields, refined by features), and the torch-heavy variant: the
@@ -32,12 +32,12 @@ VARIANTS = {"default": LocalizeParams(),
             "exact_lines": LocalizeParams(search=SearchParams(use_fields=False), refine_mode="geometric")}
 
 
-def _localize_all(root, device: str, params: LocalizeParams) -> dict[str, tuple[np.ndarray, np.ndarray, float, float]]:
-    """query name -> (center, rotation, translation error, rotation error) on ``device``."""
+def _localize_all(root, device: str, variant: str) -> dict[str, tuple[np.ndarray, np.ndarray, float, float]]:
+    """query name -> (center, rotation, translation error, rotation error) on ``device`` with ``VARIANTS[variant]``."""
     ds, out = open_dataset(root, "omniscenes"), {}
     for scene in ds.scenes():
-        loc = Localizer(read_map(root / "maps" / f"{scene}.h5", load_cloud=False), params, device=device)
-        for q in [q for split in SPLITS for q in ds.queries(split, scene=scene)]:
+        loc = Localizer(read_map(root / "maps" / f"{scene}.h5", load_cloud=False), VARIANTS[variant], device=device)
+        for q in [q for split in SPLITS[variant] for q in ds.queries(split, scene=scene)]:
             r = loc.localize(load_image(q.image))
             out[q.name] = (r.center, r.rot_cam_from_world, translation_error(r.center, q.center),
                            rotation_error_deg(r.rot_cam_from_world, q.rot_cam_from_world))
@@ -53,8 +53,8 @@ def on_cpu(demo_dataset):
 @pytest.mark.parametrize("device", DEVICES)
 def test_localizes_on_every_device(demo_dataset, on_cpu, device, variant):
     if variant not in on_cpu:
-        on_cpu[variant] = _localize_all(demo_dataset, "cpu", VARIANTS[variant])
-    here = on_cpu[variant] if device == "cpu" else _localize_all(demo_dataset, device, VARIANTS[variant])
+        on_cpu[variant] = _localize_all(demo_dataset, "cpu", variant)
+    here = on_cpu[variant] if device == "cpu" else _localize_all(demo_dataset, device, variant)
     on_cpu = on_cpu[variant]
     assert here.keys() == on_cpu.keys() and len(here) >= 10
     ok = [t < 0.1 and r < 5.0 for _, _, t, r in here.values()]
