@@ -114,11 +114,7 @@ def seen_lines(arcs: np.ndarray, R: np.ndarray, center: np.ndarray, ldl_map, tol
     """The map's grouped lines (M, 2, 3) the image confirms at the pose: :data:`SEEN_SHARE` of their
     shown points on a query arc, within :data:`SEEN_RADIUS_M` of the camera (and seen from the pose's
     candidate translation, when the map stores visibility)."""
-    keep = np.asarray(ldl_map.line_groups) >= 0
-    vis = visible_at(ldl_map, center)
-    if vis is not None:
-        keep &= vis[0]
-    L = np.asarray(ldl_map.lines, dtype=np.float64)[keep]
+    L = grouped_lines_seen_from(ldl_map, center)
     L = L[segment_distance(L, np.asarray(center, np.float64)) <= SEEN_RADIUS_M]
     if len(arcs) == 0 or len(L) == 0:
         return L[:0]
@@ -135,6 +131,16 @@ def visible_at(ldl_map, center: np.ndarray) -> np.ndarray | None:
     return np.asarray(ldl_map.visibility[ldl_map.nearest_translation(np.asarray(center, float)[None])], bool)
 
 
+def grouped_lines_seen_from(ldl_map, center: np.ndarray) -> np.ndarray:
+    """(M, 2, 3) the map's grouped lines, those seen from the candidate translation nearest ``center``
+    when the map stores visibility."""
+    keep = np.asarray(ldl_map.line_groups) >= 0
+    vis = visible_at(ldl_map, center)
+    if vis is not None:
+        keep &= vis[0]
+    return np.asarray(ldl_map.lines, dtype=np.float64)[keep]
+
+
 def same_room(ldl_map, a: np.ndarray, b: np.ndarray) -> bool:
     """Whether two places of a map that stores visibility see mostly the same lines (:data:`SELF_SHARE`
     of the fewer: one room, a symmetric twin within it, not a copy); False without visibility."""
@@ -149,11 +155,7 @@ def explained_share(arcs: np.ndarray, R: np.ndarray, center: np.ndarray, ldl_map
     lines seen from the pose: :func:`ldlloc.refine.geometric.seen_line_points` with the roles swapped
     (the map's lines projected as arcs, the query's arcs as the lines sampled). What the inlier loss
     counts, exactly at the pose (no distance field of a nearby candidate)."""
-    keep = np.asarray(ldl_map.line_groups) >= 0
-    vis = visible_at(ldl_map, center)
-    if vis is not None:
-        keep &= vis[0]
-    L = np.asarray(ldl_map.lines, dtype=np.float64)[keep]
+    L = grouped_lines_seen_from(ldl_map, center)
     if len(arcs) == 0 or len(L) == 0:
         return 0.0
     d = (L - np.asarray(center, np.float64)) @ np.asarray(R, np.float64).T
