@@ -240,6 +240,32 @@ def copy_motions(seen: LineIndex, target: LineIndex, same_map: bool) -> list[tup
     return out
 
 
+def room_twins(arcs: np.ndarray, R: np.ndarray, center: np.ndarray, ldl_map,
+               tol_deg: float = 1.0) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The pose's twins within its own room: the pose moved by each turn of 90, 180 or 270 degrees
+    and translation that carries the lines the image confirms there (:func:`seen_lines`) onto the
+    map's lines (:data:`COPY_COVER` of their points) and keeps the camera in the same room and where
+    a camera can stand: ``(R, t)`` each. A symmetric layout shows the image the same lines from
+    there; what tells the twin apart (doors, windows, a sloped side) is left to its score."""
+    R, center = np.asarray(R, np.float64), np.asarray(center, np.float64)
+    seen = make_index(seen_lines(arcs, R, center, ldl_map, tol_deg))
+    if len(seen.lines) < MIN_VOTES:  # a motion needs this many: a layout's few creases may be all there is
+        return []
+    target, out = line_index(ldl_map), []
+    for k in (1, 2, 3):
+        Q = turn(k)
+        for off in voted_offsets(seen, target, Q):
+            off = fitted_offset(seen.points @ Q.T, target, off)
+            tc = Q @ center + off
+            if (cover(seen.points @ Q.T + off, target.tree) < COPY_COVER or not physical_poses(tc[None], ldl_map)[0]
+                    or any(np.linalg.norm(tc - t) < 2 * VOTE_CELL_M for _, t in out)):
+                continue
+            if not same_room(ldl_map, center, tc) and getattr(ldl_map, "visibility", None) is not None:
+                continue  # another room of the map: a copy (find_copies), not a twin
+            out.append((R @ Q.T, tc))
+    return out
+
+
 def find_copies(arcs: np.ndarray, R: np.ndarray, center: np.ndarray, own_map, maps: list[tuple[str | None, object]],
                 own_support: float, tol_deg: float = 1.0) -> list[dict]:
     """The copies of the pose's place (module docstring) in ``maps`` (``(name, map)``; name None: the
