@@ -32,7 +32,7 @@ from ldlloc.lines2d import Lines2DParams, detect_lines, filter_by_length, query_
 from ldlloc.refine.copies import room_twins
 from ldlloc.refine.features import RefineParams, keep_near_lines, refine_by_retrieval, refine_candidates
 from ldlloc.refine.geometric import (KERNELS, GeometricParams, map_line_support, physical_poses, refine_and_keep,
-                                     selection_scores)
+                                     refinement_plan, selection_scores)
 from ldlloc.refine.retrieval import RetrievalContext, ViewIndex, accept_retrieved
 from ldlloc.rotation import (FREE_TILT_DEG, PrincipalParams, RotationCandidates, assign_arcs_to_principal,
                              candidate_rotations, check_max_tilt, filter_by_tilt, frame_rows, pair_candidates,
@@ -367,18 +367,13 @@ class Localizer:
         results compete."""
         m, p = self.map, self.params
         M = len(res.centers)
-        n = max(1, min(M, int(p.geometric.max_poses)))  # the others keep their coarse poses
-        w = max(0, min(n, int(p.geometric.wide_poses)))
-        gm = max(0, min(n, int(p.geometric.second_kernel_poses)))
-        cand = np.concatenate([np.arange(n), np.arange(w), np.arange(gm), np.arange(n, M)]).astype(int)  # pose -> candidate
-        assoc = np.r_[np.full(n, p.geometric.assoc_deg), np.full(w, p.geometric.wide_assoc_deg),
-                      np.full(gm, p.geometric.assoc_deg)]
-        kernels = [p.geometric.kernel] * (n + w) + [p.geometric.second_kernel] * gm
-        w += gm  # the refined poses are the first n + w
+        plan, assoc, kernels = refinement_plan(M, p.geometric)
+        nr = len(plan)  # the refined poses; the other candidates keep their coarse poses
+        cand = np.r_[plan, np.arange(int(plan.max()) + 1, M)].astype(int)  # pose -> candidate
         g, kept, loss = self._refine_and_keep(arcs, res.rotations[cand], res.centers[cand],
-                                              res.translation_index[cand], n + w, assoc, kernels)
+                                              res.translation_index[cand], nr, assoc, kernels)
         rots, centers = res.rotations[cand], res.centers[cand]
-        rots[:n + w][kept[:n + w]], centers[:n + w][kept[:n + w]] = g.rotations[kept[:n + w]], g.centers[kept[:n + w]]
+        rots[:nr][kept[:nr]], centers[:nr][kept[:nr]] = g.rotations[kept[:nr]], g.centers[kept[:nr]]
 
         def support_of(top: np.ndarray) -> np.ndarray:  # the contenders' map-line support
             vis = None
@@ -406,7 +401,7 @@ class Localizer:
                                                   p.principal.group_tol)
         out.refined = bool(kept[k])
         out.refine_method = "geometric" if out.refined else "none"
-        out.num_matches = int(g.matched[k]) if k < n + w else 0
+        out.num_matches = int(g.matched[k]) if k < nr else 0
         out.refine_residual_deg = float(g.residual_deg[k]) if out.refined else None
         out.message = (f"geometric refinement of candidate {c + 1}: {out.num_matches} line points, median "
                        f"residual {out.refine_residual_deg:.2f} deg" if out.refined else

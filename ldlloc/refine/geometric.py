@@ -551,6 +551,19 @@ def selection_scores(loss: np.ndarray, params: GeometricParams, support_of,
     return full
 
 
+def refinement_plan(M: int, params: GeometricParams = GeometricParams()) -> tuple[np.ndarray, np.ndarray, list[str]]:
+    """Which of M ranked search poses the refinement stage refines, and how: ``(candidate, assoc_deg,
+    kernel)`` per refined pose. The best ``max_poses`` (at least one) with ``params.kernel`` from
+    ``assoc_deg``; the best ``wide_poses`` of them again from ``wide_assoc_deg``; the best
+    ``second_kernel_poses`` again with ``second_kernel``'s weights. All results compete."""
+    n = max(1, min(M, int(params.max_poses)))
+    w = max(0, min(n, int(params.wide_poses)))
+    s = max(0, min(n, int(params.second_kernel_poses)))
+    cand = np.r_[np.arange(n), np.arange(w), np.arange(s)].astype(int)
+    assoc = np.r_[np.full(n, params.assoc_deg), np.full(w, params.wide_assoc_deg), np.full(s, params.assoc_deg)]
+    return cand, assoc, [params.kernel] * (n + w) + [params.second_kernel] * s
+
+
 def refine_and_keep(arcs: np.ndarray, rotations: np.ndarray, centers: np.ndarray, translation_index: np.ndarray,
                     n: int, ldl_map, params: GeometricParams = GeometricParams(),
                     search: SearchParams = SearchParams(), device: str = "cpu", group_tol: float = ARC_GROUP_TOL,
