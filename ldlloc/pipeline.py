@@ -364,7 +364,8 @@ class Localizer:
         map-line support together (:func:`ldlloc.refine.geometric.map_line_support`). The best
         ``GeometricParams.wide_poses`` are refined again with wider first associations
         (``wide_assoc_deg``), the best ``second_kernel_poses`` again with ``second_kernel``'s weights; all
-        results compete."""
+        results compete (:func:`ldlloc.refine.geometric.refinement_plan`). The winner's twins in a
+        symmetric room (:func:`ldlloc.refine.copies.room_twins`) join its rivals, never the winners."""
         m, p = self.map, self.params
         M = len(res.centers)
         plan, assoc, kernels = refinement_plan(M, p.geometric)

@@ -13,8 +13,9 @@ floor): one image cannot tell the copies apart, whatever its score. No fitting i
    a map line, after the translation is refined on them: :func:`fitted_offset`) for
    :data:`COPY_COVER` or more. The pose's own place (no motion) and a symmetric
    room's twin within itself (the moved lines land on the seen lines again, or, on a map that
-   stores visibility, the moved camera sees mostly the same lines: the refined rivals' tie judges
-   those) are not copies, nor is the pose's own place on another map (maps that share a frame);
+   stores visibility, the moved camera sees mostly the same lines: :func:`room_twins` finds those
+   and the refined rivals' tie judges them) are not copies, nor is the pose's own place on another
+   map (maps that share a frame);
 3. the **copy's pose** (the pose moved the same way) must stand where a camera can
    (:func:`ldlloc.refine.geometric.physical_poses` on its map) and explain the image about as well,
    both ways: its map-line support (:func:`ldlloc.refine.geometric.map_line_support`: the map's lines

@@ -12,8 +12,8 @@ re-score), each of the K poses is optimized continuously:
    from the pose's candidate translation), measured as ``|x . n_l|`` (the sine of the angle to
    the line's great circle, ``n_l ~ R ((P1 - t) x (P2 - t))``) and only where the point lies
    within the line's extent; points farther than the association angle stay unmatched.
-3. Gauss-Newton on the point-to-great-circle residuals ``x . n_l`` with Huber weights
-   (iteratively re-weighted), all K poses batched, over the 6 pose parameters (rotation vector
+3. Gauss-Newton on the point-to-great-circle residuals ``x . n_l`` with Huber weights (or
+   another kernel per pose, :data:`KERNELS`; iteratively re-weighted), all K poses batched, over the 6 pose parameters (rotation vector
    applied in the world frame, and the camera centre), with exact Jacobians. A point's Jacobian is
    linear in the point (``D_l x``), so the normal equations sum over lines, not points
    (``D_l S_l D_l^T`` with ``S_l`` the weighted scatter of the line's points). The rotation is also
@@ -28,7 +28,11 @@ A refinement that moves the pose by more than ``max_move_m`` or ``max_turn_deg``
 60 deg), or that ends with fewer than ``min_points`` matched points, is rejected: that candidate
 keeps its coarse pose, flagged. :func:`refine_and_keep` (the refinement stage on a map) then scores
 the refined poses with the search's exact loss and keeps a refined pose only where that loss is
-within ``keep_within`` of its start's; :mod:`ldlloc.pipeline` picks the winner.
+within ``keep_within`` of its start's; :mod:`ldlloc.pipeline` picks the winner. Which poses are
+refined, and how (:func:`refinement_plan`): the best with Huber weights, the best few again from a
+wider first association and again with Geman-McClure weights, all competing. Clutter (95 % of a
+furnished room's lines, against a layout map) slides Huber's pose along the creases it hides;
+Geman-McClure's lets it go near the truth but pulls less from far.
 """
 
 from __future__ import annotations
@@ -73,7 +77,8 @@ class GeometricParams:
     """Weights of the third refinement (:data:`KERNELS`; from assoc_deg, see second_kernel_poses)."""
     second_kernel_poses: int = 5
     """The best this many poses are refined once more with second_kernel's weights, which let clutter
-    go near the truth where Huber's slide along it; all results compete."""
+    go near the truth where Huber's slide along it; all results compete
+    (docs/benchmarks.md#furnished-rooms-layout-only-maps)."""
     huber_deg: float = 0.5
     """Huber threshold of the residuals."""
     group_tol: float = ARC_GROUP_TOL
