@@ -125,8 +125,9 @@ def test_the_default_plan_keeps_the_truth_where_huber_slides():
         t = np.asarray(t)
         R = rotation_from_axis_angle(np.array([0, 0, 1.0]), rng.uniform(0, 2 * np.pi))
         cand, assoc, kernels = refinement_plan(1)
-        res = refine_poses_geometric(railed_view(t, R), np.repeat(R[None], len(cand), 0), np.repeat(t[None], len(cand), 0),
-                                     lines, groups, np.eye(3), height_band=(0.3, 2.2), assoc_deg=assoc, kernels=kernels)
+        Rs, ts = np.repeat(R[None], len(cand), 0), np.repeat(t[None], len(cand), 0)
+        res = refine_poses_geometric(railed_view(t, R), Rs, ts, lines, groups, np.eye(3), height_band=(0.3, 2.2),
+                                     assoc_deg=assoc, kernels=kernels)
         err = np.linalg.norm(res.centers - t, axis=1)
         huber = np.array(kernels) == "huber"
         assert huber.any() and (err[huber] > 0.2).all(), err  # Huber slides up to the rails

@@ -13,8 +13,9 @@ re-score), each of the K poses is optimized continuously:
    the line's great circle, ``n_l ~ R ((P1 - t) x (P2 - t))``) and only where the point lies
    within the line's extent; points farther than the association angle stay unmatched.
 3. Gauss-Newton on the point-to-great-circle residuals ``x . n_l`` with Huber weights (or
-   another kernel per pose, :data:`KERNELS`; iteratively re-weighted), all K poses batched, over the 6 pose parameters (rotation vector
-   applied in the world frame, and the camera centre), with exact Jacobians. A point's Jacobian is
+   another kernel per pose, :data:`KERNELS`; iteratively re-weighted), all K poses batched, over
+   the 6 pose parameters (rotation vector applied in the world frame, and the camera centre), with
+   exact Jacobians. A point's Jacobian is
    linear in the point (``D_l x``), so the normal equations sum over lines, not points
    (``D_l S_l D_l^T`` with ``S_l`` the weighted scatter of the line's points). The rotation is also
    held by the vanishing points: each grouped arc's great circle should pass through its group's
@@ -572,7 +573,8 @@ def refinement_plan(M: int, params: GeometricParams = GeometricParams()) -> tupl
 def refine_and_keep(arcs: np.ndarray, rotations: np.ndarray, centers: np.ndarray, translation_index: np.ndarray,
                     n: int, ldl_map, params: GeometricParams = GeometricParams(),
                     search: SearchParams = SearchParams(), device: str = "cpu", group_tol: float = ARC_GROUP_TOL,
-                    assoc_deg: np.ndarray | None = None, kernels=None) -> tuple[GeometricResult, np.ndarray, np.ndarray]:
+                    assoc_deg: np.ndarray | None = None,
+                    kernels=None) -> tuple[GeometricResult, np.ndarray, np.ndarray]:
     """The geometric refinement stage on a map: refine the first ``n`` of these poses from lines alone
     and score every pose with the search's exact loss (:func:`ldlloc.search.pose_search.score_on_map`).
 
