@@ -29,9 +29,10 @@ from ldlmap.features.sphere import extract_in_map_frame
 from ldlmap.io.imagefile import image_header_size, read_image
 from ldlloc.confidence import assess, refined_rivals
 from ldlloc.lines2d import Lines2DParams, detect_lines, filter_by_length, query_keep_ratio
+from ldlloc.refine.copies import room_twins
 from ldlloc.refine.features import RefineParams, keep_near_lines, refine_by_retrieval, refine_candidates
-from ldlloc.refine.geometric import (GeometricParams, map_line_support, physical_poses, refine_and_keep,
-                                     selection_scores)
+from ldlloc.refine.geometric import (KERNELS, GeometricParams, map_line_support, physical_poses, refine_and_keep,
+                                     refinement_plan, selection_scores)
 from ldlloc.refine.retrieval import RetrievalContext, ViewIndex, accept_retrieved
 from ldlloc.rotation import (FREE_TILT_DEG, PrincipalParams, RotationCandidates, assign_arcs_to_principal,
                              candidate_rotations, check_max_tilt, filter_by_tilt, frame_rows, pair_candidates,
@@ -180,6 +181,8 @@ def check_localize_params(params: LocalizeParams, names: dict[str, str] | None =
     check_choice(params.refine_mode, REFINE_MODES, n.get("refine_mode", "refine_mode"))
     check_choice(params.query_frame, QUERY_FRAMES, n.get("query_frame", "query_frame"))
     check_max_tilt(params.max_tilt_deg, n.get("max_tilt_deg", "max_tilt_deg"))
+    for key in ("kernel", "second_kernel"):  # the geometric refinement's weights
+        check_choice(getattr(params.geometric, key), KERNELS, n.get(key, key))
 
 
 WORK_WIDTH = 2048  # panoramas wider than this are resized to WORK_WIDTH x WORK_WIDTH / 2 on reading:
@@ -350,27 +353,28 @@ class Localizer:
             import_pycolmap()
 
     def _refine_and_keep(self, arcs: np.ndarray, rotations: np.ndarray, centers: np.ndarray,
-                         translation_index: np.ndarray, n: int, assoc_deg: np.ndarray | None = None):
+                         translation_index: np.ndarray, n: int, assoc_deg: np.ndarray | None = None, kernels=None):
         """:func:`ldlloc.refine.geometric.refine_and_keep` of these poses on this localizer's map."""
         p = self.params
         return refine_and_keep(arcs, rotations, centers, translation_index, n, self.map, p.geometric, p.search,
-                               self.device, p.principal.group_tol, assoc_deg)
+                               self.device, p.principal.group_tol, assoc_deg, kernels)
 
     def _refine_geometric(self, out: "Localization", arcs: np.ndarray, res) -> None:
         """Refine the best of the top-K poses from lines alone; the winner has the best loss and
         map-line support together (:func:`ldlloc.refine.geometric.map_line_support`). The best
-        ``GeometricParams.wide_poses`` are refined twice, the second time with wider first
-        associations (``wide_assoc_deg``); both results compete."""
+        ``GeometricParams.wide_poses`` are refined again with wider first associations
+        (``wide_assoc_deg``), the best ``second_kernel_poses`` again with ``second_kernel``'s weights; all
+        results compete (:func:`ldlloc.refine.geometric.refinement_plan`). The winner's twins in a
+        symmetric room (:func:`ldlloc.refine.copies.room_twins`) join its rivals, never the winners."""
         m, p = self.map, self.params
         M = len(res.centers)
-        n = max(1, min(M, int(p.geometric.max_poses)))  # the others keep their coarse poses
-        w = max(0, min(n, int(p.geometric.wide_poses)))
-        cand = np.concatenate([np.arange(n), np.arange(w), np.arange(n, M)]).astype(int)  # pose -> candidate
-        assoc = np.r_[np.full(n, p.geometric.assoc_deg), np.full(w, p.geometric.wide_assoc_deg)]
+        plan, assoc, kernels = refinement_plan(M, p.geometric)
+        nr = len(plan)  # the refined poses; the other candidates keep their coarse poses
+        cand = np.r_[plan, np.arange(int(plan.max()) + 1, M)].astype(int)  # pose -> candidate
         g, kept, loss = self._refine_and_keep(arcs, res.rotations[cand], res.centers[cand],
-                                              res.translation_index[cand], n + w, assoc)
+                                              res.translation_index[cand], nr, assoc, kernels)
         rots, centers = res.rotations[cand], res.centers[cand]
-        rots[:n + w][kept[:n + w]], centers[:n + w][kept[:n + w]] = g.rotations[kept[:n + w]], g.centers[kept[:n + w]]
+        rots[:nr][kept[:nr]], centers[:nr][kept[:nr]] = g.rotations[kept[:nr]], g.centers[kept[:nr]]
 
         def support_of(top: np.ndarray) -> np.ndarray:  # the contenders' map-line support
             vis = None
@@ -385,6 +389,12 @@ class Localizer:
         score = selection_scores(loss, p.geometric, support_of, physical_poses(centers, m))  # unphysical poses drop out
         k = int(np.argmax(score))
         c = int(cand[k])
+        twins = room_twins(arcs, rots[k], centers[k], m, p.geometric.support_deg)
+        if twins:  # the winner's twins in a symmetric room compete as its rivals (never as the winner)
+            tr, tc = np.array([r for r, _ in twins]), np.array([t for _, t in twins])
+            loss = np.r_[loss, self._line_loss(arcs)(tr, tc)]
+            rots, centers = np.concatenate([rots, tr]), np.concatenate([centers, tc])
+            score = selection_scores(loss, p.geometric, support_of, physical_poses(centers, m))
         out.selection_margin, out.refined_rivals = refined_rivals(k, rots, centers, loss, score)
         out.coarse_rot, out.coarse_center = res.rotations[c], res.centers[c]
         out.rot_cam_from_world, out.center = rots[k], centers[k]
@@ -392,7 +402,7 @@ class Localizer:
                                                   p.principal.group_tol)
         out.refined = bool(kept[k])
         out.refine_method = "geometric" if out.refined else "none"
-        out.num_matches = int(g.matched[k]) if k < n + w else 0
+        out.num_matches = int(g.matched[k]) if k < nr else 0
         out.refine_residual_deg = float(g.residual_deg[k]) if out.refined else None
         out.message = (f"geometric refinement of candidate {c + 1}: {out.num_matches} line points, median "
                        f"residual {out.refine_residual_deg:.2f} deg" if out.refined else

@@ -13,8 +13,9 @@ floor): one image cannot tell the copies apart, whatever its score. No fitting i
    a map line, after the translation is refined on them: :func:`fitted_offset`) for
    :data:`COPY_COVER` or more. The pose's own place (no motion) and a symmetric
    room's twin within itself (the moved lines land on the seen lines again, or, on a map that
-   stores visibility, the moved camera sees mostly the same lines: the refined rivals' tie judges
-   those) are not copies, nor is the pose's own place on another map (maps that share a frame);
+   stores visibility, the moved camera sees mostly the same lines: :func:`room_twins` finds those
+   and the refined rivals' tie judges them) are not copies, nor is the pose's own place on another
+   map (maps that share a frame);
 3. the **copy's pose** (the pose moved the same way) must stand where a camera can
    (:func:`ldlloc.refine.geometric.physical_poses` on its map) and explain the image about as well,
    both ways: its map-line support (:func:`ldlloc.refine.geometric.map_line_support`: the map's lines
@@ -237,6 +238,32 @@ def copy_motions(seen: LineIndex, target: LineIndex, same_map: bool) -> list[tup
             if c >= COPY_COVER:
                 out.append((Q, off, c))
     out.sort(key=lambda m: -m[2])
+    return out
+
+
+def room_twins(arcs: np.ndarray, R: np.ndarray, center: np.ndarray, ldl_map,
+               tol_deg: float = 1.0) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The pose's twins within its own room: the pose moved by each turn of 90, 180 or 270 degrees
+    and translation that carries the lines the image confirms there (:func:`seen_lines`) onto the
+    map's lines (:data:`COPY_COVER` of their points) and keeps the camera in the same room and where
+    a camera can stand: ``(R, t)`` each. A symmetric layout shows the image the same lines from
+    there; what tells the twin apart (doors, windows, a sloped side) is left to its score."""
+    R, center = np.asarray(R, np.float64), np.asarray(center, np.float64)
+    seen = make_index(seen_lines(arcs, R, center, ldl_map, tol_deg))
+    if len(seen.lines) < MIN_VOTES:  # a motion needs this many: a layout's few creases may be all there is
+        return []
+    target, out = line_index(ldl_map), []
+    for k in (1, 2, 3):
+        Q = turn(k)
+        for off in voted_offsets(seen, target, Q):
+            off = fitted_offset(seen.points @ Q.T, target, off)
+            tc = Q @ center + off
+            if (cover(seen.points @ Q.T + off, target.tree) < COPY_COVER or not physical_poses(tc[None], ldl_map)[0]
+                    or any(np.linalg.norm(tc - t) < 2 * VOTE_CELL_M for _, t in out)):
+                continue
+            if not same_room(ldl_map, center, tc) and getattr(ldl_map, "visibility", None) is not None:
+                continue  # another room of the map: a copy (find_copies), not a twin
+            out.append((R @ Q.T, tc))
     return out
 
 

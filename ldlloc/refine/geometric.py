@@ -12,9 +12,10 @@ re-score), each of the K poses is optimized continuously:
    from the pose's candidate translation), measured as ``|x . n_l|`` (the sine of the angle to
    the line's great circle, ``n_l ~ R ((P1 - t) x (P2 - t))``) and only where the point lies
    within the line's extent; points farther than the association angle stay unmatched.
-3. Gauss-Newton on the point-to-great-circle residuals ``x . n_l`` with Huber weights
-   (iteratively re-weighted), all K poses batched, over the 6 pose parameters (rotation vector
-   applied in the world frame, and the camera centre), with exact Jacobians. A point's Jacobian is
+3. Gauss-Newton on the point-to-great-circle residuals ``x . n_l`` with Huber weights (or
+   another kernel per pose, :data:`KERNELS`; iteratively re-weighted), all K poses batched, over
+   the 6 pose parameters (rotation vector applied in the world frame, and the camera centre), with
+   exact Jacobians. A point's Jacobian is
    linear in the point (``D_l x``), so the normal equations sum over lines, not points
    (``D_l S_l D_l^T`` with ``S_l`` the weighted scatter of the line's points). The rotation is also
    held by the vanishing points: each grouped arc's great circle should pass through its group's
@@ -28,7 +29,11 @@ A refinement that moves the pose by more than ``max_move_m`` or ``max_turn_deg``
 60 deg), or that ends with fewer than ``min_points`` matched points, is rejected: that candidate
 keeps its coarse pose, flagged. :func:`refine_and_keep` (the refinement stage on a map) then scores
 the refined poses with the search's exact loss and keeps a refined pose only where that loss is
-within ``keep_within`` of its start's; :mod:`ldlloc.pipeline` picks the winner.
+within ``keep_within`` of its start's; :mod:`ldlloc.pipeline` picks the winner. Which poses are
+refined, and how (:func:`refinement_plan`): the best with Huber weights, the best few again from a
+wider first association and again with Geman-McClure weights, all competing. Clutter (95 % of a
+furnished room's lines, against a layout map) slides Huber's pose along the creases it hides;
+Geman-McClure's lets it go near the truth but pulls less from far.
 """
 
 from __future__ import annotations
@@ -69,6 +74,12 @@ class GeometricParams:
     """The best this many poses are refined a second time from wide_assoc_deg; both results compete."""
     wide_assoc_deg: float = 20.0
     """First association angle of the second refinement (docs/measurements.md#geometric-wide-assoc)."""
+    second_kernel: str = "geman"
+    """Weights of the third refinement (:data:`KERNELS`; from assoc_deg, see second_kernel_poses)."""
+    second_kernel_poses: int = 5
+    """The best this many poses are refined once more with second_kernel's weights, which let clutter
+    go near the truth where Huber's slide along it; all results compete
+    (docs/benchmarks.md#furnished-rooms-layout-only-maps)."""
     huber_deg: float = 0.5
     """Huber threshold of the residuals."""
     group_tol: float = ARC_GROUP_TOL
@@ -159,20 +170,19 @@ def refine_poses_geometric(arcs: np.ndarray, rotations: np.ndarray, centers: np.
                            line_groups: np.ndarray, principal: np.ndarray, visible: np.ndarray | None = None,
                            params: GeometricParams = GeometricParams(),
                            height_band: tuple[float, float] | None = None,
-                           assoc_deg: np.ndarray | None = None) -> GeometricResult:
+                           assoc_deg: np.ndarray | None = None, kernels=None) -> GeometricResult:
     """Refine K poses (world -> camera ``rotations`` (K, 3, 3), camera ``centers`` (K, 3)) against
     the map's lines (L, 2, 3) with their principal groups (L,) and the map's principal directions
     (3, 3), from the query's 2D arcs (N, 2, 3; camera frame). ``visible`` (K, L) bool: the lines
     seen from each pose's candidate translation (None: all). ``height_band``: (min, max) world z of
     the camera when known (:attr:`ldlmap.map.contents.LdlMap.camera_height_band`); every step keeps the
     centres within ``params.height_margin_m`` of it. ``assoc_deg`` (K,): each pose's first-round
-    association angle (None: ``params.assoc_deg`` for all). See the module docstring.
+    association angle (None: ``params.assoc_deg`` for all). ``kernels`` (K,): each pose's weights
+    (:data:`KERNELS` names; None: ``params.kernel`` for all). See the module docstring.
     """
     A = np.asarray(arcs, dtype=np.float64)
     if A.ndim != 3 or A.shape[1:] != (2, 3) or not np.isfinite(A).all():
         raise InputError(f"arcs must be finite with shape (N, 2, 3), got {A.shape}")
-    if params.kernel not in KERNELS:
-        raise InputError(f"unknown refinement kernel {params.kernel!r} (one of {', '.join(KERNELS)})")
     # float32 throughout (faster than float64: docs/measurements.md#geometric-float32), about an origin
     # at the poses' mean centre so that maps in large coordinates (UTM) keep their precision.
     dt = torch.float32
@@ -181,6 +191,7 @@ def refine_poses_geometric(arcs: np.ndarray, rotations: np.ndarray, centers: np.
     R0 = torch.as_tensor(np.asarray(rotations, dtype=np.float64).reshape(-1, 3, 3), dtype=dt)
     t0 = torch.as_tensor(C0 - origin, dtype=dt)
     K = len(R0)
+    kernel = pose_kernels(kernels, params.kernel, K)  # (K,) index into KERNELS
     # Each pose works on its own list of the grouped lines it sees (padded to the longest list; the
     # padding has group -1 and is never matched): (K, Lk, 2, 3) lines and (K, Lk) groups.
     grp = np.asarray(line_groups, dtype=np.int64)
@@ -209,7 +220,7 @@ def refine_poses_geometric(arcs: np.ndarray, rotations: np.ndarray, centers: np.
     rounds = max(1, int(params.rounds))
     for k in range(rounds):
         if k > 0 and params.merge_m > 0:  # poses that met a better-ranked one follow it from here on
-            keep_a, twin = _merge_twins(R, t, params.merge_m, params.merge_deg)
+            keep_a, twin = _merge_twins(R, t, params.merge_m, params.merge_deg, kernel[active])
             rep[active] = active[twin]
             active, R, t, L, G3 = active[keep_a], R[keep_a], t[keep_a], L[keep_a], G3[keep_a]
         a = assoc0[active]
@@ -217,7 +228,7 @@ def refine_poses_geometric(arcs: np.ndarray, rotations: np.ndarray, centers: np.
         match, arc_group = _associate(R, t, X, arc_of, n2, L, G3, P3, params.group_tol, margin, thr)
         vp = (n2, P3, arc_group, params.vp_weight) if params.vp_weight > 0 else None
         for _ in range(max(1, int(params.steps))):
-            robust = (params.kernel, (thr / 3).clamp_min(huber)[:, None], thr[:, None], huber, point_w)
+            robust = (kernel[active], (thr / 3).clamp_min(huber)[:, None], thr[:, None], huber, point_w)
             R, t = _gauss_newton_step(R, t, X, XX, L, match, robust, params.damping,
                                       fix_rotation=k < params.fixed_rotation_rounds, vp=vp)
             if z_lo is not None:
@@ -242,11 +253,22 @@ def refine_poses_geometric(arcs: np.ndarray, rotations: np.ndarray, centers: np.
     return GeometricResult(rots, cens, keep, matched.numpy(), np.degrees(np.arcsin(med.clamp(max=1.0).double().numpy())))
 
 
-def _merge_twins(R, t, merge_m: float, merge_deg: float):
+def pose_kernels(kernels, default: str, K: int):
+    """(K,) index into :data:`KERNELS` of each pose's weights (``kernels``: K names, None: ``default``
+    for all); an unknown name is refused."""
+    names = [default] * K if kernels is None else [str(k) for k in np.asarray(kernels).reshape(-1)]
+    unknown = sorted(set(names) - set(KERNELS))
+    if unknown or len(names) != K:
+        raise InputError(f"unknown refinement kernel {unknown[0]!r} (one of {', '.join(KERNELS)})" if unknown
+                         else f"{len(names)} refinement kernels for {K} poses")
+    return torch.as_tensor([KERNELS.index(k) for k in names], dtype=torch.long)
+
+
+def _merge_twins(R, t, merge_m: float, merge_deg: float, kernel):
     """Which of the (rank-ordered) poses to keep refining (A,) bool, and for each pose the first one
-    within ``merge_m`` and ``merge_deg`` of it (A,) (itself when none is earlier): poses that have
-    met go on as one."""
-    near = torch.cdist(t, t) < merge_m
+    within ``merge_m`` and ``merge_deg`` of it with the same weights (``kernel`` (A,)) (itself when
+    none is earlier): poses that have met go on as one."""
+    near = (torch.cdist(t, t) < merge_m) & (kernel[:, None] == kernel[None, :])
     cos = (torch.einsum("aij,bij->ab", R, R) - 1) / 2
     near &= cos > np.cos(np.radians(merge_deg))
     first = torch.argmax(near.to(torch.uint8), dim=1)  # the diagonal is True: first <= own index
@@ -370,14 +392,21 @@ def mixture_weights(r, valid, scale, thr, floor, iters: int = 5):
     return w
 
 
-def _robust_weights(r, valid, kernel: str, scale, thr, floor):
-    """Weights (K, X) of the matched (``valid``) points' residuals ``r`` by :attr:`GeometricParams.kernel`:
-    ``scale`` (K, 1) the kernel's scale, ``thr`` (K, 1) the association window, ``floor`` the least sigma."""
-    if kernel == "mixture":
-        return mixture_weights(r, valid, scale, thr, floor)
-    if kernel == "geman":
-        return valid / (1 + (r / scale) ** 2) ** 2
-    return _huber_weights(r, scale) * valid
+def _robust_weights(r, valid, kernel, scale, thr, floor):
+    """Weights (K, X) of the matched (``valid``) points' residuals ``r`` by each pose's kernel
+    (``kernel`` (K,): index into :data:`KERNELS`): ``scale`` (K, 1) the kernel's scale, ``thr`` (K, 1)
+    the association window, ``floor`` the least sigma."""
+    w = torch.zeros_like(r)
+    for code in torch.unique(kernel).tolist():
+        rows = kernel == code
+        r_k, v_k, s_k = r[rows], valid[rows], scale[rows]
+        if KERNELS[code] == "mixture":
+            w[rows] = mixture_weights(r_k, v_k, s_k, thr[rows], floor)
+        elif KERNELS[code] == "geman":
+            w[rows] = v_k / (1 + (r_k / s_k) ** 2) ** 2
+        else:
+            w[rows] = _huber_weights(r_k, s_k) * v_k
+    return w
 
 
 def _length_weights(arcs, power: float):
@@ -390,7 +419,7 @@ def _length_weights(arcs, power: float):
 
 def _gauss_newton_step(R, t, X, XX, L, match, robust, damping, fix_rotation=False, vp=None):
     """One damped, robustly weighted Gauss-Newton step for all K poses; ``XX`` (X, 9): the points'
-    outer products ``x x^T``; ``robust``: ``(kernel, scale (K, 1), window (K, 1), least sigma, point
+    outer products ``x x^T``; ``robust``: ``(kernels (K,), scale (K, 1), window (K, 1), least sigma, point
     weights (X,))`` (:func:`_robust_weights`); ``fix_rotation``: the translation only; ``vp``:
     ``(n2, P3, arc_group, weight)`` adds the vanishing-point residuals (Huber-weighted at ``scale``). The normal equations gather the points per line
     (:func:`_line_operators`): ``H = sum_l D_l S_l D_l^T`` and ``b = -sum_l D_l S_l n_l`` with
@@ -528,10 +557,24 @@ def selection_scores(loss: np.ndarray, params: GeometricParams, support_of,
     return full
 
 
+def refinement_plan(M: int, params: GeometricParams = GeometricParams()) -> tuple[np.ndarray, np.ndarray, list[str]]:
+    """Which of M ranked search poses the refinement stage refines, and how: ``(candidate, assoc_deg,
+    kernel)`` per refined pose. The best ``max_poses`` (at least one) with ``params.kernel`` from
+    ``assoc_deg``; the best ``wide_poses`` of them again from ``wide_assoc_deg``; the best
+    ``second_kernel_poses`` again with ``second_kernel``'s weights. All results compete."""
+    n = max(1, min(M, int(params.max_poses)))
+    w = max(0, min(n, int(params.wide_poses)))
+    s = max(0, min(n, int(params.second_kernel_poses)))
+    cand = np.r_[np.arange(n), np.arange(w), np.arange(s)].astype(int)
+    assoc = np.r_[np.full(n, params.assoc_deg), np.full(w, params.wide_assoc_deg), np.full(s, params.assoc_deg)]
+    return cand, assoc, [params.kernel] * (n + w) + [params.second_kernel] * s
+
+
 def refine_and_keep(arcs: np.ndarray, rotations: np.ndarray, centers: np.ndarray, translation_index: np.ndarray,
                     n: int, ldl_map, params: GeometricParams = GeometricParams(),
                     search: SearchParams = SearchParams(), device: str = "cpu", group_tol: float = ARC_GROUP_TOL,
-                    assoc_deg: np.ndarray | None = None) -> tuple[GeometricResult, np.ndarray, np.ndarray]:
+                    assoc_deg: np.ndarray | None = None,
+                    kernels=None) -> tuple[GeometricResult, np.ndarray, np.ndarray]:
     """The geometric refinement stage on a map: refine the first ``n`` of these poses from lines alone
     and score every pose with the search's exact loss (:func:`ldlloc.search.pose_search.score_on_map`).
 
@@ -539,13 +582,14 @@ def refine_and_keep(arcs: np.ndarray, rotations: np.ndarray, centers: np.ndarray
     ``params.keep_within`` of its start's: the inlier loss cannot see a few centimetres
     (docs/measurements.md#geometric-keep-within). ``translation_index`` (M,): each pose's candidate
     translation (its visible lines); ``assoc_deg`` (n,): each refined pose's first association angle
-    (None: the params'). Returns the :class:`GeometricResult` of the first ``n``, ``kept`` (M,) and
+    (None: the params'); ``kernels`` (n,): each refined pose's weights (None: the params'). Returns
+    the :class:`GeometricResult` of the first ``n``, ``kept`` (M,) and
     each pose's loss (M,) (the better of the two where kept)."""
     m = ldl_map
     ti = np.asarray(translation_index)
     vis = m.visibility[ti[:n]] if m.visibility is not None else None
     g = refine_poses_geometric(arcs, rotations[:n], centers[:n], m.lines, m.line_groups, m.principal_directions,
-                               vis, params, m.camera_height_band, assoc_deg)
+                               vis, params, m.camera_height_band, assoc_deg, kernels)
     # a refined pose is scored with what is seen from the candidate translation nearest to it
     # (lines behind walls, mapped directions), not from its start's
     ti_ref = m.nearest_translation(g.centers)
