@@ -70,10 +70,11 @@ def run_level(zind_root: Path, level: str, args) -> dict:
     map_level = "room" if level == "rooms" else level
     maps = build_maps(zind_root, map_level, None)
     queries = open_dataset(zind_root, "zind", map_level=map_level).queries()
-    out = CACHE / "real" / f"walk_{level}.json"
+    out = CACHE / "real" / f"walk_{level}{'' if args.relative else '_norelative'}.json"
     out.unlink(missing_ok=True)
     t0 = time.perf_counter()
-    res = run_walk_queries(queries, maps, out, LocalizeParams(), WalkParams(top_maps=TOP_MAPS), "cpu",
+    walk = WalkParams(top_maps=TOP_MAPS, relative=args.relative)
+    res = run_walk_queries(queries, maps, out, LocalizeParams(), walk, "cpu",
                            meta={"dataset": "zind"}, scene_unknown=level == "rooms")
     seconds = time.perf_counter() - t0
     rows = frame_rows(res, queries)
@@ -414,6 +415,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--threads", type=int, default=1, help="torch intra-op threads (default 1)")
     ap.add_argument("--output", default=None, help="results (default bench/walk.json, bench/walk_building.json)")
     ap.add_argument("--building", action="store_true", help="the synthetic building walk instead of ZInD")
+    ap.add_argument("--no-relative", dest="relative", action="store_false",
+                    help="ZInD: without the motion between consecutive images (ldlloc.walk.relative): the walk before it")
     ap.add_argument("--seed", type=int, default=4040, help="--building: the building's seed (no test uses 4040)")
     ap.add_argument("--width", type=int, default=1024, help="--building: panorama width")
     ap.add_argument("--visits", type=int, default=2, help="--building: rooms the walk enters a floor")
