@@ -3,11 +3,14 @@
 Two frames a metre apart see the same cabinets, the same pantry shelves: surfaces a layout map
 lacks, so the map cannot place a frame by them, but the frames' own images match each other there.
 :func:`relative_pose` matches SIFT features (:class:`ldlmap.features.sift.SiftBackend`) between the
-two panoramas and fits the essential matrix on their unit bearings (a spherical camera: every
-direction, no pinhole model) with RANSAC over eight-point samples, all hypotheses at once (batched
-SVDs), refitted on its inliers; the rotation between the frames and the direction of the step
-(not its length) follow, the sign of the step from the points in front of both cameras.
-:func:`poses_along` turns it into the poses a frame may stand at, given its neighbour's pose.
+two panoramas (on a cube's faces) and fits the essential matrix on their unit bearings (a
+spherical camera: every direction, no pinhole model) for two upright cameras (tilted ones levelled
+first by a rotation whose vertical is right): RANSAC over the turn about the vertical and samples of
+two matches, all hypotheses scored at once, the turn refitted finely on its inliers. The rotation
+between the frames and the direction of the step follow (its sign from the points in front of both
+cameras), and the step's length in camera heights from the matched points on the floor
+(:func:`floor_scale`). :func:`poses_along` turns it into the poses a frame may stand at, given its
+neighbour's pose and the floor under it (:func:`floor_under`).
 """
 
 from __future__ import annotations
@@ -174,16 +177,6 @@ def turns(th: np.ndarray) -> np.ndarray:
     R = np.zeros((len(th), 3, 3))
     R[:, 0, 0], R[:, 0, 1], R[:, 1, 0], R[:, 1, 1], R[:, 2, 2] = c, -s, s, c, 1.0
     return R
-
-
-def eight_point(xa: np.ndarray, xb: np.ndarray) -> np.ndarray:
-    """Essential matrices (M, 3, 3) from M sets of bearing pairs (M, K, 3), K >= 8: the least-squares
-    null vector of ``xb^T E xa``, projected onto the essential manifold (singular values 1, 1, 0)."""
-    A = np.einsum("mki,mkj->mkij", xb, xa).reshape(len(xa), -1, 9)
-    _, _, vt = np.linalg.svd(A, full_matrices=True)  # the smallest singular vector: E's nine entries
-    E = vt[:, -1].reshape(-1, 3, 3)
-    u, _, vt = np.linalg.svd(E)
-    return u @ (np.array([1.0, 1.0, 0.0])[:, None] * vt)
 
 
 def epipolar_error(E: np.ndarray, xa: np.ndarray, xb: np.ndarray) -> np.ndarray:
