@@ -19,6 +19,7 @@ from ldlloc.pipeline import LocalizeParams, load_image
 from ldlloc.walk.hypotheses import Hypotheses
 from ldlloc.walk.localize import WalkFrame, WalkParams, decide, localize_frame, relate, relative_costs
 from ldlloc.walk.relative import inverse, panorama_features, relative_pose
+from ldlloc.walk.run import relative_record
 from ldlmap.core.geometry import rotation_error_deg, translation_error
 
 pytestmark = pytest.mark.xdist_group("walk")
@@ -94,9 +95,12 @@ def test_a_frame_is_recovered_only_by_the_motion_from_its_neighbour(demo_dataset
         pa.loc, pb.loc = copy.copy(oa.loc), copy.copy(ob.loc)
         relate(pa, pb, maps, index, p, {})
         assert (pb.relative is not None) == relative
-        if relative:  # the steps that disagree with the motion cost more
+        if relative:  # the steps that disagree with the motion cost more; the record says the motion
             c = relative_costs(pa, pb, p)
             assert c.shape == (len(pa.hypotheses), len(pb.hypotheses)) and c.max() > 0
+            rec = relative_record(pb)
+            step = float(np.linalg.norm(np.asarray(b.center) - np.asarray(a.center)))
+            assert rec["from"] == a.name and rec["inliers"] >= 40 and abs(rec["length_m"] - step) < 0.1 * step
         decide([pa, pb], maps, p)
         got[relative] = (translation_error(pb.loc.center, b.center),
                          rotation_error_deg(pb.loc.rot_cam_from_world, b.rot_cam_from_world))
