@@ -1,6 +1,7 @@
 """Walks against single images, side by side on the same frames.
 
-Run: ``python bench/bench_walk.py [--data ../shared/data] [--levels floor,rooms] [--threads 1]``, or
+Run: ``python bench/bench_walk.py [--data ../shared/data] [--levels floor,rooms] [--threads 1] [--no-relative]``,
+``python bench/bench_walk.py --pairs`` (the motion between consecutive panoramas, :func:`pair_fits`), or
 ``python bench/bench_walk.py --building [--seed 4040] [--width 1024] [--visits 2]``.
 
 The shared ZInD home (19 panoramas in capture order, the panorama number) as one walk,
@@ -70,10 +71,11 @@ def run_level(zind_root: Path, level: str, args) -> dict:
     map_level = "room" if level == "rooms" else level
     maps = build_maps(zind_root, map_level, None)
     queries = open_dataset(zind_root, "zind", map_level=map_level).queries()
-    out = CACHE / "real" / f"walk_{level}.json"
+    out = CACHE / "real" / f"walk_{level}{'' if args.relative else '_norelative'}.json"
     out.unlink(missing_ok=True)
     t0 = time.perf_counter()
-    res = run_walk_queries(queries, maps, out, LocalizeParams(), WalkParams(top_maps=TOP_MAPS), "cpu",
+    walk = WalkParams(top_maps=TOP_MAPS, relative=args.relative)
+    res = run_walk_queries(queries, maps, out, LocalizeParams(), walk, "cpu",
                            meta={"dataset": "zind"}, scene_unknown=level == "rooms")
     seconds = time.perf_counter() - t0
     rows = frame_rows(res, queries)
@@ -124,6 +126,38 @@ def print_level(res: dict) -> None:
                         f"{c['0.25m_5deg']}/{n}, confident {c['confident']} (wrong {c['confident_wrong']}), "
                         f"median {c['median_t_m']:.3f} m")
     console().print(f"{res['level']}: frames the walk decided {res['walk_decided']}/{n}")
+
+
+def pair_fits(zind_root: Path) -> dict:
+    """The motion between each two consecutive panoramas of the ZInD tour (:func:`ldlloc.walk.relative.relative_pose`,
+    the panoramas as taken: upright) against the ground truth: rotation and direction errors (deg), the
+    step's length from the floor (the true camera height times its length in camera heights) and CPU seconds."""
+    from ldlmap.core.geometry import rotation_error_deg
+    from ldlmap.datasets import open_dataset
+    from ldlloc.pipeline import load_image
+    from ldlloc.walk.relative import panorama_features, relative_pose
+
+    qs = sorted(open_dataset(zind_root, "zind", map_level="floor").queries(), key=lambda q: int(q.name.split("_")[-1]))
+    t0 = time.process_time()
+    feats = [panorama_features(load_image(q.image)) for q in qs]
+    rows = [{"features_cpu_s": (time.process_time() - t0) / len(qs)}]
+    for a, b, fa, fb in zip(qs[:-1], qs[1:], feats[:-1], feats[1:]):
+        t0 = time.process_time()
+        rel = relative_pose(fa, fb)
+        Ra, Rb = np.asarray(a.rot_cam_from_world), np.asarray(b.rot_cam_from_world)
+        step = Ra @ (np.asarray(b.center) - np.asarray(a.center))
+        row = {"pair": f"{a.name.split('/')[-1]} -> {b.name.split('/')[-1]}", "metres": float(np.linalg.norm(step)),
+               "cpu_s": time.process_time() - t0, "fit": rel is not None}
+        if rel is not None:
+            row.update(inliers=rel.inliers, matches=rel.matches, rot_deg=rotation_error_deg(rel.rot, Rb @ Ra.T),
+                       dir_deg=float(np.degrees(np.arccos(np.clip(rel.direction @ step / row["metres"], -1, 1)))),
+                       length_m=None if rel.per_height is None else rel.per_height * float(np.asarray(a.center)[2]))
+        console().print(row)
+        rows.append(row)
+    fit = [r for r in rows[1:] if r["fit"]]
+    console().print(f"{len(fit)} / {len(rows) - 1} pairs fit; rotation error median "
+                    f"{np.median([r['rot_deg'] for r in fit]):.2f} deg, direction {np.median([r['dir_deg'] for r in fit]):.1f} deg")
+    return {"pairs": rows}
 
 
 # ------------------------------------------------------------------------------ building walk
@@ -414,6 +448,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--threads", type=int, default=1, help="torch intra-op threads (default 1)")
     ap.add_argument("--output", default=None, help="results (default bench/walk.json, bench/walk_building.json)")
     ap.add_argument("--building", action="store_true", help="the synthetic building walk instead of ZInD")
+    ap.add_argument("--no-relative", dest="relative", action="store_false",
+                    help="ZInD: without the motion between consecutive images (ldlloc.walk.relative): the walk before it")
+    ap.add_argument("--pairs", action="store_true",
+                    help="ZInD: only the motion between consecutive panoramas against the ground truth")
     ap.add_argument("--seed", type=int, default=4040, help="--building: the building's seed (no test uses 4040)")
     ap.add_argument("--width", type=int, default=1024, help="--building: panorama width")
     ap.add_argument("--visits", type=int, default=2, help="--building: rooms the walk enters a floor")
@@ -434,6 +472,9 @@ def main(argv: list[str] | None = None) -> int:
     if zind_root is None:
         return 0
     use_threads(args.threads)
+    if args.pairs:
+        write_json(Path(args.output), pair_fits(zind_root))
+        return 0
     levels = [x.strip() for x in args.levels.split(",") if x.strip()]
     bad = [x for x in levels if x not in LEVELS]
     if bad:

@@ -31,6 +31,8 @@ from ldlloc.pipeline import Localization, Localizer, SearchNear
 from ldlloc.search.pose_search import score_on_map
 from ldlloc.walk.hypotheses import MAX_HYPOTHESES, Hypotheses, from_choice, joined
 from ldlloc.walk.motion import FreeSpace, MotionParams, transition_costs
+from ldlloc.walk.relative import (RelativeParams, disagreement, floor_under, inverse, panorama_features, poses_along,
+                                  relative_pose)
 from ldlloc.walk.track import TorchThreads, TrackBasis, TrackParams, check_track_params, next_basis, predict, track
 from ldlloc.walk.viterbi import best_path, margin
 
@@ -53,10 +55,20 @@ class WalkParams:
     near_cone_deg: float = 10.0  # ... and this cone, then refined
     max_hypotheses: int = MAX_HYPOTHESES
     walls: bool = True  # no step through a wall: the maps' free space (ldlloc.walk.motion.FreeSpace)
+    relative: bool = True  # the motion between consecutive images where one needs more (:func:`relate`) ...
+    relative_fit: RelativeParams = field(default_factory=RelativeParams)  # ... fitted so (ldlloc.walk.relative)
+    max_tilt_level_deg: float = 45.0  # a frame's own rotation levels its bearings when it tilts less than this
+    relative_rot_deg: float = 5.0  # a path's step between two related frames whose turn differs from theirs by more ...
+    relative_dir_deg: float = 20.0  # ... or whose direction does by more than this (steps of at least ...
+    relative_min_step_m: float = 0.3  # ... this: a shorter one's direction is a coarse pose's noise) ...
+    relative_length_share: float = 0.25  # ... or whose length does by more than this share of theirs (the floor's) ...
+    relative_cost: float = 8.0  # ... costs more, up to this at twice them (more than a frame's pose that explains
+    # a third fewer lines: images that agree on their motion outweigh a map that lacks what both show)
 
 
-VIDEO = WalkParams(track=True, motion=MotionParams(turn_deg=30.0))  # a video: frames a few tenths of a second apart
-# (the free step from the walking speed and their time apart), tracked, turning little between frames
+VIDEO = WalkParams(track=True, motion=MotionParams(turn_deg=30.0), relative=False)  # a video: frames a few tenths of
+# a second apart (the free step from the walking speed and their time apart), tracked, turning little between frames
+# (its lost frames are blurred: the prediction stands for them, no image matching)
 
 
 @dataclass(frozen=True)
@@ -86,6 +98,8 @@ class FrameOutcome:
     competitors: list = field(default_factory=list)  # the poses its image named as competing ({R, t, ...})
     walk_decided: bool = False
     walk_margin: float | None = None  # nats (inf: no distinct pose in the frame's hypotheses)
+    relative: tuple | None = None  # (the previous WalkFrame, its RelativePose to this one, the step's length in m or
+    # None) where fitted (:func:`relate`)
     hypotheses: Hypotheses | None = field(default=None, repr=False)
 
 
@@ -190,6 +204,9 @@ def augment(outcomes: list[FrameOutcome], maps: MapSet, params: WalkParams) -> N
     per frame apart): the pose a search over the whole map lost among distractors (furniture the
     map lacks) is often the best of the few near where the walk was."""
     index = {id(e): i for i, e in enumerate(maps.entries)}
+    cache: dict = {}
+    for a, b in zip(outcomes[:-1], outcomes[1:]):
+        relate(a, b, maps, index, params, cache)
     sure = [i for i, o in enumerate(outcomes) if is_anchor(o)]
     for i, o in enumerate(outcomes):
         if not needs_more(o):
@@ -235,6 +252,103 @@ def augment_frame(o: FrameOutcome, anchors: list[tuple[int, MapEntry, np.ndarray
         c = s.out
         o.hypotheses = joined(o.hypotheses, index[id(entry)], c.candidates_rot, c.candidates_center,
                               c.candidates_loss)
+
+
+def relate(prev: FrameOutcome | None, cur: FrameOutcome, maps: MapSet, index: dict[int, int], params: WalkParams,
+           cache: dict) -> None:
+    """The motion between consecutive frames ``prev`` and ``cur`` (:func:`ldlloc.walk.relative.relative_pose`)
+    where one needs more (:func:`needs_more`), the other anchors (:func:`is_anchor`) and their images
+    agree on one: kept on ``cur`` for the
+    path's steps (:func:`relative_costs`), and the poses along it from the one that anchors
+    (:func:`is_anchor`) join the other's hypotheses (:func:`along`). ``index``: ``id(MapEntry) -> index``;
+    ``cache``: the frames' features by ``id(WalkFrame)`` (the last two kept)."""
+    if not params.relative or prev is None or prev.hypotheses is None or cur.hypotheses is None:
+        return
+    if not (needs_more(prev) and is_anchor(cur) or needs_more(cur) and is_anchor(prev)):
+        return  # between two frames the map does not place, agreeing on their motion may move both wrong
+    try:
+        fa, fb = (features_of(o.frame, cache, params) for o in (prev, cur))
+    except LdlError:
+        return
+    fits = [relative_pose(fa, fb, params.relative_fit, *levels) for levels in
+            ((level_of(prev, params), level_of(cur, params)), (None, None))]  # levelled by their own poses, or as taken
+    fits = [f for f in fits if f is not None]
+    if not fits:
+        return
+    rel = max(fits, key=lambda f: f.inliers)  # an image's own rotation may be tilted wrong: the levelling more agree with
+    cur.relative = (prev.frame, rel, step_length(prev, rel))
+    if needs_more(cur) and is_anchor(prev):
+        along(cur, prev, rel, maps, index, params)
+    if needs_more(prev) and is_anchor(cur):
+        along(prev, cur, inverse(rel), maps, index, params)
+
+
+def features_of(frame: WalkFrame, cache: dict, params: WalkParams) -> tuple[np.ndarray, np.ndarray]:
+    """A frame's :func:`ldlloc.walk.relative.panorama_features` (its image read again), cached by frame."""
+    key = id(frame)
+    if key not in cache:
+        for old in list(cache)[:-1]:  # the last frame's stay: its successor is related to it
+            del cache[old]
+        cache[key] = panorama_features(frame.load(), params.relative_fit)
+    return cache[key]
+
+
+def step_length(o: FrameOutcome, rel) -> float | None:
+    """The length (m) of the step ``rel`` from frame ``o``: its length in camera heights times the height
+    of ``o``'s own pose above the floor of its map (:func:`ldlloc.walk.relative.floor_under`); None when unknown."""
+    if rel.per_height is None or o.loc is None or o.entry is None:
+        return None
+    c = np.asarray(o.loc.center, float)
+    floor = floor_under(o.entry.localizer.map.lines, c)
+    return None if floor is None else rel.per_height * (c[2] - floor)
+
+
+def along(o: FrameOutcome, anchor: FrameOutcome, rel, maps: MapSet, index: dict[int, int], params: WalkParams) -> None:
+    """Frame ``o``'s poses along its motion ``rel`` (a :class:`ldlloc.walk.relative.RelativePose`) from
+    confident frame ``anchor``, as long as the floor under the anchor says
+    (:func:`ldlloc.walk.relative.poses_along`), scored with their exact line loss, join its hypotheses
+    on the anchor's map. Nothing where the step's length is unknown (no floor seen, none in the map)."""
+    entry, loz = anchor.entry, anchor.entry.localizer
+    length = step_length(anchor, rel)
+    if length is None:
+        return
+    R, C = poses_along(rel, np.asarray(anchor.loc.rot_cam_from_world, float), np.asarray(anchor.loc.center, float),
+                       length)
+    try:
+        img = o.frame.load()
+        tilt = loz.params.max_tilt_deg if o.frame.max_tilt_deg is None else o.frame.max_tilt_deg
+        arcs = loz.rotation_stage(loz.detect_lines(img), tilt).arcs
+    except LdlError:
+        return
+    loss = score_on_map(arcs, R, C, loz.map, loz.params.search, loz.device, loz.params.principal.group_tol)
+    o.hypotheses = joined(o.hypotheses, index[id(entry)], R, C, loss)
+
+
+def level_of(o: FrameOutcome, params: WalkParams) -> np.ndarray | None:
+    """Frame ``o``'s own rotation where it may level its bearings (it tilts less than
+    ``max_tilt_level_deg``: a rotation found a quarter turn off about a horizontal axis does not), else
+    None. :func:`relate` fits the motion levelled so and as taken (an upright camera whose own pose
+    tilts wrong) and keeps the fit more matches agree with."""
+    R = np.asarray(o.single_pose[0], float)
+    return R if np.degrees(np.arccos(np.clip(R[2, 2], -1.0, 1.0))) < params.max_tilt_level_deg else None
+
+
+def relative_costs(a: FrameOutcome, b: FrameOutcome, params: WalkParams) -> np.ndarray | float:
+    """(H_a, H_b) what each step from a pose of frame ``a`` to one of the next frame ``b`` costs more for
+    disagreeing with the motion between their images (``b.relative``): 0 within ``relative_rot_deg`` and
+    ``relative_dir_deg`` (and the length within ``relative_length_share``), ``relative_cost`` beyond twice
+    them; 0 where no motion was fitted."""
+    if b.relative is None or b.relative[0] is not a.frame:
+        return 0.0
+    ha, hb = a.hypotheses, b.hypotheses
+    rot, ang = disagreement(b.relative[1], ha.rot_cam_from_world, ha.center, hb.rot_cam_from_world, hb.center,
+                            params.relative_min_step_m)
+    x = np.maximum(rot / params.relative_rot_deg, ang / params.relative_dir_deg)
+    length = b.relative[2]
+    if length is not None:  # the step's length, where the floor told it
+        dist = np.linalg.norm(ha.center[:, None] - hb.center[None], axis=2)
+        x = np.maximum(x, np.abs(dist - length) / max(params.relative_length_share * length, params.relative_min_step_m))
+    return params.relative_cost * np.clip(x - 1.0, 0.0, 1.0)
 
 
 def emission_costs(o: FrameOutcome, params: WalkParams) -> np.ndarray:
@@ -290,8 +404,8 @@ def walk_path(live: list[FrameOutcome], params: WalkParams, costs: dict | None =
         key = (id(a.hypotheses), id(b.hypotheses))
         if key not in costs:
             dt = None if a.frame.time is None or b.frame.time is None else b.frame.time - a.frame.time
-            costs[key] = (a.hypotheses, b.hypotheses,
-                          transition_costs(a.hypotheses, b.hypotheses, params.motion, dt, free))
+            costs[key] = (a.hypotheses, b.hypotheses, transition_costs(a.hypotheses, b.hypotheses, params.motion, dt,
+                                                                       free) + relative_costs(a, b, params))
         return costs[key][-1]
 
     return best_path([em(o) for o in live], trans)

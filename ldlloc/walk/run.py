@@ -38,7 +38,8 @@ from ldlloc.walk.video import check_sampling, decoded_frames, frame_at, video_in
 def walk_fields(slot: Slot, walk: str) -> dict:
     """A frame's ``walk`` record: the walk's name, the frame's index and time, whether the walk
     decided it, the image's own verdict, confidence, pose and map, the path margin (nats),
-    tracking (``lost``: tracking lost the frame, its pose the walk's prediction:
+    the motion from the frame before (``relative``: :func:`relative_record`), tracking (``lost``:
+    tracking lost the frame, its pose the walk's prediction:
     :func:`ldlloc.walk.track.is_lost`; ``basis``: what the next frame's prediction starts from), and
     the last global frame's loss (what a resumed walk's tracking goes on from)."""
     out = slot.out
@@ -51,7 +52,19 @@ def walk_fields(slot: Slot, walk: str) -> dict:
             "single_pose": None if out.single_pose is None else {"R": out.single_pose[0].tolist(),
                                                                   "t": out.single_pose[1].tolist()},
             "single_map": None if out.choice is None else str(out.choice.chosen.entry.path),
-            "ref_loss": slot.ref_loss}
+            "ref_loss": slot.ref_loss, "relative": relative_record(out)}
+
+
+def relative_record(out: FrameOutcome) -> dict | None:
+    """The motion from the frame before, where its image and this one's agreed on it
+    (:func:`ldlloc.walk.localize.relate`): that frame's name, the matches and inliers, the rotation
+    (R_this R_before^T), the step's unit direction in the frame before's camera frame and its length
+    (m; null: no floor seen); None where none was fitted."""
+    if out.relative is None:
+        return None
+    before, rel, length = out.relative
+    return {"from": before.name, "matches": rel.matches, "inliers": rel.inliers, "R": rel.rot.round(8).tolist(),
+            "direction": rel.direction.round(6).tolist(), "length_m": None if length is None else round(length, 4)}
 
 
 def walk_records(writer: ResultsWriter, groups: list[list[str]]) -> list[list[QueryResult | None]]:

@@ -42,7 +42,7 @@ from ldlloc.batch.which_map import MapSet
 from ldlloc.record import QueryResult
 from ldlloc.walk.hypotheses import Hypotheses
 from ldlloc.walk.localize import (FrameOutcome, WalkFrame, WalkParams, augment_frame, free_space, is_anchor,
-                                  localize_frame, needs_more, settle, walk_path)
+                                  localize_frame, needs_more, relate, settle, walk_path)
 from ldlloc.walk.track import TorchThreads, TrackBasis, is_lost
 
 LAG = 100  # frames: a frame is decided once this many after it are localized (a walk of lag + 1 frames or fewer:
@@ -115,6 +115,7 @@ class WalkStream:
         self.anchor, self.finals = r.anchor, dict(r.finals)
         self.slots: deque[Slot] = deque()
         self.costs: dict = {}
+        self.features: dict = {}  # the last frames' image features (ldlloc.walk.localize.relate)
         self.free = free_space(maps, params)  # no step through a wall
         self.threads = TorchThreads(pinned=True)  # torch on one thread for the whole walk (:meth:`close`)
 
@@ -126,6 +127,7 @@ class WalkStream:
         self.threads.one()
         out, self.ref_loss = localize_frame(item, prev, self.maps, self.params, self.ref_loss, self.trackers,
                                             self.index, self.threads)
+        relate(prev, out, self.maps, self.index, self.params, self.features)  # the motion from the frame before
         slot = Slot(i, out, self.ref_loss, self.confident, needs_more(out) and not is_lost(out.loc), i < self.written)
         if is_anchor(out):
             here = (i, out.entry, np.asarray(out.loc.center, float))
