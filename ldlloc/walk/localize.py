@@ -30,6 +30,7 @@ from ldlloc.confidence import distinct, walk_judgement
 from ldlloc.pipeline import Localization, Localizer, SearchNear
 from ldlloc.search.pose_search import score_on_map
 from ldlloc.walk.hypotheses import MAX_HYPOTHESES, Hypotheses, from_choice, joined
+from ldlloc.walk.lattice import LatticeParams, lattice_poses
 from ldlloc.walk.motion import FreeSpace, MotionParams, transition_costs
 from ldlloc.walk.track import TorchThreads, TrackBasis, TrackParams, check_track_params, next_basis, predict, track
 from ldlloc.walk.viterbi import best_path, margin
@@ -49,14 +50,17 @@ class WalkParams:
     gap_radius_m: float = 4.5  # a frame whose image was not confident is searched again within this radius of the
     max_gap_radius_m: float = 12.0  # confident frames before and after it, times their distance in frames (at most
     # this)
+    lattice: LatticeParams = field(default_factory=LatticeParams)  # ... and on a fine lattice of translations there
+    # (ldlloc.walk.lattice: the map's candidates are too sparse for a frame of few lines)
     near_radius_m: float = 0.6  # a search pose the path chose is searched again within this radius ...
     near_cone_deg: float = 10.0  # ... and this cone, then refined
     max_hypotheses: int = MAX_HYPOTHESES
     walls: bool = True  # no step through a wall: the maps' free space (ldlloc.walk.motion.FreeSpace)
 
 
-VIDEO = WalkParams(track=True, motion=MotionParams(turn_deg=30.0))  # a video: frames a few tenths of a second apart
-# (the free step from the walking speed and their time apart), tracked, turning little between frames
+VIDEO = WalkParams(track=True, motion=MotionParams(turn_deg=30.0), lattice=LatticeParams(spacing_m=0.0))
+# a video: frames a few tenths of a second apart (the free step from the walking speed and their time apart),
+# tracked (searched near the prediction: no lattice, its cost per frame bounded), turning little between frames
 
 
 @dataclass(frozen=True)
@@ -235,6 +239,9 @@ def augment_frame(o: FrameOutcome, anchors: list[tuple[int, MapEntry, np.ndarray
         c = s.out
         o.hypotheses = joined(o.hypotheses, index[id(entry)], c.candidates_rot, c.candidates_center,
                               c.candidates_loss)
+        if params.lattice.spacing_m > 0:  # the anchor's neighbourhood more finely than the map's candidates
+            R, t, loss = lattice_poses(s.arcs, loz, center, radius, c.candidates_rot, params.lattice)
+            o.hypotheses = joined(o.hypotheses, index[id(entry)], R, t, loss)
 
 
 def emission_costs(o: FrameOutcome, params: WalkParams) -> np.ndarray:
