@@ -84,3 +84,4 @@ def lattice_poses(arcs: np.ndarray, localizer, center: np.ndarray, radius: float
     Rk, tk, lk = coarse.rotations[order], coarse.centers[order], loss[order]
     keep = diverse_subset(tk, Rk, p.keep, sp.diverse_translation, sp.diverse_rotation_deg)
     return Rk[keep], tk[keep], lk[keep]
+

@@ -327,7 +327,9 @@ def move_to(o: FrameOutcome, entry: MapEntry, R: np.ndarray, t: np.ndarray, para
     """Give frame ``o`` the pose the walk chose on ``entry``'s map: searched and refined near it
     (its image read again); the coarse pose itself when that fails. Returns whether the pose is refined."""
     loz = entry.localizer
-    near = SearchNear(t, R, params.near_radius_m, params.near_cone_deg)
+    # a lattice pose (ldlloc.walk.lattice) may stand farther than the radius from every candidate: the nearest one
+    reach = float(np.linalg.norm(loz.map.translations[loz.map.nearest_translation(t[None])[0]] - t))
+    near = SearchNear(t, R, max(params.near_radius_m, reach + 1e-6), params.near_cone_deg)
     try:
         img = o.frame.load()
         loc = loz.localize(img, o.frame.max_tilt_deg, searched=loz.search(img, o.frame.max_tilt_deg, near=near))
