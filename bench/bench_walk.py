@@ -21,7 +21,9 @@ path). ``--first-pass``: the walk's first pass (each frame's own localization, t
 confident frames) saved once under ``bench/.cache/walk_building/first_s<seed>*.pkl`` and the walk
 decided from it (:func:`decided`: the same path and refinement, without localizing every frame
 again): a change of the motion model or the decision measured in minutes, not half an hour, with
-where the true pose is among the frames' hypotheses (:func:`redecide`). Scored per frame against
+where the true pose is among the frames' hypotheses (:func:`redecide`). ``--lattice M``: the walk's
+lattice near confident frames (:mod:`ldlloc.walk.lattice`) at this spacing, 0: off (its own first pass,
+``first_s<seed>_lattice<M>.pkl``; the frames' own localizations are shared). Scored per frame against
 the ground truth the run never sees: within 0.1 m / 5 deg (single
 image and walk), right floor, and for the identical rooms (offices, hotel rooms) whether the pose
 is in the right copy (:func:`ldlmap.synth.building.room_at`). Results: ``bench/walk_building.json``.
