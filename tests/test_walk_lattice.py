@@ -1,6 +1,7 @@
 """The walk's lattice near a confident frame (ldlloc/walk/lattice.py): where a map's candidate
 translations are too sparse for a frame's true pose to score best among them, a fine lattice of
-translations around the walk's confident neighbour finds it, only where the map has free space."""
+translations around the walk's confident neighbour finds it, only where the map has free space;
+and which frames anchor those searches (ldlloc/walk/localize.py: is_anchor)."""
 
 from __future__ import annotations
 
@@ -10,9 +11,11 @@ import numpy as np
 
 from ldlmap.core.geometry import cam_from_world, normalize, rotation_from_axis_angle, rotation_error_deg
 from ldlmap.map.contents import LdlMap
+from ldlloc.confidence import MODEL
 from ldlloc.pipeline import LocalizeParams
 from ldlloc.search.pose_search import score_on_map
 from ldlloc.walk.lattice import LatticeParams, lattice_poses, lattice_translations
+from ldlloc.walk.localize import FrameOutcome, WalkFrame, is_anchor
 
 LO, HI = np.array([0.0, 0.0, 0.0]), np.array([8.0, 3.0, 2.6])  # a corridor 8 x 3 m
 TRUE_T = np.array([4.1, 1.3, 1.6])  # the camera, between the map's candidates (1 m apart)
@@ -85,3 +88,18 @@ def test_lattice_stays_in_the_free_space_at_the_anchors_height_and_is_bounded():
     assert 0 < len(few) <= 53  # a coarser lattice, its cost bounded
     other_floor = lattice_translations(m.translations + [0, 0, 3.0], anchor, 3.0, p)
     assert len(other_floor) == 0  # the candidates of the floor above tell nothing here
+
+
+def test_a_frame_confident_but_for_copies_of_its_room_anchors_the_walks_searches():
+    # a building's floors are copies of each other: every corridor frame names them and is ambiguous, yet its pose is
+    # right up to which copy (the walk chooses it), so it anchors the searches (and lattices) of the frames near it
+    def frame(verdict: str, conf: float, copies: float) -> FrameOutcome:
+        loc = SimpleNamespace(confidence_signals={"copies": copies})
+        return FrameOutcome(WalkFrame("f", None), loc=loc, single_verdict=verdict, single_confidence=conf)
+
+    sure = MODEL.confident_at + 0.01
+    assert is_anchor(frame("confident", sure, 0.0))
+    assert is_anchor(frame("ambiguous", sure, 2.0))
+    assert not is_anchor(frame("ambiguous", sure, 0.0))  # a twin or a rival, not a copy: no anchor
+    assert not is_anchor(frame("ambiguous", MODEL.confident_at - 0.05, 2.0))  # doubtful even without its copies
+    assert not is_anchor(frame("failed", 0.0, 2.0))

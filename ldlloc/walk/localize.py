@@ -26,7 +26,7 @@ import numpy as np
 
 from ldlmap.core.errors import InputError, LdlError
 from ldlloc.batch.which_map import TOP_MAPS, MapChoice, MapEntry, MapSet, final_pose_loss, localize_on_maps
-from ldlloc.confidence import distinct, walk_judgement
+from ldlloc.confidence import MODEL, distinct, walk_judgement
 from ldlloc.pipeline import Localization, Localizer, SearchNear
 from ldlloc.search.pose_search import score_on_map
 from ldlloc.walk.hypotheses import MAX_HYPOTHESES, Hypotheses, from_choice, joined
@@ -203,8 +203,14 @@ def augment(outcomes: list[FrameOutcome], maps: MapSet, params: WalkParams) -> N
 
 
 def is_anchor(o: FrameOutcome) -> bool:
-    """Whether frame ``o``'s own pose anchors the searches of :func:`augment`: its image was confident."""
-    return o.single_verdict == "confident" and o.loc is not None
+    """Whether frame ``o``'s own pose anchors the searches of :func:`augment`: its image was confident, or
+    would be but for copies of its room (a building's identical floors: right up to which copy, and the
+    walk chooses the copy)."""
+    if o.loc is None:
+        return False
+    copies = float((getattr(o.loc, "confidence_signals", None) or {}).get("copies", 0.0))
+    return o.single_verdict == "confident" or (o.single_verdict == "ambiguous" and copies > 0
+                                               and (o.single_confidence or 0.0) >= MODEL.confident_at)
 
 
 def needs_more(o: FrameOutcome) -> bool:
