@@ -450,8 +450,8 @@ def main(argv: list[str] | None = None) -> int:
                     help="--building: decide the walk from its first pass saved under bench/.cache (computed once: "
                          "each frame's own localization and the searches near confident frames), in minutes")
     ap.add_argument("--lattice", type=float, default=None,
-                    help="--building: the walk's lattice spacing in metres near confident frames (0: off; "
-                         "default: WalkParams')")
+                    help="--building: the walk's lattice spacing in metres near confident frames, e.g. 0.2 (0: off; "
+                         "default: WalkParams', off)")
     args = ap.parse_args(argv)
     if args.building:
         use_threads(args.threads)

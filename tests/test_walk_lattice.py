@@ -66,7 +66,7 @@ def test_lattice_finds_the_pose_the_sparse_candidates_miss():
     anchor = TRUE_T + np.array([1.1, -0.3, 0.0])
     twin = rotation_from_axis_angle(np.array([0.0, 0.0, 1.0]), np.pi) @ R
     rots = np.stack([rotation_from_axis_angle(np.array([1.0, 0.0, 0.0]), np.radians(1.0)) @ R, twin])
-    Rk, tk, lk = lattice_poses(arcs, loz, anchor, 2.0, rots, LatticeParams())
+    Rk, tk, lk = lattice_poses(arcs, loz, anchor, 2.0, rots, LatticeParams(spacing_m=0.2))
     assert len(lk) > 1 and np.all(np.diff(lk) >= 0)
     assert np.linalg.norm(tk[0] - TRUE_T) < 0.15 and rotation_error_deg(Rk[0], R) < 2.0
     assert lk[0] < np.min(cand)  # it explains more lines than any candidate of the map
@@ -84,10 +84,11 @@ def test_lattice_stays_in_the_free_space_at_the_anchors_height_and_is_bounded():
     d = np.linalg.norm(P[:, None, :2] - T2[None], axis=2).min(1)
     assert np.all(d <= 0.6 + 1e-9)  # beyond the corridor's end (x > 8.1): no candidate near, no lattice point
     assert P[:, 0].max() <= 8.1
-    few = lattice_translations(m.translations, anchor, 3.0, LatticeParams(max_points=50))
+    few = lattice_translations(m.translations, anchor, 3.0, LatticeParams(spacing_m=0.2, max_points=50))
     assert 0 < len(few) <= 53  # a coarser lattice, its cost bounded
     other_floor = lattice_translations(m.translations + [0, 0, 3.0], anchor, 3.0, p)
     assert len(other_floor) == 0  # the candidates of the floor above tell nothing here
+    assert len(lattice_translations(m.translations, anchor, 3.0, LatticeParams())) == 0  # off by default
 
 
 def test_a_frame_confident_but_for_copies_of_its_room_anchors_the_walks_searches():

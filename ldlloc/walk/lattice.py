@@ -28,9 +28,11 @@ STOREY_M = 1.5  # map candidates within this height of the lattice tell its free
 
 @dataclass(frozen=True)
 class LatticeParams:
-    """How :func:`lattice_poses` densifies a search near a confident frame (``spacing_m`` 0: off)."""
+    """How :func:`lattice_poses` densifies a search near a confident frame (``spacing_m`` 0: off, the default:
+    at 0.2 m it puts the true pose among a building walk's hypotheses far more often, but the walk's path
+    did not gain from it: docs/benchmarks.md, "Walks: synthetic building")."""
 
-    spacing_m: float = 0.2  # lattice spacing in xy (a true position is within spacing / sqrt(2) of a point)
+    spacing_m: float = 0.0  # lattice spacing in xy (a true position is within spacing / sqrt(2) of a point); 0: off
     max_points: int = 1200  # at most about this many lattice points: a coarser lattice beyond (cost bounded)
     reach_m: float = 0.6  # a lattice point within this (xy) of a map candidate is free space
     rotations: int = 4  # the distinct rotations of the search's best poses scored at every point
@@ -45,7 +47,7 @@ def lattice_translations(translations: np.ndarray, center: np.ndarray, radius: f
     T = np.asarray(translations, dtype=np.float64).reshape(-1, 3)
     c = np.asarray(center, dtype=np.float64)
     near = T[np.abs(T[:, 2] - c[2]) <= STOREY_M, :2]
-    if len(near) == 0 or radius <= 0:
+    if len(near) == 0 or radius <= 0 or p.spacing_m <= 0:
         return np.zeros((0, 3))
     tree = spatial.cKDTree(near)
     spacing = float(p.spacing_m)

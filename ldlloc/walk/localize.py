@@ -58,9 +58,8 @@ class WalkParams:
     walls: bool = True  # no step through a wall: the maps' free space (ldlloc.walk.motion.FreeSpace)
 
 
-VIDEO = WalkParams(track=True, motion=MotionParams(turn_deg=30.0), lattice=LatticeParams(spacing_m=0.0))
-# a video: frames a few tenths of a second apart (the free step from the walking speed and their time apart),
-# tracked (searched near the prediction: no lattice, its cost per frame bounded), turning little between frames
+VIDEO = WalkParams(track=True, motion=MotionParams(turn_deg=30.0))  # a video: frames a few tenths of a second apart
+# (the free step from the walking speed and their time apart), tracked, turning little between frames
 
 
 @dataclass(frozen=True)
