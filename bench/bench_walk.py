@@ -22,7 +22,9 @@ path). ``--first-pass``: the walk's first pass (each frame's own localization, t
 confident frames) saved once under ``bench/.cache/walk_building/first_s<seed>*.pkl`` and the walk
 decided from it (:func:`decided`: the same path and refinement, without localizing every frame
 again): a change of the motion model or the decision measured in minutes, not half an hour, with
-where the true pose is among the frames' hypotheses (:func:`redecide`). Scored per frame against
+where the true pose is among the frames' hypotheses (:func:`redecide`). ``--lattice M``: the walk's
+lattice near confident frames (:mod:`ldlloc.walk.lattice`) at this spacing, 0: off (its own first pass,
+``first_s<seed>_lattice<M>.pkl``; the frames' own localizations are shared). Scored per frame against
 the ground truth the run never sees: within 0.1 m / 5 deg (single
 image and walk), right floor, and for the identical rooms (offices, hotel rooms) whether the pose
 is in the right copy (:func:`ldlmap.synth.building.room_at`). Results: ``bench/walk_building.json``.
@@ -227,9 +229,7 @@ def building_counts(rows: list[dict]) -> dict:
 
 def run_building(args) -> dict:
     from ldlmap.datasets import open_dataset
-    from ldlloc.batch.which_map import TOP_MAPS
     from ldlloc.pipeline import LocalizeParams
-    from ldlloc.walk.localize import WalkParams
     from ldlloc.walk.run import run_walk_queries
 
     data = building_data(args)
@@ -237,11 +237,13 @@ def run_building(args) -> dict:
     queries = open_dataset(data, "omniscenes").queries("walk_tour")
     out = WALK_CACHE / f"walk_s{args.seed}.json"
     out.unlink(missing_ok=True)
+    walk = walk_params(args)
+    cache = first_cache(args)
     t0 = time.perf_counter()
     if args.first_pass:  # the walk decided again from its saved first pass (computed once)
-        rows = decided(queries, maps, WALK_CACHE / f"first_s{args.seed}.pkl", WalkParams(top_maps=TOP_MAPS))
+        rows = decided(queries, maps, cache, walk)
     else:
-        res = run_walk_queries(queries, maps, out, LocalizeParams(), WalkParams(top_maps=TOP_MAPS), "cpu",
+        res = run_walk_queries(queries, maps, out, LocalizeParams(), walk, "cpu",
                                meta={"dataset": "synthetic"}, scene_unknown=True)
         rows = frame_rows(res, queries)
     seconds = time.perf_counter() - t0
@@ -251,8 +253,7 @@ def run_building(args) -> dict:
     if args.first_pass:  # where the truth is among the hypotheses the walk chose from
         import pickle
 
-        cache = WALK_CACHE / f"first_s{args.seed}.pkl"
-        hyp = redecide(pickle.loads(cache.read_bytes()), queries, WalkParams(top_maps=TOP_MAPS), data)["rows"]
+        hyp = redecide(pickle.loads(cache.read_bytes()), queries, walk, data)["rows"]
         out["truth_in_hypotheses"] = {"own_search": sum(r["near_own"] for r in hyp),
                                       "any": sum(r["near_any"] for r in hyp), "frames": len(hyp),
                                       "within": "0.5 m / 10 deg"}
@@ -261,6 +262,32 @@ def run_building(args) -> dict:
         out["nearest_candidate_m"] = {"median": float(np.median(d)), "p90": float(np.percentile(d, 90)),
                                       "over_0.3m": int((d > 0.3).sum())}  # to each frame's true position
     return out
+
+
+def walk_params(args):
+    """The walk's parameters of a building run: the defaults, the lattice spacing ``--lattice`` (0: off)."""
+    from dataclasses import replace
+
+    from ldlloc.batch.which_map import TOP_MAPS
+    from ldlloc.walk.localize import WalkParams
+
+    walk = WalkParams(top_maps=TOP_MAPS)
+    if args.lattice is None:
+        return walk
+    return replace(walk, lattice=replace(walk.lattice, spacing_m=args.lattice))
+
+
+def first_cache(args) -> Path:
+    """The saved first pass of a building run (``first_s<seed>.pkl``; ``_lattice<spacing>`` when not the default).
+    The frames' own localizations (``first_s<seed>_<frame>.pkl``) are shared by every variant."""
+    tag = "" if args.lattice is None else f"_lattice{args.lattice:g}"
+    return WALK_CACHE / f"first_s{args.seed}{tag}.pkl"
+
+
+def part_path(cache: Path, k: int) -> Path:
+    """Frame ``k``'s own localization beside the first pass ``cache`` (shared by its variants: :func:`first_cache`)."""
+    base = cache.stem.split("_lattice")[0]
+    return cache.with_name(f"{base}_{k:04d}.pkl")
 
 
 def walk_frames(queries: list, params) -> list:
@@ -272,13 +299,15 @@ def walk_frames(queries: list, params) -> list:
     return [WalkFrame(q.name, (lambda p=q.image: load_image(p)), None, tilt_bound_for(q, params)) for q in queries]
 
 
-def first_pass(queries: list, maps_path: Path, cache: Path, chunk: tuple[int, int] | None = None) -> dict:
+def first_pass(queries: list, maps_path: Path, cache: Path, chunk: tuple[int, int] | None = None,
+               walk=None) -> dict:
     """The walk's first pass (each frame's own localization and the searches near confident frames:
     what :func:`ldlloc.walk.localize.localize_walk` does before it chooses the path) against the map
     or folder of maps ``maps_path``, saved once to ``cache`` (pickle): :func:`redecide` chooses the
     path again from it in seconds. Each frame's own localization is kept beside it as it is done
     (``<cache stem>_<frame>.pkl``): ``chunk`` (first, end) localizes only those frames (processes
-    side by side), and a call without it then reads them and runs the searches near confident frames."""
+    side by side), and a call without it then reads them and runs the searches near confident frames
+    (``walk``: :class:`ldlloc.walk.localize.WalkParams`, None: the defaults)."""
     import pickle
 
     from ldlloc.batch.which_map import MapSet
@@ -287,13 +316,13 @@ def first_pass(queries: list, maps_path: Path, cache: Path, chunk: tuple[int, in
 
     if cache.exists():
         return pickle.loads(cache.read_bytes())
-    params, walk = LocalizeParams(), WalkParams()
+    params, walk = LocalizeParams(), walk or WalkParams()
     maps = MapSet.load(maps_path, params, "cpu", recursive=False)
     index = {id(e): i for i, e in enumerate(maps.entries)}
     outs, ref, trackers = [], None, {}
     frames = walk_frames(queries, params)
     for k, fr in enumerate(frames):
-        part = cache.with_name(f"{cache.stem}_{k:04d}.pkl")  # each frame's own localization, kept (runs in parallel)
+        part = part_path(cache, k)  # each frame's own localization, kept (runs in parallel)
         if part.exists():
             o = pickle.loads(part.read_bytes())
             o.frame = fr
@@ -378,12 +407,12 @@ def decided(queries: list, maps_path: Path, cache: Path, walk=None) -> list[dict
     from ldlloc.walk.localize import WalkParams, decide
 
     walk = walk or WalkParams()
-    saved = first_pass(queries, maps_path, cache)
+    saved = first_pass(queries, maps_path, cache, walk=walk)
     maps = MapSet.load(maps_path, LocalizeParams(), "cpu", recursive=False)
     assert [str(e.path) for e in maps.entries] == saved["maps"], "the maps changed since the first pass"
     outs = []
     for k, (fr, s) in enumerate(zip(walk_frames(queries, LocalizeParams()), saved["frames"])):
-        o = pickle.loads(cache.with_name(f"{cache.stem}_{k:04d}.pkl").read_bytes())
+        o = pickle.loads(part_path(cache, k).read_bytes())
         o.frame, o.entry = fr, None if o.map is None else maps.entries[o.map]
         o.hypotheses = None if s["hyp"] is None else Hypotheses(**s["hyp"])
         outs.append(o)
@@ -458,6 +487,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--first-pass", action="store_true",
                     help="--building: decide the walk from its first pass saved under bench/.cache (computed once: "
                          "each frame's own localization and the searches near confident frames), in minutes")
+    ap.add_argument("--lattice", type=float, default=None,
+                    help="--building: the walk's lattice spacing in metres near confident frames, e.g. 0.2 (0: off; "
+                         "default: WalkParams', off)")
     args = ap.parse_args(argv)
     if args.building:
         use_threads(args.threads)

@@ -220,11 +220,7 @@ def score_poses(arcs2d: np.ndarray, rotations: np.ndarray, centers: np.ndarray, 
     R = np.asarray(rotations, dtype=np.float64).reshape(-1, 3, 3)
     C = np.asarray(centers, dtype=np.float64).reshape(-1, 3)
     ti = np.asarray(translation_index, dtype=np.int64).reshape(-1)
-    normals, _ = arc_normals(arcs2d)
-    c = np.abs(np.einsum("ni,mig->mng", normals, R @ np.asarray(principal3d, dtype=np.float64).T))  # |n . R p_g|
-    g = np.argmin(c, axis=2)
-    ok = (np.min(c, axis=2) < group_tol) & (np.linalg.norm(normals, axis=1) > 0)[None]
-    labels = np.where(ok, g, -1)  # (M, N)
+    labels = pose_labels(arcs2d, R, principal3d, group_tol)  # (M, N)
     dt = torch.float32
     Q = ldf.query_points(params.rescore_query_level or params.query_level, device=device, dtype=dt)
     arcs_t = torch.as_tensor(np.asarray(arcs2d), dtype=dt, device=device)
@@ -234,6 +230,17 @@ def score_poses(arcs2d: np.ndarray, rotations: np.ndarray, centers: np.ndarray, 
     f3d = ldf.ldf_3d_at(Q, R, C, lines3d, line_groups, np.arange(len(R)), np.arange(len(R)), num_groups=ng,
                         device=device, dtype=dt, visibility=vis)
     return _rescored_loss(f2d, f3d, Q, R, ti, coverage, replace(params, loss="inlier")).cpu().numpy().astype(np.float64)
+
+
+def pose_labels(arcs2d: np.ndarray, rotations: np.ndarray, principal3d: np.ndarray,
+                group_tol: float = ARC_GROUP_TOL) -> np.ndarray:
+    """(M, N) principal group of each arc under each rotation (M, 3, 3): the direction ``g`` its
+    great circle passes through (``|n . R p_g| < group_tol``), -1 for none."""
+    R = np.asarray(rotations, dtype=np.float64).reshape(-1, 3, 3)
+    normals, _ = arc_normals(arcs2d)
+    c = np.abs(np.einsum("ni,mig->mng", normals, R @ np.asarray(principal3d, dtype=np.float64).T))  # |n . R p_g|
+    ok = (np.min(c, axis=2) < group_tol) & (np.linalg.norm(normals, axis=1) > 0)[None]
+    return np.where(ok, np.argmin(c, axis=2), -1)
 
 
 def _rescored_loss(f2d, f3d, Q, rotations: np.ndarray, translation_index: np.ndarray, coverage, params: SearchParams):

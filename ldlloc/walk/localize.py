@@ -26,10 +26,11 @@ import numpy as np
 
 from ldlmap.core.errors import InputError, LdlError
 from ldlloc.batch.which_map import TOP_MAPS, MapChoice, MapEntry, MapSet, final_pose_loss, localize_on_maps
-from ldlloc.confidence import distinct, walk_judgement
+from ldlloc.confidence import MODEL, distinct, walk_judgement
 from ldlloc.pipeline import Localization, Localizer, SearchNear
 from ldlloc.search.pose_search import score_on_map
 from ldlloc.walk.hypotheses import MAX_HYPOTHESES, Hypotheses, from_choice, joined
+from ldlloc.walk.lattice import LatticeParams, lattice_poses
 from ldlloc.walk.motion import FreeSpace, MotionParams, transition_costs
 from ldlloc.walk.relative import (RelativeParams, disagreement, floor_under, inverse, panorama_features, poses_along,
                                   relative_pose)
@@ -51,6 +52,8 @@ class WalkParams:
     gap_radius_m: float = 4.5  # a frame whose image was not confident is searched again within this radius of the
     max_gap_radius_m: float = 12.0  # confident frames before and after it, times their distance in frames (at most
     # this)
+    lattice: LatticeParams = field(default_factory=LatticeParams)  # ... and on a fine lattice of translations there
+    # (ldlloc.walk.lattice: the map's candidates are too sparse for a frame of few lines)
     near_radius_m: float = 0.6  # a search pose the path chose is searched again within this radius ...
     near_cone_deg: float = 10.0  # ... and this cone, then refined
     max_hypotheses: int = MAX_HYPOTHESES
@@ -216,8 +219,14 @@ def augment(outcomes: list[FrameOutcome], maps: MapSet, params: WalkParams) -> N
 
 
 def is_anchor(o: FrameOutcome) -> bool:
-    """Whether frame ``o``'s own pose anchors the searches of :func:`augment`: its image was confident."""
-    return o.single_verdict == "confident" and o.loc is not None
+    """Whether frame ``o``'s own pose anchors the searches of :func:`augment`: its image was confident, or
+    would be but for copies of its room (a building's identical floors: right up to which copy, and the
+    walk chooses the copy)."""
+    if o.loc is None:
+        return False
+    copies = float((getattr(o.loc, "confidence_signals", None) or {}).get("copies", 0.0))
+    return o.single_verdict == "confident" or (o.single_verdict == "ambiguous" and copies > 0
+                                               and (o.single_confidence or 0.0) >= MODEL.confident_at)
 
 
 def needs_more(o: FrameOutcome) -> bool:
@@ -252,6 +261,9 @@ def augment_frame(o: FrameOutcome, anchors: list[tuple[int, MapEntry, np.ndarray
         c = s.out
         o.hypotheses = joined(o.hypotheses, index[id(entry)], c.candidates_rot, c.candidates_center,
                               c.candidates_loss)
+        if params.lattice.spacing_m > 0:  # the anchor's neighbourhood more finely than the map's candidates
+            R, t, loss = lattice_poses(s.arcs, loz, center, radius, c.candidates_rot, params.lattice)
+            o.hypotheses = joined(o.hypotheses, index[id(entry)], R, t, loss)
 
 
 def relate(prev: FrameOutcome | None, cur: FrameOutcome, maps: MapSet, index: dict[int, int], params: WalkParams,
@@ -434,7 +446,9 @@ def move_to(o: FrameOutcome, entry: MapEntry, R: np.ndarray, t: np.ndarray, para
     """Give frame ``o`` the pose the walk chose on ``entry``'s map: searched and refined near it
     (its image read again); the coarse pose itself when that fails. Returns whether the pose is refined."""
     loz = entry.localizer
-    near = SearchNear(t, R, params.near_radius_m, params.near_cone_deg)
+    # a lattice pose (ldlloc.walk.lattice) may stand farther than the radius from every candidate: the nearest one
+    reach = float(np.linalg.norm(loz.map.translations[loz.map.nearest_translation(t[None])[0]] - t))
+    near = SearchNear(t, R, max(params.near_radius_m, reach + 1e-6), params.near_cone_deg)
     try:
         img = o.frame.load()
         loc = loz.localize(img, o.frame.max_tilt_deg, searched=loz.search(img, o.frame.max_tilt_deg, near=near))
