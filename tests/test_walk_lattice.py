@@ -15,7 +15,8 @@ from ldlloc.confidence import MODEL
 from ldlloc.pipeline import LocalizeParams
 from ldlloc.search.pose_search import score_on_map
 from ldlloc.walk.lattice import LatticeParams, lattice_poses, lattice_translations
-from ldlloc.walk.localize import FrameOutcome, WalkFrame, is_anchor
+from ldlloc.walk.hypotheses import Hypotheses
+from ldlloc.walk.localize import FrameOutcome, WalkFrame, WalkParams, emission_costs, is_anchor
 
 LO, HI = np.array([0.0, 0.0, 0.0]), np.array([8.0, 3.0, 2.6])  # a corridor 8 x 3 m
 TRUE_T = np.array([4.1, 1.3, 1.6])  # the camera, between the map's candidates (1 m apart)
@@ -104,3 +105,21 @@ def test_a_frame_confident_but_for_copies_of_its_room_anchors_the_walks_searches
     assert not is_anchor(frame("ambiguous", sure, 0.0))  # a twin or a rival, not a copy: no anchor
     assert not is_anchor(frame("ambiguous", MODEL.confident_at - 0.05, 2.0))  # doubtful even without its copies
     assert not is_anchor(frame("failed", 0.0, 2.0))
+
+
+def test_a_frame_confident_but_for_copies_leaves_the_walk_its_copies_only():
+    # its own pose and the copies it named cost next to nothing; any other pose costs the anchor cost, as beside a
+    # confident frame (without it, a building walk stayed on the floor below: no corridor frame held it)
+    R = np.eye(3)
+    own, copy, other = np.array([20.4, 5.4, 7.6]), np.array([20.4, 5.4, 4.6]), np.array([20.9, 0.9, 4.6])
+    h = Hypotheses(map_index=np.array([2, 1, 1]), rot_cam_from_world=np.stack([R, R, R]),
+                   center=np.stack([own, copy, other]), loss=np.array([-200.0, -200.0, -200.0]),
+                   final=np.array([True, True, True]))
+    named = [{"R": R.tolist(), "t": copy.tolist(), "loss": None, "why": "copy of this room", "copy": {"map": "f1"}}]
+    loc = SimpleNamespace(confidence_signals={"copies": 2.0})
+    o = FrameOutcome(WalkFrame("f", None), loc=loc, single_verdict="ambiguous",
+                     single_confidence=MODEL.confident_at + 0.01, single_pose=(R, own), competitors=named, hypotheses=h)
+    params = WalkParams()
+    cost = emission_costs(o, params)
+    assert cost[0] == 0.0 and cost[1] < 0.1
+    assert cost[2] >= params.motion.anchor_cost

@@ -366,13 +366,14 @@ def relative_costs(a: FrameOutcome, b: FrameOutcome, params: WalkParams) -> np.n
 def emission_costs(o: FrameOutcome, params: WalkParams) -> np.ndarray:
     """A frame's costs of its poses: from their losses (:meth:`Hypotheses.emission_costs`); a pose
     distinct from its image's own costs at least as much as that one (the image chose it on more than
-    its loss: refinement, map-line support, PnP), plus the anchor cost (its image was confident) or
-    the own cost (it was not)."""
+    its loss: refinement, map-line support, PnP), plus the anchor cost (its image was confident, or would
+    be but for copies of its room: :func:`is_anchor`) or the own cost (it was not); the copies and other
+    competitors the image named cost next to nothing more (the walk chooses among them)."""
     h, m = o.hypotheses, params.motion
     e = h.emission_costs(m.emission_weight)
     other = distinct(*o.single_pose, h.rot_cam_from_world, h.center)
     own = float(np.min(e[~other])) if (~other).any() else 0.0
-    extra = np.full(len(h), m.anchor_cost if o.single_verdict == "confident" else m.own_cost)
+    extra = np.full(len(h), m.anchor_cost if is_anchor(o) else m.own_cost)
     if o.single_verdict != "confident":  # the poses the image named as its competitors: next to no extra cost
         for c in o.competitors:  # (a tie goes to the image's own pose)
             named = ~distinct(np.asarray(c["R"], float), np.asarray(c["t"], float), h.rot_cam_from_world, h.center)
