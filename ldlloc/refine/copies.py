@@ -31,6 +31,7 @@ A map's line samples and their k-d tree are built once per map (:func:`line_inde
 from __future__ import annotations
 
 import weakref
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -227,18 +228,25 @@ def copy_motions(seen: LineIndex, target: LineIndex, same_map: bool) -> list[tup
     target map's lines (module docstring, step 2), best cover first; on the pose's own map the
     identity and the room's own symmetries are left out."""
     out = []
-    for k in range(4):
-        Q = turn(k)
-        for off in voted_offsets(seen, target, Q):
-            off = fitted_offset(seen.points @ Q.T, target, off)
-            moved = seen.points @ Q.T + off
-            if same_map and (k == 0 and np.linalg.norm(off) < VOTE_CELL_M or cover(moved, seen.tree) >= SELF_SHARE):
-                continue
-            c = cover(moved, target.tree)
-            if c >= COPY_COVER:
-                out.append((Q, off, c))
+    for k, Q, off, moved in fitted_motions(seen, target, range(4)):
+        if same_map and (k == 0 and np.linalg.norm(off) < VOTE_CELL_M or cover(moved, seen.tree) >= SELF_SHARE):
+            continue
+        c = cover(moved, target.tree)
+        if c >= COPY_COVER:
+            out.append((Q, off, c))
     out.sort(key=lambda m: -m[2])
     return out
+
+
+def fitted_motions(seen: LineIndex, target: LineIndex, turns) -> Iterator[tuple[int, np.ndarray, np.ndarray, np.ndarray]]:
+    """For each turn ``k`` (by k x 90 degrees) of ``turns``, the offsets the line pairs vote for, fitted:
+    ``(k, Q, offset, the seen points moved)``; shared by the copies and the twins."""
+    for k in turns:
+        Q = turn(k)
+        rotated = seen.points @ Q.T
+        for off in voted_offsets(seen, target, Q):
+            off = fitted_offset(rotated, target, off)
+            yield k, Q, off, rotated + off
 
 
 def room_twins(arcs: np.ndarray, R: np.ndarray, center: np.ndarray, ldl_map,
@@ -253,17 +261,14 @@ def room_twins(arcs: np.ndarray, R: np.ndarray, center: np.ndarray, ldl_map,
     if len(seen.lines) < MIN_VOTES:  # a motion needs this many: a layout's few creases may be all there is
         return []
     target, out = line_index(ldl_map), []
-    for k in (1, 2, 3):
-        Q = turn(k)
-        for off in voted_offsets(seen, target, Q):
-            off = fitted_offset(seen.points @ Q.T, target, off)
-            tc = Q @ center + off
-            if (cover(seen.points @ Q.T + off, target.tree) < COPY_COVER or not physical_poses(tc[None], ldl_map)[0]
-                    or any(np.linalg.norm(tc - t) < 2 * VOTE_CELL_M for _, t in out)):
-                continue
-            if not same_room(ldl_map, center, tc) and getattr(ldl_map, "visibility", None) is not None:
-                continue  # another room of the map: a copy (find_copies), not a twin
-            out.append((R @ Q.T, tc))
+    for _, Q, off, moved in fitted_motions(seen, target, (1, 2, 3)):
+        tc = Q @ center + off
+        if (cover(moved, target.tree) < COPY_COVER or not physical_poses(tc[None], ldl_map)[0]
+                or any(np.linalg.norm(tc - t) < 2 * VOTE_CELL_M for _, t in out)):
+            continue
+        if not same_room(ldl_map, center, tc) and getattr(ldl_map, "visibility", None) is not None:
+            continue  # another room of the map: a copy (find_copies), not a twin
+        out.append((R @ Q.T, tc))
     return out
 
 
