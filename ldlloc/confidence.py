@@ -46,8 +46,10 @@ Two checks need no fitting:
   confirms there, found again elsewhere in the pose's map or the other maps under a turn by a
   multiple of 90 degrees and a translation, with a pose there that explains the image about as
   well: :func:`ldlloc.refine.copies.find_copies`) :func:`add_copies` found: an identical room
-  one image cannot tell apart. A confident verdict then becomes ``ambiguous`` (a doubtful pose
-  stays ``failed`` where the rest says so), each copy named (``copy``: its map and position).
+  one image cannot tell apart by its lines. A confident verdict then becomes ``ambiguous`` (a
+  doubtful pose stays ``failed`` where the rest says so), each copy named (``copy``: its map and
+  position), unless the features single the pose out (:func:`features_decide`: strong PnP, no rival
+  on any map; rooms whose lines repeat but whose textures differ).
 
 ``confidence = sigmoid(MODEL . signals)``, a logistic fitted on synthetic data and checked on the
 real ZInD home (docs/measurements.md#confidence; ``bench/bench_confidence.py --fit`` refits it).
@@ -341,16 +343,26 @@ def judge(signals: dict[str, float], competitors: list, model: ConfidenceModel =
     """``(confidence, verdict)`` of a pose from its signals and named competitors: the model's
     confidence, 0 and ``failed`` where no camera stands (``physical`` 0), a PnP rival or another
     map's verified twin, and a tie, as :func:`verdict_for` weighs them; a copy of the pose's room
-    (``copies``) makes a confident pose ``ambiguous`` (a doubtful one stays as the rest judges it)."""
+    (``copies``) makes a confident pose ``ambiguous`` (a doubtful one stays as the rest judges it) unless
+    the features decide (:func:`features_decide`)."""
     conf = model.confidence(signals)
     if float(signals.get("physical", 1.0)) < 0.5:
         return 0.0, "failed"
     rival = (max(float(signals.get("pnp_rival", 0.0)), float(signals.get("map_rival", 0.0))) >= RIVAL_SHARE
              or float(signals.get("map_twin", 0.0)) > 0)
     verdict = verdict_for(conf, competitors, model, rival=rival, tie=float(signals.get("tie", 0.0)) > 0)
-    if verdict == "confident" and float(signals.get("copies", 0.0)) > 0:  # right up to which copy at best
-        verdict = "ambiguous"
+    if verdict == "confident" and float(signals.get("copies", 0.0)) > 0 and not features_decide(signals):
+        verdict = "ambiguous"  # the lines repeat there and nothing else tells: right up to which copy at best
     return conf, verdict
+
+
+def features_decide(signals: dict[str, float]) -> bool:
+    """Whether the features single the pose out where its lines repeat (a copy of its room by the
+    lines alone): a PnP pose as strongly supported as the refinement's plausibility guard asks
+    (``features`` 1) with no PnP rival of :data:`RIVAL_SHARE` on any map nor another map's verified
+    twin (:func:`effective_signals` keeps ``features``). A copy that looks the same (an identical
+    room's textures) gives such a rival, so the features then decide nothing."""
+    return float(effective_signals(signals).get("features", 0.0)) >= 1.0
 
 
 def assess(loc, ldl_map, support_deg: float = 1.0, model: ConfidenceModel = MODEL) -> None:

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from ldlloc.confidence import MODEL, assess, assess_across, rotation_kind, verdict_for, why
+from ldlloc.confidence import MODEL, assess, assess_across, judge, rotation_kind, verdict_for, why
 from ldlloc.pipeline import Localization
 
 runner = CliRunner()
@@ -263,6 +263,23 @@ def test_no_pose_is_failed():
     # a pose the model gives little chance, but whose PnP rival (a copy) explains the features as well
     assert verdict_for(0.0, [{"why": "other position (6.0 m), PnP 90 inliers against 100"}], model,
                        rival=True) == "ambiguous"
+
+
+def test_copies_by_the_lines_yield_to_features_that_single_the_pose_out():
+    """A room whose lines repeat on another floor (the same walls, other textures) is told apart by a
+    strong PnP with no rival anywhere; an identical room's copy (a PnP rival of half the inliers or more
+    on another map) or a weak PnP leaves it ambiguous. Signals of single images of a synthetic building."""
+    room = {"gap": 0.1, "support": 0.123, "support_gap": 0.05, "margin": 0.0, "features": 1.0, "refined": 1.0,
+            "inliers": 60.0, "pnp_rival": 0.0, "retrieved": 0.0, "physical": 1.0, "tie": 0.0, "map_margin": 0.5,
+            "map_rival": 0.0, "map_twin": 0.0}
+    copy = [{"why": "copy of this room on floor_2, 4.8 m away", "copy": {"map": "floor_2", "t": [0, 0, 0]}}]
+    assert judge(room, [])[1] == "confident"
+    assert judge({**room, "copies": 2.0}, copy)[1] == "confident"  # other textures: the features tell
+    assert judge({**room, "copies": 2.0, "map_rival": 0.6}, copy)[1] != "confident"  # the copy looks the same
+    assert judge({**room, "copies": 2.0, "pnp_rival": 0.55}, copy)[1] != "confident"
+    weak = {**room, "features": 0.6, "retrieved": 1.0, "inliers": 36.0, "support": 0.5, "margin": 0.3}
+    assert judge(weak, [])[1] == "confident"
+    assert judge({**weak, "copies": 2.0}, copy)[1] == "ambiguous"  # a weak PnP does not decide
 
 
 def test_competitor_reasons():
