@@ -173,6 +173,7 @@ def room_lines(room):
     return extract_lines_with_stats(room[0])
 
 
+@pytest.mark.xdist_group("lines3d_box")  # one worker extracts ``room_lines``
 def test_extract_lines_box_room_precision_recall(room, room_lines):
     P, E = room
     lines, stats = room_lines
@@ -186,6 +187,7 @@ def test_extract_lines_box_room_precision_recall(room, room_lines):
     assert recall >= 0.7 and precision >= 0.7, (precision, recall)
 
 
+@pytest.mark.xdist_group("lines3d_box")  # one worker extracts ``room_lines``
 def test_extract_lines_is_deterministic(room, room_lines):
     """The same scan, in any point order, gives the same lines (the downsampled points come in
     the voxels' Z-order, whatever the input order)."""
@@ -195,6 +197,7 @@ def test_extract_lines_is_deterministic(room, room_lines):
     assert a.shape == b.shape and np.allclose(a, b, atol=1e-9)
 
 
+@pytest.mark.xdist_group("lines3d_box")  # one worker extracts ``room_lines``
 def test_extract_lines_same_for_any_point_order_and_thread_count(room, room_lines):
     """Lines bit for bit equal with the points in several orders (sorted, reversed, shuffled,
     a duplicated block moved) and with 1 and 2 BLAS / k-d tree threads."""
