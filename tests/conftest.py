@@ -144,9 +144,9 @@ def _group(item) -> str | None:
     return (mark.args[0] if mark.args else mark.kwargs.get("name")) if mark else None
 
 
-def _schedule_rank(item) -> tuple[int, int, int]:
+def _schedule_rank(item, demo_groups: set[str]) -> tuple[int, int, int]:
     group = _group(item)
-    if "demo_dataset" not in item.fixturenames:
+    if "demo_dataset" not in item.fixturenames and group not in demo_groups:
         return (1, 0 if group else 1, 0)
     if group == FIRST_GROUP:
         return (0, 0, 0)
@@ -155,4 +155,7 @@ def _schedule_rank(item) -> tuple[int, int, int]:
 
 
 def pytest_collection_modifyitems(config, items) -> None:
-    items.sort(key=_schedule_rank)  # stable: file order within each rank
+    # A group is one work unit, handed out where its first test stands: a group with any test on the
+    # demo data goes with the demo tests, or its worker would wait for the dataset (idle) meanwhile.
+    demo_groups = {_group(item) for item in items if "demo_dataset" in item.fixturenames} - {None}
+    items.sort(key=lambda item: _schedule_rank(item, demo_groups))  # stable: file order within each rank
