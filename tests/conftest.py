@@ -6,8 +6,12 @@ in the shared temporary folder), with the real CLIs:
 * ``demo_dataset``: ``ldlmap synth --preset demo`` and ``ldlmap prepare`` (SIFT maps);
 * ``tiny_synth``: the demo preset at 64 x 32 pixels, one panorama per split (``ldlmap synth``);
 
-and per worker, ``thin_scans``: the demo rooms' scans thinned to a tenth, for builds that check a
-command's wiring rather than a map's accuracy (the full scans' maps are ``demo_dataset``'s).
+and per worker:
+
+* ``thin_scans``: the demo rooms' scans thinned to a tenth, for builds that check a command's
+  wiring rather than a map's accuracy (the full scans' maps are ``demo_dataset``'s);
+* ``demo_localized``: every demo query localized on its room's map with the default parameters on
+  the CPU (the ``end_to_end`` group's accuracy and device tests judge the same poses).
 
 Schedule (``pytest_collection_modifyitems``): under ``--dist loadgroup`` xdist hands the work
 units out in collection order (group-size reordering is turned off in ``pytest_configure``). The
@@ -106,6 +110,27 @@ def thin_scans(demo_dataset, tmp_path_factory) -> Path:
     return root
 
 
+@pytest.fixture(scope="session")
+def demo_localized(demo_dataset) -> dict:
+    """query name -> ``(query, Localization)`` for every demo query, localized on its room's map by
+    ``Localizer`` with the default parameters on the CPU; the Localization is None where the
+    search raised ``LdlError`` (a failed query)."""
+    from ldlmap.core.errors import LdlError
+    from ldlmap.datasets import open_dataset
+    from ldlmap.map.mapfile import read_map
+    from ldlloc.pipeline import Localizer, load_image
+
+    ds, out = open_dataset(demo_dataset, "omniscenes"), {}
+    for scene in ds.scenes():
+        loc = Localizer(read_map(demo_dataset / "maps" / f"{scene}.h5", load_cloud=False))
+        for q in ds.queries(scene=scene):
+            try:
+                out[q.name] = (q, loc.localize(load_image(q.image)))
+            except LdlError:
+                out[q.name] = (q, None)
+    return out
+
+
 # ------------------------------------------------------------------------------------ schedule
 
 
@@ -119,9 +144,9 @@ def _group(item) -> str | None:
     return (mark.args[0] if mark.args else mark.kwargs.get("name")) if mark else None
 
 
-def _schedule_rank(item) -> tuple[int, int, int]:
+def _schedule_rank(item, demo_groups: set[str]) -> tuple[int, int, int]:
     group = _group(item)
-    if "demo_dataset" not in item.fixturenames:
+    if "demo_dataset" not in item.fixturenames and group not in demo_groups:
         return (1, 0 if group else 1, 0)
     if group == FIRST_GROUP:
         return (0, 0, 0)
@@ -130,4 +155,7 @@ def _schedule_rank(item) -> tuple[int, int, int]:
 
 
 def pytest_collection_modifyitems(config, items) -> None:
-    items.sort(key=_schedule_rank)  # stable: file order within each rank
+    # A group is one work unit, handed out where its first test stands: a group with any test on the
+    # demo data goes with the demo tests, or its worker would wait for the dataset (idle) meanwhile.
+    demo_groups = {_group(item) for item in items if "demo_dataset" in item.fixturenames} - {None}
+    items.sort(key=lambda item: _schedule_rank(item, demo_groups))  # stable: file order within each rank

@@ -45,8 +45,14 @@ def _localize_all(root, device: str, variant: str) -> dict[str, tuple[np.ndarray
 
 
 @pytest.fixture(scope="module")
-def on_cpu(demo_dataset):
-    return {}  # variant -> the CPU's results, made by the first test that needs them
+def on_cpu(demo_localized):
+    """variant -> the CPU's results: the default's are the shared ``demo_localized`` poses of its
+    splits, the others made by the first test that needs them."""
+    default = {name: (q, r) for name, (q, r) in demo_localized.items() if q.split in SPLITS["default"]}
+    assert all(r is not None for _, r in default.values()), "a query's search failed"  # as _localize_all raises
+    return {"default": {name: (r.center, r.rot_cam_from_world, translation_error(r.center, q.center),
+                               rotation_error_deg(r.rot_cam_from_world, q.rot_cam_from_world))
+                        for name, (q, r) in default.items()}}
 
 
 @pytest.mark.parametrize("variant", VARIANTS)

@@ -2,7 +2,7 @@
 
 The dataset comes from ``ldlmap synth --preset demo`` and the maps from ``ldlmap prepare`` with
 SIFT (fixture ``demo_dataset``); every query is localized with the library pipeline that
-``ldlloc run`` uses, and the accuracy targets are asserted per split.
+``ldlloc run`` uses (fixture ``demo_localized``), and the accuracy targets are asserted per split.
 """
 
 from __future__ import annotations
@@ -10,11 +10,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ldlmap.datasets import open_dataset
-from ldlmap.core.errors import LdlError
 from ldlmap.core.geometry import rotation_error_deg, translation_error
-from ldlmap.map.mapfile import read_map
-from ldlloc.pipeline import Localizer, load_image
 
 pytestmark = pytest.mark.xdist_group("end_to_end")  # one worker localizes the queries (``localized``)
 MAIN_SPLITS = ("robot", "handheld", "extreme")
@@ -22,28 +18,23 @@ OTHER_SPLITS = ("change_robot", "change_handheld", "extreme_intensity", "extreme
 
 
 @pytest.fixture(scope="module")
-def localized(demo_dataset):
-    ds = open_dataset(demo_dataset, "omniscenes")
+def localized(demo_localized):
     rows = []
-    for scene in ds.scenes():
-        loc = Localizer(read_map(demo_dataset / "maps" / f"{scene}.h5", load_cloud=False))
-        for q in ds.queries(scene=scene):
-            try:
-                r = loc.localize(load_image(q.image))
-            except LdlError:  # counts as a failed query (not localized, truth not among candidates)
-                rows.append({"split": q.split, "name": q.name, "t_err": np.inf, "r_err": np.inf,
-                             "top20_ok": False, "rot_best": np.inf, "num_rotations": 0})
-                continue
-            cand_t = np.linalg.norm(r.candidates_center - q.center, axis=1)
-            cand_r = np.array([rotation_error_deg(R, q.rot_cam_from_world) for R in r.candidates_rot])
-            rows.append({
-                "split": q.split, "name": q.name,
-                "t_err": translation_error(r.center, q.center),
-                "r_err": rotation_error_deg(r.rot_cam_from_world, q.rot_cam_from_world),
-                "top20_ok": bool(np.any((cand_t < 0.5) & (cand_r < 10.0))),
-                "rot_best": min(rotation_error_deg(R, q.rot_cam_from_world) for R in r.rotations),
-                "num_rotations": r.num_rotations,
-            })
+    for q, r in demo_localized.values():
+        if r is None:  # counts as a failed query (not localized, truth not among candidates)
+            rows.append({"split": q.split, "name": q.name, "t_err": np.inf, "r_err": np.inf,
+                         "top20_ok": False, "rot_best": np.inf, "num_rotations": 0})
+            continue
+        cand_t = np.linalg.norm(r.candidates_center - q.center, axis=1)
+        cand_r = np.array([rotation_error_deg(R, q.rot_cam_from_world) for R in r.candidates_rot])
+        rows.append({
+            "split": q.split, "name": q.name,
+            "t_err": translation_error(r.center, q.center),
+            "r_err": rotation_error_deg(r.rot_cam_from_world, q.rot_cam_from_world),
+            "top20_ok": bool(np.any((cand_t < 0.5) & (cand_r < 10.0))),
+            "rot_best": min(rotation_error_deg(R, q.rot_cam_from_world) for R in r.rotations),
+            "num_rotations": r.num_rotations,
+        })
     return rows
 
 

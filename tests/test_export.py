@@ -15,6 +15,7 @@ from typer.testing import CliRunner
 from ldlloc.cli import app as loc_app
 from ldlmap.core.geometry import bearing_from_pixel, pose_from_colmap, project_to_pixels
 
+pytestmark = pytest.mark.xdist_group("export")  # one worker runs ``run_results``
 runner = CliRunner()
 SCENE = "synthroom_1"
 

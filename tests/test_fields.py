@@ -21,6 +21,8 @@ from ldlloc.search.fields import DistanceFields, inlier_loss_from_fields
 from ldlloc.rotation import assign_arcs_to_principal
 from ldlloc.search.pose_search import SearchParams, rescored_poses, search_poses
 
+pytestmark = pytest.mark.xdist_group("fields")  # one worker makes ``room``
+
 LO, HI = np.array([-3.0, -2.0, 0.0]), np.array([3.0, 2.0, 3.0])
 
 

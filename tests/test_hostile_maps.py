@@ -327,6 +327,7 @@ def room_cloud():
 UTM = np.array([512345.0, 4123456.0, 12.0])  # easting, northing, height: float32 spacing 0.25-0.5 m there
 
 
+@pytest.mark.xdist_group("hostile_maps")  # one worker makes ``room_cloud``
 def test_utm_scan_localizes_like_the_same_scan_at_the_origin(tmp_path, room_cloud):
     """The map of a scan in UTM coordinates is recentred (float32 storage would snap it to
     0.25-0.5 m); its poses, given in the input frame, match the un-offset map's within 1 cm."""
@@ -364,6 +365,7 @@ def test_utm_scan_localizes_like_the_same_scan_at_the_origin(tmp_path, room_clou
     assert np.linalg.norm(a.center - true_center) < 0.1  # and it localizes at all
 
 
+@pytest.mark.xdist_group("hostile_maps")  # one worker makes ``room_cloud``
 @pytest.mark.parametrize("factor,words", [(1000.0, "--scale 0.001"), (2e6, "--scale s")])
 def test_scan_in_another_unit_is_refused_in_one_line(tmp_path, room_cloud, factor, words):
     """Millimetres (or a x2e6 scene that used to exhaust 24 GB): one line naming --scale, before

@@ -17,6 +17,7 @@ from typer.testing import CliRunner
 from ldlloc.cli import app
 from tests._hostile import error_line
 
+pytestmark = pytest.mark.xdist_group("hostile_new")  # one worker runs ``image_run``
 runner = CliRunner()
 
 

@@ -23,6 +23,7 @@ from ldlloc.cli import app as loc_app
 from ldlmap.cli import app as map_app
 from tests._hostile import assert_clean_failure, error_line, snapshot
 
+pytestmark = pytest.mark.xdist_group("hostile_refusals")  # one worker makes ``small`` and its maps
 runner = CliRunner()
 REPO = Path(__file__).resolve().parent.parent
 SCENE = "box_1"

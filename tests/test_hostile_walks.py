@@ -19,6 +19,7 @@ from typer.testing import CliRunner
 from ldlloc.cli import app
 from tests._hostile import assert_clean_failure, snapshot
 
+pytestmark = pytest.mark.xdist_group("hostile_walks")  # one worker makes ``work``
 runner = CliRunner()
 
 

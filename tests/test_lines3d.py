@@ -166,9 +166,17 @@ def room():
     return box_room(seed=1, size=(5.0, 4.0, 2.6), n_boxes=2, density=3000.0, noise=0.005, yaw_deg=23.0)
 
 
-def test_extract_lines_box_room_precision_recall(room):
+@pytest.fixture(scope="module")
+def room_lines(room):
+    """``extract_lines_with_stats`` of ``room``'s points in their given order: the lines that the
+    order and thread tests compare with."""
+    return extract_lines_with_stats(room[0])
+
+
+@pytest.mark.xdist_group("lines3d_box")  # one worker extracts ``room_lines``
+def test_extract_lines_box_room_precision_recall(room, room_lines):
     P, E = room
-    lines, stats = extract_lines_with_stats(P)
+    lines, stats = room_lines
     assert lines.ndim == 3 and lines.shape[1:] == (2, 3)
     assert stats["planes"] >= 6 + 2 * 5 - 2  # room faces and most box faces
     kept, mask, thr = filter_by_length(lines, P.min(0), P.max(0))
@@ -179,16 +187,18 @@ def test_extract_lines_box_room_precision_recall(room):
     assert recall >= 0.7 and precision >= 0.7, (precision, recall)
 
 
-def test_extract_lines_is_deterministic(room):
+@pytest.mark.xdist_group("lines3d_box")  # one worker extracts ``room_lines``
+def test_extract_lines_is_deterministic(room, room_lines):
     """The same scan, in any point order, gives the same lines (the downsampled points come in
     the voxels' Z-order, whatever the input order)."""
     P, _ = room
-    a = extract_lines(P)
+    a = room_lines[0]
     b = extract_lines(P[np.random.default_rng(0).permutation(len(P))])
     assert a.shape == b.shape and np.allclose(a, b, atol=1e-9)
 
 
-def test_extract_lines_same_for_any_point_order_and_thread_count(room):
+@pytest.mark.xdist_group("lines3d_box")  # one worker extracts ``room_lines``
+def test_extract_lines_same_for_any_point_order_and_thread_count(room, room_lines):
     """Lines bit for bit equal with the points in several orders (sorted, reversed, shuffled,
     a duplicated block moved) and with 1 and 2 BLAS / k-d tree threads."""
     from threadpoolctl import threadpool_limits
@@ -196,7 +206,7 @@ def test_extract_lines_same_for_any_point_order_and_thread_count(room):
     P, _ = room
     rng = np.random.default_rng(3)
     orders = [np.arange(len(P))[::-1], rng.permutation(len(P)), np.lexsort(P.T[::-1])]
-    ref = extract_lines(P)
+    ref = room_lines[0]  # the given order, with this process's threads
     for threads, order in zip([1, 2, 2], orders):
         with threadpool_limits(threads):
             out = extract_lines(P[order])

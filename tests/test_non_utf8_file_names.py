@@ -16,6 +16,8 @@ import pytest
 
 from tests._results_files import record, write_results
 
+pytestmark = pytest.mark.xdist_group("non_utf8_file_names")  # one worker makes ``room``
+
 REPO = Path(__file__).resolve().parents[1]
 TRUE_CENTER = np.array([0.3, -0.4, -0.1])
 

@@ -17,6 +17,7 @@ from typer.testing import CliRunner
 
 from ldlloc.cli import app as loc_app
 
+pytestmark = pytest.mark.xdist_group("report_html")  # one worker runs ``run_results``
 runner = CliRunner()
 SCENE = "synthroom_1"
 CHROMIUM_FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",

@@ -85,6 +85,7 @@ def building_tour():
     return spaces, plan_walk(spaces, WALK_STEP_M["tour"], np.random.default_rng(21), BuiltRooms())
 
 
+@pytest.mark.xdist_group("synth_walk")  # one worker plans ``building_tour``
 def test_building_tour_walks_through_doors_never_walls(building_tour):
     spaces, poses = building_tour
     check_walk(poses, [r for s in spaces for r in s], WALK_STEP_M["tour"])
@@ -95,6 +96,7 @@ def test_building_tour_walks_through_doors_never_walls(building_tour):
     assert all("corridor" in a or "corridor" in b or "stairwell" in a for a, b in changes), changes
 
 
+@pytest.mark.xdist_group("synth_walk")  # one worker plans ``building_tour``
 def test_building_tour_changes_floor_by_the_stairwell(building_tour):
     _, poses = building_tour
     floors = [p.room.floor for p in poses]

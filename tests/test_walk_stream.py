@@ -59,6 +59,7 @@ def whole_run(demo_dataset, tmp_path_factory) -> Path:
     return out
 
 
+@pytest.mark.xdist_group("walk_stream")  # one worker runs ``whole_run``
 def test_resume_after_a_kill_goes_on_from_the_last_written_frame(demo_dataset, whole_run, tmp_path, monkeypatch):
     out = tmp_path / "walks.json"
     script = KILLER.format(n=KILL_AFTER, block=BLOCK, args=_walk_args(demo_dataset, out))
@@ -87,6 +88,7 @@ def test_resume_after_a_kill_goes_on_from_the_last_written_frame(demo_dataset, w
     assert all(after[q["name"]] == q for q in before)  # the written frames were not written again
 
 
+@pytest.mark.xdist_group("walk_stream")  # one worker runs ``whole_run``
 def test_a_walk_written_whole_is_not_run_again(whole_run, demo_dataset, tmp_path, monkeypatch):
     out = tmp_path / "again.json"
     out.write_bytes(whole_run.read_bytes())
