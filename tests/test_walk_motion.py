@@ -8,13 +8,15 @@ none.
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 
 from ldlloc.walk.hypotheses import Hypotheses
 from ldlloc.walk.motion import FreeSpace, MotionParams, transition_costs
 from ldlloc.walk.viterbi import best_path
-from ldlmap.map.translations import candidate_translations
+from ldlmap.map.translations import TranslationParams, candidate_translations, translations_and_footprint
 
 WALL = (4.0, 4.2)  # x of the wall's faces
 DOOR = (1.5, 2.5)  # y of the door's jambs
@@ -118,3 +120,51 @@ def test_frames_close_in_time_skip_no_room():
     walk += [_hyps([[0.2 * k, 0, 1.5]], [-100]) for k in range(6, 9)]
     em = [h.emission_costs(VIDEO.emission_weight) for h in walk]
     assert best_path(em, lambda f: transition_costs(walk[f - 1], walk[f], VIDEO, 0.2)).choice == [0] * 9
+
+
+@pytest.fixture(scope="module")
+def twin_rooms():
+    """The scan of two identical 4 x 4 m rooms side by side (x 0-4 and 4.2-8.2 m: a 0.2 m wall between
+    them), each with a 1 m door (x 1.5-2.5 and 5.7-6.7 m, 2.1 m high) onto a 2 m corridor south of both
+    (y -2-0): its candidate translations and footprint at ``prepare``'s camera band (0.3-2.2 m)."""
+    s = 0.05
+    x, y, z = np.arange(0, 8.2 + s, s), np.arange(-2.0, 4.2 + s, s), np.arange(0, 2.6 + s, s)
+    parts = [_plane(x, y, 2, 0.0), _plane(x, y, 2, 2.6), _plane(y, z, 0, 0.0), _plane(y, z, 0, 8.2),
+             _plane(x, z, 1, -2.0), _plane(x, z, 1, 4.2)]
+    for face in (0.0, 0.2):  # the rooms' wall onto the corridor, both faces, the doors cut out
+        p = _plane(x, z, 1, face)
+        door = ((p[:, 0] > 1.5) & (p[:, 0] < 2.5)) | ((p[:, 0] > 5.7) & (p[:, 0] < 6.7))
+        parts.append(p[~(door & (p[:, 2] < 2.1))])
+    parts += [_plane(y[y >= 0.2], z, 0, face) for face in (4.0, 4.2)]  # the wall between the rooms
+    band = TranslationParams(band_above_floor=(0.3, 2.2), floors=(0.0,))
+    T, footprint = translations_and_footprint(np.concatenate(parts), num=600, clearance=0.25, params=band)
+    return T, footprint
+
+
+def test_a_scans_footprint_has_its_walls_and_open_doors(twin_rooms):
+    _, fp = twin_rooms
+    assert fp.free_at(np.array([[2.0, 0.1], [6.2, 0.1], [2.0, 2.0], [6.0, -1.0]])).all()  # doors, a room, the corridor
+    assert not fp.free_at(np.array([[4.02, 2.0], [3.5, 0.05], [4.0, 5.0], [-1.0, 1.0]])).any()  # walls, the outside
+    row = fp.free_at(np.column_stack([np.arange(0.5, 3.5, 0.01), np.full(300, 0.05)]))
+    assert 0.8 <= row.sum() * 0.01 <= 1.1  # the 1 m door, as wide in the mask
+
+
+def test_a_walk_does_not_enter_the_copy_of_a_room_through_its_wall(twin_rooms):
+    # from the corridor in front of room A's door the walker goes in and across room A; each frame's image
+    # sees room A and its copy B alike (B 4.2 m east), the noise a little in favour of B. The corridor
+    # frame to B is a free 4.7 m step without walls; the footprint says it goes through the wall
+    T, fp = twin_rooms
+    z = float(np.median(T[:, 2]))
+    frames = [_hyps([[2.0, -1.0, z]], [-100])]
+    frames += [_hyps([[x, y, z], [x + 4.2, y, z]], [-95, -100]) for x, y in ((2.0, 1.0), (3.0, 2.5), (3.5, 3.0))]
+    tour = MotionParams()
+    em = [h.emission_costs(tour.emission_weight) for h in frames]
+
+    def path(footprint):
+        scan = SimpleNamespace(translations=T, config={"translations": {"method": "octree", "num": 600}},
+                               lines=np.zeros((0, 2, 3)), footprint=footprint)
+        free = FreeSpace.of_maps([scan])
+        return best_path(em, lambda f: transition_costs(frames[f - 1], frames[f], tour, None, free)).choice
+
+    assert path(None) == [0, 1, 1, 1]  # walls unknown (a map without a footprint): the copy next door
+    assert path(fp) == [0, 0, 0, 0]  # the room the door leads to
