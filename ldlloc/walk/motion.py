@@ -32,6 +32,7 @@ import numpy as np
 
 from ldlmap.core.lazy import lazy_module
 from ldlmap.map.translations import candidate_spacing
+from ldlloc.walk.doors import lived_in, with_doors
 
 ndimage = lazy_module("scipy.ndimage")
 spatial = lazy_module("scipy.spatial")
@@ -171,11 +172,13 @@ class FreeSpace:
     @classmethod
     def of_maps(cls, maps: list) -> "FreeSpace | None":
         """The free space of these maps (:class:`ldlmap.map.contents.LdlMap`): walls from a map's stored
-        footprint (a scan's), else where its candidates are a lattice (:func:`lattice_spacing`), unknown on
+        footprint (a scan's, where its candidates stand, its closed doors opened: :mod:`ldlloc.walk.doors`), else where its candidates are a lattice (:func:`lattice_spacing`), unknown on
         the other maps; stairs from their lines; None when neither walls nor stairs are known."""
         T = [np.asarray(m.translations, dtype=np.float64).reshape(-1, 3) for m in maps]
         spacings = [lattice_spacing(m) for m in maps]
-        footprints = [getattr(m, "footprint", None) for m in maps]
+        footprints = [None if getattr(m, "footprint", None) is None else
+                      with_doors(lived_in(m.footprint, t), getattr(m, "lines_raw", m.lines), map_floors(m))
+                      for m, t in zip(maps, T)]
         walls = any(f is not None or (s is not None and len(t) >= 2) for t, s, f in zip(T, spacings, footprints))
         stairs = [stair_points(m.lines) for m in maps]
         if not walls and not any(len(s) for s in stairs):
@@ -233,6 +236,14 @@ class FreeSpace:
                 free |= (f * length < self.end_margin) | ((1 - f) * length < self.end_margin)
             out[s:s + rows] = ~free.all(-1)
         return out
+
+
+def map_floors(m) -> np.ndarray:
+    """The floors' heights (z) map ``m`` was built with (its config), else its lines' lowest end."""
+    how = (m.config.get("translations") or {}) if isinstance(getattr(m, "config", None), dict) else {}
+    floors = np.asarray(how.get("floors") or [], dtype=np.float64).reshape(-1)
+    L = np.asarray(getattr(m, "lines_raw", m.lines), dtype=np.float64).reshape(-1, 2, 3)
+    return floors if len(floors) or not len(L) else np.array([L[..., 2].min()])
 
 
 def lattice_spacing(m) -> float | None:

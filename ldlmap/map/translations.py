@@ -61,8 +61,8 @@ class TranslationParams:
 
 
 def _free_space(P: np.ndarray, clearance: float, params: TranslationParams):
-    """Free voxel mask (X, Y, Z) bool, grid origin (3,), voxel size and the (X, Y) columns that hold an
-    empty voxel of the footprint within the height band (clearance aside: where a walker passes, doors too)."""
+    """Free voxel mask (X, Y, Z) bool, grid origin (3,), voxel size and the (X, Y) columns a walker passes
+    (:func:`_passable`: no clearance, open doors too)."""
     lo, hi = robust_bounds(P)  # far outliers neither stretch the grid nor occupy it
     P = P[np.all((P >= lo) & (P <= hi), axis=1)]  # the box's own points: all of them unless outliers
     extent = float((hi - lo).max())
@@ -86,13 +86,29 @@ def _free_space(P: np.ndarray, clearance: float, params: TranslationParams):
     dist = ndimage.distance_transform_edt(~occ) * h
     # The occupied voxel may hold a point anywhere inside it: subtract half a diagonal.
     free = foot[:, :, None] & zok[None, None, :] & (dist - 0.87 * h >= clearance)
-    passable = foot & (~occ[:, :, zok]).any(axis=2)
+    passable = _passable(occ, foot, zc, params.floors if params.floors is not None else [z0])
     lab, n = ndimage.label(free)
     if n > 1:
         sizes = np.bincount(lab.ravel())[1:]
         keep = np.concatenate([[False], sizes >= params.min_component * sizes.max()])
         free = keep[lab]
     return free, lo, h, passable
+
+
+HEAD_M = (1.2, 1.8)  # a walker passes a column empty at these heights above a floor: over tables, sofas and low
+# cabinets, through open doors (2 m and more), not through walls (a wall hidden behind low furniture shows above it)
+
+
+def _passable(occ: np.ndarray, foot: np.ndarray, zc: np.ndarray, floors) -> np.ndarray:
+    """(X, Y) the footprint's columns without an occupied voxel :data:`HEAD_M` above one of ``floors``
+    (the voxel nearest the band's middle when none has its centre in it)."""
+    out = np.zeros(foot.shape, dtype=bool)
+    for f in np.asarray(floors, dtype=np.float64).reshape(-1):  # a few floors
+        k = np.flatnonzero((zc >= f + HEAD_M[0]) & (zc <= f + HEAD_M[1]))
+        if not len(k):
+            k = np.array([int(np.argmin(np.abs(zc - f - 0.5 * sum(HEAD_M))))])
+        out |= ~occ[:, :, k].any(axis=2)
+    return out & foot
 
 
 def points_along_lines(lines: np.ndarray, step: float = 0.05) -> np.ndarray:
@@ -228,8 +244,8 @@ def translations_and_footprint(points: np.ndarray, num: int = 800, method: Liter
                                clearance: float = 0.25, prior_centers: np.ndarray | None = None,
                                params: TranslationParams = TranslationParams()) -> tuple[np.ndarray, Footprint]:
     """:func:`candidate_translations` and the scan's :class:`ldlmap.map.contents.Footprint`: the xy
-    columns of the free-space grid that hold a voxel without points within the camera band (no
-    clearance: a 0.9 m door is a column or two of a floor's 0.3 m voxels), inside the scan's footprint."""
+    columns of the free-space grid, inside the scan's outline, without points :data:`HEAD_M` above a
+    floor (no clearance: an open 0.9 m door is a column or more of a floor's 0.21-0.31 m voxels)."""
     P = np.asarray(points)
     if P.ndim != 2 or P.shape[1] != 3 or len(P) == 0:
         raise InputError(f"point cloud must be a non-empty (N, 3) array, got shape {P.shape}")
