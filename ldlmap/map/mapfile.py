@@ -31,7 +31,7 @@ datasets are readable with plain h5py::
                             frame (SfM: any up axis, any unit) to this map's (metric, z up); maps
                             without it were built in their input frame (identity)
     /free_space/footprint   (FX, FY) uint8  optional (maps built from a scan): 1 where the xy cell's column
-                            holds free space within the camera band (walls, the outside: 0; open doors: 1)
+                            holds no scan point 1.2-1.8 m above a floor (walls, the outside: 0; open doors: 1)
     /free_space/grid        (3,) float64  with it: world x, y of cell (0, 0)'s lower corner and the cell size (m)
     /translations/view_index (N_t,) int32  index of the rendered view that serves each candidate
                             (only when features are present)
