@@ -496,29 +496,19 @@ def walk_confidence(margin: float, model: ConfidenceModel = MODEL) -> float:
     return float(1.0 / (1.0 + np.exp(-np.clip(z, -50, 50))))
 
 
-COPY_WALK_MARGIN = 8.0  # nats: a walk tells apart copies of a room its image could not only by more than this (a
-# change of floor: a copy on another floor); a wall or a jump (4 nats each) between them is the motion prior alone
-
-
 def walk_judgement(single_confidence: float | None, single_verdict: str | None, margin: float, changed: bool,
-                   pose_ok: bool, model: ConfidenceModel = MODEL,
-                   copy_margin: float = float("inf")) -> tuple[float, str, bool]:
+                   pose_ok: bool, model: ConfidenceModel = MODEL) -> tuple[float, str, bool]:
     """A walk frame's ``(confidence, verdict, walk_decided)`` from its single-image judgement and the
     walk's (one rule for every walk): a frame whose image was confident and whose pose the walk kept
     stays as it is. Otherwise the walk decides (``walk_decided``) when it moved the pose
     (``changed``) or when it singles the image's pose out (its ``margin``): ``confident`` when the
     walk's confidence (:func:`walk_confidence`) reaches the threshold and the pose was refined
     (``pose_ok``), else ``ambiguous`` when there is a pose, else ``failed``. A frame the walk leaves
-    undecided keeps its image's judgement. ``copy_margin``: where the walk chose among copies of a
-    room its image could not tell apart, how much more the best path through another of them costs;
-    under :data:`COPY_WALK_MARGIN` the choice rests on the motion prior alone: ``ambiguous``, never
-    ``confident``."""
+    undecided keeps its image's judgement."""
     single = 0.0 if single_confidence is None else float(single_confidence)
     if not changed and single_verdict == "confident":
         return single, "confident", False
     walk = walk_confidence(margin, model)
-    if copy_margin < COPY_WALK_MARGIN:  # the copies' choice is the motion's alone: at most just under confident
-        walk = min(walk, walk_confidence(copy_margin - COPY_WALK_MARGIN + WALK_MARGIN - 1e-6, model))
     if not changed and (walk < model.confident_at or not pose_ok):
         return single, single_verdict or "failed", False
     if walk >= model.confident_at and pose_ok:

@@ -21,7 +21,7 @@ import pytest
 from typer.testing import CliRunner
 
 from ldlloc.cli import app
-from ldlloc.confidence import COPY_WALK_MARGIN, MODEL, WALK_MARGIN, walk_confidence, walk_judgement
+from ldlloc.confidence import MODEL, WALK_MARGIN, walk_confidence, walk_judgement
 from ldlloc.walk.hypotheses import Hypotheses
 from ldlloc.walk.motion import MotionParams, transition_costs
 from ldlloc.walk.order import capture_time, natural_key, ordered
@@ -75,30 +75,6 @@ def test_floor_changes_cost_more_than_a_jump():
     assert near == 0.0  # a tour's step
     video = transition_costs(h0, _hyps([[3.0, 0, 1.5]], [-1]), p, dt=0.2)[0, 0]
     assert video > 1.0  # 3 m in 0.2 s is no step
-
-
-def test_a_walks_choice_among_copies_on_its_motion_alone_is_not_confident():
-    # a hotel room and its copy next door (3.8 m east, through the wall): the image cannot tell them apart
-    # and names the copy; the walk came down the corridor and its path prefers one copy by a jump and a wall
-    # (8 nats or less: the motion prior alone): ambiguous, with the copies named; a copy on another
-    # floor, more than a change of floor away, is told apart
-    from ldlloc.walk.localize import FrameOutcome, WalkFrame, copy_margin
-
-    h = _hyps([[1.5, 8.3, 4.6], [5.3, 8.3, 4.6], [3.0, 6.0, 4.6]], [-100, -100, -60])
-    copy = {"R": np.eye(3).tolist(), "t": [5.3, 8.3, 4.6], "loss": None, "why": "copy of this room", "copy": {}}
-    o = FrameOutcome(WalkFrame("f", None), hypotheses=h, single_pose=(np.eye(3), np.array([1.5, 8.3, 4.6])),
-                     single_verdict="ambiguous", competitors=[copy])
-    marginals = np.array([10.0, 14.5, 30.0])
-    assert copy_margin(o, 0, marginals) == pytest.approx(4.5)  # the copy's best path: 4.5 nats more
-    assert copy_margin(o, 1, marginals) == pytest.approx(-4.5)
-    assert copy_margin(o, 2, marginals) == float("inf")  # the walk chose neither copy
-    assert copy_margin(replace(o, competitors=[]), 0, marginals) == float("inf")  # no copy named
-    conf, verdict, decided = walk_judgement(0.3, "ambiguous", 4.5, changed=True, pose_ok=True, copy_margin=4.5)
-    assert (verdict, decided) == ("ambiguous", True) and conf < MODEL.confident_at
-    assert walk_judgement(0.3, "ambiguous", 4.5, changed=False, pose_ok=True, copy_margin=4.5)[1] == "ambiguous"
-    far = COPY_WALK_MARGIN + 1.0  # a copy on another floor
-    assert walk_judgement(0.3, "ambiguous", far, changed=True, pose_ok=True, copy_margin=far)[1] == "confident"
-    assert walk_judgement(0.3, "ambiguous", 4.5, changed=True, pose_ok=True)[1] == "confident"  # no copies: as before
 
 
 def test_walk_judgement():

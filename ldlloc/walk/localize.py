@@ -432,33 +432,15 @@ def settle(o: FrameOutcome, j: int, marginals: np.ndarray, maps: MapSet, params:
     o.walk_margin = margin(marginals, j, distinct(R, t, h.rot_cam_from_world, h.center))
     changed = bool(distinct(R, t, o.single_pose[0][None], o.single_pose[1][None])[0])
     pose_ok = bool(o.loc.refined)
-    among = copy_margin(o, j, marginals)
     if changed:
         pose_ok = move_to(o, maps.entries[int(h.map_index[j])], R, t, params)
     conf, verdict, o.walk_decided = walk_judgement(o.single_confidence, o.single_verdict, o.walk_margin,
-                                                   changed, pose_ok, copy_margin=among)
+                                                   changed, pose_ok)
     o.loc.confidence, o.loc.verdict = conf, verdict
-    if o.walk_decided and changed:  # the image's own pose is the walk's competitor, and the copies it named
+    if o.walk_decided and changed:  # the image's own pose is the walk's competitor
         R0, t0 = o.single_pose
         o.loc.competitors = [{"R": np.round(R0, 8).tolist(), "t": np.round(t0, 6).tolist(), "loss": None,
                               "why": "the image's own pose (the walk chose another)"}]
-        o.loc.competitors += [c for c in o.competitors if "copy" in c and np.isfinite(among)]
-
-
-def copy_margin(o: FrameOutcome, j: int, marginals: np.ndarray) -> float:
-    """Where frame ``o``'s path chose (hypothesis ``j``) its image's own pose or one of the copies of its
-    room the image named (competitors with a ``copy``: it could not tell them apart), how much more the
-    best path through another of them costs (the motion's say alone); inf where it chose none of them
-    or the image named no copy."""
-    h, copies = o.hypotheses, [c for c in o.competitors if "copy" in c]
-    if not copies or o.single_pose is None:
-        return float("inf")
-    among = ~distinct(*o.single_pose, h.rot_cam_from_world, h.center)
-    for c in copies:
-        among |= ~distinct(np.asarray(c["R"], float), np.asarray(c["t"], float), h.rot_cam_from_world, h.center)
-    if not among[j]:
-        return float("inf")
-    return margin(marginals, j, among & distinct(h.rot_cam_from_world[j], h.center[j], h.rot_cam_from_world, h.center))
 
 
 def move_to(o: FrameOutcome, entry: MapEntry, R: np.ndarray, t: np.ndarray, params: WalkParams) -> bool:
