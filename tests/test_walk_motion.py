@@ -187,9 +187,10 @@ def test_a_walk_does_not_enter_the_copy_of_a_room_through_its_wall(twin_rooms):
     tour = MotionParams()
     em = [h.emission_costs(tour.emission_weight) for h in frames]
 
-    def path(footprint):
-        free = FreeSpace.of_maps([SimpleNamespace(**{**vars(scan), "footprint": footprint})])
+    def path(footprint, read: bool = True):
+        free = FreeSpace.of_maps([SimpleNamespace(**{**vars(scan), "footprint": footprint})], read)
         return best_path(em, lambda f: transition_costs(frames[f - 1], frames[f], tour, None, free)).choice
 
     assert path(None) == [0, 1, 1, 1]  # walls unknown (a map without a footprint): the copy next door
+    assert path(fp, read=False) == [0, 1, 1, 1]  # a footprint the walk does not read (WalkParams.scan_walls off)
     assert path(fp) == [0, 0, 0, 0]  # the room the door leads to
