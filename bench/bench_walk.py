@@ -271,7 +271,7 @@ def walk_params(args):
     from ldlloc.batch.which_map import TOP_MAPS
     from ldlloc.walk.localize import WalkParams
 
-    walk = WalkParams(top_maps=TOP_MAPS)
+    walk = WalkParams(top_maps=TOP_MAPS, scan_walls=args.scan_walls)
     if args.lattice is None:
         return walk
     return replace(walk, lattice=replace(walk.lattice, spacing_m=args.lattice))
@@ -366,7 +366,7 @@ def redecide(saved: dict, queries: list, walk=None, data: Path | None = None) ->
     from ldlloc.walk.motion import FreeSpace
 
     walk = walk or WalkParams()
-    free = FreeSpace.of_maps([map_contents(Path(p)) for p in saved["maps"]]) if walk.walls else None
+    free = FreeSpace.of_maps([map_contents(Path(p)) for p in saved["maps"]], walk.scan_walls) if walk.walls else None
     live = []
     for s in saved["frames"]:
         if s["hyp"] is None or not len(s["hyp"]["loss"]):
@@ -487,6 +487,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--first-pass", action="store_true",
                     help="--building: decide the walk from its first pass saved under bench/.cache (computed once: "
                          "each frame's own localization and the searches near confident frames), in minutes")
+    ap.add_argument("--scan-walls", action="store_true",
+                    help="--building: the walk reads the scan maps' stored footprints as walls (off by default)")
     ap.add_argument("--lattice", type=float, default=None,
                     help="--building: the walk's lattice spacing in metres near confident frames, e.g. 0.2 (0: off; "
                          "default: WalkParams', off)")

@@ -192,3 +192,30 @@ def test_build_params_config_keeps_the_stored_keys_and_order():
     assert BuildParams().replaced(**params.config()) == params
     with pytest.raises(TypeError, match="config key"):
         BuildParams().replaced(spacing=1.0)
+
+
+def test_optional_footprint_round_trips_and_must_be_whole(tmp_path):
+    """``/free_space`` (a scan's footprint: where a walk may step) is optional: maps without it read None;
+    one of its two datasets without the other, or a cell of no size, fails in one line."""
+    from ldlmap.map.contents import Footprint
+
+    m = make_map(with_features=False)
+    assert read_map(write_map(tmp_path / "plain.h5", m)).footprint is None
+    mask = np.zeros((7, 5), bool)
+    mask[1:6, 1:4] = True
+    m.footprint = Footprint(mask, np.array([-0.5, 0.25]), 0.3)
+    r = read_map(write_map(tmp_path / "walls.h5", m))
+    np.testing.assert_array_equal(r.footprint.mask, mask)
+    np.testing.assert_allclose(r.footprint.origin, [-0.5, 0.25])
+    assert r.footprint.cell == pytest.approx(0.3)
+    assert r.footprint.free_at(np.array([[-0.5 + 0.45, 0.25 + 0.45], [-0.4, 0.3], [9.0, 9.0]])).tolist() == [True, False, False]
+    with h5py.File(tmp_path / "walls.h5", "r") as h5:
+        assert h5.attrs["format_version"] == 1  # readers that predate it still read the map
+    with h5py.File(tmp_path / "walls.h5", "a") as h5:
+        del h5["free_space/grid"]
+    with pytest.raises(InputError, match="free_space/grid is missing"):
+        read_map(tmp_path / "walls.h5")
+    m.footprint = Footprint(mask, np.array([0.0, 0.0]), 0.0)
+    with pytest.raises(InputError, match="footprint.cell"):
+        write_map(tmp_path / "bad.h5", m)
+    assert not (tmp_path / "bad.h5").exists()

@@ -57,7 +57,9 @@ class WalkParams:
     near_radius_m: float = 0.6  # a search pose the path chose is searched again within this radius ...
     near_cone_deg: float = 10.0  # ... and this cone, then refined
     max_hypotheses: int = MAX_HYPOTHESES
-    walls: bool = True  # no step through a wall: the maps' free space (ldlloc.walk.motion.FreeSpace)
+    walls: bool = True  # no step through a wall: the maps' free space (ldlloc.walk.motion.FreeSpace) ...
+    scan_walls: bool = False  # ... a scan map's stored footprint too (off: on a held-out building it made the walk
+    # surer of wrong paths, 2 of 20 confident frames wrong against 0 of 15: docs/benchmarks.md#walks-synthetic-building)
     relative: bool = True  # the motion between consecutive images where one needs more (:func:`relate`) ...
     relative_fit: RelativeParams = field(default_factory=RelativeParams)  # ... fitted so (ldlloc.walk.relative)
     max_tilt_level_deg: float = 45.0  # a frame's own rotation levels its bearings when it tilts less than this
@@ -393,10 +395,10 @@ def decide(outcomes: list[FrameOutcome], maps: MapSet, params: WalkParams) -> No
 
 
 def free_space(maps: MapSet, params: WalkParams) -> FreeSpace | None:
-    """The free space of the walk's maps (:class:`ldlloc.walk.motion.FreeSpace`); None with ``walls`` off
-    or where the map set holds no maps (a stand-in without localizers)."""
+    """The free space of the walk's maps (:class:`ldlloc.walk.motion.FreeSpace`, scans' footprints with
+    ``scan_walls``); None with ``walls`` off or where the map set holds no maps (a stand-in without localizers)."""
     found = [getattr(getattr(e, "localizer", None), "map", None) for e in maps.entries]
-    return FreeSpace.of_maps(found) if params.walls and found and None not in found else None
+    return FreeSpace.of_maps(found, params.scan_walls) if params.walls and found and None not in found else None
 
 
 def walk_path(live: list[FrameOutcome], params: WalkParams, costs: dict | None = None, free: FreeSpace | None = None):

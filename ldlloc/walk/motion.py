@@ -9,14 +9,16 @@ or in a lift, rarely. With ``turn_deg`` (videos: the camera turns little between
 rotation costs its angle over it, capped the same way. Costs are negative log-likelihoods
 (nats), added to the frames' emission costs (:mod:`ldlloc.walk.hypotheses`).
 
-No step through a wall (:class:`FreeSpace`): where the maps know where a camera can stand (their
-candidate translations: a scan's free space kept clear of every surface, a layout's rooms and
-doorways), a step whose straight segment leaves that space (a wall between two rooms, the outside)
-costs a jump more than its length does (a tour's walker went round by a door: a detour);
-between frames close in time (a video's, ``close_s``) it is all but forbidden (``blocked_cost``):
-nobody walks through a wall in a fifth of a second. Only maps whose candidates are a lattice (a
-layout's rooms and doorways, ``spacing`` translations) tell walls so: a scan's octree candidates
-are a sample of its free space, their gaps no walls (and a scan may see its doors closed).
+No step through a wall (:class:`FreeSpace`): where the maps know where a camera can stand (a scan's
+stored footprint, when the walk reads it (``WalkParams.scan_walls``, off by default): the columns of its free
+space within the camera band; a lattice of candidate
+translations: a layout's rooms and doorways), a step whose straight segment leaves that space (a
+wall between two rooms, the outside) costs a jump more than its length does (a tour's walker went
+round by a door: a detour); between frames close in time (a video's, ``close_s``) it is all but
+forbidden (``blocked_cost``): nobody walks through a wall in a fifth of a second. A scan's octree
+candidates alone tell no walls (a sample of its free space: their gaps are no walls, and none stand
+in doorways narrower than twice the clearance): a scan map built before footprints were stored
+has unknown walls.
 
 Floors change on stairs (:func:`stair_points`: the steps' edges in the maps' lines): where the
 maps show stairs, a change of floor farther than :data:`STAIR_REACH_M` from them costs
@@ -31,6 +33,7 @@ import numpy as np
 
 from ldlmap.core.lazy import lazy_module
 from ldlmap.map.translations import candidate_spacing
+from ldlloc.walk.doors import lived_in, with_doors
 
 ndimage = lazy_module("scipy.ndimage")
 spatial = lazy_module("scipy.spatial")
@@ -97,50 +100,92 @@ def transition_costs(prev, cur, params: MotionParams, dt: float | None = None,
 REACH = 1.0  # a point within this many candidate spacings of a candidate is free space: a gap of two spacings is
 # bridged (a doorway narrower than the spacing may hold no candidate), a wider one is a wall (a scan's wall and the
 # clearance on both sides of it: 0.2 m + 2 x 0.25 m at a 0.3 m spacing)
-CELLS_PER_SPACING = 4  # the grid's cell: a quarter of the smallest candidate spacing
+CELLS_PER_SPACING = 4  # the grid's cell: a quarter of the smallest candidate spacing ...
+CELLS_PER_FOOTPRINT = 2  # ... or half the smallest footprint cell (a step crossing a wall one cell thick meets it)
 MAX_CELLS = 40_000_000  # the grid's cells over all maps (coarser cells beyond: memory bounded)
 MAX_SAMPLES = 4_000_000  # segment points looked up at once
 
 
 class FreeSpace:
-    """Where a camera can stand on each map of a walk, in the maps' common frame: the xy of its
-    candidate translations, each grown by ``REACH`` times the map's candidate spacing, rasterized
-    on one grid (``CELLS_PER_SPACING`` cells to the smallest spacing). :meth:`blocked` tells the steps
-    that leave it. ``translations`` None: the walls are not known (``masks`` None). ``stairs``: each
+    """Where a camera can stand on each map of a walk, in the maps' common frame, on one grid: a
+    scan's stored footprint (:class:`ldlmap.map.contents.Footprint`: the columns free within the camera
+    band, open doors included), else the xy of a lattice's candidate translations each grown by
+    ``REACH`` times its spacing; ``CELLS_PER_SPACING`` cells to the smallest spacing,
+    ``CELLS_PER_FOOTPRINT`` to the smallest footprint cell. :meth:`blocked` tells the steps that leave
+    it. A map with neither (``translations`` None, or its spacing and footprint None) has unknown walls:
+    a step on it is never blocked (``masks`` None when no map's walls are known). ``stairs``: each
     map's stairs (:func:`stair_points`, None: none known); :meth:`off_stairs` tells the floor changes
     away from them."""
 
     def __init__(self, translations: list[np.ndarray] | None, stairs: list[np.ndarray] | None = None,
-                 spacings: list[float] | None = None):
+                 spacings: list[float | None] | None = None, footprints: list | None = None):
         self.stairs = None if stairs is None or not any(len(s) for s in stairs) else \
             [np.asarray(s, dtype=np.float64).reshape(-1, 2) for s in stairs]
         self.masks = None
         if translations is None:
             return
+        M = len(translations)
+        footprints = list(footprints) if footprints is not None else [None] * M
         T = [np.unique(np.asarray(t, dtype=np.float64).reshape(-1, 3)[:, :2].round(4), axis=0)
              for t in translations]  # their xy (a scan's candidates stand at several heights)
         spacing = spacings or [candidate_spacing(np.asarray(t, dtype=np.float64).reshape(-1, 3))
                                for t in translations]
-        every = np.concatenate(T)
-        self.reach = [REACH * max(s, 1e-3) for s in spacing]
-        self.lo = every.min(0) - max(self.reach) - 1e-6
-        span = every.max(0) + max(self.reach) + 1e-6 - self.lo
-        cell = max(min(self.reach) / (REACH * CELLS_PER_SPACING), 0.01)
-        cell = max(cell, float(np.sqrt(np.prod(span) * len(T) / MAX_CELLS)))
+        lattice = [f is None and s is not None and len(t) >= 2 for t, s, f in zip(T, spacing, footprints)]
+        self.known = np.array([f is not None or k for f, k in zip(footprints, lattice)])
+        if not self.known.any():
+            return
+        self.reach = [REACH * max(s, 1e-3) if k else 0.0 for s, k in zip(spacing, lattice)]
+        self.end_margin = max([f.cell for f in footprints if f is not None], default=0.0)  # a pose beside a wall
+        # may stand in the wall's footprint cell: the points of a step this close to its ends are not judged
+        lo, hi = self._extent(T, lattice, footprints)
+        self.lo, span = lo, hi - lo
+        cells = [r / (REACH * CELLS_PER_SPACING) for r, k in zip(self.reach, lattice) if k]
+        cells += [f.cell / CELLS_PER_FOOTPRINT for f in footprints if f is not None]
+        cell = max(min(cells), 0.01, float(np.sqrt(np.prod(span) * M / MAX_CELLS)))
         self.cell, self.shape = cell, tuple(int(v) for v in np.ceil(span / cell).astype(int) + 1)
-        self.masks = np.stack([self._mask(t, r) for t, r in zip(T, self.reach)])  # (M, X, Y) bool
+        self.masks = np.stack([self._sampled(f) if f is not None else self._mask(t, r) if k
+                               else np.zeros(self.shape, dtype=bool)
+                               for t, r, k, f in zip(T, self.reach, lattice, footprints)])  # (M, X, Y) bool
+
+    def _extent(self, T: list[np.ndarray], lattice: list[bool], footprints: list) -> tuple[np.ndarray, np.ndarray]:
+        """The grid's xy box: every lattice's candidates grown by the largest reach, every footprint's grid."""
+        lo, hi, reach = [], [], max(self.reach)
+        for t, k, f in zip(T, lattice, footprints):
+            if f is not None:
+                lo.append(np.asarray(f.origin, float))
+                hi.append(np.asarray(f.origin, float) + np.array(f.mask.shape) * f.cell)
+            elif k:
+                lo.append(t.min(0) - reach)
+                hi.append(t.max(0) + reach)
+        return np.min(lo, 0) - 1e-6, np.max(hi, 0) + 1e-6
+
+    def _sampled(self, footprint) -> np.ndarray:
+        """A footprint on this grid: each cell takes the footprint cell its centre falls in (separable: axis-aligned grids)."""
+        axes = []
+        for k in range(2):
+            c = self.lo[k] + (np.arange(self.shape[k]) + 0.5) * self.cell
+            axes.append(np.floor((c - footprint.origin[k]) / footprint.cell).astype(np.int64))
+        ok_i, ok_j = [(a >= 0) & (a < n) for a, n in zip(axes, footprint.mask.shape)]
+        out = np.zeros(self.shape, dtype=bool)
+        out[np.ix_(ok_i, ok_j)] = np.asarray(footprint.mask, bool)[np.ix_(axes[0][ok_i], axes[1][ok_j])]
+        return out
 
     @classmethod
-    def of_maps(cls, maps: list) -> "FreeSpace | None":
-        """The free space of these maps (:class:`ldlmap.map.contents.LdlMap`): walls where every map's
-        candidates are a lattice (:func:`lattice_spacing`), stairs from their lines; None when neither is known."""
+    def of_maps(cls, maps: list, footprints: bool = True) -> "FreeSpace | None":
+        """The free space of these maps (:class:`ldlmap.map.contents.LdlMap`): walls from a map's stored
+        footprint (a scan's, where its candidates stand, its closed doors opened: :mod:`ldlloc.walk.doors`), else where its candidates are a lattice (:func:`lattice_spacing`), unknown on
+        the other maps (``footprints`` False: a footprint is not read); stairs from their lines; None when
+        neither walls nor stairs are known."""
         T = [np.asarray(m.translations, dtype=np.float64).reshape(-1, 3) for m in maps]
         spacings = [lattice_spacing(m) for m in maps]
-        walls = bool(T) and all(len(t) >= 2 for t in T) and None not in spacings
+        footprints = [None if not footprints or getattr(m, "footprint", None) is None else
+                      with_doors(lived_in(m.footprint, t), getattr(m, "lines_raw", m.lines), map_floors(m))
+                      for m, t in zip(maps, T)]
+        walls = any(f is not None or (s is not None and len(t) >= 2) for t, s, f in zip(T, spacings, footprints))
         stairs = [stair_points(m.lines) for m in maps]
         if not walls and not any(len(s) for s in stairs):
             return None
-        return cls(T if walls else None, stairs, spacings if walls else None)
+        return cls(T if walls else None, stairs, spacings, footprints)
 
     def off_stairs(self, a: np.ndarray, map_a: np.ndarray, b: np.ndarray, map_b: np.ndarray) -> np.ndarray:
         """(P, Q) whether neither end of the step from each ``a`` (P, 3) on map ``map_a`` (P,) to each
@@ -165,8 +210,9 @@ class FreeSpace:
     def blocked(self, a: np.ndarray, map_a: np.ndarray, b: np.ndarray, map_b: np.ndarray) -> np.ndarray:
         """(P, Q) whether the straight step from each ``a`` (P, 3) on map ``map_a`` (P,) to each ``b``
         (Q, 3) on ``map_b`` leaves the free space of both maps somewhere between its ends (its points
-        a cell apart; the ends themselves are where the poses are: not judged); all False when the
-        walls are not known."""
+        a cell apart; the ends themselves are where the poses are: not judged, nor with footprints the
+        points within ``end_margin`` of them); all False when the walls are not known (on either map:
+        no step of it is blocked)."""
         a, b = np.asarray(a, float)[:, :2], np.asarray(b, float)[:, :2]
         P, Q = len(a), len(b)
         if self.masks is None:
@@ -186,8 +232,20 @@ class FreeSpace:
             ma = np.asarray(map_a)[s:s + rows, None, None]
             mb = np.asarray(map_b)[None, :, None]
             free = inside & (self.masks[ma, ij[..., 0], ij[..., 1]] | self.masks[mb, ij[..., 0], ij[..., 1]])
+            free |= ~self.known[ma] | ~self.known[mb]  # a map whose walls are not known blocks nothing
+            if self.end_margin:
+                length = np.linalg.norm(b[None, :] - a[s:s + rows, None], axis=-1)[..., None]
+                free |= (f * length < self.end_margin) | ((1 - f) * length < self.end_margin)
             out[s:s + rows] = ~free.all(-1)
         return out
+
+
+def map_floors(m) -> np.ndarray:
+    """The floors' heights (z) map ``m`` was built with (its config), else its lines' lowest end."""
+    how = (m.config.get("translations") or {}) if isinstance(getattr(m, "config", None), dict) else {}
+    floors = np.asarray(how.get("floors") or [], dtype=np.float64).reshape(-1)
+    L = np.asarray(getattr(m, "lines_raw", m.lines), dtype=np.float64).reshape(-1, 2, 3)
+    return floors if len(floors) or not len(L) else np.array([L[..., 2].min()])
 
 
 def lattice_spacing(m) -> float | None:

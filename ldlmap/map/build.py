@@ -48,7 +48,7 @@ from ldlmap.io.linefiles import check_segments
 from ldlmap.lines3d import extract_lines, filter_by_length, length_threshold, robust_bounds
 from ldlmap.lines3d.principal import (FrameParams, HORIZONTAL_DEG, assign_line_groups, line_directions,
                                       manhattan_frame, principal_directions_3d, principal_frame)
-from ldlmap.map.contents import LdlMap, MapFeatures
+from ldlmap.map.contents import Footprint, LdlMap, MapFeatures
 from ldlmap.map.fields3d import FieldParams, compute_fields
 from ldlmap.map.inputs import SceneInput, load_input
 from ldlmap.map.keypoints3d import view_features
@@ -56,8 +56,8 @@ from ldlmap.map.mapfile import write_map
 from ldlmap.map.params import BuildParams
 from ldlmap.map.render import PointRenderer, RenderParams
 from ldlmap.map.floors import BAND_LEVEL_SPACING_M, DEFAULT_CAMERA_HEIGHT, band_ranges, find_floors
-from ldlmap.map.translations import (SPARSE_SPACING_M, TranslationParams, candidate_spacing, candidate_translations,
-                                     spaced_translations)
+from ldlmap.map.translations import (SPARSE_SPACING_M, TranslationParams, candidate_spacing, spaced_translations,
+                                     translations_and_footprint)
 from ldlmap.map.visibility import coverage_fields, line_visibility, room_surfaces
 from ldlmap.sfm.gravity import estimate_up, map_rotation
 
@@ -162,8 +162,10 @@ def build_lines_map(lines: np.ndarray, output: str | Path, params: BuildParams =
 
 
 def scene_translations(src: SceneInput, lines: np.ndarray, lines_raw: np.ndarray,
-                       params: BuildParams) -> tuple[np.ndarray, dict]:
-    """Candidate translations of a scene and how they were chosen (stored in the map's config).
+                       params: BuildParams) -> tuple[np.ndarray, dict, Footprint | None]:
+    """Candidate translations of a scene, how they were chosen (stored in the map's config) and, with
+    a scan, its free space seen from above (:class:`ldlmap.map.contents.Footprint`: the walls a walk
+    does not step through; None without a scan).
 
     Heights: ``camera_height`` above each floor the lines show (:func:`ldlmap.map.floors.find_floors`),
     by default :data:`ldlmap.map.floors.DEFAULT_CAMERA_HEIGHT`; a layout that knows its cameras'
@@ -184,17 +186,18 @@ def scene_translations(src: SceneInput, lines: np.ndarray, lines_raw: np.ndarray
             "camera_height": [float(z) for z in (band if band is not None else known)],
             "camera_z": [[round(float(a), 4), round(float(b), 4)] for a, b in world]}
     if src.points is not None:
-        T = candidate_translations(src.points, params.translations.num, params.translations.method,
-                                   params.translations.clearance, prior_centers=src.prior_centers, params=tp)
+        T, footprint = translations_and_footprint(src.points, params.translations.num, params.translations.method,
+                                                  params.translations.clearance, prior_centers=src.prior_centers,
+                                                  params=tp)
         return T, {"method": params.translations.method, "num": int(params.translations.num), **info,
-                   "median_spacing_m": candidate_spacing(T)}
+                   "median_spacing_m": candidate_spacing(T)}, footprint
     T = spaced_translations(lines_raw, params.translations.spacing, src.walkable,
                             known if band is None else None, params=tp)
     if src.prior_centers is not None:
         T = np.concatenate([T, np.asarray(src.prior_centers, float).reshape(-1, 3)])
     return T, {"method": "spacing", "spacing": float(params.translations.spacing),
                "region": "layout polygons" if src.walkable is not None and src.walkable.polygons else "free space of the lines",
-               **info}
+               **info}, None
 
 
 def _transformed(src: SceneInput, lines: np.ndarray | None, A: np.ndarray) -> tuple[SceneInput, np.ndarray | None]:
@@ -448,9 +451,9 @@ def principal_stage(lines: np.ndarray, frame: MapFrame, params: BuildParams, rep
 
 
 def translations_stage(src: SceneInput, lines: np.ndarray, lines_raw: np.ndarray, params: BuildParams,
-                       report: BuildReport) -> tuple[np.ndarray, dict]:
-    """The candidate translations (:func:`scene_translations`), with a warning when they stand sparse."""
-    translations, trans_info = scene_translations(src, lines, lines_raw, params)
+                       report: BuildReport) -> tuple[np.ndarray, dict, Footprint | None]:
+    """The candidate translations and footprint (:func:`scene_translations`), with a warning when they stand sparse."""
+    translations, trans_info, footprint = scene_translations(src, lines, lines_raw, params)
     if len(translations) == 0:
         raise InputError("no candidate translation found in the free space of the scan")
     spacing = trans_info.get("median_spacing_m", 0.0)  # a scan's candidates only (a lattice has its own spacing)
@@ -459,7 +462,7 @@ def translations_stage(src: SceneInput, lines: np.ndarray, lines_raw: np.ndarray
             f"the {len(translations)} candidate translations stand a median {spacing:.2f} m apart, so cameras "
             "between them may be missed (a scan of a whole floor?): more with --num-trans, nearer the cameras "
             "with --camera-height MIN:MAX (e.g. 0.9:1.7)")
-    return translations, trans_info
+    return translations, trans_info, footprint
 
 
 def visibility_stage(src: SceneInput, lines: np.ndarray, translations: np.ndarray,
@@ -563,7 +566,7 @@ def build_from_input(src: SceneInput, output: Path, params: BuildParams, name: s
     directions = principal_stage(filt.lines, frame, params, report)
     stages.end("principal")
     stages.start("translations")
-    translations, trans_info = translations_stage(src, filt.lines, lines_raw, params, report)
+    translations, trans_info, footprint = translations_stage(src, filt.lines, lines_raw, params, report)
     stages.end("translations")
     visibility, coverage = visibility_stage(src, filt.lines, translations, stages)
     fields, fields_attrs = fields_stage(filt.lines, directions, translations, visibility, params, stages)
@@ -577,7 +580,7 @@ def build_from_input(src: SceneInput, output: Path, params: BuildParams, name: s
         cloud_points=cloud_pts, cloud_colors=cloud_cols, features=features,
         config=map_config(params, config, src, trans_info, frame, filt, directions),
         fields=fields, fields_attrs=fields_attrs, visibility=visibility, coverage=coverage,
-        input_to_map=frame.input_to_map,
+        input_to_map=frame.input_to_map, footprint=footprint,
     )
     stages.start("write")
     write_map(output, m)

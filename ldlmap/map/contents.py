@@ -33,6 +33,24 @@ class MapFeatures:
         return slice(int(self.offsets[view]), int(self.offsets[view + 1]))
 
 
+@dataclass(frozen=True)
+class Footprint:
+    """Where a camera can stand on a scan, seen from above: the xy cells (``cell`` metres square, cell
+    (0, 0)'s corner at ``origin``) whose column holds free space (no scan point) within the camera
+    band; walls, full-height furniture and the outside are not free, an open door is."""
+
+    mask: np.ndarray  # (X, Y) bool
+    origin: np.ndarray  # (2,) world xy of cell (0, 0)'s lower corner
+    cell: float
+
+    def free_at(self, xy: np.ndarray) -> np.ndarray:
+        """Whether each point ``xy`` (..., >= 2) stands in a free cell (False outside the grid)."""
+        ij = np.floor((np.asarray(xy, dtype=np.float64)[..., :2] - self.origin) / self.cell).astype(np.int64)
+        inside = np.all((ij >= 0) & (ij < np.array(self.mask.shape)), axis=-1)
+        ij = np.where(inside[..., None], ij, 0)
+        return inside & self.mask[ij[..., 0], ij[..., 1]]
+
+
 @dataclass
 class LdlMap:
     """Everything localization needs for one scene (see the module docstring for units)."""
@@ -57,6 +75,7 @@ class LdlMap:
     visibility: np.ndarray | None = None  # (N_t, L) bool: kept lines seen from each translation (None: all)
     coverage: np.ndarray | None = None  # (N_t, G + 1, 2G) bool: directions meeting a mapped surface
     input_to_map: np.ndarray | None = None  # (4, 4) similarity from the build's input frame (None: identity)
+    footprint: Footprint | None = None  # a scan's free space seen from above (None: walls not known)
 
     @property
     def lines_only(self) -> bool:

@@ -30,6 +30,9 @@ datasets are readable with plain h5py::
     /frame/input_to_map     (4, 4) float64  optional: similarity X_map = s R X_input from the build's input
                             frame (SfM: any up axis, any unit) to this map's (metric, z up); maps
                             without it were built in their input frame (identity)
+    /free_space/footprint   (FX, FY) uint8  optional (maps built from a scan): 1 where the xy cell's column
+                            holds no scan point 1.2-1.8 m above a floor (walls, the outside: 0; open doors: 1)
+    /free_space/grid        (3,) float64  with it: world x, y of cell (0, 0)'s lower corner and the cell size (m)
     /translations/view_index (N_t,) int32  index of the rendered view that serves each candidate
                             (only when features are present)
     /features               attrs: backend ('sift' | 'aliked' | 'disk' | 'xfeat' | 'superpoint'), descriptor_dim,
@@ -63,7 +66,7 @@ import numpy as np
 
 from ldlmap.core.errors import FormatVersionError, HDF5_SIGNATURE, InputError, atomic_file, require_file, starts_with
 from ldlmap.core.lazy import lazy_module
-from ldlmap.map.contents import LdlMap, MapFeatures
+from ldlmap.map.contents import Footprint, LdlMap, MapFeatures
 from ldlmap.map.validate import KINDS, KIND_NAMES, check_line_header, is_int, manhattan_map, validate_map
 
 h5py = lazy_module("h5py")
@@ -156,6 +159,10 @@ def write_map(path: str | Path, m: LdlMap) -> Path:
             h5.create_group("principal")["directions"] = np.asarray(m.principal_directions, np.float64)
             if m.input_to_map is not None:
                 h5.create_group("frame")["input_to_map"] = np.asarray(m.input_to_map, np.float64)
+            if m.footprint is not None:
+                fs = h5.create_group("free_space")
+                fs.create_dataset("footprint", data=np.asarray(m.footprint.mask, np.uint8), **_COMPRESS)
+                fs["grid"] = np.array([*np.asarray(m.footprint.origin, np.float64), m.footprint.cell])
             t = h5.create_group("translations")
             t["centers"] = np.asarray(m.translations, np.float32)
             f = m.features
@@ -212,6 +219,8 @@ _SCHEMA: dict[str, tuple[str, tuple]] = {
     "coverage/mapped": ("b", ("N", "C1", "C2")),
     "principal/directions": ("f", ("NP", 3)),
     "frame/input_to_map": ("f", (4, 4)),
+    "free_space/footprint": ("b", ("FX", "FY")),
+    "free_space/grid": ("f", (3,)),
     "translations/centers": ("f", ("N", 3)),
     "translations/view_index": ("i", ("N",)),
     "features/view_centers": ("f", ("V", 3)),
@@ -382,6 +391,7 @@ def _check_schema(h5, path: Path) -> None:
     """Every required dataset present, each known one with its kind and a shape consistent with the others."""
     required = list(_REQUIRED) + (list(_FEATURE_DATASETS) if "features" in h5 else [])
     required += ["cloud/points"] if "cloud/colors" in h5 else []
+    required += ["free_space/footprint", "free_space/grid"] if "free_space" in h5 else []
     for name in required:
         if name not in h5:
             raise InputError(f"corrupt LDL map {path}: dataset /{name} is missing")
@@ -537,4 +547,13 @@ def _map_from(h5, data: dict[str, np.ndarray], path: Path, load_cloud: bool) -> 
         visibility=get("lines/visibility", bool),
         coverage=get("coverage/mapped", bool),
         input_to_map=get("frame/input_to_map", np.float64),
+        footprint=_footprint(data),
     )
+
+
+def _footprint(data: dict[str, np.ndarray]) -> Footprint | None:
+    """The stored :class:`Footprint` (None in maps without one: built before it, or without a scan)."""
+    mask, grid = data.get("free_space/footprint"), data.get("free_space/grid")
+    if mask is None or grid is None:
+        return None
+    return Footprint(mask.astype(bool), grid[:2].astype(np.float64), float(grid[2]))

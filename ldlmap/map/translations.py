@@ -34,6 +34,7 @@ from ldlmap.core.errors import InputError
 from ldlmap.core.frame import check_memory
 from ldlmap.core.lazy import lazy_module
 from ldlmap.core.polygon import distance_to_boundary, points_in_polygon
+from ldlmap.map.contents import Footprint
 from ldlmap.map.floors import band_ranges, in_band
 from ldlmap.lines3d import robust_bounds
 
@@ -60,7 +61,8 @@ class TranslationParams:
 
 
 def _free_space(P: np.ndarray, clearance: float, params: TranslationParams):
-    """Free voxel mask (X, Y, Z) bool, grid origin (3,) and voxel size."""
+    """Free voxel mask (X, Y, Z) bool, grid origin (3,), voxel size and the (X, Y) columns a walker passes
+    (:func:`_passable`: no clearance, open doors too)."""
     lo, hi = robust_bounds(P)  # far outliers neither stretch the grid nor occupy it
     P = P[np.all((P >= lo) & (P <= hi), axis=1)]  # the box's own points: all of them unless outliers
     extent = float((hi - lo).max())
@@ -84,12 +86,29 @@ def _free_space(P: np.ndarray, clearance: float, params: TranslationParams):
     dist = ndimage.distance_transform_edt(~occ) * h
     # The occupied voxel may hold a point anywhere inside it: subtract half a diagonal.
     free = foot[:, :, None] & zok[None, None, :] & (dist - 0.87 * h >= clearance)
+    passable = _passable(occ, foot, zc, params.floors if params.floors is not None else [z0])
     lab, n = ndimage.label(free)
     if n > 1:
         sizes = np.bincount(lab.ravel())[1:]
         keep = np.concatenate([[False], sizes >= params.min_component * sizes.max()])
         free = keep[lab]
-    return free, lo, h
+    return free, lo, h, passable
+
+
+HEAD_M = (1.2, 1.8)  # a walker passes a column empty at these heights above a floor: over tables, sofas and low
+# cabinets, through open doors (2 m and more), not through walls (a wall hidden behind low furniture shows above it)
+
+
+def _passable(occ: np.ndarray, foot: np.ndarray, zc: np.ndarray, floors) -> np.ndarray:
+    """(X, Y) the footprint's columns without an occupied voxel :data:`HEAD_M` above one of ``floors``
+    (the voxel nearest the band's middle when none has its centre in it)."""
+    out = np.zeros(foot.shape, dtype=bool)
+    for f in np.asarray(floors, dtype=np.float64).reshape(-1):  # a few floors
+        k = np.flatnonzero((zc >= f + HEAD_M[0]) & (zc <= f + HEAD_M[1]))
+        if not len(k):
+            k = np.array([int(np.argmin(np.abs(zc - f - 0.5 * sum(HEAD_M))))])
+        out |= ~occ[:, :, k].any(axis=2)
+    return out & foot
 
 
 def points_along_lines(lines: np.ndarray, step: float = 0.05) -> np.ndarray:
@@ -218,6 +237,15 @@ def candidate_translations(points: np.ndarray, num: int = 800, method: Literal["
     ``num`` is N_t of the paper (800 OmniScenes with ``octree``, 1700 Stanford 2D-3D-S with
     ``grid``). ``clearance`` (metres) is the minimum distance to any scan point.
     """
+    return translations_and_footprint(points, num, method, clearance, prior_centers, params)[0]
+
+
+def translations_and_footprint(points: np.ndarray, num: int = 800, method: Literal["octree", "grid"] = "octree",
+                               clearance: float = 0.25, prior_centers: np.ndarray | None = None,
+                               params: TranslationParams = TranslationParams()) -> tuple[np.ndarray, Footprint]:
+    """:func:`candidate_translations` and the scan's :class:`ldlmap.map.contents.Footprint`: the xy
+    columns of the free-space grid, inside the scan's outline, without points :data:`HEAD_M` above a
+    floor (no clearance: an open 0.9 m door is a column or more of a floor's 0.21-0.31 m voxels)."""
     P = np.asarray(points)
     if P.ndim != 2 or P.shape[1] != 3 or len(P) == 0:
         raise InputError(f"point cloud must be a non-empty (N, 3) array, got shape {P.shape}")
@@ -228,7 +256,7 @@ def candidate_translations(points: np.ndarray, num: int = 800, method: Literal["
         raise InputError(f"number of translations must be >= 1, got {num}")
     if method not in ("octree", "grid"):
         raise InputError(f"unknown translation method {method!r}: use 'octree' or 'grid'")
-    free, lo, h = _free_space(P, clearance, params)
+    free, lo, h, passable = _free_space(P, clearance, params)
     if not free.any():
         C = np.zeros((0, 3))
     elif method == "grid":
@@ -245,7 +273,7 @@ def candidate_translations(points: np.ndarray, num: int = 800, method: Literal["
         band = params.band_above_floor
         within = f" within {band[0]:g}-{band[1]:g} m above the floor" if band is not None else ""
         raise InputError(f"no free space found for candidate translations{within} (clearance {clearance} m)")
-    return C
+    return C, Footprint(passable, np.asarray(lo[:2], dtype=np.float64), float(h))
 
 
 SPARSE_SPACING_M = 0.45  # median spacing of a scan's candidates above which the build warns: the building's
@@ -393,7 +421,7 @@ def spaced_translations(lines: np.ndarray, spacing: float = 0.3, walkable: Walka
             xy = np.concatenate([xy, np.stack([_region_interior_point(r) for r in missing])])
     else:
         P = points_along_lines(L)
-        free, lo3, h = _free_space(P, clearance, params)
+        free, lo3, h, _ = _free_space(P, clearance, params)
         foot = free.any(axis=2) if free.any() else _free_space(P, 0.0, params)[0].any(axis=2)
         if zr is None:
             zs = lo3[2] + (np.nonzero(free.any(axis=(0, 1)))[0] + 0.5) * h if free.any() else P[:, 2]

@@ -104,6 +104,8 @@ def validate_map(m: LdlMap) -> None:
     if m.input_to_map is not None:
         _check_array("input_to_map", m.input_to_map, (4, 4))
         decompose(m.input_to_map)
+    if m.footprint is not None:
+        _validate_footprint(m.footprint)
     if m.cloud_points is not None:
         _check_array("cloud_points", m.cloud_points, (None, 3))
         if m.cloud_colors is not None:
@@ -111,6 +113,15 @@ def validate_map(m: LdlMap) -> None:
     _validate_fields(m)
     if m.features is not None:
         _validate_features(m.features, len(m.translations))
+
+
+def _validate_footprint(fp) -> None:
+    """A scan's footprint (:class:`ldlmap.map.contents.Footprint`): a 2D mask, an origin within the map's
+    coordinates and a cell of positive size."""
+    _check_array("footprint.mask", fp.mask, (None, None), "b")
+    _check_array("footprint.origin", fp.origin, (2,))
+    _check_coordinates("footprint.origin", fp.origin)
+    check_range("footprint.cell", float(fp.cell), 1e-6, MAX_MAP_COORDINATE)
 
 
 def _validate_fields(m: LdlMap) -> None:
