@@ -58,8 +58,8 @@ class WalkParams:
     near_cone_deg: float = 10.0  # ... and this cone, then refined
     max_hypotheses: int = MAX_HYPOTHESES
     walls: bool = True  # no step through a wall: the maps' free space (ldlloc.walk.motion.FreeSpace) ...
-    scan_walls: bool = False  # ... a scan map's stored footprint too (off: on a held-out building it made the walk
-    # surer of wrong paths, 2 of 20 confident frames wrong against 0 of 15: docs/benchmarks.md#walks-synthetic-building)
+    scan_walls: bool = False  # ... a scan map's stored footprint too (off: it made the walk sure of wrong paths on a
+    # held-out building; docs/benchmarks.md#walks-synthetic-building)
     relative: bool = True  # the motion between consecutive images where one needs more (:func:`relate`) ...
     relative_fit: RelativeParams = field(default_factory=RelativeParams)  # ... fitted so (ldlloc.walk.relative)
     max_tilt_level_deg: float = 45.0  # a frame's own rotation levels its bearings when it tilts less than this
