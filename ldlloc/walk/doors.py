@@ -136,9 +136,8 @@ def lived_in(footprint: Footprint, translations: np.ndarray) -> Footprint:
     """``footprint`` less its free regions (4-connected cells) that hold none of the map's candidate
     ``translations`` (N, >= 2): the hollow insides of furniture and of walls, where nobody stands."""
     label, _ = ndimage.label(footprint.mask)
-    T = np.asarray(translations, dtype=np.float64).reshape(len(translations), -1)[:, :2]
-    ij = np.floor((T - footprint.origin) / footprint.cell).astype(np.int64)
-    ij = ij[np.all((ij >= 0) & (ij < np.array(footprint.mask.shape)), axis=1)]
+    ij, inside = footprint.cells(np.asarray(translations, dtype=np.float64).reshape(len(translations), -1))
+    ij = ij[inside]
     keep = np.zeros(label.max() + 1, dtype=bool)
     keep[label[ij[:, 0], ij[:, 1]]] = True
     keep[0] = False

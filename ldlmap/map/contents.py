@@ -43,11 +43,15 @@ class Footprint:
     origin: np.ndarray  # (2,) world xy of cell (0, 0)'s lower corner
     cell: float
 
-    def free_at(self, xy: np.ndarray) -> np.ndarray:
-        """Whether each point ``xy`` (..., >= 2) stands in a free cell (False outside the grid)."""
+    def cells(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The cell (..., 2) of each point ``xy`` (..., >= 2), (0, 0) outside the grid, and whether it is inside."""
         ij = np.floor((np.asarray(xy, dtype=np.float64)[..., :2] - self.origin) / self.cell).astype(np.int64)
         inside = np.all((ij >= 0) & (ij < np.array(self.mask.shape)), axis=-1)
-        ij = np.where(inside[..., None], ij, 0)
+        return np.where(inside[..., None], ij, 0), inside
+
+    def free_at(self, xy: np.ndarray) -> np.ndarray:
+        """Whether each point ``xy`` (..., >= 2) stands in a free cell (False outside the grid)."""
+        ij, inside = self.cells(xy)
         return inside & self.mask[ij[..., 0], ij[..., 1]]
 
 
