@@ -20,8 +20,9 @@ cached under ``bench/.cache/walk_building/data_s<seed>_w<width>``; ``ldlmap prep
 folder of floor maps (``ldlloc run --root DATA --split walk_tour --walk --scene-unknown``'s library
 path). ``--first-pass``: the walk's first pass (each frame's own localization, the searches near
 confident frames) saved once under ``bench/.cache/walk_building/first_s<seed>*.pkl`` and the walk
-decided from it (:func:`decided`: the same path and refinement, without localizing every frame
-again): a change of the motion model or the decision measured in minutes, not half an hour, with
+decided from it (:func:`decided`: the same searches near confident frames, motions between images,
+path and refinement as the walk, without localizing every frame again; the figures of a full run,
+checked on seeds 4040 and 4041): a change of the motion model or the decision measured in minutes, not half an hour, with
 where the true pose is among the frames' hypotheses (:func:`redecide`). ``--lattice M``: the walk's
 lattice near confident frames (:mod:`ldlloc.walk.lattice`) at this spacing, 0: off (its own first pass,
 ``first_s<seed>_lattice<M>.pkl``; the frames' own localizations are shared). Scored per frame against
@@ -395,27 +396,29 @@ def redecide(saved: dict, queries: list, walk=None, data: Path | None = None) ->
 
 
 def decided(queries: list, maps_path: Path, cache: Path, walk=None) -> list[dict]:
-    """The walk decided from the saved first pass (:func:`first_pass`, its frames' own localizations
-    read back) as :func:`ldlloc.walk.localize.decide` decides it (the path, a chosen search pose
-    searched and refined near itself), one row per frame as :func:`frame_rows` gives them."""
+    """The walk decided from its frames' saved own localizations (:func:`first_pass`'s parts, read
+    back) as :func:`ldlloc.walk.localize.localize_walk` decides it: the searches near confident frames
+    and the motion between consecutive images (:func:`ldlloc.walk.localize.augment`, run again: the
+    saved first pass does not keep the motions the path's steps are weighed by), then the path and a
+    chosen search pose searched and refined near itself (:func:`ldlloc.walk.localize.decide`); one row
+    per frame as :func:`frame_rows` gives them."""
     import pickle
 
     from ldlmap.core.geometry import rotation_error_deg, translation_error
     from ldlloc.batch.which_map import MapSet
     from ldlloc.pipeline import LocalizeParams
-    from ldlloc.walk.hypotheses import Hypotheses
-    from ldlloc.walk.localize import WalkParams, decide
+    from ldlloc.walk.localize import WalkParams, augment, decide
 
     walk = walk or WalkParams()
     saved = first_pass(queries, maps_path, cache, walk=walk)
     maps = MapSet.load(maps_path, LocalizeParams(), "cpu", recursive=False)
     assert [str(e.path) for e in maps.entries] == saved["maps"], "the maps changed since the first pass"
     outs = []
-    for k, (fr, s) in enumerate(zip(walk_frames(queries, LocalizeParams()), saved["frames"])):
+    for k, fr in enumerate(walk_frames(queries, LocalizeParams())):
         o = pickle.loads(part_path(cache, k).read_bytes())
         o.frame, o.entry = fr, None if o.map is None else maps.entries[o.map]
-        o.hypotheses = None if s["hyp"] is None else Hypotheses(**s["hyp"])
         outs.append(o)
+    augment(outs, maps, walk)
     decide(outs, maps, walk)
     gt, rows = {q.name: q for q in queries}, []
     for o in outs:
