@@ -305,24 +305,39 @@ def first_pass(queries: list, maps_path: Path, cache: Path, chunk: tuple[int, in
     """The walk's first pass (each frame's own localization and the searches near confident frames:
     what :func:`ldlloc.walk.localize.localize_walk` does before it chooses the path) against the map
     or folder of maps ``maps_path``, saved once to ``cache`` (pickle): :func:`redecide` chooses the
-    path again from it in seconds. Each frame's own localization is kept beside it as it is done
-    (``<cache stem>_<frame>.pkl``): ``chunk`` (first, end) localizes only those frames (processes
-    side by side), and a call without it then reads them and runs the searches near confident frames
-    (``walk``: :class:`ldlloc.walk.localize.WalkParams`, None: the defaults)."""
+    path again from it in seconds. The frames' own localizations come from :func:`own_pass`
+    (``chunk``: only those frames, returning {}); the searches near confident frames use ``walk``
+    (:class:`ldlloc.walk.localize.WalkParams`, None: the defaults)."""
+    import pickle
+
+    from ldlloc.walk.localize import WalkParams, augment
+
+    if cache.exists():
+        return pickle.loads(cache.read_bytes())
+    walk = walk or WalkParams()
+    outs, maps = own_pass(queries, maps_path, cache, chunk, walk)
+    if chunk is not None:
+        return {}
+    augment(outs, maps, walk)
+    return save_pass(outs, maps, cache)
+
+
+def own_pass(queries: list, maps_path: Path, cache: Path, chunk: tuple[int, int] | None, walk) -> tuple[list, object]:
+    """Each frame's own localization against ``maps_path`` (the walk's outcomes, in order, and the
+    :class:`ldlloc.batch.which_map.MapSet`), kept beside ``cache`` as it is done (``<cache
+    stem>_<frame>.pkl``) and read back from there: ``chunk`` (first, end) localizes only those frames
+    (processes side by side)."""
     import pickle
 
     from ldlloc.batch.which_map import MapSet
     from ldlloc.pipeline import LocalizeParams
-    from ldlloc.walk.localize import FrameOutcome, WalkFrame, WalkParams, augment, localize_frame
+    from ldlloc.walk.localize import FrameOutcome, WalkFrame, localize_frame
 
-    if cache.exists():
-        return pickle.loads(cache.read_bytes())
-    params, walk = LocalizeParams(), walk or WalkParams()
+    params = LocalizeParams()
     maps = MapSet.load(maps_path, params, "cpu", recursive=False)
     index = {id(e): i for i, e in enumerate(maps.entries)}
     outs, ref, trackers = [], None, {}
-    frames = walk_frames(queries, params)
-    for k, fr in enumerate(frames):
+    for k, fr in enumerate(walk_frames(queries, params)):
         part = part_path(cache, k)  # each frame's own localization, kept (runs in parallel)
         if part.exists():
             o = pickle.loads(part.read_bytes())
@@ -342,9 +357,14 @@ def first_pass(queries: list, maps_path: Path, cache: Path, chunk: tuple[int, in
             o.entry = maps.entries[o.map]
         outs.append(o)
         console().print(f"first pass {k + 1}/{len(queries)}: {o.single_verdict}")
-    if chunk is not None:
-        return {}
-    augment(outs, maps, walk)
+    return outs, maps
+
+
+def save_pass(outs: list, maps, cache: Path) -> dict:
+    """The first pass of ``outs`` (after the searches near confident frames) written to ``cache``, as
+    :func:`redecide` reads it."""
+    import pickle
+
     saved = [{"name": o.frame.name, "error": o.error, "verdict": o.single_verdict, "confidence": o.single_confidence,
               "pose": o.single_pose, "competitors": o.competitors, "tracked": o.tracked, "own_count": o.own_count,
               "map": o.map, "refined": bool(o.loc and o.loc.refined),
@@ -396,8 +416,8 @@ def redecide(saved: dict, queries: list, walk=None, data: Path | None = None) ->
 
 
 def decided(queries: list, maps_path: Path, cache: Path, walk=None) -> list[dict]:
-    """The walk decided from its frames' saved own localizations (:func:`first_pass`'s parts, read
-    back) as :func:`ldlloc.walk.localize.localize_walk` decides it: the searches near confident frames
+    """The walk decided from its frames' saved own localizations (:func:`own_pass`, read back or made
+    and saved) as :func:`ldlloc.walk.localize.localize_walk` decides it: the searches near confident frames
     and the motion between consecutive images (:func:`ldlloc.walk.localize.augment`, run again: the
     saved first pass does not keep the motions the path's steps are weighed by), then the path and a
     chosen search pose searched and refined near itself (:func:`ldlloc.walk.localize.decide`); one row
@@ -405,20 +425,16 @@ def decided(queries: list, maps_path: Path, cache: Path, walk=None) -> list[dict
     import pickle
 
     from ldlmap.core.geometry import rotation_error_deg, translation_error
-    from ldlloc.batch.which_map import MapSet
-    from ldlloc.pipeline import LocalizeParams
     from ldlloc.walk.localize import WalkParams, augment, decide
 
     walk = walk or WalkParams()
-    saved = first_pass(queries, maps_path, cache, walk=walk)
-    maps = MapSet.load(maps_path, LocalizeParams(), "cpu", recursive=False)
-    assert [str(e.path) for e in maps.entries] == saved["maps"], "the maps changed since the first pass"
-    outs = []
-    for k, fr in enumerate(walk_frames(queries, LocalizeParams())):
-        o = pickle.loads(part_path(cache, k).read_bytes())
-        o.frame, o.entry = fr, None if o.map is None else maps.entries[o.map]
-        outs.append(o)
+    outs, maps = own_pass(queries, maps_path, cache, None, walk)
+    if cache.exists():
+        saved = pickle.loads(cache.read_bytes())
+        assert [str(e.path) for e in maps.entries] == saved["maps"], "the maps changed since the first pass"
     augment(outs, maps, walk)
+    if not cache.exists():  # the first pass, saved for redecide
+        save_pass(outs, maps, cache)
     decide(outs, maps, walk)
     gt, rows = {q.name: q for q in queries}, []
     for o in outs:

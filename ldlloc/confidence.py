@@ -125,10 +125,16 @@ def effective_signals(signals: dict[str, float]) -> dict[str, float]:
     out = dict(signals)
     if "map_margin" in signals:
         out["margin"] = min(float(signals.get("margin", 0.0)), float(signals["map_margin"]))
-    if (max(float(signals.get("pnp_rival", 0.0)), float(signals.get("map_rival", 0.0))) >= RIVAL_SHARE
-            or float(signals.get("map_twin", 0.0)) > 0):
+    if features_rivalled(signals):
         out["features"] = 0.0
     return out
+
+
+def features_rivalled(signals: dict[str, float]) -> bool:
+    """Whether the features see the pose's place elsewhere too: a PnP rival of :data:`RIVAL_SHARE` or
+    more (``pnp_rival``, ``map_rival``) or another map's verified twin (``map_twin``)."""
+    return (max(float(signals.get("pnp_rival", 0.0)), float(signals.get("map_rival", 0.0))) >= RIVAL_SHARE
+            or float(signals.get("map_twin", 0.0)) > 0)
 
 
 def rotation_kind(R_final: np.ndarray, R_other: np.ndarray) -> str:
@@ -348,9 +354,8 @@ def judge(signals: dict[str, float], competitors: list, model: ConfidenceModel =
     conf = model.confidence(signals)
     if float(signals.get("physical", 1.0)) < 0.5:
         return 0.0, "failed"
-    rival = (max(float(signals.get("pnp_rival", 0.0)), float(signals.get("map_rival", 0.0))) >= RIVAL_SHARE
-             or float(signals.get("map_twin", 0.0)) > 0)
-    verdict = verdict_for(conf, competitors, model, rival=rival, tie=float(signals.get("tie", 0.0)) > 0)
+    verdict = verdict_for(conf, competitors, model, rival=features_rivalled(signals),
+                          tie=float(signals.get("tie", 0.0)) > 0)
     if verdict == "confident" and float(signals.get("copies", 0.0)) > 0 and not features_decide(signals):
         verdict = "ambiguous"  # the lines repeat there and nothing else tells: right up to which copy at best
     return conf, verdict

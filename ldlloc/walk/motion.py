@@ -10,9 +10,9 @@ rotation costs its angle over it, capped the same way. Costs are negative log-li
 (nats), added to the frames' emission costs (:mod:`ldlloc.walk.hypotheses`).
 
 No step through a wall (:class:`FreeSpace`): where the maps know where a camera can stand (a scan's
-stored footprint, when the walk reads it (``WalkParams.scan_walls``, off by default): the columns of its free
-space within the camera band; a lattice of candidate
-translations: a layout's rooms and doorways), a step whose straight segment leaves that space (a
+stored footprint, when the walk reads it (``WalkParams.scan_walls``, off by default): the columns of
+its free space within the camera band; a lattice of candidate translations: a layout's rooms and
+doorways), a step whose straight segment leaves that space (a
 wall between two rooms, the outside) costs a jump more than its length does (a tour's walker went
 round by a door: a detour); between frames close in time (a video's, ``close_s``) it is all but
 forbidden (``blocked_cost``): nobody walks through a wall in a fifth of a second. A scan's octree
@@ -171,14 +171,14 @@ class FreeSpace:
         return out
 
     @classmethod
-    def of_maps(cls, maps: list, footprints: bool = True) -> "FreeSpace | None":
+    def of_maps(cls, maps: list, read_footprints: bool = True) -> "FreeSpace | None":
         """The free space of these maps (:class:`ldlmap.map.contents.LdlMap`): walls from a map's stored
         footprint (a scan's, where its candidates stand, its closed doors opened: :mod:`ldlloc.walk.doors`), else where its candidates are a lattice (:func:`lattice_spacing`), unknown on
-        the other maps (``footprints`` False: a footprint is not read); stairs from their lines; None when
+        the other maps (``read_footprints`` False: a footprint is not read); stairs from their lines; None when
         neither walls nor stairs are known."""
         T = [np.asarray(m.translations, dtype=np.float64).reshape(-1, 3) for m in maps]
         spacings = [lattice_spacing(m) for m in maps]
-        footprints = [None if not footprints or getattr(m, "footprint", None) is None else
+        footprints = [None if not read_footprints or getattr(m, "footprint", None) is None else
                       with_doors(lived_in(m.footprint, t), getattr(m, "lines_raw", m.lines), map_floors(m))
                       for m, t in zip(maps, T)]
         walls = any(f is not None or (s is not None and len(t) >= 2) for t, s, f in zip(T, spacings, footprints))
