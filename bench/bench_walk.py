@@ -349,15 +349,33 @@ def own_pass(queries: list, maps_path: Path, cache: Path, chunk: tuple[int, int]
             o.own_count = 0 if o.hypotheses is None else len(o.hypotheses)
             keep = FrameOutcome(WalkFrame(fr.name, None), loc=o.loc, hypotheses=o.hypotheses, error=o.error,
                                 single_confidence=o.single_confidence, single_verdict=o.single_verdict,
-                                single_pose=o.single_pose, competitors=o.competitors)
+                                single_pose=o.single_pose, competitors=o.competitors, copies=o.copies)
             keep.own_count, keep.map = o.own_count, None if o.entry is None else index[id(o.entry)]
             part.write_bytes(pickle.dumps(keep))
             o.map = keep.map
         if o.map is not None:
             o.entry = maps.entries[o.map]
+        if "copies" not in vars(o):  # saved before the walk kept the copies of a frame's room: found again
+            o.copies = copies_again(o, maps, index)
         outs.append(o)
         console().print(f"first pass {k + 1}/{len(queries)}: {o.single_verdict}")
     return outs, maps
+
+
+def copies_again(o, maps, index: dict[int, int]):
+    """The copies of frame ``o``'s room (:func:`ldlloc.walk.copies.room_copies`) from its image's lines
+    detected again (a first pass saved before the walk kept them), at its own pose's saved loss."""
+    from ldlloc.walk.copies import room_copies
+
+    if o.loc is None or o.entry is None or o.hypotheses is None:
+        return None
+    if float((o.loc.confidence_signals or {}).get("copies", 0.0)) <= 0:
+        return None
+    loz, h = o.entry.localizer, o.hypotheses
+    tilt = loz.params.max_tilt_deg if o.frame.max_tilt_deg is None else o.frame.max_tilt_deg
+    arcs = loz.rotation_stage(loz.detect_lines(o.frame.load()), tilt).arcs
+    own = h.final & (h.map_index == o.map)
+    return room_copies(o.loc, o.entry, maps.entries, index, arcs, float(np.min(h.loss[own] if own.any() else h.loss)))
 
 
 def save_pass(outs: list, maps, cache: Path) -> dict:

@@ -513,6 +513,14 @@ def walk_confidence(margin: float, model: ConfidenceModel = MODEL) -> float:
     return float(1.0 / (1.0 + np.exp(-np.clip(z, -50, 50))))
 
 
+def sound_where_moved(loc, model: ConfidenceModel = MODEL) -> bool:
+    """Whether a frame's image, searched and refined again at the pose a walk moved it to (``loc``), judges
+    that pose as sure as a confident one, whatever copies of its room it names (the walk chooses among
+    those): its confidence reaches the model's threshold. The walk's motion places a frame within a step
+    or two; only its image places it within a tenth of a metre."""
+    return loc is not None and loc.confidence is not None and float(loc.confidence) >= model.confident_at
+
+
 def walk_judgement(single_confidence: float | None, single_verdict: str | None, margin: float, changed: bool,
                    pose_ok: bool, model: ConfidenceModel = MODEL) -> tuple[float, str, bool]:
     """A walk frame's ``(confidence, verdict, walk_decided)`` from its single-image judgement and the
@@ -520,7 +528,7 @@ def walk_judgement(single_confidence: float | None, single_verdict: str | None, 
     stays as it is. Otherwise the walk decides (``walk_decided``) when it moved the pose
     (``changed``) or when it singles the image's pose out (its ``margin``): ``confident`` when the
     walk's confidence (:func:`walk_confidence`) reaches the threshold and the pose was refined
-    (``pose_ok``), else ``ambiguous`` when there is a pose, else ``failed``. A frame the walk leaves
+    (``pose_ok``; a moved pose also :func:`sound_where_moved`), else ``ambiguous`` when there is a pose, else ``failed``. A frame the walk leaves
     undecided keeps its image's judgement."""
     single = 0.0 if single_confidence is None else float(single_confidence)
     if not changed and single_verdict == "confident":

@@ -58,6 +58,37 @@ def test_path_keeps_to_the_copy_the_walk_came_into():
     assert alone.choice == [1, 1, 1] and margin(alone.marginals[0], 1, np.array([True, False])) < 1.0
 
 
+def _outcome(h: Hypotheses, verdict: str = "ambiguous", copies: Hypotheses | None = None):
+    from ldlloc.walk.localize import FrameOutcome, WalkFrame
+
+    return FrameOutcome(WalkFrame("frame", None), hypotheses=h, single_pose=(h.rot_cam_from_world[0], h.center[0]),
+                        single_verdict=verdict, copies=copies)
+
+
+def test_a_copy_its_image_cannot_tell_keeps_the_walks_margin_small():
+    """Two frames in a room after a corridor: each image's own pose refined in the room (x = 3.5), the
+    identical room next door (3.8 m over) only as a coarse pose 0.6 m off that explains fewer lines.
+    The path keeps the room, but only the refinement made it surer: with every copy the images found
+    at their own pose's cost (``copies``), the margin is what the walk itself knows (a step 0.7 m
+    longer than a free one), under a walk's margin; a copy 40 m away, reached by a jump only, leaves
+    the walk sure."""
+    from ldlloc.walk.localize import WalkParams, walk_margins, walk_path
+
+    params = WalkParams()
+    corridor = [_outcome(_hyps([[x, 0, 1.5]], [-100]), "confident") for x in (0.0, 2.0)]
+    rooms = [_hyps([[3.5, 2 + d, 1.5], [7.9, 2 + d, 1.5]], [-100, -80]) for d in (0.0, 1.0)]
+    plain = corridor + [_outcome(h) for h in rooms]
+    path = walk_path(plain, params)
+    assert path.choice == [0, 0, 0, 0]
+    assert all(m > WALK_MARGIN for m in walk_margins(plain, path, params)[2:])
+    beside = corridor + [_outcome(h, copies=_hyps([[7.3, 2 + d, 1.5]], [-100])) for h, d in zip(rooms, (0.0, 1.0))]
+    assert walk_path(beside, params).choice == path.choice  # the poses stay as the path chose them
+    m = walk_margins(beside, path, params)
+    assert m[:2] == walk_margins(plain, path, params)[:2] and all(v < 1.0 for v in m[2:]), m
+    far = corridor + [_outcome(h, copies=_hyps([[40.0, 2 + d, 1.5]], [-100])) for h, d in zip(rooms, (0.0, 1.0))]
+    assert all(v > WALK_MARGIN for v in walk_margins(far, path, params)[2:])
+
+
 def test_a_jump_between_shots_does_not_break_the_path():
     # shots 1-3 m apart, then a 10 m jump (a room skipped), each frame sure of its pose; a wrong
     # candidate near the previous shot that explains far fewer lines does not win
@@ -75,6 +106,16 @@ def test_floor_changes_cost_more_than_a_jump():
     assert near == 0.0  # a tour's step
     video = transition_costs(h0, _hyps([[3.0, 0, 1.5]], [-1]), p, dt=0.2)[0, 0]
     assert video > 1.0  # 3 m in 0.2 s is no step
+
+
+def test_a_pose_the_walk_moved_is_sound_only_where_its_image_agrees():
+    from types import SimpleNamespace
+
+    from ldlloc.confidence import sound_where_moved
+
+    assert sound_where_moved(SimpleNamespace(confidence=0.997))  # its image, refined there, would be confident
+    assert not sound_where_moved(SimpleNamespace(confidence=0.484))  # a corridor frame the walk moved 1.3 m off
+    assert not sound_where_moved(SimpleNamespace(confidence=None)) and not sound_where_moved(None)
 
 
 def test_walk_judgement():

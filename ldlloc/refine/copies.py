@@ -273,10 +273,10 @@ def room_twins(arcs: np.ndarray, R: np.ndarray, center: np.ndarray, ldl_map,
 
 
 def find_copies(arcs: np.ndarray, R: np.ndarray, center: np.ndarray, own_map, maps: list[tuple[str | None, object]],
-                own_support: float, tol_deg: float = 1.0) -> list[dict]:
+                own_support: float, tol_deg: float = 1.0, limit: int | None = MAX_COPIES) -> list[dict]:
     """The copies of the pose's place (module docstring) in ``maps`` (``(name, map)``; name None: the
     pose's own map ``own_map``): ``{"map", "R", "t", "support", "cover", "turn_deg"}``, best support
-    first, at most :data:`MAX_COPIES`. ``own_support``: the pose's map-line support."""
+    first, at most ``limit`` (None: all). ``own_support``: the pose's map-line support."""
     R, center = np.asarray(R, np.float64), np.asarray(center, np.float64)
     seen = make_index(seen_lines(arcs, R, center, own_map, tol_deg))
     if len(seen.lines) < MIN_SEEN_LINES:
@@ -302,4 +302,4 @@ def find_copies(arcs: np.ndarray, R: np.ndarray, center: np.ndarray, own_map, ma
                 found.append({"map": name, "R": Rc, "t": tc, "support": s, "explained": share, "cover": c,
                               "turn_deg": int(round(np.degrees(np.arctan2(Q[1, 0], Q[0, 0])))) % 360})
     found.sort(key=lambda f: -f["support"])
-    return found[:MAX_COPIES]
+    return found if limit is None else found[:limit]

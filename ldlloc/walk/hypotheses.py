@@ -69,10 +69,11 @@ def from_choice(choice, map_index: dict[int, int], limit: int = MAX_HYPOTHESES) 
     return bounded(h, limit)
 
 
-def joined(h: Hypotheses, map_index: int, rots: np.ndarray, centers: np.ndarray, losses: np.ndarray) -> Hypotheses:
-    """``h`` with more (coarse) poses of one map appended."""
+def joined(h: Hypotheses, map_index: int | np.ndarray, rots: np.ndarray, centers: np.ndarray,
+           losses: np.ndarray) -> Hypotheses:
+    """``h`` with more (coarse) poses appended: of one map (``map_index`` an int) or each of its own (an array)."""
     n = len(losses)
-    return Hypotheses(np.r_[h.map_index, np.full(n, map_index, dtype=np.int64)],
+    return Hypotheses(np.r_[h.map_index, np.broadcast_to(np.asarray(map_index, dtype=np.int64), (n,))],
                       np.concatenate([h.rot_cam_from_world, np.asarray(rots, float).reshape(-1, 3, 3)]),
                       np.concatenate([h.center, np.asarray(centers, float).reshape(-1, 3)]),
                       np.r_[h.loss, np.asarray(losses, float)], np.r_[h.final, np.zeros(n, dtype=bool)])

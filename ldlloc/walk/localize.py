@@ -26,9 +26,10 @@ import numpy as np
 
 from ldlmap.core.errors import InputError, LdlError
 from ldlloc.batch.which_map import TOP_MAPS, MapChoice, MapEntry, MapSet, final_pose_loss, localize_on_maps
-from ldlloc.confidence import MODEL, distinct, walk_judgement
+from ldlloc.confidence import MODEL, distinct, sound_where_moved, walk_judgement
 from ldlloc.pipeline import Localization, Localizer, SearchNear
 from ldlloc.search.pose_search import score_on_map
+from ldlloc.walk.copies import even_copies, room_copies
 from ldlloc.walk.hypotheses import MAX_HYPOTHESES, Hypotheses, from_choice, joined
 from ldlloc.walk.lattice import LatticeParams, lattice_poses
 from ldlloc.walk.motion import FreeSpace, MotionParams, transition_costs
@@ -106,6 +107,9 @@ class FrameOutcome:
     relative: tuple | None = None  # (the previous WalkFrame, its RelativePose to this one, the step's length in m or
     # None) where fitted (:func:`relate`)
     hypotheses: Hypotheses | None = field(default=None, repr=False)
+    copies: Hypotheses | None = field(default=None, repr=False)  # every copy of its room its image found
+    # (:func:`ldlloc.walk.copies.room_copies`), for the walk's margins
+    even: tuple | None = field(default=None, repr=False)  # (hypotheses, copies, the two joined): ldlloc.walk.copies
 
 
 def localize_walk(frames: Iterable, maps: MapSet, params: WalkParams = WalkParams(),
@@ -167,6 +171,8 @@ def localize_frame(item, prev: FrameOutcome | None, maps: MapSet, params: WalkPa
         out.competitors = list(loc.competitors)
         if got is None and loc.verdict != "failed":
             ref_loss = own_loss(choice)
+        out.copies = room_copies(loc, out.entry, maps.entries, index, loc.arcs, own_loss(choice)) \
+            if float((loc.confidence_signals or {}).get("copies", 0.0)) > 0 else None
         if got is None and pred is not None:
             loz = pred.entry.localizer
             loss = score_on_map(loc.arcs, pred.rot_cam_from_world[None], pred.center[None], loz.map,
@@ -388,10 +394,11 @@ def decide(outcomes: list[FrameOutcome], maps: MapSet, params: WalkParams) -> No
     live = [o for o in outcomes if o.hypotheses is not None and len(o.hypotheses)]
     if not live:
         return
-    path = walk_path(live, params, free=free_space(maps, params))
-    for f, o in enumerate(live):
-        settle(o, path.choice[f], path.marginals[f], maps, params)
-        o.hypotheses = None  # not needed any more
+    free = free_space(maps, params)
+    path = walk_path(live, params, free=free)
+    for o, j, m in zip(live, path.choice, walk_margins(live, path, params, free)):
+        settle(o, j, m, maps, params)
+        o.hypotheses, o.copies, o.even = None, None, None  # not needed any more
 
 
 def free_space(maps: MapSet, params: WalkParams) -> FreeSpace | None:
@@ -426,16 +433,35 @@ def walk_path(live: list[FrameOutcome], params: WalkParams, costs: dict | None =
     return best_path([em(o) for o in live], trans)
 
 
-def settle(o: FrameOutcome, j: int, marginals: np.ndarray, maps: MapSet, params: WalkParams) -> None:
-    """Give frame ``o`` the pose its path chose (hypothesis ``j``; ``marginals``: the costs of the best
-    paths through each of its poses) and its judgement (:func:`ldlloc.confidence.walk_judgement`)."""
+def walk_margins(live: list[FrameOutcome], path, params: WalkParams, free: FreeSpace | None = None,
+                 costs: dict | None = None) -> list[float]:
+    """Each frame's margin on ``path`` (the :func:`walk_path` over ``live``): how much more the best path
+    through another of its poses costs (:func:`ldlloc.walk.viterbi.margin`); where images found copies of
+    their rooms, the smaller of that and the same margin with every copy at its image's own pose's cost
+    (:func:`ldlloc.walk.copies.even_copies`: the walk is sure of a copy only for where it went).
+    ``costs``: the cost cache of that second path (:func:`walk_path`)."""
+    def of(marginals: np.ndarray, h: Hypotheses, j: int) -> float:
+        return margin(marginals, j, distinct(h.rot_cam_from_world[j], h.center[j], h.rot_cam_from_world, h.center))
+
+    out = [of(path.marginals[f], o.hypotheses, j) for f, (o, j) in enumerate(zip(live, path.choice))]
+    even = [even_copies(o) for o in live]
+    if all(e is o for e, o in zip(even, live)):
+        return out
+    other = walk_path(even, params, costs, free)
+    return [min(m, of(other.marginals[f], e.hypotheses, j)) for f, (m, e, j) in enumerate(zip(out, even, path.choice))]
+
+
+def settle(o: FrameOutcome, j: int, walk_margin: float, maps: MapSet, params: WalkParams) -> None:
+    """Give frame ``o`` the pose its path chose (hypothesis ``j``; ``walk_margin``: how much more the best
+    path through another of its poses costs, :func:`walk_margins`) and its judgement
+    (:func:`ldlloc.confidence.walk_judgement`)."""
     h = o.hypotheses
     R, t = h.rot_cam_from_world[j], h.center[j]
-    o.walk_margin = margin(marginals, j, distinct(R, t, h.rot_cam_from_world, h.center))
+    o.walk_margin = walk_margin
     changed = bool(distinct(R, t, o.single_pose[0][None], o.single_pose[1][None])[0])
     pose_ok = bool(o.loc.refined)
     if changed:
-        pose_ok = move_to(o, maps.entries[int(h.map_index[j])], R, t, params)
+        pose_ok = move_to(o, maps.entries[int(h.map_index[j])], R, t, params) and sound_where_moved(o.loc)
     conf, verdict, o.walk_decided = walk_judgement(o.single_confidence, o.single_verdict, o.walk_margin,
                                                    changed, pose_ok)
     o.loc.confidence, o.loc.verdict = conf, verdict

@@ -42,7 +42,7 @@ from ldlloc.batch.which_map import MapSet
 from ldlloc.record import QueryResult
 from ldlloc.walk.hypotheses import Hypotheses
 from ldlloc.walk.localize import (FrameOutcome, WalkFrame, WalkParams, augment_frame, free_space, is_anchor,
-                                  localize_frame, needs_more, relate, settle, walk_path)
+                                  localize_frame, needs_more, relate, settle, walk_margins, walk_path)
 from ldlloc.walk.track import TorchThreads, TrackBasis, is_lost
 
 LAG = 100  # frames: a frame is decided once this many after it are localized (a walk of lag + 1 frames or fewer:
@@ -115,6 +115,7 @@ class WalkStream:
         self.anchor, self.finals = r.anchor, dict(r.finals)
         self.slots: deque[Slot] = deque()
         self.costs: dict = {}
+        self.even_costs: dict = {}  # the same with every copy of a room at its image's own pose's cost (walk_margins)
         self.features: dict = {}  # the last frames' image features (ldlloc.walk.localize.relate)
         self.free = free_space(maps, params)  # no step through a wall
         self.threads = TorchThreads(pinned=True)  # torch on one thread for the whole walk (:meth:`close`)
@@ -184,18 +185,21 @@ class WalkStream:
         window = [s.out for s in self.slots if s.out.hypotheses is not None and len(s.out.hypotheses)]
         live = ([self.anchor] if self.anchor is not None else []) + window
         if self.anchor is not None:
-            self.costs[id(self.anchor.hypotheses)] = (self.anchor.hypotheses, np.zeros(1))
+            for c in (self.costs, self.even_costs):
+                c[id(self.anchor.hypotheses)] = (self.anchor.hypotheses, np.zeros(1))
         path = walk_path(live, self.params, self.costs, self.free)
+        margins = walk_margins(live, path, self.params, self.free, self.even_costs)
         for k, o in enumerate(live):
             if id(o) in mine:
-                settle(o, path.choice[k], path.marginals[k], self.maps, self.params)
+                settle(o, path.choice[k], margins[k], self.maps, self.params)
         for s in todo:
             if id(s.out) in mine:
                 s.final = fixed_frame(WalkFrame(s.out.frame.name, _no_image, s.out.frame.time),
                                       s.out.loc.rot_cam_from_world, s.out.loc.center, self.index[id(s.out.entry)])
-        held = {id(x.hypotheses) for x in live}
-        self.costs = {k: v for k, v in self.costs.items()
-                      if (k in held if isinstance(k, int) else k[0] in held and k[1] in held)}
+        held = {id(x.hypotheses) for x in live} | {id(x.even[2]) for x in live if x.even is not None}
+        self.costs, self.even_costs = ({k: v for k, v in c.items()
+                                        if (k in held if isinstance(k, int) else k[0] in held and k[1] in held)}
+                                       for c in (self.costs, self.even_costs))
         return todo
 
 

@@ -1,0 +1,62 @@
+"""Identical rooms in a walk: every copy of its room a frame's image found, weighed in the walk's margins.
+
+A frame in one of several identical rooms (a hotel's rooms, an office row, a building's floors) has
+its own pose refined in one copy, the one its refinement happened to land in among identical lines
+and textures, and the other copies only as coarse search poses or not at all: the walk's path may
+then choose a copy for what the refinement did, not for where the walk went. The walk's poses stay
+as its path chooses them, but its margins (what a frame's verdict rests on) are also measured with
+every copy the image found joined at the image's own pose's cost (:func:`even_copies`, used by
+:func:`ldlloc.walk.localize.walk_margins`): a frame is sure of a copy only where the walk's motion
+(the door it came in by, the walls, the floors) tells it, not its image.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from ldlloc.confidence import features_decide
+from ldlloc.refine.copies import find_copies
+from ldlloc.walk.hypotheses import Hypotheses, joined
+
+
+def room_copies(loc, entry, entries: list, index: dict[int, int], arcs: np.ndarray | None,
+                own_loss: float) -> Hypotheses | None:
+    """The poses of every copy of the room ``loc``'s pose stands in that its image's lines find on the
+    walk's maps (:func:`ldlloc.refine.copies.find_copies`, not limited to the few its record names):
+    ``entries`` the maps (``MapSet.entries``), ``entry`` its own map's, ``index`` ``id(MapEntry) -> index``,
+    ``arcs`` its image's lines; each at ``own_loss``, the loss of its own pose. None when the image named
+    no copy, or the features single the pose out among them (:func:`ldlloc.confidence.features_decide`),
+    or the pose is not refined."""
+    sig = (getattr(loc, "confidence_signals", None) or {}) if loc is not None else {}
+    if (loc is None or entry is None or arcs is None or not loc.refined or float(sig.get("copies", 0.0)) <= 0
+            or features_decide(sig)):
+        return None
+    loz = entry.localizer
+    maps = [(None, loz.map)] + [(e.scene, e.localizer.map) for e in entries if e is not entry]
+    found = find_copies(arcs, np.asarray(loc.rot_cam_from_world, float), np.asarray(loc.center, float), loz.map,
+                        maps, float(sig.get("support", 0.0)), loz.params.geometric.support_deg, limit=None)
+    if not found:
+        return None
+    by_scene = {e.scene: i for i, e in enumerate(entries)}
+    k = [index[id(entry)] if f["map"] is None else by_scene[f["map"]] for f in found]
+    n = len(found)
+    return Hypotheses(np.array(k, dtype=np.int64), np.stack([f["R"] for f in found]).astype(np.float64),
+                      np.stack([f["t"] for f in found]).astype(np.float64), np.full(n, float(own_loss)),
+                      np.zeros(n, dtype=bool))
+
+
+def even_copies(o):
+    """Frame ``o`` (a :class:`ldlloc.walk.localize.FrameOutcome`) with every copy of its room
+    (``o.copies``: :func:`room_copies`) among its hypotheses, after its own, each named as its image's
+    competitor (it costs what the image's own pose does: only the walk tells them apart); ``o`` itself
+    when it has none. The joined hypotheses are kept on ``o`` (``o.even``) while its own and its copies
+    stay the same (one object: the walk's cost caches key on it)."""
+    if o.copies is None or o.hypotheses is None:
+        return o
+    c = o.copies
+    if o.even is None or o.even[0] is not o.hypotheses or o.even[1] is not c:
+        o.even = (o.hypotheses, c, joined(o.hypotheses, c.map_index, c.rot_cam_from_world, c.center, c.loss))
+    named = [{"R": R, "t": t} for R, t in zip(c.rot_cam_from_world, c.center)]
+    return replace(o, hypotheses=o.even[2], competitors=list(o.competitors) + named)
