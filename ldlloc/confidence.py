@@ -528,8 +528,8 @@ def walk_judgement(single_confidence: float | None, single_verdict: str | None, 
     stays as it is. Otherwise the walk decides (``walk_decided``) when it moved the pose
     (``changed``) or when it singles the image's pose out (its ``margin``): ``confident`` when the
     walk's confidence (:func:`walk_confidence`) reaches the threshold and the pose was refined
-    (``pose_ok``; a moved pose also :func:`sound_where_moved`), else ``ambiguous`` when there is a pose, else ``failed``. A frame the walk leaves
-    undecided keeps its image's judgement."""
+    (``pose_ok``; a moved pose also :func:`sound_where_moved`), else ``ambiguous`` when there is a
+    pose, else ``failed``. A frame the walk leaves undecided keeps its image's judgement."""
     single = 0.0 if single_confidence is None else float(single_confidence)
     if not changed and single_verdict == "confident":
         return single, "confident", False

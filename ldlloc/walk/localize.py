@@ -7,7 +7,9 @@
    lost (not refined, or explaining too few of the lines the last global frame's pose explained).
    Its hypotheses (:mod:`ldlloc.walk.hypotheses`) are kept, not its image.
 2. The most likely path over the hypotheses (:func:`ldlloc.walk.viterbi.best_path` with the
-   motion model of :mod:`ldlloc.walk.motion`) chooses one pose per frame, with its margin.
+   motion model of :mod:`ldlloc.walk.motion`) chooses one pose per frame, with its margin (the
+   smaller of the path's and the path's with every copy of a frame's room its image found at its
+   own pose's cost: :mod:`ldlloc.walk.copies`).
 3. Where the path chose another pose than the image's own, the frame takes it: another map's
    refined pose as it is, a search pose after a search and refinement near it (the image read
    again). :func:`ldlloc.confidence.walk_judgement` gives each frame its confidence and verdict
