@@ -364,18 +364,13 @@ def own_pass(queries: list, maps_path: Path, cache: Path, chunk: tuple[int, int]
 
 def copies_again(o, maps, index: dict[int, int]):
     """The copies of frame ``o``'s room (:func:`ldlloc.walk.copies.room_copies`) from its image's lines
-    detected again (a first pass saved before the walk kept them), at its own pose's saved loss."""
-    from ldlloc.walk.copies import room_copies
+    detected again (a first pass saved before the walk kept them); none detected where it named none."""
+    from ldlloc.walk.copies import copies_undecided, room_copies
+    from ldlloc.walk.localize import frame_arcs
 
-    if o.loc is None or o.entry is None or o.hypotheses is None:
+    if o.entry is None or o.hypotheses is None or not copies_undecided(o.loc):
         return None
-    if float((o.loc.confidence_signals or {}).get("copies", 0.0)) <= 0:
-        return None
-    loz, h = o.entry.localizer, o.hypotheses
-    tilt = loz.params.max_tilt_deg if o.frame.max_tilt_deg is None else o.frame.max_tilt_deg
-    arcs = loz.rotation_stage(loz.detect_lines(o.frame.load()), tilt).arcs
-    own = h.final & (h.map_index == o.map)
-    return room_copies(o.loc, o.entry, maps.entries, index, arcs, float(np.min(h.loss[own] if own.any() else h.loss)))
+    return room_copies(o.loc, o.entry, maps.entries, index, frame_arcs(o.frame, o.entry.localizer), o.hypotheses)
 
 
 def save_pass(outs: list, maps, cache: Path) -> dict:

@@ -21,29 +21,37 @@ from ldlloc.refine.copies import find_copies
 from ldlloc.walk.hypotheses import Hypotheses, joined
 
 
+def copies_undecided(loc) -> bool:
+    """Whether the image of refined pose ``loc`` named copies of its room and its features do not single
+    the pose out among them (:func:`ldlloc.confidence.features_decide`): the walk must weigh the copies."""
+    sig = (getattr(loc, "confidence_signals", None) or {}) if loc is not None else {}
+    return loc is not None and bool(loc.refined) and float(sig.get("copies", 0.0)) > 0 and not features_decide(sig)
+
+
 def room_copies(loc, entry, entries: list, index: dict[int, int], arcs: np.ndarray | None,
-                own_loss: float) -> Hypotheses | None:
+                hypotheses: Hypotheses) -> Hypotheses | None:
     """The poses of every copy of the room ``loc``'s pose stands in that its image's lines find on the
     walk's maps (:func:`ldlloc.refine.copies.find_copies`, not limited to the few its record names):
     ``entries`` the maps (``MapSet.entries``), ``entry`` its own map's, ``index`` ``id(MapEntry) -> index``,
-    ``arcs`` its image's lines; each at ``own_loss``, the loss of its own pose. None when the image named
-    no copy, or the features single the pose out among them (:func:`ldlloc.confidence.features_decide`),
-    or the pose is not refined."""
-    sig = (getattr(loc, "confidence_signals", None) or {}) if loc is not None else {}
-    if (loc is None or entry is None or arcs is None or not loc.refined or float(sig.get("copies", 0.0)) <= 0
-            or features_decide(sig)):
+    ``arcs`` its image's lines; each at the loss of its own pose (the final pose on its map among the
+    frame's ``hypotheses``). None unless :func:`copies_undecided`."""
+    if entry is None or arcs is None or not copies_undecided(loc):
         return None
     loz = entry.localizer
     maps = [(None, loz.map)] + [(e.scene, e.localizer.map) for e in entries if e is not entry]
     found = find_copies(arcs, np.asarray(loc.rot_cam_from_world, float), np.asarray(loc.center, float), loz.map,
-                        maps, float(sig.get("support", 0.0)), loz.params.geometric.support_deg, limit=None)
+                        maps, float(loc.confidence_signals.get("support", 0.0)), loz.params.geometric.support_deg,
+                        limit=None)
     if not found:
         return None
+    h = hypotheses
+    own = h.final & (h.map_index == index[id(entry)])
+    loss = float(np.min(h.loss[own] if own.any() else h.loss))
     by_scene = {e.scene: i for i, e in enumerate(entries)}
     k = [index[id(entry)] if f["map"] is None else by_scene[f["map"]] for f in found]
     n = len(found)
     return Hypotheses(np.array(k, dtype=np.int64), np.stack([f["R"] for f in found]).astype(np.float64),
-                      np.stack([f["t"] for f in found]).astype(np.float64), np.full(n, float(own_loss)),
+                      np.stack([f["t"] for f in found]).astype(np.float64), np.full(n, loss),
                       np.zeros(n, dtype=bool))
 
 

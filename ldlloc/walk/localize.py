@@ -173,8 +173,7 @@ def localize_frame(item, prev: FrameOutcome | None, maps: MapSet, params: WalkPa
         out.competitors = list(loc.competitors)
         if got is None and loc.verdict != "failed":
             ref_loss = own_loss(choice)
-        out.copies = room_copies(loc, out.entry, maps.entries, index, loc.arcs, own_loss(choice)) \
-            if float((loc.confidence_signals or {}).get("copies", 0.0)) > 0 else None
+        out.copies = room_copies(loc, out.entry, maps.entries, index, loc.arcs, out.hypotheses)
         if got is None and pred is not None:
             loz = pred.entry.localizer
             loss = score_on_map(loc.arcs, pred.rot_cam_from_world[None], pred.center[None], loz.map,
@@ -337,13 +336,18 @@ def along(o: FrameOutcome, anchor: FrameOutcome, rel, maps: MapSet, index: dict[
     R, C = poses_along(rel, np.asarray(anchor.loc.rot_cam_from_world, float), np.asarray(anchor.loc.center, float),
                        length)
     try:
-        img = o.frame.load()
-        tilt = loz.params.max_tilt_deg if o.frame.max_tilt_deg is None else o.frame.max_tilt_deg
-        arcs = loz.rotation_stage(loz.detect_lines(img), tilt).arcs
+        arcs = frame_arcs(o.frame, loz)
     except LdlError:
         return
     loss = score_on_map(arcs, R, C, loz.map, loz.params.search, loz.device, loz.params.principal.group_tol)
     o.hypotheses = joined(o.hypotheses, index[id(entry)], R, C, loss)
+
+
+def frame_arcs(frame: WalkFrame, loz: Localizer) -> np.ndarray:
+    """The lines of ``frame``'s image (read again) as ``loz`` sees them: its arcs after the rotation stage,
+    within the frame's tilt bound (the localizer's when it has none)."""
+    tilt = loz.params.max_tilt_deg if frame.max_tilt_deg is None else frame.max_tilt_deg
+    return loz.rotation_stage(loz.detect_lines(frame.load()), tilt).arcs
 
 
 def level_of(o: FrameOutcome, params: WalkParams) -> np.ndarray | None:
