@@ -12,13 +12,17 @@ import pytest
 from typer.testing import CliRunner
 
 from ldlmap.cli import app
+from ldlmap.core.errors import InputError
 from ldlmap.core.polygon import points_in_polygon
 from ldlmap.synth.building import building_params, plan_building, walk_spaces
 from ldlmap.synth.capture import capture_settings
 from ldlmap.synth.generate import load_specs
 from ldlmap.synth.multiroom import MultiRoomParams, multiroom_specs
-from ldlmap.synth.walk import WALK_STEP_M, write_walks
+from ldlmap.synth.render import render_through
+from ldlmap.synth.scene import build_scene
+from ldlmap.synth.walk import WALK_STEP_M, check_walk_doors, write_walks
 from ldlmap.synth.walkplan import EYE_HEIGHT, STEP_RANGE, BuiltRooms, WalkRoom, plan_walk
+from ldlloc.walk.relative import RelativeParams, panorama_features, relative_pose
 from tests.conftest import DEMO_SEED
 from tests.test_cli_synth import L_ROOM
 
@@ -97,6 +101,37 @@ def test_building_tour_walks_through_doors_never_walls(building_tour):
 
 
 @pytest.mark.xdist_group("synth_walk")  # one worker plans ``building_tour``
+def test_building_tour_sees_the_next_room_through_the_door_it_takes(building_tour):
+    """With ``--walk-doors open`` the doors a tour walks through stand open: the frame before a door
+    sees into the room behind it, no ray is lost at the doorway (its reveal closes the wall's
+    thickness), and the motion between the two frames is fitted from their images
+    (:mod:`ldlloc.walk.relative`): through a closed door they share nothing."""
+    spaces, poses = building_tour
+    assert check_walk_doors("open", ("tour",), building=True) == "open" and check_walk_doors(None, (), True) == "closed"
+    k = next(k for k in range(1, len(poses)) if poses[k].jump is None and poses[k].room is not poses[k - 1].room)
+    a, b = poses[k - 1], poses[k]
+    space = next(s for s in spaces if any(r is a.room for r in s))
+    built = BuiltRooms()
+    pa, pb = (render_through(built.seen_from(p.room, space), p.R, p.t, 1024, supersample=1) for p in (a, b))
+    assert np.isfinite(pa.depth).all() and np.isfinite(pb.depth).all()
+    closed = built.get(a.room.spec)[1].render(a.R, a.t - np.asarray(a.room.offset), 1024, supersample=1)
+    assert np.mean(pa.depth > closed.depth + 0.05) > 0.01  # through the door, beyond the room's wall
+    rel = relative_pose(*(panorama_features(p.rgb) for p in (pa, pb)), RelativeParams(), a.R, b.R)
+    assert rel is not None and rel.inliers >= 60
+    step = (b.t - a.t) / np.linalg.norm(b.t - a.t)
+    assert np.degrees(np.arccos(np.clip(rel.in_world(a.R)[1] @ step, -1, 1))) < 1.0
+
+
+@pytest.mark.xdist_group("synth_walk")  # one worker plans ``building_tour``
+def test_only_doors_open(building_tour):
+    spaces, _ = building_tour
+    room = next(r for s in spaces for r in s if r.doors)
+    window = next(j for j, o in enumerate(room.spec.openings) if o.kind == "window")
+    with pytest.raises(InputError, match="open doors must be door openings"):
+        build_scene(room.spec, open_doors=(window,))
+
+
+@pytest.mark.xdist_group("synth_walk")  # one worker plans ``building_tour``
 def test_building_tour_changes_floor_by_the_stairwell(building_tour):
     _, poses = building_tour
     floors = [p.room.floor for p in poses]
@@ -155,6 +190,10 @@ def test_video_split_and_mp4(tmp_path):
     (["--walk", "tour", "--walk-step", "0"], "--walk-step must be a number in [0.05, 5]"),
     (["--walk", "video", "--walk-step", "nan"], "--walk-step must be"),
     (["--walk-step", "1"], "--walk-step goes with --walk"),
+    (["--walk-doors", "open"], "--walk-doors goes with --walk"),
+    (["--walk", "tour", "--walk-doors", "ajar"], "--walk-doors must be closed or open"),
+    (["--walk", "tour", "--walk-doors", "open"], "--walk-doors open needs a building preset"),
+    (["--preset", "multiroom", "--walk", "tour", "--walk-doors", "open"], "--walk-doors open needs a building"),
 ])
 def test_bad_walk_options_one_line_error(tmp_path, args, needle):
     out = tmp_path / "out"

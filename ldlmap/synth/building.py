@@ -368,7 +368,8 @@ def _passage(room: PlannedRoom, j: int, p: BuildingParams) -> np.ndarray:
 def walk_spaces(plan: list[list[PlannedRoom]], p: BuildingParams) -> list[list[WalkRoom]]:
     """The building's floors as walk spaces (:mod:`ldlmap.synth.walkplan`), ground floor first."""
     return [[WalkRoom(id=r.id, scene=floor_scene(r.floor), spec=r.spec, offset=tuple(float(x) for x in r.offset),
-                      floor=r.floor, kind=r.kind, passages=tuple(_passage(r, j, p) for j, _ in r.doors))
+                      floor=r.floor, kind=r.kind, passages=tuple(_passage(r, j, p) for j, _ in r.doors),
+                      doors=tuple(j for j, _ in r.doors), reveal_m=p.wall / 2)
              for r in rooms] for rooms in plan]
 
 
@@ -379,12 +380,13 @@ def generate_building(out: Path, preset: str = "building", seed: int = 0, overwr
                       progress: bool = True, illumination: bool = True, width: int | None = None,
                       per_split: int | None = None, params: BuildingParams | None = None,
                       walk: tuple[str, ...] = (), walk_step: float | None = None,
-                      walk_visits: int = VISITS_PER_FLOOR) -> DatasetSummary:
+                      walk_visits: int = VISITS_PER_FLOOR, walk_doors: str = "closed") -> DatasetSummary:
     """Generate a building dataset into ``out`` (atomically); returns a ``DatasetSummary``.
 
     ``params`` (default: the preset's) is the plan; ``width`` and ``per_split`` (panoramas per
     split *per room*) override it. ``walk``: the walk captures (:mod:`ldlmap.synth.walk`) from
-    floor to floor, ``walk_visits`` rooms entered on each. Same seed, same bytes.
+    floor to floor, ``walk_visits`` rooms entered on each, its doors ``walk_doors`` (closed or open:
+    :data:`ldlmap.synth.walk.WALK_DOORS`). Same seed, same bytes.
     """
     start = time.perf_counter()
     out = Path(out)
@@ -407,7 +409,7 @@ def generate_building(out: Path, preset: str = "building", seed: int = 0, overwr
         for f, rooms in enumerate(plan):
             scenes.append(_write_floor(tmp, f, rooms, params, cap0, run, tick))
         walks = write_walks(tmp, walk_spaces(plan, params), walk, seed, cap0, split_counts, tick, walk_step,
-                            walk_visits) if walk else {}
+                            walk_visits, walk_doors) if walk else {}
         meta = {"generator": SYNTH_GENERATOR, "version": GENERATOR_VERSION, "seed": int(seed), "preset": preset,
                 "building": asdict(params), "illumination": sorted(cap0.illumination),
                 "layout": "omniscenes", "scenes": scenes,

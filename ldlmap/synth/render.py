@@ -207,35 +207,15 @@ class Renderer:
         Depth and triangle ids belong to the pixel-centre ray; with ``supersample = s > 1`` the
         color is the mean of ``s x s`` sub-rays on a regular grid centred on the pixel centre.
         """
-        R = np.asarray(rot_cam_from_world, dtype=np.float64)
-        c = np.asarray(center, dtype=np.float64).reshape(3)
-        dirs = _pixel_bearings(width, height, 0.0, 0.0) @ R  # world_from_cam without the offset
-        if supersample <= 1:
-            colors, hits = self._colors_of_rays(c, dirs)
-        else:
-            hits = self.cast(c, dirs)
-            offs = (np.arange(supersample) + 0.5) / supersample - 0.5
-            colors = np.zeros((len(dirs), 3), dtype=np.float32)
-            for du in offs:
-                for dv in offs:
-                    sub = _pixel_bearings(width, height, float(du), float(dv)) @ R
-                    colors += self._colors_of_rays(c, sub)[0]
-            colors /= float(supersample * supersample)
-        depth = hits["t"].astype(np.float32).reshape(height, width)
-        return colors.reshape(height, width, 3), depth, hits["tri"].reshape(height, width)
+        return render_float_through([(self, np.zeros(3))], rot_cam_from_world, center, width, height, supersample)
 
     def render(self, rot_cam_from_world: np.ndarray, center: np.ndarray, width: int = 1024,
                height: int | None = None, supersample: int = 2, blur_px: float = 0.0,
                blur_angle: float = 0.0, noise_sigma: float = 0.0,
                rng: np.random.Generator | None = None) -> Panorama:
         """Render a panorama at pose ``(R, t)``: optional motion blur and seeded sensor noise."""
-        height = int(height) if height else int(width) // 2
-        img, depth, tri = self.render_float(rot_cam_from_world, center, int(width), height, supersample)
-        if blur_px > 0:
-            img = motion_blur(img, blur_px, blur_angle)
-        if noise_sigma > 0:
-            img = add_noise(img, noise_sigma, rng if rng is not None else np.random.default_rng(0))
-        return Panorama(to_uint8(img), depth, tri)
+        return render_through([(self, np.zeros(3))], rot_cam_from_world, center, width, height, supersample, blur_px,
+                              blur_angle, noise_sigma, rng)
 
 
 @lru_cache(maxsize=8)
@@ -301,3 +281,65 @@ def apply_illumination(img: np.ndarray, kind: IlluminationKind, intensity: float
     else:
         raise ValueError(f"unknown illumination variant {kind!r}; valid: intensity, gamma, white_balance")
     return to_uint8(out)
+
+
+def _cast_through(parts: list[tuple[Renderer, np.ndarray]], center: np.ndarray, dirs: np.ndarray,
+                  colors: bool = True) -> tuple[np.ndarray | None, np.ndarray, np.ndarray]:
+    """Rays from world point ``center`` through several rooms (``parts``: each renderer with the world
+    position of its mesh's origin): the first room's hits, and where a ray leaves it (an open door)
+    the nearest hit in the others. Returns colours (None unless ``colors``), depth and the first
+    room's triangle ids (-1 where the ray left it)."""
+    first, off = parts[0]
+    c = center - off
+    if colors:
+        col, hits = first._colors_of_rays(c, dirs)
+    else:
+        col, hits = None, first.cast(c, dirs)
+    t, tri = hits["t"].copy(), hits["tri"].copy()
+    out = np.flatnonzero(~np.isfinite(t))
+    for rend, off in parts[1:]:
+        if not len(out):
+            break
+        c = center - off
+        h = rend.cast(c, dirs[out])
+        k = np.flatnonzero(h["t"] < t[out])
+        if len(k) and colors:
+            col[out[k]] = rend.surface_color(h["tri"][k], h["bary"][k], c + dirs[out[k]] * h["t"][k, None])
+        t[out[k]] = h["t"][k]
+    return col, t, tri
+
+
+def render_float_through(parts: list[tuple[Renderer, np.ndarray]], rot_cam_from_world: np.ndarray,
+                         center: np.ndarray, width: int, height: int,
+                         supersample: int = 2) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:meth:`Renderer.render_float` from world point ``center`` in the first of ``parts`` (renderers
+    with the world positions of their meshes' origins), seeing the others through its open doors
+    (:func:`_cast_through`)."""
+    R = np.asarray(rot_cam_from_world, dtype=np.float64)
+    c = np.asarray(center, dtype=np.float64).reshape(3)
+    parts = [(r, np.asarray(off, dtype=np.float64).reshape(3)) for r, off in parts]
+    dirs = _pixel_bearings(width, height, 0.0, 0.0) @ R  # world_from_cam without the offset
+    colors, t, tri = _cast_through(parts, c, dirs, colors=supersample <= 1)
+    if supersample > 1:
+        offs = (np.arange(supersample) + 0.5) / supersample - 0.5
+        colors = np.zeros((len(dirs), 3), dtype=np.float32)
+        for du in offs:
+            for dv in offs:
+                colors += _cast_through(parts, c, _pixel_bearings(width, height, float(du), float(dv)) @ R)[0]
+        colors /= float(supersample * supersample)
+    return colors.reshape(height, width, 3), t.astype(np.float32).reshape(height, width), tri.reshape(height, width)
+
+
+def render_through(parts: list[tuple[Renderer, np.ndarray]], rot_cam_from_world: np.ndarray, center: np.ndarray,
+                   width: int = 1024, height: int | None = None, supersample: int = 2, blur_px: float = 0.0,
+                   blur_angle: float = 0.0, noise_sigma: float = 0.0,
+                   rng: np.random.Generator | None = None) -> Panorama:
+    """:meth:`Renderer.render` from world point ``center`` in the first of ``parts`` (renderers with
+    the world positions of their meshes' origins), seeing the others through its open doors."""
+    height = int(height) if height else int(width) // 2
+    img, depth, tri = render_float_through(parts, rot_cam_from_world, center, int(width), height, supersample)
+    if blur_px > 0:
+        img = motion_blur(img, blur_px, blur_angle)
+    if noise_sigma > 0:
+        img = add_noise(img, noise_sigma, rng if rng is not None else np.random.default_rng(0))
+    return Panorama(to_uint8(img), depth, tri)

@@ -6,7 +6,9 @@ Parts (each a planar-faced piece; ``SceneMesh.tri_part`` numbers them):
   steps: :mod:`ldlmap.synth.ceiling`), one planar face per wall up to the ceiling above it; normals
   point into the room;
 * door / window frames: closed prisms standing ``FRAME_DEPTH`` out of the wall around a
-  textured panel (a quad ``PANEL_OFFSET`` in front of the wall); doors have no bottom bar;
+  textured panel (a quad ``PANEL_OFFSET`` in front of the wall); doors have no bottom bar; an
+  open door (a walk's: ``build_scene(open_doors=...)``) has no panel, a notch cut in its wall and a
+  reveal (jambs, lintel, threshold) into the wall's thickness;
 * posters: single quads ``POSTER_OFFSET`` in front of the wall;
 * furniture: closed boxes with outward normals; tables = top slab + 4 legs, shelves = sides,
   back and boards, cabinets = plinth + body + top, sofas = base + backrest + armrests. Parts are
@@ -25,6 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ldlmap.core import polygon as pg
+from ldlmap.core.errors import InputError
 from ldlmap.synth import textures as tx
 from ldlmap.synth.ceiling import ceiling_pieces, ceiling_profile, step_faces, wall_loop
 from ldlmap.synth.spec import (FRAME_DEPTH, FRAME_WIDTH, PANEL_OFFSET, POSTER_OFFSET, ObjectSpec,
@@ -142,7 +145,37 @@ def _seed(*items: object) -> int:
     return zlib.crc32(repr(items).encode()) & 0x7FFFFFFF
 
 
-def _collect_faces(spec: SceneSpec) -> list[_Face]:
+def _notched(loop: np.ndarray, origin: np.ndarray, t: np.ndarray,
+             doors: list[tuple[float, float, float]]) -> np.ndarray:
+    """A wall's loop (:func:`ldlmap.synth.ceiling.wall_loop`: its floor edge first, from xy ``origin``
+    along unit xy ``t``) with an open door's notch cut up from its floor edge for each ``(start, end,
+    top)`` along the wall (in order)."""
+    if not doors:
+        return loop
+    o, u = np.array([origin[0], origin[1], 0.0]), np.array([t[0], t[1], 0.0])
+    cut = [o + u * s + np.array([0.0, 0.0, z]) for s0, s1, top in doors
+           for s, z in ((s0, 0.0), (s0, top), (s1, top), (s1, 0.0))]
+    return np.concatenate([loop[:1], np.asarray(cut), loop[1:]])
+
+
+def _reveal_faces(origin: np.ndarray, t: np.ndarray, n: np.ndarray, s0: float, s1: float, top: float, depth: float,
+                  spec: SceneSpec, part: int, j: int) -> list[_Face]:
+    """An open door's reveal on its room's side: the jambs, lintel and threshold from the wall's face
+    ``depth`` into the wall (half the wall between two rooms: with the neighbour's, the whole)."""
+    up = np.array([0.0, 0.0, 1.0])
+
+    def at(s: float, d: float, z: float) -> np.ndarray:
+        return origin + t * s - n * d + up * z
+
+    sides = [([at(s0, 0, 0), at(s0, 0, top), at(s0, depth, top), at(s0, depth, 0)], t, spec.wall_material),
+             ([at(s1, 0, 0), at(s1, 0, top), at(s1, depth, top), at(s1, depth, 0)], -t, spec.wall_material),
+             ([at(s0, 0, top), at(s1, 0, top), at(s1, depth, top), at(s0, depth, top)], -up, spec.wall_material),
+             ([at(s0, 0, 0), at(s1, 0, 0), at(s1, depth, 0), at(s0, depth, 0)], up, spec.floor_material)]
+    return [_face(np.array(q), nrm, texture=mat, obj=-1, part=part, tex_seed=_seed(spec.seed, "reveal", j, m))
+            for m, (q, nrm, mat) in enumerate(sides)]
+
+
+def _collect_faces(spec: SceneSpec, open_doors: tuple[int, ...] = (), reveal_m: float = 0.0) -> list[_Face]:
     rng = np.random.default_rng([spec.seed, 17])
     fp = np.asarray(spec.footprint, dtype=np.float64)
     k = len(fp)
@@ -169,8 +202,11 @@ def _collect_faces(spec: SceneSpec) -> list[_Face]:
         a, b = fp[i], fp[(i + 1) % k]
         t = (b - a) / np.linalg.norm(b - a)
         inward = np.array([-t[1], t[0], 0.0])
-        faces.append(_face(wall_loop(profile, a, b), inward, texture=spec.wall_material, obj=-1, part=part,
-                           tone=float(tones[i]), base=wall_base, tex_seed=_seed(spec.seed, "wall", i)))
+        doors = sorted((op.offset, op.offset + op.width, op.height) for j, op in enumerate(spec.openings)
+                       if j in open_doors and op.wall == i)
+        faces.append(_face(_notched(wall_loop(profile, a, b), a, t, doors), inward, texture=spec.wall_material,
+                           obj=-1, part=part, tone=float(tones[i]), base=wall_base,
+                           tex_seed=_seed(spec.seed, "wall", i)))
     part += 1
 
     def wall_frame(wall: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -193,9 +229,13 @@ def _collect_faces(spec: SceneSpec) -> list[_Face]:
         kw = dict(texture="painted", obj=-1, part=part, base=frame_base)
         faces += _prism_faces(rings, origin, t, n, FRAME_DEPTH, kw, _seed(spec.seed, "frame", j))
         part += 1
-        panel = np.array([origin + t * s + np.array([0, 0, z]) + n * PANEL_OFFSET
-                          for s, z in [(s0, z0), (s1, z0), (s1, z1), (s0, z1)]])
-        faces.append(_face(panel, n, texture=op.kind, obj=-1, part=part, tex_seed=_seed(spec.seed, "panel", j)))
+        if j in open_doors:  # a doorway: no panel, the reveal into the wall
+            if reveal_m > 0:
+                faces += _reveal_faces(origin, t, n, s0, s1, z1, reveal_m, spec, part, j)
+        else:
+            panel = np.array([origin + t * s + np.array([0, 0, z]) + n * PANEL_OFFSET
+                              for s, z in [(s0, z0), (s1, z0), (s1, z1), (s0, z1)]])
+            faces.append(_face(panel, n, texture=op.kind, obj=-1, part=part, tex_seed=_seed(spec.seed, "panel", j)))
         part += 1
     for j, po in enumerate(spec.posters):
         origin, t, n = wall_frame(po.wall)
@@ -263,10 +303,16 @@ def _texture_for(face: _Face, h: int, w: int, texel: float) -> np.ndarray:
     return tx.material_texture(face.texture, h, w, texel, rng, tone=face.tone, base=face.base)
 
 
-def build_scene(spec: SceneSpec, texel_m: float = TEXEL_M) -> SceneMesh:
-    """The textured mesh of ``spec`` (validated first); see the module docstring for the parts."""
+def build_scene(spec: SceneSpec, texel_m: float = TEXEL_M, open_doors: tuple[int, ...] = (),
+                reveal_m: float = 0.0) -> SceneMesh:
+    """The textured mesh of ``spec`` (validated first); see the module docstring for the parts.
+    ``open_doors``: the openings (doors) standing open, cut through their wall with no panel, with a
+    reveal ``reveal_m`` deep (a walk's rooms: the person walking through opened them)."""
     validate_spec(spec)
-    faces = _collect_faces(spec)
+    bad = [j for j in open_doors if not 0 <= j < len(spec.openings) or spec.openings[j].kind != "door"]
+    if bad:
+        raise InputError(f"open doors must be door openings of the spec, got {bad}")
+    faces = _collect_faces(spec, tuple(open_doors), float(reveal_m))
     # Atlas layout: one rectangle per face, shrinking the density until it fits.
     uv_min = np.array([f.uv.min(axis=0) for f in faces])
     uv_ext = np.array([np.ptp(f.uv, axis=0) for f in faces])

@@ -27,9 +27,12 @@ from ldlmap.core.errors import InputError, check_range
 from ldlmap.core.geometry import rotation_error_deg
 from ldlmap.io.video import write_video
 from ldlmap.synth.capture import CaptureSettings, write_jpeg, write_pose
+from ldlmap.synth.render import render_through
 from ldlmap.synth.walkplan import STEP_RANGE, BuiltRooms, WalkPose, WalkRoom, plan_walk
 
 WALK_KINDS = ("tour", "video")
+WALK_DOORS = ("closed", "open")  # a building's doors in the walk's frames: as its scans see them, or open (the
+# person walking through opened them; the next room is seen through the doorway)
 WALK_STEP_M = {"tour": 2.0, "video": 0.2}  # mean step (m); steps are drawn in walkplan.STEP_RANGE x it
 STEP_LIMITS = (0.05, 5.0)  # m, --walk-step
 VISITS_PER_FLOOR = 3  # rooms off a building floor's corridor that a walk enters
@@ -54,6 +57,20 @@ def parse_walk(text: str | None) -> tuple[str, ...]:
     return tuple(k for k in WALK_KINDS if k in kinds)
 
 
+def check_walk_doors(doors: str | None, kinds: tuple[str, ...], building: bool) -> str:
+    """``--walk-doors``: closed (the default: as the scans see them) or open, only with ``--walk`` and a
+    building (the only preset whose walk goes through doors); one-line error otherwise."""
+    if doors is None:
+        return "closed"
+    if doors not in WALK_DOORS:
+        raise InputError(f"--walk-doors must be closed or open, got {doors!r}")
+    if not kinds:
+        raise InputError("--walk-doors goes with --walk")
+    if doors == "open" and not building:
+        raise InputError("--walk-doors open needs a building preset: no other walk goes through a door")
+    return doors
+
+
 def check_walk_step(step: float | None, kinds: tuple[str, ...]) -> None:
     """``--walk-step`` in :data:`STEP_LIMITS` metres, and only with ``--walk``."""
     if step is not None and not kinds:
@@ -69,16 +86,20 @@ def _blur(prev: WalkPose | None, pose: WalkPose, width: int) -> float:
 
 
 def _frames(poses: list[WalkPose], stems: list[str], kind: str, cap: CaptureSettings, built: BuiltRooms,
-            rng: np.random.Generator, tmp: Path, tick: Callable[[str], None]) -> Iterator[np.ndarray]:
-    """Render and write each frame of a walk (photo and pose file); yields the photos in order."""
+            spaces: list[list[WalkRoom]] | None, rng: np.random.Generator, tmp: Path,
+            tick: Callable[[str], None]) -> Iterator[np.ndarray]:
+    """Render and write each frame of a walk (photo and pose file); yields the photos in order.
+    ``spaces``: the walk's spaces when their doors stand open (the next room is seen through them), else None."""
     split = walk_split(kind)
+    space_of = {id(r): space for space in spaces or [] for r in space}
     for k, (pose, stem) in enumerate(zip(poses, stems)):
         room = pose.room
-        _, rend = built.get(room.spec)
         blur = _blur(poses[k - 1] if k else None, pose, cap.width) if kind == "video" else 0.0
-        pano = rend.render(pose.R, pose.t - np.asarray(room.offset, dtype=np.float64), cap.width, cap.height,
-                           supersample=cap.supersample, blur_px=blur, blur_angle=float(rng.normal(0.0, 0.1)),
-                           noise_sigma=cap.noise_sigma, rng=rng)
+        parts = (built.seen_from(room, space_of.get(id(room), [room])) if spaces is not None
+                 else [(built.get(room.spec)[1], np.asarray(room.offset, dtype=np.float64))])
+        pano = render_through(parts, pose.R, pose.t, cap.width, cap.height, supersample=cap.supersample,
+                              blur_px=blur, blur_angle=float(rng.normal(0.0, 0.1)), noise_sigma=cap.noise_sigma,
+                              rng=rng)
         folder = f"{split}_{room.scene}_scene_1"
         write_jpeg(tmp / f"{split}_pano" / folder / f"{stem}.jpg", pano.rgb)
         write_pose(tmp / f"{split}_pose" / folder / f"{stem}.txt", pose.R, pose.t)
@@ -96,10 +117,10 @@ def _frame_record(pose: WalkPose, prev: WalkPose | None, stem: str, time: float 
 
 def write_walks(tmp: Path, spaces: list[list[WalkRoom]], kinds: tuple[str, ...], seed: int, cap: CaptureSettings,
                 split_counts: dict[str, int], tick: Callable[[str], None], step: float | None = None,
-                visits: int = VISITS_PER_FLOOR) -> dict:
+                visits: int = VISITS_PER_FLOOR, doors: str = "closed") -> dict:
     """Plan, render and write the walks ``kinds`` through ``spaces`` (in order; each a list of rooms
-    joined by doors) into dataset folder ``tmp``; ``split_counts`` grows in place. Returns the
-    ``walks`` entry of ``dataset.json``."""
+    joined by doors) into dataset folder ``tmp``; ``split_counts`` grows in place. ``doors``: closed
+    (as the scans see them) or open (:data:`WALK_DOORS`). Returns the ``walks`` entry of ``dataset.json``."""
     built = BuiltRooms()
     out = {}
     for kind in kinds:
@@ -109,7 +130,7 @@ def write_walks(tmp: Path, spaces: list[list[WalkRoom]], kinds: tuple[str, ...],
         digits = max(4, len(str(len(poses) - 1)))
         stems = [f"{k:0{digits}d}" for k in range(len(poses))]
         fps = WALKING_SPEED / st if kind == "video" else None
-        frames = _frames(poses, stems, kind, cap, built, rng, tmp, tick)
+        frames = _frames(poses, stems, kind, cap, built, spaces if doors == "open" else None, rng, tmp, tick)
         video = None
         if kind == "video":
             video = f"{VIDEO_FOLDER}/{walk_split(kind)}.mp4"
@@ -120,7 +141,8 @@ def write_walks(tmp: Path, spaces: list[list[WalkRoom]], kinds: tuple[str, ...],
                 pass
         split_counts[walk_split(kind)] = len(poses)
         out[walk_split(kind)] = {
-            "kind": kind, "step_m": st, "step_range_m": [round(st * STEP_RANGE[0], 6), round(st * STEP_RANGE[1], 6)], "fps": fps,
+            "kind": kind, "doors": doors,
+            "step_m": st, "step_range_m": [round(st * STEP_RANGE[0], 6), round(st * STEP_RANGE[1], 6)], "fps": fps,
             "video": video, "width": cap.width, "height": cap.height,
             "frames": [_frame_record(p, poses[k - 1] if k else None, s, None if fps is None else k / fps)
                        for k, (p, s) in enumerate(zip(poses, stems))]}

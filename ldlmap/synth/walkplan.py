@@ -58,6 +58,8 @@ class WalkRoom:
     floor: int | None = None  # buildings: the floor
     kind: str | None = None  # buildings: office, hotel, room, corridor, stairwell
     passages: tuple[np.ndarray, ...] = ()  # (4, 2) world xy rectangles through its doors to rooms of its space
+    doors: tuple[int, ...] = ()  # its openings that are those doors: open in the walk's frames ...
+    reveal_m: float = 0.0  # ... their reveal this deep into the wall (half the wall between two rooms)
 
     def footprint(self) -> np.ndarray:
         """The footprint in world xy."""
@@ -74,11 +76,29 @@ class BuiltRooms:
     def __init__(self) -> None:
         self._built: dict[SceneSpec, tuple[SceneMesh, Renderer]] = {}
 
+        self._open: dict[tuple, Renderer] = {}
+
     def get(self, spec: SceneSpec) -> tuple[SceneMesh, Renderer]:
         if spec not in self._built:
             mesh = build_scene(spec)
             self._built[spec] = (mesh, Renderer(mesh))
         return self._built[spec]
+
+    def opened(self, room: WalkRoom) -> Renderer:
+        """The renderer of ``room`` with its doors open (:attr:`WalkRoom.doors`)."""
+        key = (room.spec, room.doors, room.reveal_m)
+        if key not in self._open:
+            self._open[key] = Renderer(build_scene(room.spec, open_doors=room.doors, reveal_m=room.reveal_m))
+        return self._open[key]
+
+    def seen_from(self, room: WalkRoom, space: list[WalkRoom]) -> list[tuple[Renderer, np.ndarray]]:
+        """What a frame in ``room`` renders: the room, and through its open doors the rooms of its
+        ``space`` that have doors (each renderer with the world position of its mesh's origin); the
+        room alone where it has none."""
+        if not room.doors:
+            return [(self.get(room.spec)[1], np.asarray(room.offset, dtype=np.float64))]
+        return [(self.opened(r), np.asarray(r.offset, dtype=np.float64))
+                for r in [room] + [r for r in space if r is not room and r.doors]]
 
 
 @dataclass
