@@ -172,12 +172,13 @@ def building_data(args) -> Path:
     """The building with its tour (``--seed``, ``--width``, ``--visits``), generated once (timed)."""
     from ldlmap.synth.building import generate_building
 
-    out = WALK_CACHE / (f"data_s{args.seed}_w{args.width}" + ("" if args.visits == 2 else f"_v{args.visits}"))
+    out = WALK_CACHE / (f"data_s{args.seed}_w{args.width}" + ("" if args.visits == 2 else f"_v{args.visits}")
+                        + ("" if args.walk_doors == "closed" else f"_{args.walk_doors}"))
     if not (out / "dataset.json").exists():
         console().print(f"generating the building and its tour into {out}")
         t0 = time.perf_counter()
         generate_building(out, "building", args.seed, per_split=0, width=args.width, walk=("tour",),
-                          walk_visits=args.visits, progress=False, illumination=False)
+                          walk_visits=args.visits, progress=False, illumination=False, walk_doors=args.walk_doors)
         write_json(out.parent / f"{out.name}_synth.json", {"wall_s": time.perf_counter() - t0})
     return out
 
@@ -249,7 +250,8 @@ def run_building(args) -> dict:
         rows = frame_rows(res, queries)
     seconds = time.perf_counter() - t0
     copy_rows(rows, queries, data)
-    out = {"seed": args.seed, "width": args.width, "visits": args.visits, "seconds": seconds, "prepare": build,
+    out = {"seed": args.seed, "width": args.width, "visits": args.visits, "doors": args.walk_doors, "seconds": seconds,
+           "prepare": build,
            "frames": rows, **building_counts(rows), "walk_decided": sum(r["walk_decided"] for r in rows)}
     if args.first_pass:  # where the truth is among the hypotheses the walk chose from
         import pickle
@@ -279,10 +281,12 @@ def walk_params(args):
 
 
 def first_cache(args) -> Path:
-    """The saved first pass of a building run (``first_s<seed>.pkl``; ``_lattice<spacing>`` when not the default).
+    """The saved first pass of a building run (``first_s<seed>.pkl``; ``_open`` with the walk's doors open,
+    ``_lattice<spacing>`` when not the default).
     The frames' own localizations (``first_s<seed>_<frame>.pkl``) are shared by every variant."""
     tag = "" if args.lattice is None else f"_lattice{args.lattice:g}"
-    return WALK_CACHE / f"first_s{args.seed}{tag}.pkl"
+    doors = "" if args.walk_doors == "closed" else f"_{args.walk_doors}"
+    return WALK_CACHE / f"first_s{args.seed}{doors}{tag}.pkl"
 
 
 def part_path(cache: Path, k: int) -> Path:
@@ -519,6 +523,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--first-pass", action="store_true",
                     help="--building: decide the walk from its first pass saved under bench/.cache (computed once: "
                          "each frame's own localization and the searches near confident frames), in minutes")
+    ap.add_argument("--walk-doors", choices=("closed", "open"), default="closed",
+                    help="--building: the tour's doors as the scans see them (closed) or open "
+                         "(ldlmap synth --walk-doors)")
     ap.add_argument("--scan-walls", action="store_true",
                     help="--building: the walk reads the scan maps' stored footprints as walls (off by default)")
     ap.add_argument("--lattice", type=float, default=None,
