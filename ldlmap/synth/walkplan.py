@@ -58,7 +58,7 @@ class WalkRoom:
     floor: int | None = None  # buildings: the floor
     kind: str | None = None  # buildings: office, hotel, room, corridor, stairwell
     passages: tuple[np.ndarray, ...] = ()  # (4, 2) world xy rectangles through its doors to rooms of its space
-    doors: tuple[int, ...] = ()  # its openings that are those doors: open in the walk's frames ...
+    doors: tuple[int, ...] = ()  # its openings that are those doors: open in the frames of a walk whose doors are ...
     reveal_m: float = 0.0  # ... their reveal this deep into the wall (half the wall between two rooms)
 
     def footprint(self) -> np.ndarray:
@@ -75,8 +75,7 @@ class BuiltRooms:
 
     def __init__(self) -> None:
         self._built: dict[SceneSpec, tuple[SceneMesh, Renderer]] = {}
-
-        self._open: dict[tuple, Renderer] = {}
+        self._open: dict[tuple, Renderer] = {}  # (spec, doors, reveal): the room with its doors open
 
     def get(self, spec: SceneSpec) -> tuple[SceneMesh, Renderer]:
         if spec not in self._built:
