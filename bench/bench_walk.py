@@ -250,9 +250,8 @@ def run_building(args) -> dict:
         rows = frame_rows(res, queries)
     seconds = time.perf_counter() - t0
     copy_rows(rows, queries, data)
-    out = {"seed": args.seed, "width": args.width, "visits": args.visits, "doors": args.walk_doors, "seconds": seconds,
-           "prepare": build,
-           "frames": rows, **building_counts(rows), "walk_decided": sum(r["walk_decided"] for r in rows)}
+    out = {"seed": args.seed, "width": args.width, "visits": args.visits, "doors": args.walk_doors,
+           "seconds": seconds, "prepare": build, "frames": rows, **building_counts(rows), "walk_decided": sum(r["walk_decided"] for r in rows)}
     if args.first_pass:  # where the truth is among the hypotheses the walk chose from
         import pickle
 

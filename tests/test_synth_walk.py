@@ -112,7 +112,7 @@ def test_building_tour_sees_the_next_room_through_the_door_it_takes(building_tou
     a, b = poses[k - 1], poses[k]
     space = next(s for s in spaces if any(r is a.room for r in s))
     built = BuiltRooms()
-    pa, pb = (render_through(built.seen_from(p.room, space), p.R, p.t, 1024, supersample=1) for p in (a, b))
+    pa, pb = (render_through(built.seen_from(p.room, space, True), p.R, p.t, 1024, supersample=1) for p in (a, b))
     assert np.isfinite(pa.depth).all() and np.isfinite(pb.depth).all()
     closed = built.get(a.room.spec)[1].render(a.R, a.t - np.asarray(a.room.offset), 1024, supersample=1)
     assert np.mean(pa.depth > closed.depth + 0.05) > 0.01  # through the door, beyond the room's wall

@@ -86,17 +86,16 @@ def _blur(prev: WalkPose | None, pose: WalkPose, width: int) -> float:
 
 
 def _frames(poses: list[WalkPose], stems: list[str], kind: str, cap: CaptureSettings, built: BuiltRooms,
-            spaces: list[list[WalkRoom]] | None, rng: np.random.Generator, tmp: Path,
+            spaces: list[list[WalkRoom]], doors_open: bool, rng: np.random.Generator, tmp: Path,
             tick: Callable[[str], None]) -> Iterator[np.ndarray]:
     """Render and write each frame of a walk (photo and pose file); yields the photos in order.
-    ``spaces``: the walk's spaces when their doors stand open (the next room is seen through them), else None."""
+    ``doors_open``: the doors of the walk's ``spaces`` stand open (the next room is seen through them)."""
     split = walk_split(kind)
-    space_of = {id(r): space for space in spaces or [] for r in space}
+    space_of = {id(r): space for space in spaces for r in space}
     for k, (pose, stem) in enumerate(zip(poses, stems)):
         room = pose.room
         blur = _blur(poses[k - 1] if k else None, pose, cap.width) if kind == "video" else 0.0
-        parts = (built.seen_from(room, space_of.get(id(room), [room])) if spaces is not None
-                 else [(built.get(room.spec)[1], np.asarray(room.offset, dtype=np.float64))])
+        parts = built.seen_from(room, space_of.get(id(room), [room]), doors_open)
         pano = render_through(parts, pose.R, pose.t, cap.width, cap.height, supersample=cap.supersample,
                               blur_px=blur, blur_angle=float(rng.normal(0.0, 0.1)), noise_sigma=cap.noise_sigma,
                               rng=rng)
@@ -130,7 +129,7 @@ def write_walks(tmp: Path, spaces: list[list[WalkRoom]], kinds: tuple[str, ...],
         digits = max(4, len(str(len(poses) - 1)))
         stems = [f"{k:0{digits}d}" for k in range(len(poses))]
         fps = WALKING_SPEED / st if kind == "video" else None
-        frames = _frames(poses, stems, kind, cap, built, spaces if doors == "open" else None, rng, tmp, tick)
+        frames = _frames(poses, stems, kind, cap, built, spaces, doors == "open", rng, tmp, tick)
         video = None
         if kind == "video":
             video = f"{VIDEO_FOLDER}/{walk_split(kind)}.mp4"

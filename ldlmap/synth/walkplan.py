@@ -90,11 +90,11 @@ class BuiltRooms:
             self._open[key] = Renderer(build_scene(room.spec, open_doors=room.doors, reveal_m=room.reveal_m))
         return self._open[key]
 
-    def seen_from(self, room: WalkRoom, space: list[WalkRoom]) -> list[tuple[Renderer, np.ndarray]]:
-        """What a frame in ``room`` renders: the room, and through its open doors the rooms of its
-        ``space`` that have doors (each renderer with the world position of its mesh's origin); the
-        room alone where it has none."""
-        if not room.doors:
+    def seen_from(self, room: WalkRoom, space: list[WalkRoom], doors_open: bool) -> list[tuple[Renderer, np.ndarray]]:
+        """What a frame in ``room`` renders (each renderer with the world position of its mesh's origin):
+        with ``doors_open``, the room and through its doors the rooms of its ``space`` that have doors;
+        else, or where it has no door, the room alone as the scans see it."""
+        if not (doors_open and room.doors):
             return [(self.get(room.spec)[1], np.asarray(room.offset, dtype=np.float64))]
         return [(self.opened(r), np.asarray(r.offset, dtype=np.float64))
                 for r in [room] + [r for r in space if r is not room and r.doors]]
