@@ -173,25 +173,35 @@ def building_data(args) -> Path:
     from ldlmap.synth.building import generate_building
 
     out = WALK_CACHE / (f"data_s{args.seed}_w{args.width}" + ("" if args.visits == 2 else f"_v{args.visits}")
-                        + ("" if args.walk_doors == "closed" else f"_{args.walk_doors}"))
+                        + doors_tag(args))
     if not (out / "dataset.json").exists():
         console().print(f"generating the building and its tour into {out}")
         t0 = time.perf_counter()
         generate_building(out, "building", args.seed, per_split=0, width=args.width, walk=("tour",),
-                          walk_visits=args.visits, progress=False, illumination=False, walk_doors=args.walk_doors)
+                          walk_visits=args.visits, progress=False, illumination=False, doors=args.doors,
+                          walk_doors=args.walk_doors)
         write_json(out.parent / f"{out.name}_synth.json", {"wall_s": time.perf_counter() - t0})
     return out
+
+
+def doors_tag(args) -> str:
+    """The caches' tag of the building's doors: none when closed in scans and tour alike, ``_open`` for a
+    tour with them open through closed-door scans, ``_doors_open`` when the scans see them open too."""
+    walked = args.walk_doors or args.doors
+    if args.doors == "closed":
+        return "" if walked == "closed" else "_open"
+    return "_doors_open" + ("" if walked == "open" else "_walk_closed")
 
 
 def building_maps(data: Path, args) -> tuple[Path, dict]:
     """``ldlmap prepare DATA`` at its defaults (one map per floor) into ``maps_s<seed>``, built once
     (timed with ``/usr/bin/time``; the record of the build kept beside the maps)."""
-    maps = WALK_CACHE / f"maps_s{args.seed}"
-    record = WALK_CACHE / f"maps_s{args.seed}.json"
+    name = f"maps_s{args.seed}" + ("" if args.doors == "closed" else f"_doors_{args.doors}")  # the scans' doors
+    maps, record = WALK_CACHE / name, WALK_CACHE / f"{name}.json"
     if not all((maps / f"floor_{f}.h5").exists() for f in range(3)):
         console().print(f"building the floor maps into {maps} (ldlmap prepare defaults: tens of minutes on 2 cores)")
         rec = timed(cli("ldlmap.cli", "prepare", str(data), "--maps", str(maps), "--overwrite"),
-                    WALK_CACHE / f"prepare_s{args.seed}.time", WALK_CACHE / f"prepare_s{args.seed}.log")
+                    WALK_CACHE / f"prepare_{name[5:]}.time", WALK_CACHE / f"prepare_{name[5:]}.log")
         write_json(record, rec)
     return maps, (json.loads(record.read_text()) if record.exists() else {})
 
@@ -250,7 +260,8 @@ def run_building(args) -> dict:
         rows = frame_rows(res, queries)
     seconds = time.perf_counter() - t0
     copy_rows(rows, queries, data)
-    out = {"seed": args.seed, "width": args.width, "visits": args.visits, "doors": args.walk_doors,
+    out = {"seed": args.seed, "width": args.width, "visits": args.visits, "doors": args.doors,
+           "walk_doors": args.walk_doors or args.doors,
            "seconds": seconds, "prepare": build, "frames": rows, **building_counts(rows), "walk_decided": sum(r["walk_decided"] for r in rows)}
     if args.first_pass:  # where the truth is among the hypotheses the walk chose from
         import pickle
@@ -280,12 +291,11 @@ def walk_params(args):
 
 
 def first_cache(args) -> Path:
-    """The saved first pass of a building run (``first_s<seed>.pkl``; ``_open`` with the walk's doors open,
+    """The saved first pass of a building run (``first_s<seed>.pkl``; tagged by the doors (:func:`doors_tag`),
     ``_lattice<spacing>`` when not the default).
     The frames' own localizations (``first_s<seed>_<frame>.pkl``) are shared by every variant."""
     tag = "" if args.lattice is None else f"_lattice{args.lattice:g}"
-    doors = "" if args.walk_doors == "closed" else f"_{args.walk_doors}"
-    return WALK_CACHE / f"first_s{args.seed}{doors}{tag}.pkl"
+    return WALK_CACHE / f"first_s{args.seed}{doors_tag(args)}{tag}.pkl"
 
 
 def part_path(cache: Path, k: int) -> Path:
@@ -522,9 +532,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--first-pass", action="store_true",
                     help="--building: decide the walk from its first pass saved under bench/.cache (computed once: "
                          "each frame's own localization and the searches near confident frames), in minutes")
-    ap.add_argument("--walk-doors", choices=("closed", "open"), default="closed",
-                    help="--building: the tour's doors as the scans see them (closed) or open "
-                         "(ldlmap synth --walk-doors)")
+    ap.add_argument("--doors", choices=("closed", "open"), default="closed",
+                    help="--building: the building's doors in its scans (and its tour unless --walk-doors): "
+                         "ldlmap synth --doors; the maps are built again for open doors")
+    ap.add_argument("--walk-doors", choices=("closed", "open"), default=None,
+                    help="--building: the tour's doors (default: as --doors; ldlmap synth --walk-doors)")
     ap.add_argument("--scan-walls", action="store_true",
                     help="--building: the walk reads the scan maps' stored footprints as walls (off by default)")
     ap.add_argument("--lattice", type=float, default=None,

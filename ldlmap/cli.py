@@ -256,9 +256,12 @@ def synth(
                                        "through doors, down corridors and up the stairwell (docs/synthetic.md#walks)."),
     walk_step: Optional[float] = typer.Option(None, "--walk-step", help="--walk: mean step in metres (steps are "
                                               "0.5-1.5 x it; default 2 for tour, 0.2 for video)."),
-    walk_doors: Optional[str] = typer.Option(None, "--walk-doors", help="--walk in a building: its doors closed "
-                                             "(default: as the scans see them) or open (the next room is seen "
-                                             "through the doorway)."),
+    doors: Optional[str] = typer.Option(None, "--doors", help="A building's doors in its scans and panoramas: closed "
+                                        "(default: a panel in each doorway) or open (the next room is seen "
+                                        "through the doorway)."),
+    walk_doors: Optional[str] = typer.Option(None, "--walk-doors", help="--walk in a building: its doors closed or "
+                                             "open in the walk's frames (default: as --doors; a tour with the doors "
+                                             "open through a building scanned with them closed, or the reverse)."),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
 ) -> None:
     """Generate a synthetic panoramic dataset: scans, meshes, 3D edges, panoramas with poses."""
@@ -272,13 +275,15 @@ def synth(
     check_range(per_split, "--per-split", 0, synth_capture.MAX_PER_SPLIT, integer=True)
     walks = synth_walk.parse_walk(walk)
     synth_walk.check_walk_step(walk_step, walks)
-    doors = synth_walk.check_walk_doors(walk_doors, walks, not spec and synth_generate.is_building_preset(preset))
+    building = not spec and synth_generate.is_building_preset(preset)
+    scanned = synth_walk.check_doors(doors, building)
+    walked = synth_walk.check_walk_doors(walk_doors, walks, building, default=scanned)
     refuse_overwriting_inputs(spec or [], [out])
     synth_capture.refuse_replacing_other_dataset(out, overwrite)
     kept = synth_capture.files_not_generated(out) if overwrite and omniscenes.written_by_synth(out) else []
     s = synth_generate.generate_dataset(out, preset=preset, spec_paths=spec or [], seed=seed, overwrite=overwrite,
                          progress=not quiet, illumination=not no_illumination, width=width, per_split=per_split,
-                         walk=walks, walk_step=walk_step, walk_doors=doors)
+                         walk=walks, walk_step=walk_step, doors=scanned, walk_doors=walked)
     table = Table(title=f"synthetic dataset {s.out} (seed {s.seed}, {s.width}x{s.height})")
     table.add_column("split")
     table.add_column("panoramas", justify="right")

@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from ldlmap.core.polygon import points_in_polygon
-from ldlmap.synth.building import (BuildingParams, building_params, floor_scene, plan_building, read_building,
-                                   room_at, room_mesh)
+from ldlmap.synth.building import (BuildingParams, building_params, door_segment, floor_scene, plan_building,
+                                   read_building, room_at, room_mesh)
 from ldlmap.synth.render import Renderer
 from ldlmap.synth.spec import load_spec
 
@@ -184,6 +184,52 @@ def test_world_frame_poses_see_their_rooms(small_building):
         assert np.mean(np.abs(jpg - pano.rgb)) < 4.0, q.name
         checked += 1
     assert checked == len([r for r in rooms.values() if r.floor == 1])
+
+
+def _doorway_points(root: Path, room) -> int:
+    """Scan points of ``room``'s floor in the middle of its doors' openings: within 0.3 m of the
+    door's line, its middle 60 %, 0.3-1.8 m above the floor (a closed door's panel, or nothing)."""
+    xyz = np.loadtxt(root / "pcd" / f"floor_{room.floor}.txt", usecols=(0, 1, 2))
+    spec, n = load_spec(room.spec), 0
+    for d in room.doors:
+        a, b = door_segment(spec, np.zeros(3), d["opening"])
+        u = (b - a) / np.linalg.norm(b - a)
+        rel = xyz[:, :2] - a
+        along, across = rel @ u, np.abs(rel @ np.array([-u[1], u[0]]))
+        w = float(np.linalg.norm(b - a))
+        up = xyz[:, 2] - room.offset[2]
+        n += int(np.count_nonzero((across < 0.3) & (along > 0.2 * w) & (along < 0.8 * w) & (up > 0.3) & (up < 1.8)))
+    return n
+
+
+def test_doors_open_in_scans_panoramas_and_walk(small_building, tmp_path):
+    """``--doors open``: the scans hold no door panel (a closed building's do), the rooms' meshes let a
+    ray through the doorway, and the walk's frames follow (``--walk-doors`` defaults to ``--doors``)."""
+    from typer.testing import CliRunner
+
+    from ldlmap.cli import app
+
+    out = tmp_path / "open"
+    res = CliRunner().invoke(app, ["synth", str(out), "--preset", "building_small", "--seed", str(SEED), "--width",
+                                   str(WIDTH), "--per-split", "1", "--no-illumination", "--walk", "tour", "--doors",
+                                   "open", "--quiet"])
+    assert res.exit_code == 0, res.output
+    meta = json.loads((out / "dataset.json").read_text())
+    assert meta["doors"] == "open" and meta["walks"]["walk_tour"]["doors"] == "open"
+    assert "doors" not in json.loads((small_building / "dataset.json").read_text())
+    closed = {r.id: r for r in read_building(small_building)}
+    for r in read_building(out):
+        if not r.doors:
+            continue
+        assert _doorway_points(small_building, closed[r.id]) > 50 and _doorway_points(out, r) == 0, r.id
+        spec = load_spec(r.spec)
+        a, b = door_segment(spec, np.zeros(3), r.doors[0]["opening"])
+        door = np.append((a + b) / 2, r.offset[2] + 1.0)
+        inside = np.append(np.asarray(spec.footprint, dtype=float).mean(0), r.offset[2] + 1.0)
+        ray = (door - inside) / np.linalg.norm(door - inside)
+        hit_open = Renderer(room_mesh(r)).cast(inside[None], ray[None])
+        hit_closed = Renderer(room_mesh(closed[r.id])).cast(inside[None], ray[None])
+        assert hit_open["tri"][0] < 0 and hit_closed["tri"][0] >= 0, r.id  # the corridor's room: out the door
 
 
 def test_reader_names_no_room_outside_synthetic_scenes_of_several_rooms(tmp_path):

@@ -194,6 +194,9 @@ def test_video_split_and_mp4(tmp_path):
     (["--walk", "tour", "--walk-doors", "ajar"], "--walk-doors must be closed or open"),
     (["--walk", "tour", "--walk-doors", "open"], "--walk-doors open needs a building preset"),
     (["--preset", "multiroom", "--walk", "tour", "--walk-doors", "open"], "--walk-doors open needs a building"),
+    (["--doors", "ajar"], "--doors must be closed or open"),
+    (["--doors", "open"], "--doors open needs a building preset"),
+    (["--preset", "multiroom", "--doors", "open", "--walk", "tour"], "--doors open needs a building preset"),
 ])
 def test_bad_walk_options_one_line_error(tmp_path, args, needle):
     out = tmp_path / "out"

@@ -48,12 +48,13 @@ from ldlmap.synth.capture import (BASE_SPLITS, GENERATOR_VERSION, ILLUMINATION_S
                                   ProgressTicks, capture_settings, dataset_output, list_generated, read_dataset_meta)
 from ldlmap.synth.multiroom import CapturedRoom, capture_room, lift_mesh, translate_spec, write_union
 from ldlmap.synth.presets import door_keep_out, place_object
+from ldlmap.synth.edges import mesh_edges
 from ldlmap.synth.scene import build_scene
 from ldlmap.synth.spec import (FRAME_WIDTH, CaptureSpec, ObjectSpec, OpeningSpec, PosterSpec, ScanSpec, SceneSpec,
                                dump_spec_toml, load_spec, validate_spec)
 from ldlmap.synth.types import SceneMesh
-from ldlmap.synth.walk import VISITS_PER_FLOOR, write_walks
-from ldlmap.synth.walkplan import CLEARANCE, WalkRoom
+from ldlmap.synth.walk import VISITS_PER_FLOOR, check_doors, check_walk_doors, write_walks
+from ldlmap.synth.walkplan import CLEARANCE, BuiltRooms, WalkRoom
 
 KINDS = ("office", "hotel", "room", "corridor", "stairwell")
 
@@ -125,6 +126,7 @@ class BuildingRoom:
     points: tuple[int, int]  # [start, end) of the room's points in its floor's scan
     queries: dict[str, list[str]]  # split -> image stems in the floor's scene folders
     doors: list[dict] = field(default_factory=list)  # {"opening": j, "wall": w, "to": room id}
+    reveal_m: float | None = None  # doors open (``--doors open``): their reveal's depth; None: closed
 
     def contains(self, xyz: np.ndarray) -> np.ndarray:
         """Whether points (N, 3) lie in the room (box of its footprint, floor to ceiling)."""
@@ -380,14 +382,18 @@ def generate_building(out: Path, preset: str = "building", seed: int = 0, overwr
                       progress: bool = True, illumination: bool = True, width: int | None = None,
                       per_split: int | None = None, params: BuildingParams | None = None,
                       walk: tuple[str, ...] = (), walk_step: float | None = None,
-                      walk_visits: int = VISITS_PER_FLOOR, walk_doors: str = "closed") -> DatasetSummary:
+                      walk_visits: int = VISITS_PER_FLOOR, doors: str = "closed",
+                      walk_doors: str | None = None) -> DatasetSummary:
     """Generate a building dataset into ``out`` (atomically); returns a ``DatasetSummary``.
 
     ``params`` (default: the preset's) is the plan; ``width`` and ``per_split`` (panoramas per
-    split *per room*) override it. ``walk``: the walk captures (:mod:`ldlmap.synth.walk`) from
-    floor to floor, ``walk_visits`` rooms entered on each, its doors ``walk_doors`` (closed or open:
-    :data:`ldlmap.synth.walk.WALK_DOORS`). Same seed, same bytes.
+    split *per room*) override it. ``doors``: closed or open (:data:`ldlmap.synth.walk.DOORS`) in the
+    scans and the panoramas. ``walk``: the walk captures (:mod:`ldlmap.synth.walk`) from floor to
+    floor, ``walk_visits`` rooms entered on each, its doors ``walk_doors`` (default ``doors``).
+    Same seed, same bytes.
     """
+    check_doors(doors, building=True)
+    walk_doors = check_walk_doors(walk_doors, walk, building=True, default=doors) if walk else doors
     start = time.perf_counter()
     out = Path(out)
     params = params or building_params(preset)
@@ -402,17 +408,18 @@ def generate_building(out: Path, preset: str = "building", seed: int = 0, overwr
     for r in all_rooms:
         copies[r.spec] = copies.get(r.spec, 0) + 1
     run = _FloorRun(seed=int(seed), settings=settings, split_counts=split_counts,
-                    shared={spec for spec, n in copies.items() if n > 1})
+                    shared={spec for spec, n in copies.items() if n > 1}, spaces=walk_spaces(plan, params),
+                    doors_open=doors == "open")
     scenes = []
     with dataset_output(out, overwrite) as tmp, ProgressTicks(progress, total) as tick:
         (tmp / "specs").mkdir(parents=True)
         for f, rooms in enumerate(plan):
             scenes.append(_write_floor(tmp, f, rooms, params, cap0, run, tick))
-        walks = write_walks(tmp, walk_spaces(plan, params), walk, seed, cap0, split_counts, tick, walk_step,
-                            walk_visits, walk_doors) if walk else {}
+        walks = write_walks(tmp, run.spaces, walk, seed, cap0, split_counts, tick, walk_step, walk_visits, walk_doors,
+                            run.built) if walk else {}
         meta = {"generator": SYNTH_GENERATOR, "version": GENERATOR_VERSION, "seed": int(seed), "preset": preset,
                 "building": asdict(params), "illumination": sorted(cap0.illumination),
-                "layout": "omniscenes", "scenes": scenes,
+                "layout": "omniscenes", **({"doors": doors} if run.doors_open else {}), "scenes": scenes,
                 "splits": {s: {"images": split_counts[s]} for s in split_counts}, **({"walks": walks} if walks else {})}
         (tmp / "dataset.json").write_text(json.dumps(list_generated(tmp, meta), indent=2) + "\n")
 
@@ -429,8 +436,26 @@ class _FloorRun:
     settings: dict[int, CaptureSettings]  # id(PlannedRoom) -> its capture settings
     split_counts: dict[str, int]  # split -> images written so far (grows in place)
     shared: set[SceneSpec]  # specs of the identical groups (built once for all their copies)
-    cache: dict = field(default_factory=dict)  # spec -> built room, for the shared specs
+    spaces: list[list[WalkRoom]]  # the floors' rooms as a walk sees them (doors, reveals), plan order
+    doors_open: bool = False  # the doors stand open in the scans and panoramas
+    cache: dict = field(default_factory=dict)  # (spec, doors, reveal) -> built room, for the shared specs
+    built: BuiltRooms = field(default_factory=BuiltRooms)  # the rooms seen through open doors; the walk's
     rooms_done: int = 0  # rooms captured so far: the next room's index is one more
+
+    def capture_args(self, f: int, i: int) -> dict:
+        """:func:`capture_room`'s arguments for room ``i`` of floor ``f``: with the doors open, its
+        doors, their reveal, and the floor's other rooms seen through them (this room's own built
+        mesh shared with the walk's cache)."""
+        if not self.doors_open:
+            return {}
+        room = self.spaces[f][i]
+        parts = self.built.seen_from(room, self.spaces[f], True)
+        off = np.asarray(room.offset, dtype=np.float64)
+        own, key = parts[0][0], (room.spec, room.doors, room.reveal_m)
+        if key not in self.cache:
+            self.cache[key] = (own.mesh, own, mesh_edges(own.mesh))
+        return {"doors": room.doors, "reveal_m": room.reveal_m, "through": [(r, o - off) for r, o in parts[1:]],
+                "cache": self.cache}
 
 
 def _write_floor(tmp: Path, f: int, rooms: list[PlannedRoom], params: BuildingParams, cap0: CaptureSettings,
@@ -440,12 +465,13 @@ def _write_floor(tmp: Path, f: int, rooms: list[PlannedRoom], params: BuildingPa
     captured, infos = [], []
     first = {s: 0 for s in BASE_SPLITS}
     n_points = 0
-    for r in rooms:
+    for i, r in enumerate(rooms):
         run.rooms_done += 1
         idx = run.rooms_done
         off = np.asarray(r.offset, dtype=np.float64)
         got = capture_room(tmp, name, r.spec, idx, run.settings[id(r)], run.seed, tick, first, run.split_counts,
-                           offset=off, label=r.id, cache=run.cache if r.spec in run.shared else None)
+                           offset=off, label=r.id,
+                           **(run.capture_args(f, i) or {"cache": run.cache if r.spec in run.shared else None}))
         for split in BASE_SPLITS:
             first[split] += len(got.queries.get(split, []))
         infos.append(_write_room_specs(tmp, name, f, r, idx, off, got, n_points))
@@ -492,7 +518,8 @@ def read_building(root: str | Path) -> list[BuildingRoom]:
                          bounds_min=np.asarray(r["bounds_min"], dtype=np.float64),
                          bounds_max=np.asarray(r["bounds_max"], dtype=np.float64),
                          points=(int(r["points"][0]), int(r["points"][1])),
-                         queries={k: list(v) for k, v in r["queries"].items()}, doors=list(r.get("doors", [])))
+                         queries={k: list(v) for k, v in r["queries"].items()}, doors=list(r.get("doors", [])),
+                         reveal_m=meta["building"]["wall"] / 2 if meta.get("doors") == "open" else None)
             for s in meta["scenes"] for r in s["rooms"]]
 
 
@@ -505,6 +532,9 @@ def room_at(rooms: list[BuildingRoom], xyz: Any) -> BuildingRoom | None:
 
 
 def room_mesh(room: BuildingRoom, changed: bool = False) -> SceneMesh:
-    """The room's mesh in the world frame, rebuilt from its written spec (``changed``: scene_2)."""
-    mesh = build_scene(load_spec(room.changed_spec if changed else room.spec))
+    """The room's mesh in the world frame, rebuilt from its written spec (``changed``: scene_2), its
+    doors open where the building's are."""
+    spec = load_spec(room.changed_spec if changed else room.spec)
+    mesh = build_scene(spec) if room.reveal_m is None else \
+        build_scene(spec, open_doors=tuple(d["opening"] for d in room.doors), reveal_m=room.reveal_m)
     return lift_mesh(mesh, (0.0, 0.0, float(room.offset[2])))

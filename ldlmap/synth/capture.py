@@ -10,7 +10,7 @@ import os
 import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, Mapping
+from typing import Callable, Mapping, Sequence
 
 import numpy as np
 
@@ -21,7 +21,7 @@ from ldlmap.core.errors import InputError, LdlError, atomic_dir
 from ldlmap.datasets.omniscenes import written_by_synth
 from ldlmap.io.imagefile import write_image
 from ldlmap.synth.poses import sample_poses
-from ldlmap.synth.render import Renderer, apply_illumination
+from ldlmap.synth.render import Renderer, apply_illumination, render_through
 from ldlmap.synth.spec import MAX_COUNT as MAX_PER_SPLIT
 from ldlmap.synth.spec import MAX_WIDTH, MIN_WIDTH, SEED_LIMIT, CaptureSpec, SceneSpec
 
@@ -113,7 +113,8 @@ def write_split_panoramas(tmp: Path, name: str, spec: SceneSpec, idx: int, cap: 
                           renderer: Renderer, changed_renderer: Renderer, split_counts: dict[str, int],
                           tick: Callable[[str], None] = lambda description="": None,
                           first_stem: Mapping[str, int] | None = None,
-                          offset: np.ndarray | None = None) -> dict[str, list[str]]:
+                          offset: np.ndarray | None = None,
+                          through: Sequence[tuple[Renderer, np.ndarray]] = ()) -> dict[str, list[str]]:
     """Render and write the panoramas of every split of one room under the scene ``name``.
 
     ``idx`` is the room's index in the random streams (:func:`stream_rng`); ``renderer`` draws the
@@ -122,7 +123,9 @@ def write_split_panoramas(tmp: Path, name: str, spec: SceneSpec, idx: int, cap: 
     illumination variants share the extreme split's numbers), so that several rooms can share
     one scene folder. ``offset`` (3,) moves the written camera centres from the renderers' frame
     into the world frame (a room rendered where its spec puts it, floor at z = 0, then placed in
-    a building). ``split_counts`` is increased in place; returns split -> stems written.
+    a building). ``through``: the rooms seen through the room's open doors (renderers with their
+    meshes' origins in the room's frame). ``split_counts`` is increased in place; returns split ->
+    stems written.
     """
     written: dict[str, list[str]] = {}
     first = dict(first_stem or {})
@@ -142,8 +145,8 @@ def write_split_panoramas(tmp: Path, name: str, spec: SceneSpec, idx: int, cap: 
             if cap.blur_px.get(split, 0.0) > 0:  # length in [max / 2, max], scaled with W
                 blur = rng.uniform(0.5, 1.0) * cap.blur_px[split] * W / 1024.0
                 angle = rng.uniform(0.0, np.pi)
-            pano = rend.render(R, t, W, H, supersample=cap.supersample, blur_px=blur, blur_angle=angle,
-                               noise_sigma=cap.noise_sigma, rng=rng)
+            pano = render_through([(rend, np.zeros(3)), *through], R, t, W, H, supersample=cap.supersample,
+                                  blur_px=blur, blur_angle=angle, noise_sigma=cap.noise_sigma, rng=rng)
             stem = f"{first.get(split, 0) + k:04d}"
             write_jpeg(tmp / f"{split}_pano" / folder / f"{stem}.jpg", pano.rgb)
             write_pose(tmp / f"{split}_pose" / folder / f"{stem}.txt", R, t + shift)

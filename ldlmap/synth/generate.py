@@ -48,7 +48,7 @@ from ldlmap.synth.render import Renderer
 from ldlmap.synth.scene import build_scene
 from ldlmap.synth.shapes import classify_room
 from ldlmap.synth.spec import SceneSpec, dump_spec_toml, load_spec
-from ldlmap.synth.walk import check_walk_doors, write_walks
+from ldlmap.synth.walk import check_doors, check_walk_doors, write_walks
 from ldlmap.synth.walkplan import WalkRoom
 
 
@@ -81,7 +81,8 @@ def generate_dataset(out: Path, preset: str | None = "demo", spec_paths: Sequenc
                      overwrite: bool = False, progress: bool = True, illumination: bool = True,
                      width: int | None = None, per_split: int | None = None,
                      scenes: int | None = None, walk: tuple[str, ...] = (),
-                     walk_step: float | None = None, walk_doors: str = "closed") -> DatasetSummary:
+                     walk_step: float | None = None, doors: str = "closed",
+                     walk_doors: str | None = None) -> DatasetSummary:
     """Generate the dataset into ``out`` (atomically) and return a :class:`DatasetSummary`.
 
     ``width`` and ``per_split`` override the specs' panorama width and panoramas per split.
@@ -95,8 +96,9 @@ def generate_dataset(out: Path, preset: str | None = "demo", spec_paths: Sequenc
     if not spec_paths and is_building_preset(preset):
         return generate_building(out, preset, seed, overwrite=overwrite, progress=progress, illumination=illumination,
                                  width=width, per_split=per_split, walk=walk, walk_step=walk_step,
-                                 walk_doors=walk_doors)
-    if walk_doors != "closed":  # no other walk goes through a door
+                                 doors=doors, walk_doors=walk_doors)
+    check_doors(doors, building=False)  # no other preset has doors between rooms
+    if walk_doors not in (None, "closed"):
         check_walk_doors(walk_doors, walk, building=False)
     if not spec_paths and is_multiroom_preset(preset):
         return generate_multiroom(out, preset, seed, overwrite=overwrite, progress=progress, illumination=illumination,

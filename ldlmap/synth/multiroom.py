@@ -35,7 +35,7 @@ import math
 import time
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
@@ -234,32 +234,37 @@ class CapturedRoom:
 
 def capture_room(tmp: Path, scene: str, spec: SceneSpec, idx: int, cap: CaptureSettings, seed: int,
                  tick: Callable[[str], None], first_stem: dict[str, int], split_counts: dict[str, int],
-                 offset: Any = (0.0, 0.0, 0.0),
-                 label: str = "room", cache: dict | None = None) -> CapturedRoom:
+                 offset: Any = (0.0, 0.0, 0.0), label: str = "room", cache: dict | None = None,
+                 doors: tuple[int, ...] = (), reveal_m: float = 0.0,
+                 through: Sequence[tuple[Renderer, np.ndarray]] = ()) -> CapturedRoom:
     """Scan one room and write its panoramas into the scene ``scene`` (numbered on from
     ``first_stem``; ``split_counts`` grows in place), with the room's own random streams (``idx``).
 
     The room is built, scanned and rendered where ``spec`` puts it (floor at z = 0), then its
     mesh, edges, scan and camera centres are moved by ``offset`` (dx, dy, dz) into the world.
-    ``cache`` (spec -> mesh, renderer, edges), when given, holds built rooms for identical rooms
-    to share: equal specs give equal meshes and textures.
+    ``cache`` ((spec, doors, reveal) -> mesh, renderer, edges), when given, holds built rooms for
+    identical rooms to share: equal specs give equal meshes and textures. ``doors``: its openings
+    standing open (:func:`ldlmap.synth.scene.build_scene`, a reveal ``reveal_m`` deep), in its scan
+    and its panoramas, which see ``through`` them the rooms behind (renderers with their meshes'
+    origins in this room's frame).
     """
     off = np.asarray(offset, dtype=np.float64).reshape(3)
-    built = cache.get(spec) if cache is not None else None
+    key = (spec, tuple(doors), float(reveal_m))
+    built = cache.get(key) if cache is not None else None
     if built is None:
-        mesh = build_scene(spec)
+        mesh = build_scene(spec, open_doors=key[1], reveal_m=key[2])
         built = (mesh, Renderer(mesh), mesh_edges(mesh))
         if cache is not None:
-            cache[spec] = built
+            cache[key] = built
     mesh, renderer, edges = built
     tick(f"{label}: scan")
     pts, cols = scan.sample_scan(mesh, spec.scan, stream_rng(seed, spec, idx, "scan"), renderer=renderer)
     tick(f"{label}: changed room")
     changed = changed_spec(spec, stream_rng(seed, spec, idx, "change"))
-    changed_renderer = Renderer(build_scene(changed))
+    changed_renderer = Renderer(build_scene(changed, open_doors=key[1], reveal_m=key[2]))
     tick(f"{label}: panoramas")
     stems = write_split_panoramas(tmp, scene, spec, idx, cap, seed, renderer, changed_renderer, split_counts, tick,
-                                  first_stem=first_stem, offset=off)
+                                  first_stem=first_stem, offset=off, through=through)
     return CapturedRoom(mesh=lift_mesh(mesh, off), edges=np.asarray(edges, dtype=np.float64) + off,
                         points=pts + off, colors=cols, changed=changed, queries=stems)
 

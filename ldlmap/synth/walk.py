@@ -31,8 +31,8 @@ from ldlmap.synth.render import render_through
 from ldlmap.synth.walkplan import STEP_RANGE, BuiltRooms, WalkPose, WalkRoom, plan_walk
 
 WALK_KINDS = ("tour", "video")
-WALK_DOORS = ("closed", "open")  # a building's doors in the walk's frames: as its scans see them, or open (the
-# person walking through opened them; the next room is seen through the doorway)
+DOORS = ("closed", "open")  # a building's doors: closed (a panel in each doorway), or open (the next room is seen
+# through the doorway): in its scans and panoramas (--doors) and in its walk's frames (--walk-doors)
 WALK_STEP_M = {"tour": 2.0, "video": 0.2}  # mean step (m); steps are drawn in walkplan.STEP_RANGE x it
 STEP_LIMITS = (0.05, 5.0)  # m, --walk-step
 VISITS_PER_FLOOR = 3  # rooms off a building floor's corridor that a walk enters
@@ -57,12 +57,23 @@ def parse_walk(text: str | None) -> tuple[str, ...]:
     return tuple(k for k in WALK_KINDS if k in kinds)
 
 
-def check_walk_doors(doors: str | None, kinds: tuple[str, ...], building: bool) -> str:
-    """``--walk-doors``: closed (the default: as the scans see them) or open, only with ``--walk`` and a
-    building (the only preset whose walk goes through doors); one-line error otherwise."""
+def check_doors(doors: str | None, building: bool) -> str:
+    """``--doors``: closed (the default) or open, only with a building preset; one-line error otherwise."""
     if doors is None:
         return "closed"
-    if doors not in WALK_DOORS:
+    if doors not in DOORS:
+        raise InputError(f"--doors must be closed or open, got {doors!r}")
+    if doors == "open" and not building:
+        raise InputError("--doors open needs a building preset: no other preset has doors between its rooms")
+    return doors
+
+
+def check_walk_doors(doors: str | None, kinds: tuple[str, ...], building: bool, default: str = "closed") -> str:
+    """``--walk-doors``: closed or open (default ``default``: as the scans see them), only with ``--walk``
+    and a building (the only preset whose walk goes through doors); one-line error otherwise."""
+    if doors is None:
+        return default
+    if doors not in DOORS:
         raise InputError(f"--walk-doors must be closed or open, got {doors!r}")
     if not kinds:
         raise InputError("--walk-doors goes with --walk")
@@ -116,11 +127,12 @@ def _frame_record(pose: WalkPose, prev: WalkPose | None, stem: str, time: float 
 
 def write_walks(tmp: Path, spaces: list[list[WalkRoom]], kinds: tuple[str, ...], seed: int, cap: CaptureSettings,
                 split_counts: dict[str, int], tick: Callable[[str], None], step: float | None = None,
-                visits: int = VISITS_PER_FLOOR, doors: str = "closed") -> dict:
+                visits: int = VISITS_PER_FLOOR, doors: str = "closed", built: BuiltRooms | None = None) -> dict:
     """Plan, render and write the walks ``kinds`` through ``spaces`` (in order; each a list of rooms
     joined by doors) into dataset folder ``tmp``; ``split_counts`` grows in place. ``doors``: closed
-    (as the scans see them) or open (:data:`WALK_DOORS`). Returns the ``walks`` entry of ``dataset.json``."""
-    built = BuiltRooms()
+    or open (:data:`DOORS`); ``built``: the rooms built already (the scans'). Returns the ``walks`` entry
+    of ``dataset.json``."""
+    built = built or BuiltRooms()
     out = {}
     for kind in kinds:
         rng = np.random.default_rng([int(seed) & 0xFFFFFFFF, _STREAM, WALK_KINDS.index(kind)])
