@@ -58,7 +58,7 @@ real ZInD home (docs/measurements.md#confidence; ``bench/bench_confidence.py --f
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
@@ -365,13 +365,18 @@ def features_decide(signals: dict[str, float]) -> bool:
     """Whether the features single the pose out where its lines repeat (a copy of its room by the
     lines alone): a PnP pose as strongly supported as the refinement's plausibility guard asks
     (``features`` 1) with no PnP rival of :data:`RIVAL_SHARE` on any map nor another map's verified
-    twin (:func:`effective_signals` keeps ``features``). A copy that looks the same (an identical
-    room's textures) gives such a rival, so the features then decide nothing."""
-    return float(effective_signals(signals).get("features", 0.0)) >= 1.0
+    twin (:func:`effective_signals` keeps ``features``), nor at its copies on the same footing
+    (``copy_rival``, :func:`copy_rival`). A copy that looks the same (an identical room's textures)
+    gives such a rival, so the features then decide nothing."""
+    return (float(effective_signals(signals).get("features", 0.0)) >= 1.0
+            and float(signals.get("copy_rival", 0.0)) < RIVAL_SHARE)
 
 
-def assess(loc, ldl_map, support_deg: float = 1.0, model: ConfidenceModel = MODEL) -> None:
-    """Set ``confidence``, ``verdict``, ``competitors`` and ``confidence_signals`` on ``loc``."""
+def assess(loc, ldl_map, support_deg: float = 1.0, model: ConfidenceModel = MODEL,
+           inliers_at: Callable | None = None) -> None:
+    """Set ``confidence``, ``verdict``, ``competitors`` and ``confidence_signals`` on ``loc``;
+    ``inliers_at(loc, R, t, beyond)``: PnP of its features at a pose of ``ldl_map``
+    (:meth:`ldlloc.pipeline.Localizer.inliers_at`), for the copies of its room (:func:`add_copies`)."""
     signals, others = confidence_signals(loc, ldl_map, support_deg)
     loc.confidence_signals = {k: round(v, 6) for k, v in signals.items()}
     rival = rival_dict(loc)
@@ -382,15 +387,19 @@ def assess(loc, ldl_map, support_deg: float = 1.0, model: ConfidenceModel = MODE
                                                         [n["t"] for n in named]).all()]
     conf, loc.verdict = judge(loc.confidence_signals, loc.competitors, model)
     loc.confidence = round(conf, 6)
-    add_copies(loc, ldl_map, [(None, ldl_map)], support_deg, model)
+    add_copies(loc, ldl_map, [(None, ldl_map)], support_deg, model,
+               None if inliers_at is None else lambda name, R, t, beyond=0.0: inliers_at(loc, R, t, beyond))
 
 
-def add_copies(loc, own_map, maps: list, support_deg: float = 1.0, model: ConfidenceModel = MODEL) -> None:
+def add_copies(loc, own_map, maps: list, support_deg: float = 1.0, model: ConfidenceModel = MODEL,
+               inliers_at: Callable | None = None) -> None:
     """Look for copies of the room ``loc``'s pose stands in (:func:`ldlloc.refine.copies.find_copies`)
     on ``maps`` (``(name, map)``; name None: the pose's own map ``own_map``); each found is named as a
     competitor (``copy``: ``{"map", "t"}``; ``map`` too when it is another map), ``copies`` counts all
-    found so far, and the verdict is judged again (:func:`judge`: at most ``ambiguous``). A pose that
-    is not refined, or stands where no camera can, is not looked at."""
+    found so far, and the verdict is judged again (:func:`judge`: at most ``ambiguous``). Where the
+    features would single the pose out (:func:`features_decide`), ``inliers_at(name, R, t, beyond)``
+    (PnP of its features at a pose of map ``name``, None: its own) gives ``copy_rival``
+    (:func:`copy_rival`). A pose that is not refined, or stands where no camera can, is not looked at."""
     sig = loc.confidence_signals
     if not loc.refined or loc.arcs is None or float(sig.get("physical", 1.0)) < 0.5:
         return
@@ -413,9 +422,32 @@ def add_copies(loc, own_map, maps: list, support_deg: float = 1.0, model: Confid
     keep = [c for c in loc.competitors if "copy" in c or distinct(c["R"], c["t"], [n["R"] for n in named],
                                                                    [n["t"] for n in named]).all()]
     loc.competitors = (named + keep)[:max(MAX_COMPETITORS, len(named))]
-    loc.confidence_signals = {**sig, "copies": float(sig.get("copies", 0.0)) + len(found)}
+    loc.confidence_signals = {**sig, "copies": float(sig.get("copies", 0.0)) + len(found),
+                              **copy_rival(loc, found, inliers_at)}
     conf, loc.verdict = judge(loc.confidence_signals, loc.competitors, model)
     loc.confidence = round(conf, 6)
+
+
+def copy_rival(loc, found: list[dict], inliers_at: Callable | None) -> dict[str, float]:
+    """``{"copy_rival": share}`` where the features would single ``loc`` out among its room's copies
+    ``found`` (:func:`features_decide`): for each copy, PnP at its pose with its map's views nearest it
+    (``inliers_at(map, R, t)``: inliers, the nearest view's distance) over PnP at ``loc``'s own pose with
+    its own map's views no nearer than that (``inliers_at(None, R, t, beyond)``): the features compared
+    on the same footing, not on where each map happened to render a view. 1 where the own pose finds
+    no inliers so (the features cannot tell); copies tried until one reaches :data:`RIVAL_SHARE`. Empty
+    otherwise."""
+    sig = loc.confidence_signals
+    if inliers_at is None or not loc.num_inliers or not features_decide(sig):
+        return {}
+    R0, t0 = np.asarray(loc.rot_cam_from_world, float), np.asarray(loc.center, float)
+    best = float(sig.get("copy_rival", 0.0))
+    for f in found:
+        if best >= RIVAL_SHARE:
+            break
+        n, near = inliers_at(f["map"], f["R"], f["t"])
+        own = inliers_at(None, R0, t0, near)[0] if np.isfinite(near) else 0
+        best = max(best, n / own if own else 1.0)
+    return {"copy_rival": round(best, 6)}
 
 
 def verified(loc, loss: float) -> bool:

@@ -30,7 +30,7 @@ from ldlmap.io.imagefile import image_header_size, read_image
 from ldlloc.confidence import assess, refined_rivals
 from ldlloc.lines2d import Lines2DParams, detect_lines, filter_by_length, query_keep_ratio
 from ldlloc.refine.copies import room_twins
-from ldlloc.refine.features import RefineParams, keep_near_lines, refine_by_retrieval, refine_candidates
+from ldlloc.refine.features import RefineParams, inliers_near, keep_near_lines, refine_by_retrieval, refine_candidates
 from ldlloc.refine.geometric import (KERNELS, GeometricParams, map_line_support, physical_poses, refine_and_keep,
                                      refinement_plan, selection_scores)
 from ldlloc.refine.retrieval import RetrievalContext, ViewIndex, accept_retrieved
@@ -115,6 +115,8 @@ class Localization:
     refine_method: str = "none"  # features | geometric | features+geometric | none (what made the final pose)
     refine_residual_deg: float | None = None  # geometric: median angle of the matched line points
     arcs: np.ndarray | None = None  # the filtered 2D arcs used (camera frame)
+    query_features: tuple | None = field(default=None, repr=False)  # (Features, (W, H)) the feature refinement
+    # matched (the copies' check, Localizer.inliers_at; dropped with the arcs)
     arc_groups: np.ndarray | None = None  # principal group of each arc under the chosen rotation
     rotations: np.ndarray | None = None  # (N_r, 3, 3) all candidate rotations (after the prior)
     candidates_loss: np.ndarray | None = None  # (K,) search loss of each top-K pose (lower is better)
@@ -425,7 +427,7 @@ class Localizer:
 
     def _refine_features(self, img: np.ndarray, grouped_arcs: np.ndarray, res, arcs: np.ndarray):
         """Feature refinement of the top-K poses (:func:`ldlloc.refine.features.refine_candidates`); returns
-        the refinement and the number of query features it used.
+        the refinement and the query features it used.
 
         With ``query_frame`` ``map`` the query's features are extracted in the frame of the best
         candidate's rotation and, for candidates whose camera up axis is more than
@@ -455,7 +457,7 @@ class Localizer:
             first = feats if first is None else first
             key = (ref.refined, ref.num_inliers)
             if best_key is None or key > best_key:  # ties: the frame of the better-ranked candidates
-                best, best_key = (ref, len(feats)), key
+                best, best_key = (ref, feats), key
             if ref.refined:  # the next frames are tried only where this one's candidates failed
                 break
         if (p.refine.retrieval.views > 0 and len(first)
@@ -463,8 +465,17 @@ class Localizer:
             found = refine_by_retrieval(first, (W, H), m.features, self.backend, p.refine,
                                         self._retrieval_context(arcs, res))
             if found is not None:
-                best = (found, len(first))
+                best = (found, first)
         return best
+
+    def inliers_at(self, loc: "Localization", R: np.ndarray, t: np.ndarray, beyond: float = 0.0) -> tuple[int, float]:
+        """:func:`ldlloc.refine.features.inliers_near` of ``loc``'s query features
+        (:attr:`Localization.query_features`) at pose ``(R, t)`` of this map (the copies' check,
+        :func:`ldlloc.confidence.copy_rival`); ``(0, inf)`` without features."""
+        if self.backend is None or self.map.features is None or loc.query_features is None:
+            return 0, float("inf")
+        feats, size = loc.query_features
+        return inliers_near(feats, size, R, t, self.map.features, self.backend, self.params.refine, beyond)
 
     def _accepted(self, ref, arcs: np.ndarray, res) -> bool:
         """Whether a candidate's PnP pose passes the retrieval's own acceptance (inliers, and a line loss
@@ -600,7 +611,8 @@ class Localizer:
         clock = StageClock(out.seconds)
 
         if self.refine_enabled:
-            ref, out.num_query_features = self._refine_features(img, arcs[out.arc_groups >= 0], res, arcs)
+            ref, feats = self._refine_features(img, arcs[out.arc_groups >= 0], res, arcs)
+            out.num_query_features, out.query_features = len(feats), (feats, (img.shape[1], img.shape[0]))
             out.rot_cam_from_world, out.center = ref.rot_cam_from_world, ref.center
             out.coarse_rot, out.coarse_center = res.rotations[ref.candidate], res.centers[ref.candidate]
             out.arc_groups = labels[res.rotation_index[ref.candidate]]
@@ -623,7 +635,7 @@ class Localizer:
         else:
             out.message = "pose search only (no refinement)"
         clock.lap("refine")
-        assess(out, self.map, support_deg=self.params.geometric.support_deg)
+        assess(out, self.map, support_deg=self.params.geometric.support_deg, inliers_at=self.inliers_at)
         clock.lap("confidence")
         secs["total"] = sum(v for k, v in secs.items() if k != "total")
         return out

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from ldlloc.confidence import MODEL, assess, assess_across, judge, rotation_kind, verdict_for, why
+from ldlloc.confidence import MODEL, assess, assess_across, copy_rival, judge, rotation_kind, verdict_for, why
 from ldlloc.pipeline import Localization
 
 runner = CliRunner()
@@ -280,6 +280,43 @@ def test_copies_by_the_lines_yield_to_features_that_single_the_pose_out():
     weak = {**room, "features": 0.6, "retrieved": 1.0, "inliers": 36.0, "support": 0.5, "margin": 0.3}
     assert judge(weak, [])[1] == "confident"
     assert judge({**weak, "copies": 2.0}, copy)[1] == "ambiguous"  # a weak PnP does not decide
+
+
+def test_features_single_a_copy_out_only_on_the_same_footing():
+    """PnP at each copy of the room (its map's views nearest it) against PnP at the pose itself with its own
+    map's views no nearer than the copy's: a pose whose map happened to render a view where the camera
+    stood, and whose copies' maps did not, is not singled out by the features (an identical stairwell a
+    floor down, session 17); a copy whose views see nothing of the image on an equal footing is."""
+    sig = {"gap": 0.1, "support": 0.3, "support_gap": 0.05, "margin": 0.0, "features": 1.0, "refined": 1.0,
+           "inliers": 60.0, "pnp_rival": 0.0, "retrieved": 1.0, "physical": 1.0, "tie": 0.0, "map_margin": 0.5,
+           "map_rival": 0.0, "map_twin": 0.0, "copies": 2.0}
+    loc = SimpleNamespace(confidence_signals=sig, num_inliers=60, rot_cam_from_world=np.eye(3), center=np.zeros(3))
+    found = [{"map": "floor_1", "R": np.eye(3), "t": np.array([0.0, 0.0, 3.0])},
+             {"map": "floor_2", "R": np.eye(3), "t": np.array([0.0, 0.0, 6.0])}]
+    copies = [{"why": "copy of this room on floor_1, 3.0 m away", "copy": {"map": "floor_1", "t": [0, 0, 3]}}]
+    asked = []
+
+    def views(copy_n: int, copy_view_m: float, own_n: int, own_view_m: float):
+        def inliers_at(name, R, t, beyond=0.0):
+            asked.append((name, beyond))
+            if name is not None:
+                return copy_n, copy_view_m
+            return (own_n, own_view_m) if own_view_m >= beyond else (0, float("inf"))
+        return inliers_at
+
+    # the copies' maps hold no view within 1.8 m, the pose's own views beyond that see nothing: cannot tell
+    got = copy_rival(loc, found, views(0, 1.8, 60, 0.5))
+    assert got == {"copy_rival": 1.0} and asked[:2] == [("floor_1", 0.0), (None, 1.8)] and len(asked) == 2
+    assert judge({**sig, **got}, copies)[1] == "ambiguous"
+    # on the same footing the pose keeps 50 inliers, its copies 5: the features tell them apart
+    got = copy_rival(loc, found, views(5, 0.6, 50, 0.7))
+    assert got == {"copy_rival": 0.1} and judge({**sig, **got}, copies)[1] == "confident"
+    # an identical room's copy: 45 inliers against 50
+    assert judge({**sig, **copy_rival(loc, found, views(45, 0.6, 50, 0.7))}, copies)[1] == "ambiguous"
+    # a pose the features do not single out (a PnP rival already) runs no PnP at its copies
+    asked.clear()
+    assert copy_rival(SimpleNamespace(**{**vars(loc), "confidence_signals": {**sig, "map_rival": 0.6}}), found,
+                      views(0, 0.6, 60, 0.5)) == {} and not asked
 
 
 def test_competitor_reasons():

@@ -66,3 +66,22 @@ def test_pose_search_top20_contains_the_truth(localized):
 def test_rotation_candidates_contain_the_truth(localized):
     assert np.mean([r["rot_best"] < 3.0 for r in localized]) >= 0.95
     assert np.median([r["num_rotations"] for r in localized if r["num_rotations"]]) <= 50
+
+
+def test_features_seen_again_at_the_pose_and_not_without_views(demo_dataset, demo_localized):
+    """``Localizer.inliers_at`` (the copies' check, ``ldlloc.confidence.copy_rival``): PnP of a query's
+    features with the map's views nearest its true pose finds it again; with no view that far away it
+    finds nothing, and says so (inf); the other room's map, at a pose there, finds few."""
+    from ldlmap.map.mapfile import read_map
+    from ldlloc.pipeline import Localizer
+
+    q, loc = next((q, r) for q, r in demo_localized.values()
+                  if q.split == "robot" and r is not None and r.refine_method == "features")
+    own = Localizer(read_map(demo_dataset / "maps" / f"{q.scene}.h5", load_cloud=False))
+    n, near = own.inliers_at(loc, q.rot_cam_from_world, q.center)
+    assert n >= 30 and near < 3.0
+    assert own.inliers_at(loc, q.rot_cam_from_world, q.center, beyond=1e3) == (0, float("inf"))
+    other_scene = next(s for s in ("synthroom_1", "synthroom_2") if s != q.scene)
+    other = Localizer(read_map(demo_dataset / "maps" / f"{other_scene}.h5", load_cloud=False))
+    T = other.map.translations
+    assert other.inliers_at(loc, q.rot_cam_from_world, T[len(T) // 2])[0] < 0.5 * n

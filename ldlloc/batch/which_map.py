@@ -214,7 +214,13 @@ def localize_on_maps(img: np.ndarray, maps: MapSet, max_tilt_deg: float | None, 
     tick = time.perf_counter()
     chosen = choose_map([o for o in ranked if o.loc is not None], first.params.geometric)
     others = [(e.scene, e.localizer.map) for e in maps.entries if e is not chosen.entry]
-    add_copies(chosen.loc, chosen.entry.localizer.map, others, first.params.geometric.support_deg)  # other floors
+    loz = {e.scene: e.localizer for e in maps.entries}
+    add_copies(chosen.loc, chosen.entry.localizer.map, others, first.params.geometric.support_deg,  # other floors
+               inliers_at=lambda name, R, t, beyond=0.0: (loz[name] if name else chosen.entry.localizer).inliers_at(
+                   chosen.loc, R, t, beyond))
+    for o in ranked:  # the query's features served the copies' check only
+        if o.loc is not None:
+            o.loc.query_features = None
     secs["choose"] += time.perf_counter() - tick
     secs["total"] = sum(secs.values())
     loc = chosen.loc

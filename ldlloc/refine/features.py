@@ -182,6 +182,27 @@ def refine_candidates(query_feats, query_size: tuple[int, int], rotations: np.nd
     return out
 
 
+def inliers_near(query_feats, query_size: tuple[int, int], R: np.ndarray, t: np.ndarray, map_features, backend,
+                 params: RefineParams = RefineParams(), beyond: float = 0.0) -> tuple[int, float]:
+    """PnP of the query's features with the map's ``pnp_views`` rendered views nearest pose ``(R, t)``
+    among those at least ``beyond`` metres from it, refined near it (:func:`refine_candidates` with
+    that pose for each view): its inliers (0: no pose near it), and how far the nearest of those views
+    stands (inf: none). How strongly the features see the place there, on a footing ``beyond`` sets."""
+    if not len(query_feats):
+        return 0, float("inf")
+    t = np.asarray(t, float)
+    dist = np.linalg.norm(map_features.view_centers - t, axis=1)
+    views = np.argsort(dist, kind="stable")
+    views = views[dist[views] >= beyond][:params.pnp_views]
+    if not len(views):
+        return 0, float("inf")
+    serving = np.argmax(map_features.translation_view[None, :] == views[:, None], axis=1)  # a translation per view
+    k = len(views)
+    ref = refine_candidates(query_feats, query_size, np.repeat(np.asarray(R, float)[None], k, 0),
+                            np.repeat(t[None], k, 0), serving, map_features, backend, params)
+    return (int(ref.num_inliers) if ref.refined else 0), float(dist[views[0]])
+
+
 def refine_by_retrieval(query_feats, query_size: tuple[int, int], map_features, backend, params: RefineParams,
                         ctx: RetrievalContext) -> Refinement | None:
     """The retrieval fallback (module docstring): the ``params.retrieval.shortlist`` views most like the

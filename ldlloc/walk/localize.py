@@ -207,7 +207,7 @@ def lighten(out: FrameOutcome) -> None:
         o.searched = None
         if o.loc is not None and o is not out.choice.chosen:
             o.loc = None
-    out.loc.arcs, out.loc.rotations, out.loc.arc_groups = None, None, None
+    out.loc.arcs, out.loc.rotations, out.loc.arc_groups, out.loc.query_features = None, None, None, None
 
 
 def augment(outcomes: list[FrameOutcome], maps: MapSet, params: WalkParams) -> None:
@@ -492,7 +492,7 @@ def move_to(o: FrameOutcome, entry: MapEntry, R: np.ndarray, t: np.ndarray, para
         o.loc.message = f"the walk's pose (coarse: {exc})"
         o.entry = entry
         return False
-    loc.arcs, loc.rotations, loc.arc_groups = None, None, None
+    loc.arcs, loc.rotations, loc.arc_groups, loc.query_features = None, None, None, None
     loc.message = f"the walk's pose, {loc.message}"
     o.loc, o.entry = loc, entry
     return bool(loc.refined)
