@@ -84,3 +84,29 @@ def test_the_walk_changes_floor_at_the_stairs():
 
     assert path(free) == true_floor
     assert path(None) != true_floor  # the floors' noise alone decides otherwise
+
+
+def test_a_floor_the_images_cannot_tell_is_not_sure_from_floor_changes_the_path_did_not_pay():
+    """The open-door building's failure (docs/benchmarks.md#walks-synthetic-building): frames 0-2 on
+    floor 0 know their floor; frames 3-11 walk to the stairs and back, and their images cannot tell the
+    two floors (each image's own pose on floor 0). The path keeps them on floor 0; its margins there
+    are the floor changes an alternative would pay (10 nats or more), the walk's margins
+    (:func:`walk_margins`) only what the images say."""
+    from ldlloc.walk.localize import FrameOutcome, WalkFrame, WalkParams, walk_margins, walk_path
+    from ldlloc.walk.viterbi import margin
+
+    xs = [0, 2, 4, 6, 8, 10, 10, 8, 6, 4, 2, 0]
+    live = []
+    for k, x in enumerate(xs):
+        loss = [-100.0, -20.0] if k < 3 else [-100.0, -100.0]  # floor 0, floor 1
+        h = Hypotheses(np.array([0, 1]), np.repeat(np.eye(3)[None], 2, 0),
+                       np.array([[x, 1.0, 1.5], [x, 1.0, 1.5 + STOREY]]), np.array(loss), np.zeros(2, bool))
+        live.append(FrameOutcome(WalkFrame(f"f{k}", lambda: None), hypotheses=h, single_verdict="ambiguous",
+                                 single_pose=(np.eye(3), h.center[0])))
+    params, free = WalkParams(), FreeSpace.of_maps(_maps())
+    path = walk_path(live, params, free=free)
+    assert list(path.choice) == [0] * 12
+    plain = [margin(m, 0, np.array([False, True])) for m in path.marginals]
+    got = walk_margins(live, path, params, free)
+    assert min(plain[5:]) >= 10 and max(got[5:]) <= 3  # sure of floor 0 by the floor changes: not any more
+    assert min(got[:3]) > 30  # the frames whose images know their floor stay sure

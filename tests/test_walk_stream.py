@@ -222,9 +222,7 @@ def test_a_long_walk_holds_a_bounded_window(monkeypatch):
 def test_a_walk_shorter_than_the_lag_is_decided_as_a_whole(monkeypatch):
     """Frame 0 alone tells the copies apart: with the whole walk in view every frame is decided
     with the same margin as the offline walk's (the path's cost of the other copy)."""
-    from ldlloc.confidence import distinct
-    from ldlloc.walk.localize import walk_path
-    from ldlloc.walk.viterbi import margin
+    from ldlloc.walk.localize import walk_margins, walk_path
 
     got, _ = _streamed(monkeypatch, 12, 20)
     frames, hyps = _fake_frames(12)
@@ -232,9 +230,7 @@ def test_a_walk_shorter_than_the_lag_is_decided_as_a_whole(monkeypatch):
                          single_verdict="ambiguous") for f in frames]
     path = walk_path(live, WalkParams())
     assert all(j == 0 for j in path.choice)
-    margins = [margin(m, 0, distinct(o.hypotheses.rot_cam_from_world[0], o.hypotheses.center[0],
-                                     o.hypotheses.rot_cam_from_world, o.hypotheses.center))
-               for m, o in zip(path.marginals, live)]
+    margins = walk_margins(live, path, WalkParams())  # the offline walk's (its second path too)
     assert np.allclose([g[1] for g in got], margins) and min(margins) > 0
 
 

@@ -21,7 +21,7 @@ frame (the corridor it came out into) decide an earlier one (the copy of a room 
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Callable, Iterable
 
 import numpy as np
@@ -442,19 +442,30 @@ def walk_path(live: list[FrameOutcome], params: WalkParams, costs: dict | None =
 def walk_margins(live: list[FrameOutcome], path, params: WalkParams, free: FreeSpace | None = None,
                  costs: dict | None = None) -> list[float]:
     """Each frame's margin on ``path`` (the :func:`walk_path` over ``live``): how much more the best path
-    through another of its poses costs (:func:`ldlloc.walk.viterbi.margin`); where images found copies of
-    their rooms, the smaller of that and the same margin with every copy at its image's own pose's cost
-    (:func:`ldlloc.walk.copies.even_copies`: the walk is sure of a copy only for where it went).
-    ``costs``: the cost cache of that second path (:func:`walk_path`)."""
+    through another of its poses costs (:func:`ldlloc.walk.viterbi.margin`). Where images found copies of
+    their rooms, or a frame's poses stand on several floors, the smaller of that and the same margin on
+    a second path that knows only what the walk saw: every copy at its image's own pose's cost
+    (:func:`ldlloc.walk.copies.even_copies`: the walk is sure of a copy only for where it went) and a
+    change of floor by the stairs free (:func:`evidence_motion`: sure of a floor only for what the images
+    say, not for the floor changes the path did not pay). ``costs``: the cost cache of that second path
+    (:func:`walk_path`)."""
     def of(marginals: np.ndarray, h: Hypotheses, j: int) -> float:
         return margin(marginals, j, distinct(h.rot_cam_from_world[j], h.center[j], h.rot_cam_from_world, h.center))
 
     out = [of(path.marginals[f], o.hypotheses, j) for f, (o, j) in enumerate(zip(live, path.choice))]
     even = [even_copies(o) for o in live]
-    if all(e is o for e, o in zip(even, live)):
+    floors = any(np.ptp(o.hypotheses.center[:, 2]) >= params.motion.floor_dz_m for o in live)
+    if not floors and all(e is o for e, o in zip(even, live)):
         return out
-    other = walk_path(even, params, costs, free)
+    other = walk_path(even, evidence_motion(params), costs, free)
     return [min(m, of(other.marginals[f], e.hypotheses, j)) for f, (m, e, j) in enumerate(zip(out, even, path.choice))]
+
+
+def evidence_motion(params: WalkParams) -> WalkParams:
+    """``params`` with a change of floor costing nothing but its ``off_stairs_cost`` (where some map shows
+    stairs and the change is away from them): the second path of :func:`walk_margins`. On the open-door building a walk kept every frame on one floor, its stairwell
+    frames `confident` by the two floor changes it had not paid (docs/benchmarks.md#walks-synthetic-building)."""
+    return replace(params, motion=replace(params.motion, floor_cost=0.0))
 
 
 def settle(o: FrameOutcome, j: int, walk_margin: float, maps: MapSet, params: WalkParams) -> None:
