@@ -46,9 +46,9 @@ from ldlmap.datasets.omniscenes import SYNTH_GENERATOR
 from ldlmap.io.linefiles import write_lines
 from ldlmap.synth.capture import (BASE_SPLITS, GENERATOR_VERSION, ILLUMINATION_SPLITS, CaptureSettings, DatasetSummary,
                                   ProgressTicks, capture_settings, dataset_output, list_generated, read_dataset_meta)
+from ldlmap.synth.edges import mesh_edges
 from ldlmap.synth.multiroom import CapturedRoom, capture_room, lift_mesh, translate_spec, write_union
 from ldlmap.synth.presets import door_keep_out, place_object
-from ldlmap.synth.edges import mesh_edges
 from ldlmap.synth.scene import build_scene
 from ldlmap.synth.spec import (FRAME_WIDTH, CaptureSpec, ObjectSpec, OpeningSpec, PosterSpec, ScanSpec, SceneSpec,
                                dump_spec_toml, load_spec, validate_spec)
@@ -438,7 +438,8 @@ class _FloorRun:
     shared: set[SceneSpec]  # specs of the identical groups (built once for all their copies)
     spaces: list[list[WalkRoom]]  # the floors' rooms as a walk sees them (doors, reveals), plan order
     doors_open: bool = False  # the doors stand open in the scans and panoramas
-    cache: dict = field(default_factory=dict)  # (spec, doors, reveal) -> built room, for the shared specs
+    cache: dict = field(default_factory=dict)  # (spec, doors, reveal) -> built room: the shared specs (doors open:
+    # every room, built once for its scan, its panoramas, the rooms that see it through a door and the walk)
     built: BuiltRooms = field(default_factory=BuiltRooms)  # the rooms seen through open doors; the walk's
     rooms_done: int = 0  # rooms captured so far: the next room's index is one more
 
