@@ -47,7 +47,7 @@ from ldlmap.io.linefiles import write_lines
 from ldlmap.synth.capture import (BASE_SPLITS, GENERATOR_VERSION, ILLUMINATION_SPLITS, CaptureSettings, DatasetSummary,
                                   ProgressTicks, capture_settings, dataset_output, list_generated, read_dataset_meta)
 from ldlmap.synth.edges import mesh_edges
-from ldlmap.synth.multiroom import CapturedRoom, capture_room, lift_mesh, translate_spec, write_union
+from ldlmap.synth.multiroom import CapturedRoom, built_key, capture_room, lift_mesh, translate_spec, write_union
 from ldlmap.synth.presets import door_keep_out, place_object
 from ldlmap.synth.scene import build_scene
 from ldlmap.synth.spec import (FRAME_WIDTH, CaptureSpec, ObjectSpec, OpeningSpec, PosterSpec, ScanSpec, SceneSpec,
@@ -452,7 +452,7 @@ class _FloorRun:
         room = self.spaces[f][i]
         parts = self.built.seen_from(room, self.spaces[f], True)
         off = np.asarray(room.offset, dtype=np.float64)
-        own, key = parts[0][0], (room.spec, room.doors, room.reveal_m)
+        own, key = parts[0][0], built_key(room.spec, room.doors, room.reveal_m)
         if key not in self.cache:
             self.cache[key] = (own.mesh, own, mesh_edges(own.mesh))
         return {"doors": room.doors, "reveal_m": room.reveal_m, "through": [(r, o - off) for r, o in parts[1:]],

@@ -249,7 +249,7 @@ def capture_room(tmp: Path, scene: str, spec: SceneSpec, idx: int, cap: CaptureS
     origins in this room's frame).
     """
     off = np.asarray(offset, dtype=np.float64).reshape(3)
-    key = (spec, tuple(doors), float(reveal_m))
+    key = built_key(spec, doors, reveal_m)
     built = cache.get(key) if cache is not None else None
     if built is None:
         mesh = build_scene(spec, open_doors=key[1], reveal_m=key[2])
@@ -267,6 +267,11 @@ def capture_room(tmp: Path, scene: str, spec: SceneSpec, idx: int, cap: CaptureS
                                   first_stem=first_stem, offset=off, through=through)
     return CapturedRoom(mesh=lift_mesh(mesh, off), edges=np.asarray(edges, dtype=np.float64) + off,
                         points=pts + off, colors=cols, changed=changed, queries=stems)
+
+
+def built_key(spec: SceneSpec, doors: tuple[int, ...] = (), reveal_m: float = 0.0) -> tuple:
+    """The key of a built room in :func:`capture_room`'s ``cache``: its spec and the doors standing open."""
+    return spec, tuple(doors), float(reveal_m)
 
 
 def write_union(tmp: Path, name: str, rooms: list[CapturedRoom]) -> tuple[int, SceneMesh, np.ndarray]:

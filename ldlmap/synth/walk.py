@@ -57,15 +57,19 @@ def parse_walk(text: str | None) -> tuple[str, ...]:
     return tuple(k for k in WALK_KINDS if k in kinds)
 
 
+def _door_value(doors: str, option: str, building: bool, why: str) -> str:
+    """``doors`` checked as ``option``'s value: closed or open, open only in a building (``why`` says why)."""
+    if doors not in DOORS:
+        raise InputError(f"{option} must be closed or open, got {doors!r}")
+    if doors == "open" and not building:
+        raise InputError(f"{option} open needs a building preset: {why}")
+    return doors
+
+
 def check_doors(doors: str | None, building: bool) -> str:
     """``--doors``: closed (the default) or open, only with a building preset; one-line error otherwise."""
-    if doors is None:
-        return "closed"
-    if doors not in DOORS:
-        raise InputError(f"--doors must be closed or open, got {doors!r}")
-    if doors == "open" and not building:
-        raise InputError("--doors open needs a building preset: no other preset has doors between its rooms")
-    return doors
+    return "closed" if doors is None else _door_value(doors, "--doors", building,
+                                                      "no other preset has doors between its rooms")
 
 
 def check_walk_doors(doors: str | None, kinds: tuple[str, ...], building: bool, default: str = "closed") -> str:
@@ -73,13 +77,9 @@ def check_walk_doors(doors: str | None, kinds: tuple[str, ...], building: bool, 
     and a building (the only preset whose walk goes through doors); one-line error otherwise."""
     if doors is None:
         return default
-    if doors not in DOORS:
-        raise InputError(f"--walk-doors must be closed or open, got {doors!r}")
-    if not kinds:
+    if doors in DOORS and not kinds:
         raise InputError("--walk-doors goes with --walk")
-    if doors == "open" and not building:
-        raise InputError("--walk-doors open needs a building preset: no other walk goes through a door")
-    return doors
+    return _door_value(doors, "--walk-doors", building, "no other walk goes through a door")
 
 
 def check_walk_step(step: float | None, kinds: tuple[str, ...]) -> None:
