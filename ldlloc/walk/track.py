@@ -5,8 +5,10 @@ Three steps, cheapest first, each checked before the frame takes its pose:
 1. **Lines from the prediction** (:func:`track_by_lines`): the pose predicted from the last two
    frames (constant velocity, :func:`predict`) is refined from the frame's lines alone
    (:func:`ldlloc.refine.geometric.refine_and_keep`, a short refinement: few rounds from a small
-   association angle, wider after lost frames), the lines extracted at a reduced width
-   (``TrackParams.width``). No vanishing points, no candidate rotations, no search, no features.
+   association angle, wider after lost frames; from the prediction, the last pose and a ring of starts
+   around the prediction, the start whose refinement fits the most line points kept: :func:`best_fit`),
+   the lines extracted at a reduced width (``TrackParams.width``). No vanishing points, no candidate
+   rotations, no search, no features.
 2. **A restricted search** (:func:`track_by_search`): the map's candidate translations within
    ``radius_m`` per frame since the last trusted pose of the prediction and its candidate rotations
    within ``cone_deg`` (the distance fields subset, not the full search filtered), refined as
@@ -57,7 +59,9 @@ class TrackParams:
     width: int = 512  # step 1 extracts the lines at this width (a wider frame is resized; 0: as it is)
     rounds: int = 4  # step 1's association rounds ...
     assoc_deg: float = 6.0  # ... from this association angle, the rotation free from the first (the prediction is
-    # a few degrees and centimetres off)
+    # a few degrees and centimetres off) ...
+    ring: int = 4  # ... from the prediction, the last pose and this many starts around the prediction ...
+    ring_m: float = 0.15  # ... this far from it (xy): a prediction a step off can fall into a minimum 0.1-0.2 m wide
     radius_m: float = 0.75  # step 2: candidate translations within this of the prediction ...
     cone_deg: float = 15.0  # ... and candidate rotations within this of its rotation
     refine: str = "light"  # how step 2's pose is refined: light (features in one query frame, PnP on 2 views, no
@@ -180,13 +184,28 @@ def predict(prev, p: TrackParams) -> Prediction | None:
     return Prediction(b.entry, Rp, t + k * b.step, k, (R, t))
 
 
-def starts(pred: Prediction) -> tuple[np.ndarray, np.ndarray]:
-    """The poses step 1 refines, (S, 3, 3) and (S, 3): the prediction, and the last trusted pose
-    when it is another (a velocity that a wrong pose skewed must not carry the walk away)."""
+def starts(pred: Prediction, p: TrackParams) -> tuple[np.ndarray, np.ndarray, list[str]]:
+    """The poses step 1 refines, (S, 3, 3) and (S, 3), and what each is: the prediction, the last
+    trusted pose when it is another (a velocity that a wrong pose skewed must not carry the walk
+    away), and ``p.ring`` poses ``p.ring_m`` around the prediction at its rotation."""
+    Rp, tp = pred.rot_cam_from_world, pred.center
+    rots, centers, names = [Rp], [tp], ["predicted pose"]
     R, t = pred.last
-    if np.allclose(R, pred.rot_cam_from_world) and np.allclose(t, pred.center):
-        return pred.rot_cam_from_world[None], pred.center[None]
-    return np.stack([pred.rot_cam_from_world, R]), np.stack([pred.center, t])
+    if not (np.allclose(R, Rp) and np.allclose(t, tp)):
+        rots, centers, names = rots + [R], centers + [t], names + ["last pose"]
+    a = 2 * np.pi * np.arange(p.ring) / max(p.ring, 1)
+    ring = tp + p.ring_m * np.stack([np.cos(a), np.sin(a), np.zeros_like(a)], 1)
+    return (np.concatenate([np.stack(rots), np.repeat(Rp[None], p.ring, 0)]), np.concatenate([np.stack(centers), ring]),
+            names + [f"pose {p.ring_m:g} m beside the predicted one"] * p.ring)
+
+
+def best_fit(kept: np.ndarray, matched: np.ndarray, residual_deg: np.ndarray) -> int:
+    """The refined start that fits the frame's lines best: the most line points matched in the last
+    round, then the smallest median residual; among the kept ones when any is. The exact loss counts
+    arcs, too coarse for the 0.1-0.2 m between two minima of a small frame
+    (docs/benchmarks.md#tracking-from-more-than-one-start-2026-11-27)."""
+    order = np.lexsort((residual_deg, -np.asarray(matched), ~np.asarray(kept)))
+    return int(order[0])
 
 
 def tracking_lines(img: np.ndarray, loz: Localizer, width: int) -> QueryLines:
@@ -214,14 +233,14 @@ def track_by_lines(arcs: np.ndarray, secs: dict[str, float], pred: Prediction, p
     (at most the single-image refinement's)."""
     entry = pred.entry
     loz, m = entry.localizer, entry.localizer.map
-    R0, t0 = starts(pred)
+    R0, t0, names = starts(pred, p)
     assoc = min(p.assoc_deg * pred.frames, max(p.assoc_deg, loz.params.geometric.assoc_deg))
     geo = replace(loz.params.geometric, rounds=p.rounds, assoc_deg=assoc, fixed_rotation_rounds=0, wide_poses=0)
     tick = time.perf_counter()
     g, kept, loss = refine_and_keep(arcs, R0, t0, m.nearest_translation(t0), len(t0), m, geo,
                                     loz.params.search, loz.device, loz.params.principal.group_tol)
     secs = {**secs, "refine": time.perf_counter() - tick}
-    k = int(np.argmin(np.where(kept, loss, np.inf)))
+    k = best_fit(kept, g.matched, g.residual_deg)
     if not kept[k] or loss[k] > p.keep * ref_loss:
         return None
     R, t = g.rotations[k], g.centers[k]
@@ -231,7 +250,7 @@ def track_by_lines(arcs: np.ndarray, secs: dict[str, float], pred: Prediction, p
                        candidates_loss=np.array([loss[k]]), rotation_prior=rotation_prior_name(max_tilt_deg),
                        input_to_map=None if is_identity(m.input_to_map) else m.input_to_map,
                        selection_margin=NO_CONTENDER_MARGIN,
-                       message=f"tracked: the {('predicted', 'last')[k]} pose refined from lines ({int(g.matched[k])} "
+                       message=f"tracked: the {names[k]} refined from lines ({int(g.matched[k])} "
                                f"line points, median residual {float(g.residual_deg[k]):.2f} deg)")
     tick = time.perf_counter()
     assess(loc, m, support_deg=loz.params.geometric.support_deg)
