@@ -10,7 +10,8 @@ along the way), encoded as an mp4 (PyAV), and localized twice on the same frames
 and one frame at a time (:func:`ldlloc.batch.which_map.localize_on_maps`; ``--single-every N``: every
 N-th frame only, both compared on those frames). Printed: frames a second (the whole walk, and its
 tracked frames alone: the median seconds from one frame's decoding to the next, and their stages),
-within 0.1 m / 5 deg (all frames, and the compared ones), tracked, lost and global frames, peak memory, the results
+within 0.1 m / 5 deg (all frames, and the compared ones), confident frames (and of them beyond 0.25 m / 5 deg),
+tracked, lost and global frames, peak memory, the results
 write. ``--repeat N``: the rendered walk played N times in a row as one video (a long walk without
 rendering it; each loop jumps back to the start). Results: ``bench/video.json``.
 """
@@ -121,8 +122,8 @@ def main(argv: list[str] | None = None) -> int:
     params = LocalizeParams()
     maps = MapSet.load(map_path, params)
 
-    def accuracy(Rs, ts, frames) -> int:
-        return int(sum(translation_error(t, poses[k][1]) < 0.1 and rotation_error_deg(R, poses[k][0]) < 5
+    def accuracy(Rs, ts, frames, metres: float = 0.1) -> int:
+        return int(sum(translation_error(t, poses[k][1]) < metres and rotation_error_deg(R, poses[k][0]) < 5
                        for R, t, k in zip(Rs, ts, frames)))
 
     out = HERE / ".cache" / "video" / f"results_{Path(args.output).stem}.json"  # a run of its own per --output
@@ -143,6 +144,8 @@ def main(argv: list[str] | None = None) -> int:
     walk_ok = accuracy([np.array(recs[i].R) for i in sub], [np.array(recs[i].t) for i in sub], sub)
     posed = [i for i, r in enumerate(recs) if r.R is not None]
     all_ok = accuracy([np.array(recs[i].R) for i in posed], [np.array(recs[i].t) for i in posed], posed)
+    sure = [i for i in posed if recs[i].verdict == "confident"]
+    sure_right = accuracy([np.array(recs[i].R) for i in sure], [np.array(recs[i].t) for i in sure], sure, 0.25)
     tracked = sum(r.walk["tracked"] for r in recs)
     lost = sum(bool(r.walk.get("lost")) for r in recs)
     global_frames = len(recs) - tracked - lost
@@ -164,26 +167,37 @@ def main(argv: list[str] | None = None) -> int:
     res = {"frames": n, "width": args.width, "threads": args.threads, "track_refine": args.track_refine,
            "track_width": args.track_width, "compared_frames": m,
            "walk": {"seconds": walk_s, "cpu_s": walk_cpu, "frames_per_s": n / walk_s, "frames_per_cpu_s": n / walk_cpu,
-                    "within_0.1m_5deg": walk_ok, "all_within_0.1m_5deg": all_ok, "tracked": tracked, "lost": lost,
+                    "within_0.1m_5deg": walk_ok, "all_within_0.1m_5deg": all_ok, "confident": len(sure),
+                    "confident_wrong": len(sure) - sure_right, "tracked": tracked, "lost": lost,
                     "global": global_frames,
                     "tracked_by_lines": by_lines, "tracked_frame_median_s": track_s, "tracked_stages_median_s": stages,
                     "tracked_frame_median_cpu_s": track_cpu,
                     "global_frames_s": float(per_frame[~on_track].sum())},
            "single": {"seconds": single_s, "frames_per_s": m / single_s, "within_0.1m_5deg": single_ok},
            "peak_rss_mb": peak, "results_write_s": write_s, "results_bytes": out.stat().st_size}
-    print(f"tracked walk : {n / walk_s:.2f} frames/s ({n} frames, {walk_s:.1f} s; CPU {walk_cpu:.1f} s: "
-          f"{n / walk_cpu:.2f} frames per CPU s), {all_ok}/{n} within 0.1 m / 5 deg; {global_frames} global, {lost} lost "
-          "(the prediction, no search)")
-    print(f"             : {tracked} tracked ({by_lines} "
-          f"refined from lines alone), tracked frames {1 / track_s:.1f} frames/s (median {track_s * 1000:.0f} ms: "
-          + ", ".join(f"{k} {v * 1000:.0f}" for k, v in stages.items()) + f" ms; CPU {track_cpu * 1000:.0f} ms), global frames "
-          f"{per_frame[~on_track].sum():.1f} s; {walk_ok}/{m} within 0.1 m / 5 deg")
-    print(f"single images: {m / single_s:.2f} frames/s, {single_ok}/{m} within 0.1 m / 5 deg")
-    print(f"peak memory {peak:.0f} MB; the walk's results written once: {write_s * 1000:.1f} ms, "
-          f"{out.stat().st_size / 1024:.0f} kB")
+    print_summary(res)
     Path(args.output).write_text(json.dumps(res, indent=1))
     print(f"wrote {args.output}")
     return 0
+
+
+def print_summary(res: dict) -> None:
+    """The run's figures (:func:`main`'s ``res``) in a few lines."""
+    w, n, m = res["walk"], res["frames"], res["compared_frames"]
+    stages = w["tracked_stages_median_s"]
+    print(f"tracked walk : {w['frames_per_s']:.2f} frames/s ({n} frames, {w['seconds']:.1f} s; CPU {w['cpu_s']:.1f} s: "
+          f"{w['frames_per_cpu_s']:.2f} frames per CPU s), {w['all_within_0.1m_5deg']}/{n} within 0.1 m / 5 deg; "
+          f"{w['global']} global, {w['lost']} lost (the prediction, no search); confident {w['confident']} "
+          f"(beyond 0.25 m / 5 deg: {w['confident_wrong']})")
+    print(f"             : {w['tracked']} tracked ({w['tracked_by_lines']} refined from lines alone), tracked frames "
+          f"{1 / w['tracked_frame_median_s']:.1f} frames/s (median {w['tracked_frame_median_s'] * 1000:.0f} ms: "
+          + ", ".join(f"{k} {v * 1000:.0f}" for k, v in stages.items())
+          + f" ms; CPU {w['tracked_frame_median_cpu_s'] * 1000:.0f} ms), global frames {w['global_frames_s']:.1f} s; "
+          f"{w['within_0.1m_5deg']}/{m} within 0.1 m / 5 deg")
+    s = res["single"]
+    print(f"single images: {s['frames_per_s']:.2f} frames/s, {s['within_0.1m_5deg']}/{m} within 0.1 m / 5 deg")
+    print(f"peak memory {res['peak_rss_mb']:.0f} MB; the walk's results written once: {res['results_write_s'] * 1000:.1f} ms, "
+          f"{res['results_bytes'] / 1024:.0f} kB")
 
 
 if __name__ == "__main__":

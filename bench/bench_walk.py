@@ -28,12 +28,15 @@ lattice near confident frames (:mod:`ldlloc.walk.lattice`) at this spacing, 0: o
 ``first_s<seed>_lattice<M>.pkl``; the frames' own localizations are shared). Scored per frame against
 the ground truth the run never sees: within 0.1 m / 5 deg (single
 image and walk), right floor, and for the identical rooms (offices, hotel rooms) whether the pose
-is in the right copy (:func:`ldlmap.synth.building.room_at`). Results: ``bench/walk_building.json``.
+is in the right copy (:func:`ldlmap.synth.building.room_at`). ``--video``: the building's video walk instead
+(``ldlmap synth --walk video``, cached as ``data_s<seed>_..._video``), tracked as ``ldlloc run --video VIDEO --maps
+MAPS`` runs it (:func:`run_building_video`; no single-image column). Results: ``bench/walk_building.json``.
 """
 
 from __future__ import annotations
 
 import argparse
+from dataclasses import replace
 import json
 import sys
 import time
@@ -173,11 +176,12 @@ def building_data(args) -> Path:
     from ldlmap.synth.building import generate_building
 
     out = WALK_CACHE / (f"data_s{args.seed}_w{args.width}" + ("" if args.visits == 2 else f"_v{args.visits}")
-                        + doors_tag(args))
+                        + doors_tag(args) + ("_video" if args.video else ""))
     if not (out / "dataset.json").exists():
-        console().print(f"generating the building and its tour into {out}")
+        console().print(f"generating the building and its {'video' if args.video else 'tour'} into {out}")
         t0 = time.perf_counter()
-        generate_building(out, "building", args.seed, per_split=0, width=args.width, walk=("tour",),
+        generate_building(out, "building", args.seed, per_split=0, width=args.width,
+                          walk=("video",) if args.video else ("tour",),
                           walk_visits=args.visits, progress=False, illumination=False, doors=args.doors,
                           walk_doors=args.walk_doors)
         write_json(out.parent / f"{out.name}_synth.json", {"wall_s": time.perf_counter() - t0})
@@ -246,6 +250,8 @@ def run_building(args) -> dict:
 
     data = building_data(args)
     maps, build = building_maps(data, args)
+    if args.video:
+        return run_building_video(data, maps, build, args)
     queries = open_dataset(data, "omniscenes").queries("walk_tour")
     out = WALK_CACHE / f"walk_s{args.seed}.json"
     out.unlink(missing_ok=True)
@@ -275,6 +281,41 @@ def run_building(args) -> dict:
         out["nearest_candidate_m"] = {"median": float(np.median(d)), "p90": float(np.percentile(d, 90)),
                                       "over_0.3m": int((d > 0.3).sum())}  # to each frame's true position
     return out
+
+
+def run_building_video(data: Path, maps: Path, build: dict, args) -> dict:
+    """``--video``: the building's video walk (``video/walk_video.mp4``) as ``ldlloc run --video VIDEO --maps
+    MAPS`` runs it (tracked, the floor not given), scored per frame against the walk's ground truth."""
+    from ldlmap.core.geometry import rotation_error_deg, translation_error
+    from ldlmap.datasets import open_dataset
+    from ldlloc.batch.which_map import TOP_MAPS, MapSet
+    from ldlloc.pipeline import LocalizeParams
+    from ldlloc.walk.localize import VIDEO
+    from ldlloc.walk.run import run_walk_video
+
+    queries = sorted(open_dataset(data, "omniscenes").queries("walk_video"), key=lambda q: int(Path(q.image).stem))
+    out = WALK_CACHE / f"walk_s{args.seed}_video.json"
+    out.unlink(missing_ok=True)
+    t0, c0 = time.perf_counter(), time.process_time()
+    mapset = MapSet.load(maps, LocalizeParams())
+    res = run_walk_video(data / "video" / "walk_video.mp4", mapset, out, LocalizeParams(),
+                         replace(VIDEO, top_maps=TOP_MAPS), None, None, "cpu")
+    seconds, cpu = time.perf_counter() - t0, time.process_time() - c0
+    rows = []
+    for r in sorted(res, key=lambda r: r.walk["frame"]):
+        q, w = queries[r.walk["frame"]], r.walk
+        walk = {"t": None, "r": None, "verdict": r.verdict, "pose": None}
+        if r.t is not None:
+            walk.update(t=translation_error(np.asarray(r.t), q.center), r=rotation_error_deg(np.asarray(r.R), q.rot_cam_from_world),
+                        pose=list(r.t))
+        rows.append({"name": q.name, "map": None if r.map is None else Path(r.map).stem, "walk_decided": bool(w.get("walk_decided")),
+                     "margin": w.get("margin"), "tracked": bool(w.get("tracked")), "lost": bool(w.get("lost")),
+                     "walk": walk, "single": {"t": None, "r": None, "verdict": None, "pose": None}})
+    copy_rows(rows, queries, data)
+    return {"seed": args.seed, "width": args.width, "visits": args.visits, "doors": args.doors, "video": True,
+            "seconds": seconds, "cpu_s": cpu, "prepare": build, "frames": rows, **building_counts(rows),
+            "walk_decided": sum(r["walk_decided"] for r in rows), "tracked": sum(r["tracked"] for r in rows),
+            "lost": sum(r["lost"] for r in rows)}
 
 
 def walk_params(args):
@@ -537,6 +578,8 @@ def main(argv: list[str] | None = None) -> int:
                          "ldlmap synth --doors; the maps are built again for open doors")
     ap.add_argument("--walk-doors", choices=("closed", "open"), default=None,
                     help="--building: the tour's doors (default: as --doors; ldlmap synth --walk-doors)")
+    ap.add_argument("--video", action="store_true",
+                    help="--building: the building's video walk (ldlmap synth --walk video), tracked as ldlloc run --video runs it")
     ap.add_argument("--scan-walls", action="store_true",
                     help="--building: the walk reads the scan maps' stored footprints as walls (off by default)")
     ap.add_argument("--lattice", type=float, default=None,

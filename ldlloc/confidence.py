@@ -553,6 +553,21 @@ def sound_where_moved(loc, model: ConfidenceModel = MODEL) -> bool:
     return loc is not None and loc.confidence is not None and float(loc.confidence) >= model.confident_at
 
 
+def no_surer_than(confidence: float, verdict: str, sure: float | None, model: ConfidenceModel = MODEL
+                  ) -> tuple[float, str]:
+    """A tracked frame's ``(confidence, verdict)`` no surer than ``sure``, the image's own confidence at the
+    global frame its track started from (None: not known, unchanged). Tracking follows one place from
+    there, and a chain of tracked frames makes a walk's path margin large whatever place it follows: only
+    a global search compares places (a video through a building's identical floors: 127 of 194 confident
+    poses wrong before, docs/benchmarks.md#a-video-through-the-building-2026-11-27)."""
+    if sure is None or confidence <= sure:
+        return confidence, verdict
+    capped = round(float(sure), 6)
+    if verdict == "confident" and capped < model.confident_at:
+        return capped, "ambiguous"
+    return capped, verdict
+
+
 def walk_judgement(single_confidence: float | None, single_verdict: str | None, margin: float, changed: bool,
                    pose_ok: bool, model: ConfidenceModel = MODEL) -> tuple[float, str, bool]:
     """A walk frame's ``(confidence, verdict, walk_decided)`` from its single-image judgement and the

@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from ldlloc.confidence import MODEL, assess, assess_across, copy_rival, judge, rotation_kind, verdict_for, why
+from ldlloc.confidence import (MODEL, assess, assess_across, copy_rival, judge, no_surer_than, rotation_kind,
+                               verdict_for, why)
 from ldlloc.pipeline import Localization
 
 runner = CliRunner()
@@ -369,3 +370,12 @@ def test_confident_poses_are_right_and_reach_the_outputs(demo_dataset, tmp_path)
     one = json.loads(res.stdout)
     assert one["verdict"] == queries[0]["verdict"] and one["confidence"] == pytest.approx(queries[0]["confidence"])
     assert isinstance(one["competitors"], list)
+
+
+def test_a_tracked_frame_is_no_surer_than_where_its_track_started():
+    sure, unsure = MODEL.confident_at + 0.01, MODEL.confident_at - 0.2
+    assert no_surer_than(0.999, "confident", None) == (0.999, "confident")  # not known: as judged
+    assert no_surer_than(0.999, "confident", sure) == (round(sure, 6), "confident")
+    assert no_surer_than(0.999, "confident", unsure) == (round(unsure, 6), "ambiguous")
+    assert no_surer_than(0.1, "ambiguous", sure) == (0.1, "ambiguous")  # never raised
+    assert no_surer_than(0.0, "failed", unsure) == (0.0, "failed")

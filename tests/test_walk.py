@@ -352,6 +352,22 @@ def test_video_is_tracked_frame_by_frame(video, demo_dataset, tmp_path):
                                                                                                     abs=1e-3)
 
 
+def test_a_video_in_one_of_two_identical_rooms_is_never_confident(video, copies, tmp_path):
+    """The test video against room 1 written twice (and room 2): each frame in one of the copies within
+    0.1 m / 5 deg, and none `confident`: nothing in a walk that stays in the room tells the copies apart,
+    and the frames tracked from an ambiguous one are no surer than it, however long their chain."""
+    path, truth = video
+    root, _ = copies
+    out = tmp_path / "v.json"
+    res = runner.invoke(app, ["run", "--video", str(path), "--maps", str(root / "maps"), "--output", str(out)])
+    assert res.exit_code == 0, res.output
+    recs = sorted(json.loads(out.read_text())["queries"], key=lambda r: r["walk"]["frame"])
+    assert sum(r["walk"]["tracked"] for r in recs) >= 4
+    for r, (R, t) in zip(recs, truth):
+        assert min(translation_error(np.array(r["t"]), t + shift) for shift in (NEAR, FAR)) < 0.1, r["name"]
+        assert rotation_error_deg(np.array(r["R"]), R) < 5 and r["verdict"] != "confident", r["name"]
+
+
 def test_a_frame_tracked_from_a_step_off_finds_its_pose(video, demo_dataset):
     """Step 1 of tracking from the previous frame's true pose (0.15 m and 4 degrees off, as a prediction
     without a velocity is): every frame within 0.05 m / 2 deg. From that start alone the lines' refinement

@@ -75,3 +75,18 @@ def test_a_resumed_walk_tracks_from_the_written_pose():
                            entry=entry)
     pred = predict(back, TrackParams())
     assert pred.entry is entry and pred.frames == 1 and np.allclose(pred.center, [1.0, 2.0, 1.5])
+
+
+def test_a_track_carries_its_global_frames_confidence():
+    """What a tracked frame may be sure of at most (ldlloc.confidence.no_surer_than): the image's own
+    confidence at the global frame its track started from, handed on through tracked and lost frames."""
+    entry = object()
+    walk = [_frame(0, entry, tracked=False)] + [_frame(k, entry) for k in (1, 2)]
+    walk[0].single_confidence = 0.3
+    for f in walk[1:]:
+        f.single_confidence = 0.99  # a tracked pose's own judgement: no contender was searched
+    lost = _frame(3, entry, "failed", tracked=False)
+    again = _frame(4, entry, tracked=False)
+    again.single_confidence = 0.95
+    _walk(walk + [lost, again])
+    assert [f.track_basis.sure for f in walk + [lost, again]] == [0.3, 0.3, 0.3, 0.3, 0.95]

@@ -28,16 +28,17 @@ import numpy as np
 
 from ldlmap.core.errors import InputError, LdlError
 from ldlloc.batch.which_map import TOP_MAPS, MapChoice, MapEntry, MapSet, final_pose_loss, localize_on_maps
-from ldlloc.confidence import MODEL, distinct, sound_where_moved, walk_judgement
+from ldlloc.confidence import MODEL, distinct, no_surer_than, sound_where_moved, walk_judgement
 from ldlloc.pipeline import Localization, Localizer, SearchNear
 from ldlloc.search.pose_search import score_on_map
-from ldlloc.walk.copies import even_copies, room_copies
+from ldlloc.walk.copies import copies_undecided, even_copies, room_copies
 from ldlloc.walk.hypotheses import MAX_HYPOTHESES, Hypotheses, from_choice, joined
 from ldlloc.walk.lattice import LatticeParams, lattice_poses
 from ldlloc.walk.motion import FreeSpace, MotionParams, transition_costs
 from ldlloc.walk.relative import (RelativeParams, disagreement, floor_under, inverse, panorama_features, poses_along,
                                   relative_pose)
-from ldlloc.walk.track import TorchThreads, TrackBasis, TrackParams, check_track_params, next_basis, predict, track
+from ldlloc.walk.track import (TorchThreads, TrackBasis, TrackParams, check_track_params, is_lost, next_basis, predict,
+                               track)
 from ldlloc.walk.viterbi import best_path, margin
 
 TIE_COST = 0.01  # nats: what a pose the image named as its competitor costs more than its own (ties: its own)
@@ -447,18 +448,29 @@ def walk_margins(live: list[FrameOutcome], path, params: WalkParams, free: FreeS
     a second path that knows only what the walk saw: every copy at its image's own pose's cost
     (:func:`ldlloc.walk.copies.even_copies`: the walk is sure of a copy only for where it went) and a
     change of floor by the stairs free (:func:`evidence_motion`: sure of a floor only for what the images
-    say, not for the floor changes the path did not pay). ``costs``: the cost cache of that second path
-    (:func:`walk_path`)."""
+    say, not for the floor changes the path did not pay), over the frames searched on every map alone (a
+    chain of tracked frames follows the place it started from and would vouch for it: :func:`followed`).
+    ``costs``: the cost cache of that second path (:func:`walk_path`)."""
     def of(marginals: np.ndarray, h: Hypotheses, j: int) -> float:
         return margin(marginals, j, distinct(h.rot_cam_from_world[j], h.center[j], h.rot_cam_from_world, h.center))
 
     out = [of(path.marginals[f], o.hypotheses, j) for f, (o, j) in enumerate(zip(live, path.choice))]
     even = [even_copies(o) for o in live]
     floors = any(np.ptp(o.hypotheses.center[:, 2]) >= params.motion.floor_dz_m for o in live)
-    if not floors and all(e is o for e, o in zip(even, live)):
+    if not floors and all(e is o for e, o in zip(even, live)) and not any(map(followed, live)):
         return out
-    other = walk_path(even, evidence_motion(params), costs, free)
-    return [min(m, of(other.marginals[f], e.hypotheses, j)) for f, (m, e, j) in enumerate(zip(out, even, path.choice))]
+    seen = [f for f, o in enumerate(live) if not followed(o)]  # a tracked frame follows a place, it does not compare them
+    if not seen:
+        return out
+    other = walk_path([even[f] for f in seen], evidence_motion(params), costs, free)
+    for k, f in enumerate(seen):
+        out[f] = min(out[f], of(other.marginals[k], even[f].hypotheses, path.choice[f]))
+    return out
+
+
+def followed(o: FrameOutcome) -> bool:
+    """Whether frame ``o`` was tracked from the walk's prediction (or lost by tracking), not searched on every map."""
+    return bool(o.tracked) or is_lost(o.loc)
 
 
 def evidence_motion(params: WalkParams) -> WalkParams:
@@ -475,12 +487,18 @@ def settle(o: FrameOutcome, j: int, walk_margin: float, maps: MapSet, params: Wa
     h = o.hypotheses
     R, t = h.rot_cam_from_world[j], h.center[j]
     o.walk_margin = walk_margin
+    tracked = followed(o)  # before the walk moves it
+    copies = tracked and copies_undecided(o.loc)  # a track follows one copy of its room: it cannot tell them apart
     changed = bool(distinct(R, t, o.single_pose[0][None], o.single_pose[1][None])[0])
     pose_ok = bool(o.loc.refined)
     if changed:
         pose_ok = move_to(o, maps.entries[int(h.map_index[j])], R, t, params) and sound_where_moved(o.loc)
     conf, verdict, o.walk_decided = walk_judgement(o.single_confidence, o.single_verdict, o.walk_margin,
                                                    changed, pose_ok)
+    if tracked and o.track_basis is not None:  # no surer than the global frame its track started from
+        conf, verdict = no_surer_than(conf, verdict, o.track_basis.sure)
+    if copies:  # nor than its own image, which named copies of its room
+        conf, verdict = no_surer_than(conf, verdict, min(o.single_confidence or 0.0, MODEL.confident_at - 1e-6))
     o.loc.confidence, o.loc.verdict = conf, verdict
     if o.walk_decided and changed:  # the image's own pose is the walk's competitor
         R0, t0 = o.single_pose

@@ -243,7 +243,7 @@ def basis_from_record(b: dict | None, by_path: dict) -> TrackBasis | None:
     turn = b.get("turn")
     return TrackBasis(by_path[str(b["map"])], np.asarray(b["R"], float), np.asarray(b["t"], float),
                       None if b.get("step") is None else np.asarray(b["step"], float),
-                      None if turn is None else np.asarray(turn, float), int(b.get("since", 0)))
+                      None if turn is None else np.asarray(turn, float), int(b.get("since", 0)), b.get("sure"))
 
 
 def basis_record(b: TrackBasis | None) -> dict | None:
@@ -252,7 +252,7 @@ def basis_record(b: TrackBasis | None) -> dict | None:
         return None
     return {"map": str(b.entry.path), "R": b.rot_cam_from_world.tolist(), "t": b.center.tolist(),
             "step": None if b.step is None else b.step.tolist(), "turn": None if b.turn is None else b.turn.tolist(),
-            "since": b.since}
+            "since": b.since, "sure": b.sure}
 
 
 def resume_state(records: list[QueryResult | None], maps: MapSet, lag: int = LAG, block: int | None = None

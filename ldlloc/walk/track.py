@@ -130,6 +130,7 @@ class TrackBasis:
     step: np.ndarray | None = None
     turn: np.ndarray | None = None
     since: int = 0
+    sure: float | None = None  # the image's own confidence at the last frame localized globally (None: not known)
 
 
 def trusted(o) -> bool:
@@ -151,18 +152,20 @@ def basis_of(prev) -> TrackBasis | None:
 def next_basis(prev, out, p: TrackParams) -> TrackBasis | None:
     """The basis frame ``out`` hands on (``prev``: the frame before it): a trusted frame's own pose with
     the velocity since the last trusted pose (on the same map, at most ``max_step_m`` a frame; its turn
-    when that pose was the frame before); else the last basis one frame older (None beyond ``lookback``)."""
+    when that pose was the frame before); else the last basis one frame older (None beyond ``lookback``).
+    ``sure``: a global frame's own confidence, carried along the frames tracked from it."""
     b = basis_of(prev) if prev is not None else None
     if not trusted(out):
         return None if b is None or b.since + 1 >= p.lookback else replace(b, since=b.since + 1)
     R, t = np.asarray(out.loc.rot_cam_from_world, float), np.asarray(out.loc.center, float)
+    sure = (None if b is None else b.sure) if getattr(out, "tracked", False) else getattr(out, "single_confidence", None)
     if b is None or b.entry is not out.entry:
-        return TrackBasis(out.entry, R, t)
+        return TrackBasis(out.entry, R, t, sure=sure)
     k = b.since + 1
     step = (t - b.center) / k
     if np.linalg.norm(step) > p.max_step_m:
-        return TrackBasis(out.entry, R, t)
-    return TrackBasis(out.entry, R, t, step, R @ b.rot_cam_from_world.T if k == 1 else None)
+        return TrackBasis(out.entry, R, t, sure=sure)
+    return TrackBasis(out.entry, R, t, step, R @ b.rot_cam_from_world.T if k == 1 else None, sure=sure)
 
 
 def predict(prev, p: TrackParams) -> Prediction | None:
