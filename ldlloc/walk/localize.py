@@ -497,8 +497,8 @@ def settle(o: FrameOutcome, j: int, walk_margin: float, maps: MapSet, params: Wa
                                                    changed, pose_ok)
     if tracked and o.track_basis is not None:  # no surer than the global frame its track started from
         conf, verdict = no_surer_than(conf, verdict, o.track_basis.sure)
-    if copies:  # nor than its own image, which named copies of its room
-        conf, verdict = no_surer_than(conf, verdict, min(o.single_confidence or 0.0, MODEL.confident_at - 1e-6))
+    if copies and verdict == "confident":  # nor than its own image, which named copies of its room
+        conf, verdict = min(conf, float(o.single_confidence or 0.0)), "ambiguous"
     o.loc.confidence, o.loc.verdict = conf, verdict
     if o.walk_decided and changed:  # the image's own pose is the walk's competitor
         R0, t0 = o.single_pose
