@@ -193,10 +193,12 @@ def inliers_near(query_feats, query_size: tuple[int, int], R: np.ndarray, t: np.
     t = np.asarray(t, float)
     dist = np.linalg.norm(map_features.view_centers - t, axis=1)
     views = np.argsort(dist, kind="stable")
-    views = views[dist[views] >= beyond][:params.pnp_views]
+    serves = map_features.translation_view[None, :] == views[:, None]  # (V, N_t): the translations each view serves
+    keep = (dist[views] >= beyond) & serves.any(1)  # refine_candidates reaches a view through a translation it serves
+    views, serves = views[keep][:params.pnp_views], serves[keep][:params.pnp_views]
     if not len(views):
         return 0, float("inf")
-    serving = np.argmax(map_features.translation_view[None, :] == views[:, None], axis=1)  # a translation per view
+    serving = np.argmax(serves, axis=1)  # a translation per view
     k = len(views)
     ref = refine_candidates(query_feats, query_size, np.repeat(np.asarray(R, float)[None], k, 0),
                             np.repeat(t[None], k, 0), serving, map_features, backend, params)
