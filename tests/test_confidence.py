@@ -379,3 +379,6 @@ def test_a_tracked_frame_is_no_surer_than_where_its_track_started():
     assert no_surer_than(0.999, "confident", unsure) == (round(unsure, 6), "ambiguous")
     assert no_surer_than(0.1, "ambiguous", sure) == (0.1, "ambiguous")  # never raised
     assert no_surer_than(0.0, "failed", unsure) == (0.0, "failed")
+    # a start whose image named copies of its room (ambiguous, however sure of the room): never confident
+    assert no_surer_than(0.999, "confident", 0.999, "ambiguous") == (0.999, "ambiguous")
+    assert no_surer_than(0.999, "confident", sure, "confident") == (round(sure, 6), "confident")

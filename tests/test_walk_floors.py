@@ -13,6 +13,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
+from ldlloc.walk.copies import reachable_pose
 from ldlloc.walk.hypotheses import Hypotheses
 from ldlloc.walk.motion import FreeSpace, MotionParams, stair_points, transition_costs
 from ldlloc.walk.viterbi import best_path
@@ -110,3 +111,32 @@ def test_a_floor_the_images_cannot_tell_is_not_sure_from_floor_changes_the_path_
     got = walk_margins(live, path, params, free)
     assert min(plain[5:]) >= 10 and max(got[5:]) <= 3  # sure of floor 0 by the floor changes: not any more
     assert min(got[:3]) > 30  # the frames whose images know their floor stay sure
+
+
+def _poses(*spots) -> Hypotheses:
+    """A frame's poses at ``(map index, x)`` spots of the corridor, at one loss (its own first: copies of its room)."""
+    k = np.array([s[0] for s in spots])
+    return Hypotheses(k, np.repeat(np.eye(3)[None], len(spots), 0),
+                      np.array([[x, 1.0, 1.5 + m * STOREY] for m, x in spots]), np.full(len(spots), -80.0),
+                      np.zeros(len(spots), bool))
+
+
+def test_a_relocalized_frame_goes_on_where_the_walk_reaches():
+    # a video lost for 7 frames of 0.2 s relocalizes in a room whose copies stand on both floors; the walk's
+    # last trusted pose was on floor 0 at x 2
+    video = MotionParams(turn_deg=30.0)
+    free = FreeSpace.of_maps(_maps())
+    last = (0, np.eye(3), [2.0, 1.0, 1.5])
+    # away from the stairs: floor 1 is out of reach, the nearer copy on floor 0 is the one the walk took
+    assert reachable_pose(_poses((1, 3.0), (0, 3.0), (0, 8.0)), 0, last, 7, video, 0.2, free) == 1
+    # on the walk's floor but 9 m away: no walker covers that in 1.4 s
+    assert reachable_pose(_poses((0, 11.0), (0, 3.0)), 0, last, 7, video, 0.2, free) == 1
+    # ... unless that pose explains the frame's lines and the near one hardly any
+    far = _poses((0, 11.0), (0, 3.0))
+    far.loss[1] = -10.0
+    assert reachable_pose(far, 0, last, 7, video, 0.2, free) is None
+    # on the stairs a floor change is a walker's: the image keeps its floor
+    assert reachable_pose(_poses((1, 10.8), (0, 10.8)), 0, (0, np.eye(3), [10.5, 1.0, 1.5]), 7, video, 0.2,
+                          free) is None
+    # the image's own pose on the walk's floor and within reach: kept
+    assert reachable_pose(_poses((0, 2.5), (0, 8.0)), 0, last, 7, video, 0.2, free) is None

@@ -173,7 +173,7 @@ class _Loc:
 
 
 def _fake_localize(hyps: dict, held: list, streams: list):
-    def localize_frame(item, prev, maps, params, ref_loss, trackers, index, threads=None):
+    def localize_frame(item, prev, maps, params, ref_loss, trackers, index, threads=None, free=None):
         if threads is not None:  # as the tracker does: one thread for a line refinement, back before a search
             threads.one()
             threads.restore()

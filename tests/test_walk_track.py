@@ -8,7 +8,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from ldlloc.walk.track import TrackParams, next_basis, predict, trusted
+from ldlloc.walk.track import TrackParams, height_band, next_basis, predict, trusted
 from ldlmap.core.geometry import rotation_error_deg, rotation_from_axis_angle
 
 UP = np.array([0.0, 0.0, 1.0])
@@ -82,11 +82,28 @@ def test_a_track_carries_its_global_frames_confidence():
     confidence at the global frame its track started from, handed on through tracked and lost frames."""
     entry = object()
     walk = [_frame(0, entry, tracked=False)] + [_frame(k, entry) for k in (1, 2)]
-    walk[0].single_confidence = 0.3
+    walk[0].single_confidence, walk[0].single_verdict = 0.3, "ambiguous"
     for f in walk[1:]:
         f.single_confidence = 0.99  # a tracked pose's own judgement: no contender was searched
     lost = _frame(3, entry, "failed", tracked=False)
     again = _frame(4, entry, tracked=False)
-    again.single_confidence = 0.95
+    again.single_confidence, again.single_verdict = 0.95, "confident"
     _walk(walk + [lost, again])
     assert [f.track_basis.sure for f in walk + [lost, again]] == [0.3, 0.3, 0.3, 0.3, 0.95]
+    assert [f.track_basis.sure_verdict for f in walk + [lost, again]] == ["ambiguous"] * 4 + ["confident"]
+
+
+def test_a_tracked_camera_keeps_its_height():
+    """A walker's camera rises or sinks at most ``climb_m`` a frame (a stair's rise): the lines of the room
+    it entered once drew a tracked camera in the corridor down 1 m in four frames."""
+    entry = object()
+    walk = _walk([_frame(0, entry, tracked=False), _frame(1, entry)])
+    p = TrackParams(climb_m=0.15)
+    pred = predict(walk[-1], p)
+    assert height_band(pred, p, (0.4, 2.3)) == pytest.approx((1.35, 1.65))
+    assert height_band(pred, p, (1.6, 2.3)) == pytest.approx((1.6, 1.65))  # inside the map's band
+    assert height_band(pred, p, (3.4, 5.3)) == pytest.approx((1.35, 1.65))  # a band it does not meet: its own
+    lost = _frame(2, entry, "failed", tracked=False)
+    lost.loc = None
+    _walk(walk + [lost])
+    assert height_band(predict(lost, p), p, None) == pytest.approx((1.2, 1.8))  # two frames since

@@ -573,8 +573,8 @@ def refinement_plan(M: int, params: GeometricParams = GeometricParams()) -> tupl
 def refine_and_keep(arcs: np.ndarray, rotations: np.ndarray, centers: np.ndarray, translation_index: np.ndarray,
                     n: int, ldl_map, params: GeometricParams = GeometricParams(),
                     search: SearchParams = SearchParams(), device: str = "cpu", group_tol: float = ARC_GROUP_TOL,
-                    assoc_deg: np.ndarray | None = None,
-                    kernels=None) -> tuple[GeometricResult, np.ndarray, np.ndarray]:
+                    assoc_deg: np.ndarray | None = None, kernels=None,
+                    height_band: tuple[float, float] | None = None) -> tuple[GeometricResult, np.ndarray, np.ndarray]:
     """The geometric refinement stage on a map: refine the first ``n`` of these poses from lines alone
     and score every pose with the search's exact loss (:func:`ldlloc.search.pose_search.score_on_map`).
 
@@ -582,14 +582,16 @@ def refine_and_keep(arcs: np.ndarray, rotations: np.ndarray, centers: np.ndarray
     ``params.keep_within`` of its start's: the inlier loss cannot see a few centimetres
     (docs/measurements.md#geometric-keep-within). ``translation_index`` (M,): each pose's candidate
     translation (its visible lines); ``assoc_deg`` (n,): each refined pose's first association angle
-    (None: the params'); ``kernels`` (n,): each refined pose's weights (None: the params'). Returns
+    (None: the params'); ``kernels`` (n,): each refined pose's weights (None: the params');
+    ``height_band``: the camera's (min, max) world z (None: the map's camera-height band). Returns
     the :class:`GeometricResult` of the first ``n``, ``kept`` (M,) and
     each pose's loss (M,) (the better of the two where kept)."""
     m = ldl_map
     ti = np.asarray(translation_index)
     vis = m.visibility[ti[:n]] if m.visibility is not None else None
     g = refine_poses_geometric(arcs, rotations[:n], centers[:n], m.lines, m.line_groups, m.principal_directions,
-                               vis, params, m.camera_height_band, assoc_deg, kernels)
+                               vis, params, m.camera_height_band if height_band is None else height_band,
+                               assoc_deg, kernels)
     # a refined pose is scored with what is seen from the candidate translation nearest to it
     # (lines behind walls, mapped directions), not from its start's
     ti_ref = m.nearest_translation(g.centers)

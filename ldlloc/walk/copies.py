@@ -19,6 +19,7 @@ import numpy as np
 from ldlloc.confidence import features_decide
 from ldlloc.refine.copies import find_copies
 from ldlloc.walk.hypotheses import Hypotheses, joined
+from ldlloc.walk.motion import FreeSpace, MotionParams, straight_walk_costs
 
 
 def copies_undecided(loc) -> bool:
@@ -53,6 +54,24 @@ def room_copies(loc, entry, entries: list, index: dict[int, int], arcs: np.ndarr
     return Hypotheses(np.array(k, dtype=np.int64), np.stack([f["R"] for f in found]).astype(np.float64),
                       np.stack([f["t"] for f in found]).astype(np.float64), np.full(n, loss),
                       np.zeros(n, dtype=bool))
+
+
+def reachable_pose(poses: Hypotheses, own: int, last: tuple[int, np.ndarray, np.ndarray], frames: int,
+                   motion: MotionParams, dt: float | None, free: FreeSpace | None) -> int | None:
+    """Which of a relocalized frame's ``poses`` (its hypotheses and the copies of its room its image found,
+    ``own`` its image's own pose among them) the walk takes on from: the least cost of the pose's lines
+    (:meth:`Hypotheses.emission_costs`) and of the walk from its last trusted pose ``last`` (``(map index,
+    R, t)``, ``frames`` frames of ``dt`` seconds before; None: unknown; :func:`ldlloc.walk.motion.straight_walk_costs`),
+    where the own pose costs more than a change of floor away from the stairs (``motion.off_stairs_cost``)
+    more: the walk that came down the corridor took one door, not a room at the corridor's far end or on
+    another floor. None otherwise: a frame that truly climbed a floor by the stairs keeps its image's
+    floor (the motion cannot tell, the image's floor stands)."""
+    k, R, t = last
+    start = Hypotheses(np.array([k]), np.asarray(R, float)[None], np.asarray(t, float)[None], np.zeros(1),
+                       np.zeros(1, dtype=bool))
+    cost = poses.emission_costs(motion.emission_weight) + straight_walk_costs(start, poses, frames, motion, dt, free)
+    j = int(np.argmin(cost))
+    return j if cost[own] - cost[j] > motion.off_stairs_cost else None
 
 
 def even_copies(o):

@@ -31,7 +31,7 @@ from ldlloc.batch.which_map import TOP_MAPS, MapChoice, MapEntry, MapSet, final_
 from ldlloc.confidence import MODEL, distinct, no_surer_than, sound_where_moved, walk_judgement
 from ldlloc.pipeline import Localization, Localizer, SearchNear
 from ldlloc.search.pose_search import score_on_map
-from ldlloc.walk.copies import copies_undecided, even_copies, room_copies
+from ldlloc.walk.copies import copies_undecided, even_copies, reachable_pose, room_copies
 from ldlloc.walk.hypotheses import MAX_HYPOTHESES, Hypotheses, from_choice, joined
 from ldlloc.walk.lattice import LatticeParams, lattice_poses
 from ldlloc.walk.motion import FreeSpace, MotionParams, transition_costs
@@ -128,36 +128,39 @@ def localize_walk(frames: Iterable, maps: MapSet, params: WalkParams = WalkParam
     outcomes: list[FrameOutcome] = []
     ref_loss: float | None = None  # the last trusted global frame's loss: what a tracked pose must come near
     threads = TorchThreads()
+    free = free_space(maps, params)  # no step through a wall
     try:
         for i, item in enumerate(frames):
             out, ref_loss = localize_frame(item, outcomes[-1] if outcomes else None, maps, params, ref_loss,
-                                           trackers, index, threads)
+                                           trackers, index, threads, free)
             outcomes.append(out)
             if progress:
                 progress(i, out)
     finally:
         threads.restore()
     augment(outcomes, maps, params)
-    decide(outcomes, maps, params)
+    decide(outcomes, maps, params, free)
     return outcomes
 
 
 def localize_frame(item, prev: FrameOutcome | None, maps: MapSet, params: WalkParams, ref_loss: float | None,
-                   trackers: dict[int, Localizer], index: dict[int, int], threads: TorchThreads | None = None
-                   ) -> tuple[FrameOutcome, float | None]:
+                   trackers: dict[int, Localizer], index: dict[int, int], threads: TorchThreads | None = None,
+                   free: FreeSpace | None = None) -> tuple[FrameOutcome, float | None]:
     """One frame's own localization (the first pass): tracked from the walk's prediction (its basis
     carried by ``prev``, the frame before it: :func:`ldlloc.walk.track.predict`) or global, its
     hypotheses kept and its image dropped (:func:`lighten`). ``item``: a :class:`WalkFrame` or a
     ``(WalkFrame, image)`` pair; ``ref_loss``: the last trusted global frame's loss (returned updated);
     ``index``: ``id(MapEntry) -> index``; ``threads``: the walk's torch threads (None: this call's,
     restored before it returns). A frame localized globally where the walk predicted a pose also
-    gets that pose as a hypothesis (its image may have failed: too few lines, motion blur). A frame
-    that cannot be localized gets its ``error``."""
+    gets that pose as a hypothesis (its image may have failed: too few lines, motion blur), and where
+    its image named copies of its room, the track goes on from the copy the walk reaches (:func:`reached`;
+    ``free``: the maps' free space). A frame that cannot be localized gets its ``error``."""
     fr, img = item if isinstance(item, tuple) else (item, None)
     out = FrameOutcome(fr)
     own_threads = threads is None
     threads = TorchThreads() if threads is None else threads
     pred = predict(prev, params.tracking) if params.track and prev is not None else None
+    start = None  # where the track goes on from, when not the frame's own pose (reached)
     try:
         img = fr.load() if img is None else img
         got = track(img, pred, fr.max_tilt_deg, params.tracking, ref_loss, trackers, threads)
@@ -181,6 +184,7 @@ def localize_frame(item, prev: FrameOutcome | None, maps: MapSet, params: WalkPa
                                 loz.params.search, loz.device, loz.params.principal.group_tol)
             out.hypotheses = joined(out.hypotheses, index[id(pred.entry)], pred.rot_cam_from_world[None],
                                     pred.center[None], loss)
+            start = reached(out, pred, prev, index, params, free)
     except LdlError as exc:
         out.error = str(exc)
     except Exception as exc:  # noqa: BLE001 - one frame's failure (cv2.error, a decoder's), not the walk's
@@ -189,8 +193,36 @@ def localize_frame(item, prev: FrameOutcome | None, maps: MapSet, params: WalkPa
         if own_threads:
             threads.restore()
     out.track_basis = next_basis(prev, out, params.tracking) if params.track else None
+    if start is not None:
+        out.track_basis = TrackBasis(maps.entries[start[0]], start[1], start[2], sure=out.single_confidence,
+                                     sure_verdict=out.single_verdict)
     lighten(out)
     return out, ref_loss
+
+
+def reached(out: FrameOutcome, pred, prev: FrameOutcome, index: dict[int, int], params: WalkParams,
+            free: FreeSpace | None) -> tuple[int, np.ndarray, np.ndarray] | None:
+    """Frame ``out``, localized globally where the walk predicted ``pred`` (:class:`ldlloc.walk.track.Prediction`;
+    ``prev`` the frame before), in a room its image found copies of: ``(map index, R, t)`` of the pose
+    among its hypotheses and those copies that the walk reaches from its last trusted pose
+    (:func:`ldlloc.walk.copies.reachable_pose`), which then joins the frame's hypotheses; None when the
+    image's own pose is as reachable."""
+    if out.copies is None or out.entry is None:
+        return None
+    dt = None if out.frame.time is None or prev.frame.time is None else out.frame.time - prev.frame.time
+    R, t = pred.last
+    poses = even_copies(out).hypotheses
+    own = np.flatnonzero(~distinct(*out.single_pose, poses.rot_cam_from_world, poses.center)
+                         & (poses.map_index == index[id(out.entry)]))
+    if not len(own):
+        return None
+    j = reachable_pose(poses, int(own[0]), (index[id(pred.entry)], R, t), pred.frames, params.motion, dt, free)
+    if j is None:
+        return None
+    if j >= len(out.hypotheses):  # a copy: among the frame's poses from now on
+        out.hypotheses = joined(out.hypotheses, int(poses.map_index[j]), poses.rot_cam_from_world[j][None],
+                                poses.center[j][None], poses.loss[j:j + 1])
+    return int(poses.map_index[j]), poses.rot_cam_from_world[j], poses.center[j]
 
 
 def own_loss(choice: MapChoice) -> float:
@@ -396,12 +428,13 @@ def emission_costs(o: FrameOutcome, params: WalkParams) -> np.ndarray:
     return np.where(other, np.maximum(e, own) + extra, e)
 
 
-def decide(outcomes: list[FrameOutcome], maps: MapSet, params: WalkParams) -> None:
-    """Choose the walk's path over the frames that have hypotheses and give each its pose and judgement."""
+def decide(outcomes: list[FrameOutcome], maps: MapSet, params: WalkParams, free: FreeSpace | None = None) -> None:
+    """Choose the walk's path over the frames that have hypotheses and give each its pose and judgement
+    (``free``: the maps' free space, found here when None)."""
     live = [o for o in outcomes if o.hypotheses is not None and len(o.hypotheses)]
     if not live:
         return
-    free = free_space(maps, params)
+    free = free_space(maps, params) if free is None else free
     path = walk_path(live, params, free=free)
     for o, j, m in zip(live, path.choice, walk_margins(live, path, params, free)):
         settle(o, j, m, maps, params)
@@ -496,7 +529,7 @@ def settle(o: FrameOutcome, j: int, walk_margin: float, maps: MapSet, params: Wa
     conf, verdict, o.walk_decided = walk_judgement(o.single_confidence, o.single_verdict, o.walk_margin,
                                                    changed, pose_ok)
     if tracked and o.track_basis is not None:  # no surer than the global frame its track started from
-        conf, verdict = no_surer_than(conf, verdict, o.track_basis.sure)
+        conf, verdict = no_surer_than(conf, verdict, o.track_basis.sure, o.track_basis.sure_verdict)
     if copies and verdict == "confident":  # nor than its own image, which named copies of its room
         conf, verdict = min(conf, float(o.single_confidence or 0.0)), "ambiguous"
     o.loc.confidence, o.loc.verdict = conf, verdict

@@ -127,7 +127,7 @@ class WalkStream:
         prev = self.slots[-1].out if self.slots else self.prev
         self.threads.one()
         out, self.ref_loss = localize_frame(item, prev, self.maps, self.params, self.ref_loss, self.trackers,
-                                            self.index, self.threads)
+                                            self.index, self.threads, self.free)
         relate(prev, out, self.maps, self.index, self.params, self.features)  # the motion from the frame before
         slot = Slot(i, out, self.ref_loss, self.confident, needs_more(out) and not is_lost(out.loc), i < self.written)
         if is_anchor(out):
@@ -243,7 +243,8 @@ def basis_from_record(b: dict | None, by_path: dict) -> TrackBasis | None:
     turn = b.get("turn")
     return TrackBasis(by_path[str(b["map"])], np.asarray(b["R"], float), np.asarray(b["t"], float),
                       None if b.get("step") is None else np.asarray(b["step"], float),
-                      None if turn is None else np.asarray(turn, float), int(b.get("since", 0)), b.get("sure"))
+                      None if turn is None else np.asarray(turn, float), int(b.get("since", 0)), b.get("sure"),
+                      b.get("sure_verdict"))
 
 
 def basis_record(b: TrackBasis | None) -> dict | None:
@@ -252,7 +253,7 @@ def basis_record(b: TrackBasis | None) -> dict | None:
         return None
     return {"map": str(b.entry.path), "R": b.rot_cam_from_world.tolist(), "t": b.center.tolist(),
             "step": None if b.step is None else b.step.tolist(), "turn": None if b.turn is None else b.turn.tolist(),
-            "since": b.since, "sure": b.sure}
+            "since": b.since, "sure": b.sure, "sure_verdict": b.sure_verdict}
 
 
 def resume_state(records: list[QueryResult | None], maps: MapSet, lag: int = LAG, block: int | None = None

@@ -7,7 +7,8 @@ Three steps, cheapest first, each checked before the frame takes its pose:
    (:func:`ldlloc.refine.geometric.refine_and_keep`, a short refinement: few rounds from a small
    association angle, wider after lost frames; from the prediction, the last pose and a ring of starts
    around the prediction, the start whose refinement fits the most line points kept: :func:`best_fit`),
-   the lines extracted at a reduced width (``TrackParams.width``). No vanishing points, no candidate
+   the lines extracted at a reduced width (``TrackParams.width``), the camera's height held near the last
+   trusted pose's (:func:`height_band`). No vanishing points, no candidate
    rotations, no search, no features.
 2. **A restricted search** (:func:`track_by_search`): the map's candidate translations within
    ``radius_m`` per frame since the last trusted pose of the prediction and its candidate rotations
@@ -62,6 +63,9 @@ class TrackParams:
     # a few degrees and centimetres off) ...
     ring: int = 4  # ... from the prediction, the last pose and this many starts around the prediction ...
     ring_m: float = 0.15  # ... this far from it (xy): a prediction a step off can fall into a minimum 0.1-0.2 m wide
+    climb_m: float = 0.15  # ... the camera rising or sinking at most this per frame since the last trusted pose (a
+    # stair's rise a step; a walker's camera keeps its height: lines of another room drew it down 1 m in 4 frames;
+    # 0: not held)
     radius_m: float = 0.75  # step 2: candidate translations within this of the prediction ...
     cone_deg: float = 15.0  # ... and candidate rotations within this of its rotation
     refine: str = "light"  # how step 2's pose is refined: light (features in one query frame, PnP on 2 views, no
@@ -130,7 +134,8 @@ class TrackBasis:
     step: np.ndarray | None = None
     turn: np.ndarray | None = None
     since: int = 0
-    sure: float | None = None  # the image's own confidence at the last frame localized globally (None: not known)
+    sure: float | None = None  # the image's own confidence at the last frame localized globally (None: not known) ...
+    sure_verdict: str | None = None  # ... and its verdict
 
 
 def trusted(o) -> bool:
@@ -153,19 +158,23 @@ def next_basis(prev, out, p: TrackParams) -> TrackBasis | None:
     """The basis frame ``out`` hands on (``prev``: the frame before it): a trusted frame's own pose with
     the velocity since the last trusted pose (on the same map, at most ``max_step_m`` a frame; its turn
     when that pose was the frame before); else the last basis one frame older (None beyond ``lookback``).
-    ``sure``: a global frame's own confidence, carried along the frames tracked from it."""
+    ``sure``, ``sure_verdict``: a global frame's own confidence and verdict, carried along the frames tracked from it."""
     b = basis_of(prev) if prev is not None else None
     if not trusted(out):
         return None if b is None or b.since + 1 >= p.lookback else replace(b, since=b.since + 1)
     R, t = np.asarray(out.loc.rot_cam_from_world, float), np.asarray(out.loc.center, float)
-    sure = (None if b is None else b.sure) if getattr(out, "tracked", False) else getattr(out, "single_confidence", None)
+    if getattr(out, "tracked", False):
+        sure, said = (None, None) if b is None else (b.sure, b.sure_verdict)
+    else:
+        sure, said = getattr(out, "single_confidence", None), getattr(out, "single_verdict", None)
     if b is None or b.entry is not out.entry:
-        return TrackBasis(out.entry, R, t, sure=sure)
+        return TrackBasis(out.entry, R, t, sure=sure, sure_verdict=said)
     k = b.since + 1
     step = (t - b.center) / k
     if np.linalg.norm(step) > p.max_step_m:
-        return TrackBasis(out.entry, R, t, sure=sure)
-    return TrackBasis(out.entry, R, t, step, R @ b.rot_cam_from_world.T if k == 1 else None, sure=sure)
+        return TrackBasis(out.entry, R, t, sure=sure, sure_verdict=said)
+    return TrackBasis(out.entry, R, t, step, R @ b.rot_cam_from_world.T if k == 1 else None, sure=sure,
+                      sure_verdict=said)
 
 
 def predict(prev, p: TrackParams) -> Prediction | None:
@@ -211,6 +220,19 @@ def best_fit(kept: np.ndarray, matched: np.ndarray, residual_deg: np.ndarray) ->
     return int(order[0])
 
 
+def height_band(pred: Prediction, p: TrackParams, band: tuple[float, float] | None) -> tuple[float, float] | None:
+    """The world z a tracked camera may take: within ``p.climb_m`` per frame of the last trusted pose's
+    height, inside the map's camera-height ``band`` (None: unknown) where the two meet (``climb_m`` 0:
+    the map's band alone)."""
+    if p.climb_m <= 0:
+        return band
+    z, dz = float(pred.last[1][2]), p.climb_m * pred.frames
+    lo, hi = z - dz, z + dz
+    if band is not None and max(lo, band[0]) <= min(hi, band[1]):
+        lo, hi = max(lo, band[0]), min(hi, band[1])
+    return lo, hi
+
+
 def tracking_lines(img: np.ndarray, loz: Localizer, width: int) -> QueryLines:
     """The frame's 2D lines at ``width`` (a wider frame resized with area averaging; 0: as it is)."""
     if 0 < width < img.shape[1]:
@@ -240,12 +262,13 @@ def track_by_lines(arcs: np.ndarray, secs: dict[str, float], pred: Prediction, p
     assoc = min(p.assoc_deg * pred.frames, max(p.assoc_deg, loz.params.geometric.assoc_deg))
     geo = replace(loz.params.geometric, rounds=p.rounds, assoc_deg=assoc, fixed_rotation_rounds=0, wide_poses=0)
     tick = time.perf_counter()
-    g, kept, loss = refine_and_keep(arcs, R0, t0, m.nearest_translation(t0), len(t0), m, geo,
-                                    loz.params.search, loz.device, loz.params.principal.group_tol)
-    secs = {**secs, "refine": time.perf_counter() - tick}
+    g, kept, loss = refine_and_keep(arcs, R0, t0, m.nearest_translation(t0), len(t0), m, geo, loz.params.search,
+                                    loz.device, loz.params.principal.group_tol,
+                                    height_band=height_band(pred, p, m.camera_height_band))
     k = best_fit(kept, g.matched, g.residual_deg)
     if not kept[k] or loss[k] > p.keep * ref_loss:
         return None
+    secs = {**secs, "refine": time.perf_counter() - tick}
     R, t = g.rotations[k], g.centers[k]
     loc = Localization(R, t, R0[k], t0[k], R[None], t[None], secs, num_rotations=0, num_lines=len(arcs), refined=True,
                        num_matches=int(g.matched[k]), refine_method="geometric",
