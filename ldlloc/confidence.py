@@ -557,9 +557,9 @@ def no_surer_than(confidence: float, verdict: str, sure: float | None, sure_verd
                   model: ConfidenceModel = MODEL) -> tuple[float, str]:
     """A tracked frame's ``(confidence, verdict)`` no surer than ``sure``, the image's own confidence at the
     global frame its track started from (None: not known, unchanged), and not ``confident`` where that
-    image's verdict ``sure_verdict`` was not (copies of its room: the track follows one). Tracking follows one place from
-    there, and a chain of tracked frames makes a walk's path margin large whatever place it follows: only
-    a global search compares places (a video through a building's identical floors: 127 of 194 confident
+    image's verdict ``sure_verdict`` was not (copies of its room: the track follows one). Tracking follows
+    one place from there, and a chain of tracked frames makes a walk's path margin large whatever place it
+    follows: only a global search compares places (a video through a building's identical floors: 127 of 194 confident
     poses wrong before, docs/benchmarks.md#a-video-through-the-building-2026-11-27)."""
     if verdict == "confident" and sure_verdict not in (None, "confident"):
         confidence, verdict = (confidence if sure is None else min(confidence, round(float(sure), 6))), "ambiguous"
