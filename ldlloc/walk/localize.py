@@ -192,10 +192,11 @@ def localize_frame(item, prev: FrameOutcome | None, maps: MapSet, params: WalkPa
     finally:
         if own_threads:
             threads.restore()
-    out.track_basis = next_basis(prev, out, params.tracking) if params.track else None
-    if start is not None:
+    if start is not None:  # the pose the walk reached, not the image's own
         out.track_basis = TrackBasis(maps.entries[start[0]], start[1], start[2], sure=out.single_confidence,
                                      sure_verdict=out.single_verdict)
+    else:
+        out.track_basis = next_basis(prev, out, params.tracking) if params.track else None
     lighten(out)
     return out, ref_loss
 
