@@ -467,3 +467,42 @@ def test_distance_fields_of_a_subset_are_its_columns():
     pts = torch.nn.functional.normalize(torch.randn(7, 3), dim=1)
     assert sub.num_translations == 2
     assert torch.allclose(sub.lookup(pts), full.lookup(pts)[:, :, [4, 1]])
+
+
+def test_a_track_resumed_at_the_rooms_twin_gives_way_to_its_confident_image(demo_dataset):
+    """Step 4 of tracking (ldlloc.walk.track.overruled): a frame tracked again after lost frames at the demo
+    room's 180-degree twin of its true pose is localized globally and takes its image's confident pose,
+    within 0.1 m / 5 deg; a tracked pose that is the image's own stands, and a frame tracked without a
+    loss of two frames or more before it is not checked."""
+    from types import SimpleNamespace
+
+    from ldlmap.core.geometry import rotation_from_axis_angle
+    from ldlmap.datasets import open_dataset
+    from ldlloc.batch.which_map import TOP_MAPS, MapSet
+    from ldlloc.pipeline import LocalizeParams, load_image
+    from ldlloc.walk.track import Prediction, TorchThreads, TrackParams, overruled
+
+    q = [q for q in open_dataset(demo_dataset, "omniscenes").queries(["robot"]) if q.scene == "synthroom_1"][0]
+    maps = MapSet.load(demo_dataset / "maps" / "synthroom_1.h5", LocalizeParams())
+    entry = maps.entries[0]
+    img = load_image(q.image)
+    middle = entry.localizer.map.translations.mean(0)
+    half = rotation_from_axis_angle(np.array([0, 0, 1.0]), np.pi)  # the room turned half a turn about its middle
+    R2, t2 = q.rot_cam_from_world @ half, middle + half @ (q.center - middle)
+    t2[2] = q.center[2]
+
+    def tracked(R, t):
+        return SimpleNamespace(rot_cam_from_world=R, center=t, refined=True), SimpleNamespace(
+            chosen=SimpleNamespace(entry=entry))
+
+    def check(got, frames: int = 3, p: TrackParams = TrackParams()):
+        return overruled(img, got, Prediction(entry, R2, t2, frames, (R2, t2)), maps, None, TOP_MAPS, p, TorchThreads())
+
+    assert translation_error(t2, q.center) > 1.0
+    found = check(tracked(R2, t2))
+    assert found is not None and found[0].verdict == "confident"
+    assert translation_error(found[0].center, q.center) < 0.1
+    assert rotation_error_deg(found[0].rot_cam_from_world, q.rot_cam_from_world) < 5
+    assert check(tracked(found[0].rot_cam_from_world, found[0].center)) is None  # the image's own pose stands
+    assert check(tracked(R2, t2), frames=2) is None  # tracked after one lost frame: not checked
+    assert check(tracked(R2, t2), p=TrackParams(check_after_lost=0)) is None

@@ -140,3 +140,28 @@ def test_a_relocalized_frame_goes_on_where_the_walk_reaches():
                           free) is None
     # the image's own pose on the walk's floor and within reach: kept
     assert reachable_pose(_poses((0, 2.5), (0, 8.0)), 0, last, 7, video, 0.2, free) is None
+
+
+def test_a_relocalized_frame_goes_on_from_the_walk_unless_its_image_is_sure():
+    """ldlloc.walk.localize.reached: a global frame (after 7 lost frames of 0.2 s) whose own pose stands on
+    floor 1, away from the stairs, the walk's prediction on floor 0 among its poses: the walk goes on from
+    the prediction where the image was not confident (no copies named: a 4045 video's frame lost the walk
+    so), and from the image's own pose where it was (a confident image overrules a walk that may be lost)."""
+    from ldlloc.walk.localize import FrameOutcome, WalkFrame, WalkParams, reached
+
+    entries = [SimpleNamespace(name="floor 0"), SimpleNamespace(name="floor 1")]
+    index = {id(e): i for i, e in enumerate(entries)}
+    free = FreeSpace.of_maps(_maps())
+    poses = _poses((1, 3.0), (0, 2.4))  # its own pose, the prediction (1.4 m walked in 7 frames)
+    params = WalkParams(motion=MotionParams(turn_deg=30.0))
+    pred = SimpleNamespace(entry=entries[0], last=(np.eye(3), np.array([1.0, 1.0, 1.5])), frames=7)
+    prev = FrameOutcome(WalkFrame("prev", lambda: None, time=0.0))
+
+    def relocalized(verdict: str) -> FrameOutcome:
+        o = FrameOutcome(WalkFrame("f", lambda: None, time=1.4), entry=entries[1], single_verdict=verdict,
+                         single_pose=(np.eye(3), poses.center[0]), hypotheses=poses)
+        return o
+
+    got = reached(relocalized("ambiguous"), pred, prev, index, params, free)
+    assert got is not None and got[0] == 0 and np.allclose(got[2], poses.center[1])
+    assert reached(relocalized("confident"), pred, prev, index, params, free) is None

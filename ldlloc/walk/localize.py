@@ -27,7 +27,7 @@ from typing import Callable, Iterable
 import numpy as np
 
 from ldlmap.core.errors import InputError, LdlError
-from ldlloc.batch.which_map import TOP_MAPS, MapChoice, MapEntry, MapSet, final_pose_loss, localize_on_maps
+from ldlloc.batch.which_map import TOP_MAPS, MapChoice, MapEntry, MapSet, localize_on_maps
 from ldlloc.confidence import MODEL, distinct, no_surer_than, sound_where_moved, walk_judgement
 from ldlloc.pipeline import Localization, Localizer, SearchNear
 from ldlloc.search.pose_search import score_on_map
@@ -37,8 +37,8 @@ from ldlloc.walk.lattice import LatticeParams, lattice_poses
 from ldlloc.walk.motion import FreeSpace, MotionParams, transition_costs
 from ldlloc.walk.relative import (RelativeParams, disagreement, floor_under, inverse, panorama_features, poses_along,
                                   relative_pose)
-from ldlloc.walk.track import (TorchThreads, TrackBasis, TrackParams, check_track_params, is_lost, next_basis, predict,
-                               track)
+from ldlloc.walk.track import (TorchThreads, TrackBasis, TrackParams, aged, basis_of, check_track_params, is_lost,
+                               next_basis, overruled, own_loss, predict, track)
 from ldlloc.walk.viterbi import best_path, margin
 
 TIE_COST = 0.01  # nats: what a pose the image named as its competitor costs more than its own (ties: its own)
@@ -153,8 +153,8 @@ def localize_frame(item, prev: FrameOutcome | None, maps: MapSet, params: WalkPa
     ``index``: ``id(MapEntry) -> index``; ``threads``: the walk's torch threads (None: this call's,
     restored before it returns). A frame localized globally where the walk predicted a pose also
     gets that pose as a hypothesis (its image may have failed: too few lines, motion blur), and where
-    its image named copies of its room, the track goes on from the copy the walk reaches (:func:`reached`;
-    ``free``: the maps' free space). A frame that cannot be localized gets its ``error``."""
+    its image named copies of its room or was not confident, the track goes on from the pose the walk
+    reaches (:func:`reached`; ``free``: the maps' free space). A frame that cannot be localized gets its ``error``."""
     fr, img = item if isinstance(item, tuple) else (item, None)
     out = FrameOutcome(fr)
     own_threads = threads is None
@@ -164,9 +164,11 @@ def localize_frame(item, prev: FrameOutcome | None, maps: MapSet, params: WalkPa
     try:
         img = fr.load() if img is None else img
         got = track(img, pred, fr.max_tilt_deg, params.tracking, ref_loss, trackers, threads)
-        if got is None:
+        checked = overruled(img, got, pred, maps, fr.max_tilt_deg, params.top_maps, params.tracking, threads)
+        if got is None or checked is not None:
             threads.restore()
-            loc, choice = localize_on_maps(img, maps, fr.max_tilt_deg, params.top_maps)
+            got = None  # a global frame
+            loc, choice = checked or localize_on_maps(img, maps, fr.max_tilt_deg, params.top_maps)
         else:
             loc, choice = got
             out.tracked = bool(loc.refined)  # else lost (ldlloc.walk.track.is_lost): the prediction
@@ -175,8 +177,6 @@ def localize_frame(item, prev: FrameOutcome | None, maps: MapSet, params: WalkPa
         out.single_confidence, out.single_verdict = loc.confidence, loc.verdict
         out.single_pose = (np.asarray(loc.rot_cam_from_world, float), np.asarray(loc.center, float))
         out.competitors = list(loc.competitors)
-        if got is None and loc.verdict != "failed":
-            ref_loss = own_loss(choice)
         out.copies = room_copies(loc, out.entry, maps.entries, index, loc.arcs, out.hypotheses)
         if got is None and pred is not None:
             loz = pred.entry.localizer
@@ -185,6 +185,8 @@ def localize_frame(item, prev: FrameOutcome | None, maps: MapSet, params: WalkPa
             out.hypotheses = joined(out.hypotheses, index[id(pred.entry)], pred.rot_cam_from_world[None],
                                     pred.center[None], loss)
             start = reached(out, pred, prev, index, params, free)
+        if got is None and loc.verdict != "failed" and not is_prediction(start, pred, index):
+            ref_loss = own_loss(choice)
     except LdlError as exc:
         out.error = str(exc)
     except Exception as exc:  # noqa: BLE001 - one frame's failure (cv2.error, a decoder's), not the walk's
@@ -192,7 +194,9 @@ def localize_frame(item, prev: FrameOutcome | None, maps: MapSet, params: WalkPa
     finally:
         if own_threads:
             threads.restore()
-    if start is not None:  # the pose the walk reached, not the image's own
+    if is_prediction(start, pred, index):  # the walk's own prediction: for tracking, the frame is lost
+        out.track_basis = held(prev, out, params.tracking)
+    elif start is not None:  # the pose the walk reached, not the image's own
         out.track_basis = TrackBasis(maps.entries[start[0]], start[1], start[2], sure=out.single_confidence,
                                      sure_verdict=out.single_verdict)
     else:
@@ -204,11 +208,12 @@ def localize_frame(item, prev: FrameOutcome | None, maps: MapSet, params: WalkPa
 def reached(out: FrameOutcome, pred, prev: FrameOutcome, index: dict[int, int], params: WalkParams,
             free: FreeSpace | None) -> tuple[int, np.ndarray, np.ndarray] | None:
     """Frame ``out``, localized globally where the walk predicted ``pred`` (:class:`ldlloc.walk.track.Prediction`;
-    ``prev`` the frame before), in a room its image found copies of: ``(map index, R, t)`` of the pose
-    among its hypotheses and those copies that the walk reaches from its last trusted pose
-    (:func:`ldlloc.walk.copies.reachable_pose`), which then joins the frame's hypotheses; None when the
-    image's own pose is as reachable."""
-    if out.copies is None or out.entry is None:
+    ``prev`` the frame before), in a room its image found copies of or not ``confident`` of its pose:
+    ``(map index, R, t)`` of the pose among its hypotheses (the prediction among them) and those copies
+    that the walk reaches from its last trusted pose (:func:`ldlloc.walk.copies.reachable_pose`), which
+    then joins the frame's hypotheses; None when the image's own pose is as reachable, or the image is
+    confident of it (a confident image overrules the walk: the walk may be the one that is lost)."""
+    if out.entry is None or out.copies is None and out.single_verdict == "confident":
         return None
     dt = None if out.frame.time is None or prev.frame.time is None else out.frame.time - prev.frame.time
     R, t = pred.last
@@ -226,10 +231,23 @@ def reached(out: FrameOutcome, pred, prev: FrameOutcome, index: dict[int, int], 
     return int(poses.map_index[j]), poses.rot_cam_from_world[j], poses.center[j]
 
 
-def own_loss(choice: MapChoice) -> float:
-    """The loss of the chosen map's final pose (its exact loss; lower is better)."""
-    o = choice.chosen
-    return float(o.loss) if o.loss is not None else final_pose_loss(o.entry.localizer, o.loc)
+def is_prediction(start: tuple | None, pred, index: dict[int, int]) -> bool:
+    """Whether the pose the walk reached (:func:`reached`) is its prediction ``pred`` itself (not refined)."""
+    return (start is not None and pred is not None and start[0] == index[id(pred.entry)]
+            and np.allclose(start[1], pred.rot_cam_from_world) and np.allclose(start[2], pred.center))
+
+
+def held(prev: FrameOutcome, out: FrameOutcome, p: TrackParams) -> TrackBasis | None:
+    """The basis a global frame hands on where the walk kept its own prediction over the image's pose
+    (:func:`is_prediction`): the one before it a frame older, as after a lost frame (tracking goes on
+    from the last trusted pose, its search growing: the prediction was not refined), no surer than the
+    image (it was not confident)."""
+    b = aged(basis_of(prev), p)
+    if b is None:
+        return None
+    conf = float(out.single_confidence or 0.0)
+    return replace(b, sure=conf if b.sure is None else min(b.sure, conf),
+                   sure_verdict=out.single_verdict if out.single_verdict != "confident" else b.sure_verdict)
 
 
 def lighten(out: FrameOutcome) -> None:

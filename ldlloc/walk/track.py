@@ -19,6 +19,9 @@ Three steps, cheapest first, each checked before the frame takes its pose:
    fewer than ``min_lines`` lines (a blurred frame, on which every search fails at seconds each);
    tracking resumes from the last trusted pose, the restricted search's radius growing with the
    frames lost. After ``max_lost`` lost frames in a row the caller localizes the frame globally.
+4. The first frame tracked again after ``check_after_lost`` lost frames is checked by a global localization
+   (:func:`overruled`): where its image is confident of another pose that explains more of its lines,
+   it is a global frame.
 
 A tracked pose holds when it was refined and explains at least ``TrackParams.keep`` of the lines
 that the last trusted global frame's pose explained (its exact line loss; the losses of lines
@@ -39,8 +42,8 @@ import numpy as np
 from ldlmap.core.errors import InputError
 from ldlmap.core.frame import is_identity
 from ldlmap.core.lazy import lazy_module
-from ldlloc.batch.which_map import MapChoice, MapEntry, MapOption, final_pose_loss
-from ldlloc.confidence import NO_CONTENDER_MARGIN, assess
+from ldlloc.batch.which_map import MapChoice, MapEntry, MapOption, MapSet, final_pose_loss, localize_on_maps
+from ldlloc.confidence import NO_CONTENDER_MARGIN, assess, distinct
 from ldlloc.lines2d import filter_by_length, query_keep_ratio
 from ldlloc.pipeline import Localization, Localizer, QueryLines, SearchNear, rotation_prior_name
 from ldlloc.refine.geometric import refine_and_keep
@@ -75,6 +78,9 @@ class TrackParams:
     lookback: int = 10  # frames back to the last trusted pose (a frame that failed or was lost is not tracked from)
     min_lines: int = 20  # a frame with fewer lines (step 1's, after the length filter) is lost at once: no search
     max_lost: int = 6  # frames lost in a row (each tracked at a growing radius) before a global search
+    check_after_lost: int = 2  # a frame tracked again after this many lost frames or more is also localized globally,
+    # and takes that pose where its image is confident of another that explains more of its lines (:func:`overruled`:
+    # a track resumed after a fast turn can lock onto a room's 180-degree twin, as sure as its start; 0: never)
 
 
 class TorchThreads:
@@ -161,7 +167,7 @@ def next_basis(prev, out, p: TrackParams) -> TrackBasis | None:
     ``sure``, ``sure_verdict``: a global frame's own confidence and verdict, carried along the frames tracked from it."""
     b = basis_of(prev) if prev is not None else None
     if not trusted(out):
-        return None if b is None or b.since + 1 >= p.lookback else replace(b, since=b.since + 1)
+        return aged(b, p)
     R, t = np.asarray(out.loc.rot_cam_from_world, float), np.asarray(out.loc.center, float)
     if getattr(out, "tracked", False):
         sure, said = (None, None) if b is None else (b.sure, b.sure_verdict)
@@ -175,6 +181,12 @@ def next_basis(prev, out, p: TrackParams) -> TrackBasis | None:
         return TrackBasis(out.entry, R, t, sure=sure, sure_verdict=said)
     return TrackBasis(out.entry, R, t, step, R @ b.rot_cam_from_world.T if k == 1 else None, sure=sure,
                       sure_verdict=said)
+
+
+def aged(b: TrackBasis | None, p: TrackParams) -> TrackBasis | None:
+    """Basis ``b`` handed on by a frame that is not tracked from (lost, failed): one frame older, None
+    beyond ``p.lookback``."""
+    return None if b is None or b.since + 1 >= p.lookback else replace(b, since=b.since + 1)
 
 
 def predict(prev, p: TrackParams) -> Prediction | None:
@@ -372,3 +384,36 @@ def track(img: np.ndarray, pred: Prediction | None, max_tilt_deg: float | None, 
     if got is not None:
         return got
     return lost_frame(arcs, secs, pred, max_tilt_deg, "neither its lines nor a search near the prediction held")
+
+
+def overruled(img: np.ndarray, got: tuple[Localization, MapChoice] | None, pred: Prediction | None, maps: MapSet,
+              max_tilt_deg: float | None, top_maps: int, p: TrackParams, threads: TorchThreads
+              ) -> tuple[Localization, MapChoice] | None:
+    """Step 4: a frame tracked again after ``p.check_after_lost`` lost frames or more (``got``: :func:`track`'s,
+    from ``pred``) localized globally on every map of ``maps`` (:func:`ldlloc.batch.which_map.localize_on_maps`);
+    that localization when its image is ``confident`` of a pose distinct from the tracked one whose lines
+    explain more (lower exact loss) than the tracked pose's do, else None (the tracked pose stands). In the
+    demo room's looped video a track resumed after the seam's 180-degree jump followed the room's twin for
+    17 frames, `confident` from its start (docs/benchmarks.md)."""
+    if p.check_after_lost <= 0 or got is None or pred is None or not got[0].refined:
+        return None
+    if pred.frames <= p.check_after_lost:  # pred.frames: the lost frames before this one, plus one
+        return None
+    threads.restore()
+    loc, choice = localize_on_maps(img, maps, max_tilt_deg, top_maps)
+    if loc.verdict != "confident" or not loc.refined:
+        return None
+    R, t = np.asarray(got[0].rot_cam_from_world, float), np.asarray(got[0].center, float)
+    entry = got[1].chosen.entry
+    if choice.chosen.entry is entry and not distinct(loc.rot_cam_from_world, loc.center, R[None], t[None])[0]:
+        return None
+    loz = entry.localizer
+    tracked = float(score_on_map(loc.arcs, R[None], t[None], loz.map, loz.params.search, loz.device,
+                                 loz.params.principal.group_tol)[0])
+    return (loc, choice) if own_loss(choice) < tracked else None
+
+
+def own_loss(choice: MapChoice) -> float:
+    """The loss of the chosen map's final pose (its exact loss; lower is better)."""
+    o = choice.chosen
+    return float(o.loss) if o.loss is not None else final_pose_loss(o.entry.localizer, o.loc)
