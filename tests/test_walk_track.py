@@ -108,21 +108,3 @@ def test_a_tracked_camera_keeps_its_height():
     _walk(walk + [lost])
     assert height_band(predict(lost, p), p, None) == pytest.approx((1.2, 1.8))  # two frames since
 
-
-def test_a_global_frame_the_walk_overruled_with_its_prediction_is_lost_for_tracking():
-    """ldlloc.walk.localize.held: a global frame whose image (not confident) the walk overruled with its
-    unrefined prediction hands on the basis before it a frame older, as a lost frame does (tracking goes on
-    from the last trusted pose, its search wider), no surer than that image; none beyond the lookback."""
-    from ldlloc.walk.localize import held
-
-    entry = object()
-    walk = [_frame(0, entry, tracked=False), _frame(1, entry), _frame(2, entry, "failed", tracked=False)]
-    walk[0].single_confidence = 0.99
-    _walk(walk)
-    assert walk[-1].track_basis.sure == 0.99 and walk[-1].track_basis.since == 1
-    image = SimpleNamespace(single_confidence=0.4, single_verdict="ambiguous")
-    b = held(walk[-1], image, TrackParams())
-    assert b.since == walk[-1].track_basis.since + 1 == 2
-    assert np.allclose(b.center, walk[1].loc.center)  # the last trusted pose
-    assert b.sure == 0.4 and b.sure_verdict == "ambiguous"
-    assert held(walk[-1], image, TrackParams(lookback=2)) is None

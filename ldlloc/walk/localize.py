@@ -37,8 +37,8 @@ from ldlloc.walk.lattice import LatticeParams, lattice_poses
 from ldlloc.walk.motion import FreeSpace, MotionParams, transition_costs
 from ldlloc.walk.relative import (RelativeParams, disagreement, floor_under, inverse, panorama_features, poses_along,
                                   relative_pose)
-from ldlloc.walk.track import (TorchThreads, TrackBasis, TrackParams, aged, basis_of, check_track_params, is_lost,
-                               next_basis, overruled, own_loss, predict, track)
+from ldlloc.walk.track import (TorchThreads, TrackBasis, TrackParams, check_track_params, is_lost, next_basis,
+                               overruled, own_loss, predict, track)
 from ldlloc.walk.viterbi import best_path, margin
 
 TIE_COST = 0.01  # nats: what a pose the image named as its competitor costs more than its own (ties: its own)
@@ -185,7 +185,7 @@ def localize_frame(item, prev: FrameOutcome | None, maps: MapSet, params: WalkPa
             out.hypotheses = joined(out.hypotheses, index[id(pred.entry)], pred.rot_cam_from_world[None],
                                     pred.center[None], loss)
             start = reached(out, pred, prev, index, params, free)
-        if got is None and loc.verdict != "failed" and not is_prediction(start, pred, index):
+        if got is None and loc.verdict != "failed":
             ref_loss = own_loss(choice)
     except LdlError as exc:
         out.error = str(exc)
@@ -194,9 +194,7 @@ def localize_frame(item, prev: FrameOutcome | None, maps: MapSet, params: WalkPa
     finally:
         if own_threads:
             threads.restore()
-    if is_prediction(start, pred, index):  # the walk's own prediction: for tracking, the frame is lost
-        out.track_basis = held(prev, out, params.tracking)
-    elif start is not None:  # the pose the walk reached, not the image's own
+    if start is not None:  # the pose the walk reached, not the image's own
         out.track_basis = TrackBasis(maps.entries[start[0]], start[1], start[2], sure=out.single_confidence,
                                      sure_verdict=out.single_verdict)
     else:
@@ -229,25 +227,6 @@ def reached(out: FrameOutcome, pred, prev: FrameOutcome, index: dict[int, int], 
         out.hypotheses = joined(out.hypotheses, int(poses.map_index[j]), poses.rot_cam_from_world[j][None],
                                 poses.center[j][None], poses.loss[j:j + 1])
     return int(poses.map_index[j]), poses.rot_cam_from_world[j], poses.center[j]
-
-
-def is_prediction(start: tuple | None, pred, index: dict[int, int]) -> bool:
-    """Whether the pose the walk reached (:func:`reached`) is its prediction ``pred`` itself (not refined)."""
-    return (start is not None and pred is not None and start[0] == index[id(pred.entry)]
-            and np.allclose(start[1], pred.rot_cam_from_world) and np.allclose(start[2], pred.center))
-
-
-def held(prev: FrameOutcome, out: FrameOutcome, p: TrackParams) -> TrackBasis | None:
-    """The basis a global frame hands on where the walk kept its own prediction over the image's pose
-    (:func:`is_prediction`): the one before it a frame older, as after a lost frame (tracking goes on
-    from the last trusted pose, its search growing: the prediction was not refined), no surer than the
-    image (it was not confident)."""
-    b = aged(basis_of(prev), p)
-    if b is None:
-        return None
-    conf = float(out.single_confidence or 0.0)
-    return replace(b, sure=conf if b.sure is None else min(b.sure, conf),
-                   sure_verdict=out.single_verdict if out.single_verdict != "confident" else b.sure_verdict)
 
 
 def lighten(out: FrameOutcome) -> None:
