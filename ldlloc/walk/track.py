@@ -19,9 +19,10 @@ Three steps, cheapest first, each checked before the frame takes its pose:
    fewer than ``min_lines`` lines (a blurred frame, on which every search fails at seconds each);
    tracking resumes from the last trusted pose, the restricted search's radius growing with the
    frames lost. After ``max_lost`` lost frames in a row the caller localizes the frame globally.
-4. The first frame tracked again after ``check_after_lost`` lost frames is checked by a global localization
-   (:func:`overruled`): where its image is confident of another pose that explains more of its lines,
-   it is a global frame.
+
+Then a check: the first frame tracked again after ``check_after_lost`` lost frames is also localized
+globally (:func:`overruled`); where its image is confident of another pose that explains more of its
+lines, it is a global frame.
 
 A tracked pose holds when it was refined and explains at least ``TrackParams.keep`` of the lines
 that the last trusted global frame's pose explained (its exact line loss; the losses of lines
@@ -39,7 +40,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ldlmap.core.errors import InputError
+from ldlmap.core.errors import InputError, LdlError
 from ldlmap.core.frame import is_identity
 from ldlmap.core.lazy import lazy_module
 from ldlloc.batch.which_map import MapChoice, MapEntry, MapOption, MapSet, final_pose_loss, localize_on_maps
@@ -389,7 +390,7 @@ def track(img: np.ndarray, pred: Prediction | None, max_tilt_deg: float | None, 
 def overruled(img: np.ndarray, got: tuple[Localization, MapChoice] | None, pred: Prediction | None, maps: MapSet,
               max_tilt_deg: float | None, top_maps: int, p: TrackParams, threads: TorchThreads
               ) -> tuple[Localization, MapChoice] | None:
-    """Step 4: a frame tracked again after ``p.check_after_lost`` lost frames or more (``got``: :func:`track`'s,
+    """The check: a frame tracked again after ``p.check_after_lost`` lost frames or more (``got``: :func:`track`'s,
     from ``pred``) localized globally on every map of ``maps`` (:func:`ldlloc.batch.which_map.localize_on_maps`);
     that localization when its image is ``confident`` of a pose distinct from the tracked one whose lines
     explain more (lower exact loss) than the tracked pose's do, else None (the tracked pose stands). In the
@@ -400,7 +401,10 @@ def overruled(img: np.ndarray, got: tuple[Localization, MapChoice] | None, pred:
     if pred.frames <= p.check_after_lost:  # pred.frames: the lost frames before this one, plus one
         return None
     threads.restore()
-    loc, choice = localize_on_maps(img, maps, max_tilt_deg, top_maps)
+    try:
+        loc, choice = localize_on_maps(img, maps, max_tilt_deg, top_maps)
+    except LdlError:  # the check found nothing: the tracked pose stands
+        return None
     if loc.verdict != "confident" or not loc.refined:
         return None
     R, t = np.asarray(got[0].rot_cam_from_world, float), np.asarray(got[0].center, float)
