@@ -18,7 +18,7 @@ import numpy as np
 
 from ldlloc.confidence import features_decide
 from ldlloc.refine.copies import find_copies
-from ldlloc.walk.hypotheses import Hypotheses, joined
+from ldlloc.walk.hypotheses import Hypotheses, joined, one_pose
 from ldlloc.walk.motion import FreeSpace, MotionParams, straight_walk_costs
 
 
@@ -66,9 +66,7 @@ def reachable_pose(poses: Hypotheses, own: int, last: tuple[int, np.ndarray, np.
     more: the walk that came down the corridor took one door, not a room at the corridor's far end or on
     another floor. None otherwise: a frame that truly climbed a floor by the stairs keeps its image's
     floor (the motion cannot tell, the image's floor stands)."""
-    k, R, t = last
-    start = Hypotheses(np.array([k]), np.asarray(R, float)[None], np.asarray(t, float)[None], np.zeros(1),
-                       np.zeros(1, dtype=bool))
+    start = one_pose(*last)
     cost = poses.emission_costs(motion.emission_weight) + straight_walk_costs(start, poses, frames, motion, dt, free)
     j = int(np.argmin(cost))
     return j if cost[own] - cost[j] > motion.off_stairs_cost else None

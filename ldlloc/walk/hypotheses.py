@@ -69,6 +69,12 @@ def from_choice(choice, map_index: dict[int, int], limit: int = MAX_HYPOTHESES) 
     return bounded(h, limit)
 
 
+def one_pose(map_index: int, R, t, loss: float = 0.0, final: bool = False) -> Hypotheses:
+    """A single pose (``R`` cam-from-world, centre ``t``) on map ``map_index`` as hypotheses."""
+    return Hypotheses(np.array([map_index], dtype=np.int64), np.asarray(R, float)[None], np.asarray(t, float)[None],
+                      np.array([float(loss)]), np.array([bool(final)]))
+
+
 def joined(h: Hypotheses, map_index: int | np.ndarray, rots: np.ndarray, centers: np.ndarray,
            losses: np.ndarray) -> Hypotheses:
     """``h`` with more (coarse) poses appended: of one map (``map_index`` an int) or each of its own (an array)."""

@@ -177,6 +177,8 @@ def localize_frame(item, prev: FrameOutcome | None, maps: MapSet, params: WalkPa
         out.single_confidence, out.single_verdict = loc.confidence, loc.verdict
         out.single_pose = (np.asarray(loc.rot_cam_from_world, float), np.asarray(loc.center, float))
         out.competitors = list(loc.competitors)
+        if got is None and loc.verdict != "failed":
+            ref_loss = own_loss(choice)
         out.copies = room_copies(loc, out.entry, maps.entries, index, loc.arcs, out.hypotheses)
         if got is None and pred is not None:
             loz = pred.entry.localizer
@@ -185,8 +187,6 @@ def localize_frame(item, prev: FrameOutcome | None, maps: MapSet, params: WalkPa
             out.hypotheses = joined(out.hypotheses, index[id(pred.entry)], pred.rot_cam_from_world[None],
                                     pred.center[None], loss)
             start = reached(out, pred, prev, index, params, free)
-        if got is None and loc.verdict != "failed":
-            ref_loss = own_loss(choice)
     except LdlError as exc:
         out.error = str(exc)
     except Exception as exc:  # noqa: BLE001 - one frame's failure (cv2.error, a decoder's), not the walk's

@@ -40,7 +40,7 @@ import numpy as np
 from ldlmap.core.errors import InputError
 from ldlloc.batch.which_map import MapSet
 from ldlloc.record import QueryResult
-from ldlloc.walk.hypotheses import Hypotheses
+from ldlloc.walk.hypotheses import one_pose
 from ldlloc.walk.localize import (FrameOutcome, WalkFrame, WalkParams, augment_frame, free_space, is_anchor,
                                   localize_frame, needs_more, relate, settle, walk_margins, walk_path)
 from ldlloc.walk.track import TorchThreads, TrackBasis, is_lost
@@ -88,8 +88,8 @@ class Resume:
 def fixed_frame(frame: WalkFrame, R, t, map_index: int) -> FrameOutcome:
     """A decided pose as a frame of one hypothesis (the anchor of the windows after it)."""
     R, t = np.asarray(R, float), np.asarray(t, float)
-    h = Hypotheses(np.array([map_index], dtype=np.int64), R[None], t[None], np.array([-1.0]), np.array([True]))
-    return FrameOutcome(frame, hypotheses=h, single_pose=(R, t), single_verdict="confident")
+    return FrameOutcome(frame, hypotheses=one_pose(map_index, R, t, -1.0, True), single_pose=(R, t),
+                        single_verdict="confident")
 
 
 def _no_image():
