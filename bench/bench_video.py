@@ -65,6 +65,33 @@ def walk_params(args):
                                            lines=not args.no_track_lines))
 
 
+def rendered_walk(args, root: Path, map_path: Path, q) -> tuple[Path, list]:
+    """The walk's video (rendered and encoded once, cached) and its ground truth per frame ``(R, t)``."""
+    from ldlmap.map.mapfile import read_map
+    from ldlloc.walk.video import write_video
+
+    video = HERE / ".cache" / "video" / f"{args.scene}_{args.frames}_{args.width}.mp4"
+    video.parent.mkdir(parents=True, exist_ok=True)
+    truth = video.with_suffix(".poses.npz")  # the cached video's ground truth: the walk's middle depends on the map
+    t0 = time.perf_counter()
+    if video.exists() and truth.exists():
+        with np.load(truth) as z:
+            poses = list(zip(z["R"], z["t"]))
+    else:  # the same walk each time (a fixed seed): rendered once
+        from ldlmap.synth.render import Renderer  # the renderer's mesh library only where a video is rendered
+        from ldlmap.synth.scene import build_scene
+        from ldlmap.synth.spec import load_spec
+
+        middle = read_map(map_path, load_cloud=False).translations.mean(0)
+        poses = walk_poses(q.center, middle, q.rot_cam_from_world, args.frames)
+        render = Renderer(build_scene(load_spec(root / "specs" / f"{args.scene}.toml")))
+        write_video(video, (render.render(R, t, args.width, supersample=1, blur_px=2.0, blur_angle=0.0).rgb
+                            for R, t in poses), fps=FPS)
+        np.savez(truth, R=np.array([R for R, _ in poses]), t=np.array([t for _, t in poses]))
+        print(f"rendered and encoded {args.frames} frames ({args.width} px) in {time.perf_counter() - t0:.1f} s")
+    return video, poses
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--root", required=True, help="synthetic dataset with maps (ldlmap synth + prepare)")
@@ -92,7 +119,6 @@ def main(argv: list[str] | None = None) -> int:
     cv2.setNumThreads(args.threads)
     from ldlmap.core.geometry import rotation_error_deg, translation_error
     from ldlmap.datasets import open_dataset
-    from ldlmap.map.mapfile import read_map
     from ldlloc.batch.which_map import MapSet, localize_on_maps
     from ldlloc.pipeline import LocalizeParams
     from ldlloc.walk.run import run_walk_video
@@ -101,25 +127,7 @@ def main(argv: list[str] | None = None) -> int:
     root = Path(args.root)
     map_path = root / "maps" / f"{args.scene}.h5"
     q = [q for q in open_dataset(root, "omniscenes").queries(["robot"]) if q.scene == args.scene][0]
-    video = HERE / ".cache" / "video" / f"{args.scene}_{args.frames}_{args.width}.mp4"
-    video.parent.mkdir(parents=True, exist_ok=True)
-    truth = video.with_suffix(".poses.npz")  # the cached video's ground truth: the walk's middle depends on the map
-    t0 = time.perf_counter()
-    if video.exists() and truth.exists():
-        with np.load(truth) as z:
-            poses = list(zip(z["R"], z["t"]))
-    else:  # the same walk each time (a fixed seed): rendered once
-        from ldlmap.synth.render import Renderer  # the renderer's mesh library only where a video is rendered
-        from ldlmap.synth.scene import build_scene
-        from ldlmap.synth.spec import load_spec
-
-        middle = read_map(map_path, load_cloud=False).translations.mean(0)
-        poses = walk_poses(q.center, middle, q.rot_cam_from_world, args.frames)
-        render = Renderer(build_scene(load_spec(root / "specs" / f"{args.scene}.toml")))
-        write_video(video, (render.render(R, t, args.width, supersample=1, blur_px=2.0, blur_angle=0.0).rgb
-                            for R, t in poses), fps=FPS)
-        np.savez(truth, R=np.array([R for R, _ in poses]), t=np.array([t for _, t in poses]))
-        print(f"rendered and encoded {args.frames} frames ({args.width} px) in {time.perf_counter() - t0:.1f} s")
+    video, poses = rendered_walk(args, root, map_path, q)
     if args.repeat > 1:  # the same frames again and again, one video (decoded and encoded once, cached)
         looped = video.with_name(f"{video.stem}_x{args.repeat}.mp4")
         if not looped.exists():

@@ -196,8 +196,8 @@ class QueryResult:
                                             "or null", _or_none(_is_seconds), "loc", None,
                                             of_loc=lambda loc: dict(loc.confidence_signals) or None)
     walk: dict | None = _spec("a frame of a walk: `{name, frame, time, walk_decided, single_verdict, "
-                              "single_confidence, margin, tracked, lost, basis, single_pose, single_map, ref_loss, relative}`; null: a "
-                              "single image",
+                              "single_confidence, margin, tracked, lost, checked, basis, single_pose, single_map, "
+                              "ref_loss, relative}`; null: a single image",
                               "an object or null", _or_none(lambda x: isinstance(x, dict)), "run", None)
 
     @classmethod

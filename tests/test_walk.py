@@ -469,18 +469,22 @@ def test_distance_fields_of_a_subset_are_its_columns():
     assert torch.allclose(sub.lookup(pts), full.lookup(pts)[:, :, [4, 1]])
 
 
-def test_a_track_resumed_at_the_rooms_twin_gives_way_to_its_confident_image(demo_dataset):
-    """Step 4 of tracking (ldlloc.walk.track.overruled): a frame tracked again after lost frames at the demo
-    room's 180-degree twin of its true pose is localized globally and takes its image's confident pose,
-    within 0.1 m / 5 deg; a tracked pose that is the image's own stands, and a frame tracked without a
-    loss of two frames or more before it is not checked."""
+def test_a_track_resumed_at_the_rooms_twin_gives_way_to_its_confident_image(demo_dataset, monkeypatch):
+    """The checks of tracking (ldlloc.walk.track.check_due, overruled): a frame tracked again after lost frames at
+    the demo room's 180-degree twin of its true pose is localized globally and takes its image's confident pose,
+    within 0.1 m / 5 deg; a tracked pose that is the image's own stands, and a frame tracked without a loss of
+    two frames or more before it is not checked. An unsure track is checked every ``check_every`` frames and
+    gives way to a global pose its image is not confident of only where that pose explains ``check_gain`` times
+    the tracked pose's lines (the twin: yes; the true pose: no)."""
+    from dataclasses import replace
     from types import SimpleNamespace
 
+    import ldlloc.walk.track as track
     from ldlmap.core.geometry import rotation_from_axis_angle
     from ldlmap.datasets import open_dataset
     from ldlloc.batch.which_map import TOP_MAPS, MapSet
     from ldlloc.pipeline import LocalizeParams, load_image
-    from ldlloc.walk.track import Prediction, TorchThreads, TrackParams, overruled
+    from ldlloc.walk.track import Prediction, TorchThreads, TrackParams, check_due, overruled
 
     q = [q for q in open_dataset(demo_dataset, "omniscenes").queries(["robot"]) if q.scene == "synthroom_1"][0]
     maps = MapSet.load(demo_dataset / "maps" / "synthroom_1.h5", LocalizeParams())
@@ -491,18 +495,33 @@ def test_a_track_resumed_at_the_rooms_twin_gives_way_to_its_confident_image(demo
     R2, t2 = q.rot_cam_from_world @ half, middle + half @ (q.center - middle)
     t2[2] = q.center[2]
 
-    def tracked(R, t):
-        return SimpleNamespace(rot_cam_from_world=R, center=t, refined=True), SimpleNamespace(
-            chosen=SimpleNamespace(entry=entry))
+    def tracked(R, t, verdict: str = "confident"):
+        loc = SimpleNamespace(rot_cam_from_world=R, center=t, refined=True, confidence=0.9, verdict=verdict)
+        return loc, SimpleNamespace(chosen=SimpleNamespace(entry=entry))
 
-    def check(got, frames: int = 3, p: TrackParams = TrackParams()):
-        return overruled(img, got, Prediction(entry, R2, t2, frames, (R2, t2)), maps, None, TOP_MAPS, p, TorchThreads())
+    def check(got, frames: int = 3, p: TrackParams = TrackParams(), age: int = 0):
+        due = check_due(got, Prediction(entry, R2, t2, frames, (R2, t2), age), p)
+        return due and overruled(img, got, maps, None, TOP_MAPS, p, TorchThreads())
 
     assert translation_error(t2, q.center) > 1.0
     found = check(tracked(R2, t2))
-    assert found is not None and found[0].verdict == "confident"
+    assert found and found[0].verdict == "confident"
     assert translation_error(found[0].center, q.center) < 0.1
     assert rotation_error_deg(found[0].rot_cam_from_world, q.rot_cam_from_world) < 5
     assert check(tracked(found[0].rot_cam_from_world, found[0].center)) is None  # the image's own pose stands
-    assert check(tracked(R2, t2), frames=2) is None  # tracked after one lost frame: not checked
-    assert check(tracked(R2, t2), p=TrackParams(check_after_lost=0)) is None
+    assert not check(tracked(R2, t2), frames=2)  # tracked after one lost frame: not checked
+    assert not check(tracked(R2, t2), p=TrackParams(check_after_lost=0))
+    # an unsure track, checked at its 25th unsure frame, against an image that is not confident either
+    unsure = TrackParams(check_every=25)
+    assert not check(tracked(R2, t2, "ambiguous"), frames=1, p=unsure, age=23)
+    assert not check(tracked(R2, t2), frames=1, p=unsure, age=24)  # a confident frame: not checked
+    # confident, but its track started from an image that was not
+    assert check_due(tracked(R2, t2), Prediction(entry, R2, t2, 1, (R2, t2), 24, 0.4, "ambiguous"), unsure)
+    own = track.localize_on_maps
+    monkeypatch.setattr(track, "localize_on_maps", lambda *a: (lambda lc: (replace(lc[0], verdict="ambiguous"),
+                                                                            lc[1]))(own(*a)))
+    found = check(tracked(R2, t2, "ambiguous"), frames=1, p=unsure, age=24)
+    assert found and translation_error(found[0].center, q.center) < 0.1
+    assert check(tracked(R2, t2, "ambiguous"), frames=3, p=TrackParams(check_every=0))  # resumed: the same rule
+    right = tracked(found[0].rot_cam_from_world, found[0].center, "ambiguous")
+    assert not check(right, frames=1, p=unsure, age=24)

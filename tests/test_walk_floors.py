@@ -165,3 +165,33 @@ def test_a_relocalized_frame_goes_on_from_the_walk_unless_its_image_is_sure():
     got = reached(relocalized("ambiguous"), pred, prev, index, params, free)
     assert got is not None and got[0] == 0 and np.allclose(got[2], poses.center[1])
     assert reached(relocalized("confident"), pred, prev, index, params, free) is None
+
+
+def test_an_overruled_track_goes_on_from_the_copy_of_its_global_pose_the_walk_reaches():
+    """ldlloc.walk.localize.reached(copies_only=True): a tracked frame a check overruled (its global pose on
+    floor 1, a copy of its room on floor 0, where the walk was) goes on from the copy on the walk's floor:
+    the copies explain its lines alike and the track had the floor right (a building's identical floors);
+    never from another of its poses, nearer the doubted track but explaining fewer lines; without copies,
+    from its own pose."""
+    from ldlloc.walk.localize import FrameOutcome, WalkFrame, WalkParams, reached
+
+    entries = [SimpleNamespace(name="floor 0"), SimpleNamespace(name="floor 1")]
+    index = {id(e): i for i, e in enumerate(entries)}
+    free = FreeSpace.of_maps(_maps())
+    params = WalkParams(motion=MotionParams(turn_deg=30.0))
+    pred = SimpleNamespace(entry=entries[0], last=(np.eye(3), np.array([2.0, 1.0, 1.5])), frames=1)
+    prev = FrameOutcome(WalkFrame("prev", lambda: None, time=0.0))
+    own = _poses((1, 2.6), (0, 2.0))  # its own pose, and a pose at the doubted track that explains fewer lines
+    own.loss[1] = -78.0
+    walk = (0, *pred.last)
+    both = _poses((0, 2.6), (0, 2.0))
+    both.loss[1] = -78.0
+    assert reachable_pose(both, 0, walk, 1, params.motion, 0.2, free, 0.0) == 1  # the cheaper of the two for the walk
+
+    def overruled(copies) -> FrameOutcome:
+        return FrameOutcome(WalkFrame("f", lambda: None, time=0.2), entry=entries[1], single_verdict="ambiguous",
+                            single_pose=(np.eye(3), own.center[0]), hypotheses=own, copies=copies)
+
+    got = reached(overruled(_poses((0, 2.6))), pred, prev, index, params, free, copies_only=True)
+    assert got is not None and got[0] == 0 and np.allclose(got[2], [2.6, 1.0, 1.5])
+    assert reached(overruled(None), pred, prev, index, params, free, copies_only=True) is None

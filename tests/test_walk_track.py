@@ -17,7 +17,8 @@ UP = np.array([0.0, 0.0, 1.0])
 def _frame(k: int, entry, verdict: str = "confident", tracked: bool = True):
     """A frame of a walk 0.2 m a frame along x, turning 3 degrees a frame."""
     R = rotation_from_axis_angle(UP, np.radians(3.0 * k))
-    loc = SimpleNamespace(rot_cam_from_world=R, center=np.array([0.2 * k, 0.0, 1.5]))
+    loc = SimpleNamespace(rot_cam_from_world=R, center=np.array([0.2 * k, 0.0, 1.5]), verdict=verdict,
+                          confidence=0.99 if verdict == "confident" else 0.1)
     return SimpleNamespace(loc=loc, entry=entry, tracked=tracked, single_verdict=verdict, track_basis=None)
 
 
@@ -108,3 +109,20 @@ def test_a_tracked_camera_keeps_its_height():
     _walk(walk + [lost])
     assert height_band(predict(lost, p), p, None) == pytest.approx((1.2, 1.8))  # two frames since
 
+
+
+def test_a_tracks_unsure_frames_are_counted_until_a_check():
+    """TrackBasis.age (what TrackParams.check_every counts): the tracked frames that are not confident (their
+    own verdict, no surer than the global frame the track started from) since the last global frame or check;
+    a confident frame adds nothing, a lost one adds one, a checked frame or a global one starts again."""
+    entry = object()
+    sure = [_frame(0, entry, tracked=False)] + [_frame(k, entry) for k in range(1, 3)] + \
+        [_frame(k, entry, "ambiguous") for k in range(3, 6)]
+    assert [f.track_basis.age for f in _walk(sure)] == [0, 0, 0, 1, 2, 3]
+    unsure = [_frame(0, entry, "ambiguous", tracked=False)] + [_frame(k, entry) for k in range(1, 4)]
+    unsure[0].single_confidence = 0.3  # the track's start was not confident: neither is any frame tracked from it
+    assert [f.track_basis.age for f in _walk(unsure)] == [0, 1, 2, 3]
+    checked = [_frame(k, entry, "ambiguous") for k in range(4)]
+    checked[2].checked = True
+    lost = SimpleNamespace(loc=None, entry=None, tracked=False, single_verdict="failed", track_basis=None)
+    assert [f.track_basis.age for f in _walk(checked + [lost])] == [0, 1, 0, 1, 2]

@@ -57,19 +57,20 @@ def room_copies(loc, entry, entries: list, index: dict[int, int], arcs: np.ndarr
 
 
 def reachable_pose(poses: Hypotheses, own: int, last: tuple[int, np.ndarray, np.ndarray], frames: int,
-                   motion: MotionParams, dt: float | None, free: FreeSpace | None) -> int | None:
+                   motion: MotionParams, dt: float | None, free: FreeSpace | None,
+                   margin: float | None = None) -> int | None:
     """Which of a relocalized frame's ``poses`` (its hypotheses and the copies of its room its image found,
     ``own`` its image's own pose among them) the walk takes on from: the least cost of the pose's lines
     (:meth:`Hypotheses.emission_costs`) and of the walk from its last trusted pose ``last`` (``(map index,
     R, t)``, ``frames`` frames of ``dt`` seconds before; None: unknown; :func:`ldlloc.walk.motion.straight_walk_costs`),
-    where the own pose costs more than a change of floor away from the stairs (``motion.off_stairs_cost``)
-    more: the walk that came down the corridor took one door, not a room at the corridor's far end or on
-    another floor. None otherwise: a frame that truly climbed a floor by the stairs keeps its image's
+    where the own pose costs ``margin`` more (default: a change of floor away from the stairs,
+    ``motion.off_stairs_cost``): the walk that came down the corridor took one door, not a room at the
+    corridor's far end or on another floor. None otherwise: a frame that truly climbed a floor by the stairs keeps its image's
     floor (the motion cannot tell, the image's floor stands)."""
     start = one_pose(*last)
     cost = poses.emission_costs(motion.emission_weight) + straight_walk_costs(start, poses, frames, motion, dt, free)
     j = int(np.argmin(cost))
-    return j if cost[own] - cost[j] > motion.off_stairs_cost else None
+    return j if cost[own] - cost[j] > (motion.off_stairs_cost if margin is None else margin) else None
 
 
 def even_copies(o):

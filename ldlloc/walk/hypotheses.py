@@ -30,6 +30,11 @@ class Hypotheses:
     def __len__(self) -> int:
         return len(self.loss)
 
+    def take(self, idx: np.ndarray) -> "Hypotheses":
+        """The poses at ``idx`` (indices or a mask), in that order."""
+        return Hypotheses(self.map_index[idx], self.rot_cam_from_world[idx], self.center[idx], self.loss[idx],
+                          self.final[idx])
+
     def emission_costs(self, weight: float) -> np.ndarray:
         """(H,) the cost of each pose from its image alone: ``weight * (1 - loss / best)``, 0 for the
         best loss of the frame, ``weight`` for a pose that explains no line (losses are negative)."""

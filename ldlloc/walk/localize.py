@@ -37,8 +37,8 @@ from ldlloc.walk.lattice import LatticeParams, lattice_poses
 from ldlloc.walk.motion import FreeSpace, MotionParams, transition_costs
 from ldlloc.walk.relative import (RelativeParams, disagreement, floor_under, inverse, panorama_features, poses_along,
                                   relative_pose)
-from ldlloc.walk.track import (TorchThreads, TrackBasis, TrackParams, check_track_params, is_lost, next_basis,
-                               overruled, own_loss, predict, track)
+from ldlloc.walk.track import (TorchThreads, TrackBasis, TrackParams, check_due, check_track_params, is_lost,
+                               next_basis, overruled, own_loss, predict, track)
 from ldlloc.walk.viterbi import best_path, margin
 
 TIE_COST = 0.01  # nats: what a pose the image named as its competitor costs more than its own (ties: its own)
@@ -100,6 +100,7 @@ class FrameOutcome:
     choice: MapChoice | None = None  # the frame's own (single-image or tracked) choice of map
     error: str | None = None  # why it failed
     tracked: bool = False  # found by tracking (else global)
+    checked: bool = False  # tracked, and also localized globally to check the track (ldlloc.walk.track.check_due)
     track_basis: TrackBasis | None = None  # what the next frame's prediction starts from (tracking)
     single_confidence: float | None = None  # the image's own judgement
     single_verdict: str | None = None
@@ -164,7 +165,9 @@ def localize_frame(item, prev: FrameOutcome | None, maps: MapSet, params: WalkPa
     try:
         img = fr.load() if img is None else img
         got = track(img, pred, fr.max_tilt_deg, params.tracking, ref_loss, trackers, threads)
-        checked = overruled(img, got, pred, maps, fr.max_tilt_deg, params.top_maps, params.tracking, threads)
+        out.checked = check_due(got, pred, params.tracking)
+        checked = overruled(img, got, maps, fr.max_tilt_deg, params.top_maps, params.tracking, threads) \
+            if out.checked else None
         if got is None or checked is not None:
             threads.restore()
             got = None  # a global frame
@@ -180,13 +183,15 @@ def localize_frame(item, prev: FrameOutcome | None, maps: MapSet, params: WalkPa
         if got is None and loc.verdict != "failed":
             ref_loss = own_loss(choice)
         out.copies = room_copies(loc, out.entry, maps.entries, index, loc.arcs, out.hypotheses)
-        if got is None and pred is not None:
+        if got is None and pred is not None and checked is None:
             loz = pred.entry.localizer
             loss = score_on_map(loc.arcs, pred.rot_cam_from_world[None], pred.center[None], loz.map,
                                 loz.params.search, loz.device, loz.params.principal.group_tol)
             out.hypotheses = joined(out.hypotheses, index[id(pred.entry)], pred.rot_cam_from_world[None],
                                     pred.center[None], loss)
             start = reached(out, pred, prev, index, params, free)
+        elif checked is not None:  # an overruled track: its prediction was doubted, not its floor or its door
+            start = reached(out, pred, prev, index, params, free, copies_only=True)
     except LdlError as exc:
         out.error = str(exc)
     except Exception as exc:  # noqa: BLE001 - one frame's failure (cv2.error, a decoder's), not the walk's
@@ -204,14 +209,17 @@ def localize_frame(item, prev: FrameOutcome | None, maps: MapSet, params: WalkPa
 
 
 def reached(out: FrameOutcome, pred, prev: FrameOutcome, index: dict[int, int], params: WalkParams,
-            free: FreeSpace | None) -> tuple[int, np.ndarray, np.ndarray] | None:
+            free: FreeSpace | None, copies_only: bool = False) -> tuple[int, np.ndarray, np.ndarray] | None:
     """Frame ``out``, localized globally where the walk predicted ``pred`` (:class:`ldlloc.walk.track.Prediction`;
     ``prev`` the frame before), in a room its image found copies of or not ``confident`` of its pose:
     ``(map index, R, t)`` of the pose among its hypotheses (the prediction among them) and those copies
     that the walk reaches from its last trusted pose (:func:`ldlloc.walk.copies.reachable_pose`), which
     then joins the frame's hypotheses; None when the image's own pose is as reachable, or the image is
-    confident of it (a confident image overrules the walk: the walk may be the one that is lost)."""
-    if out.entry is None or out.copies is None and out.single_verdict == "confident":
+    confident of it (a confident image overrules the walk: the walk may be the one that is lost).
+    ``copies_only`` (a frame whose track a check overruled): among the image's own pose and the copies of
+    its room alone, the one the walk reaches most cheaply (they explain the image's lines alike: a building's
+    identical floors; the track had the floor right and the pose wrong, seed 4044's frame 240)."""
+    if out.entry is None or out.copies is None and (copies_only or out.single_verdict == "confident"):
         return None
     dt = None if out.frame.time is None or prev.frame.time is None else out.frame.time - prev.frame.time
     R, t = pred.last
@@ -220,9 +228,13 @@ def reached(out: FrameOutcome, pred, prev: FrameOutcome, index: dict[int, int], 
                          & (poses.map_index == index[id(out.entry)]))
     if not len(own):
         return None
-    j = reachable_pose(poses, int(own[0]), (index[id(pred.entry)], R, t), pred.frames, params.motion, dt, free)
+    # the candidates: every pose, or the own pose and the copies (appended after the frame's hypotheses)
+    keep = np.r_[own[:1], np.arange(len(out.hypotheses), len(poses))] if copies_only else np.arange(len(poses))
+    j = reachable_pose(poses.take(keep), int(np.flatnonzero(keep == own[0])[0]), (index[id(pred.entry)], R, t),
+                       pred.frames, params.motion, dt, free, 0.0 if copies_only else None)
     if j is None:
         return None
+    j = int(keep[j])
     if j >= len(out.hypotheses):  # a copy: among the frame's poses from now on
         out.hypotheses = joined(out.hypotheses, int(poses.map_index[j]), poses.rot_cam_from_world[j][None],
                                 poses.center[j][None], poses.loss[j:j + 1])

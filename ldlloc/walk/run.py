@@ -40,14 +40,15 @@ def walk_fields(slot: Slot, walk: str) -> dict:
     decided it, the image's own verdict, confidence, pose and map, the path margin (nats),
     the motion from the frame before (``relative``: :func:`relative_record`), tracking (``lost``:
     tracking lost the frame, its pose the walk's prediction:
-    :func:`ldlloc.walk.track.is_lost`; ``basis``: what the next frame's prediction starts from), and
+    :func:`ldlloc.walk.track.is_lost`; ``checked``: also localized globally to check the track:
+    :func:`ldlloc.walk.track.check_due`; ``basis``: what the next frame's prediction starts from), and
     the last global frame's loss (what a resumed walk's tracking goes on from)."""
     out = slot.out
     m = out.walk_margin
     return {"name": walk, "frame": slot.index, "time": out.frame.time, "walk_decided": bool(out.walk_decided),
             "single_verdict": out.single_verdict, "single_confidence": out.single_confidence,
             "margin": None if m is None else (round(m, 4) if m != float("inf") else "inf"), "tracked": out.tracked,
-            "lost": is_lost(out.loc),
+            "lost": is_lost(out.loc), "checked": out.checked,
             "basis": basis_record(out.track_basis),
             "single_pose": None if out.single_pose is None else {"R": out.single_pose[0].tolist(),
                                                                   "t": out.single_pose[1].tolist()},

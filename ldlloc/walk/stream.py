@@ -244,7 +244,7 @@ def basis_from_record(b: dict | None, by_path: dict) -> TrackBasis | None:
     return TrackBasis(by_path[str(b["map"])], np.asarray(b["R"], float), np.asarray(b["t"], float),
                       None if b.get("step") is None else np.asarray(b["step"], float),
                       None if turn is None else np.asarray(turn, float), int(b.get("since", 0)), b.get("sure"),
-                      b.get("sure_verdict"))
+                      b.get("sure_verdict"), int(b.get("age", 0)))
 
 
 def basis_record(b: TrackBasis | None) -> dict | None:
@@ -253,7 +253,7 @@ def basis_record(b: TrackBasis | None) -> dict | None:
         return None
     return {"map": str(b.entry.path), "R": b.rot_cam_from_world.tolist(), "t": b.center.tolist(),
             "step": None if b.step is None else b.step.tolist(), "turn": None if b.turn is None else b.turn.tolist(),
-            "since": b.since, "sure": b.sure, "sure_verdict": b.sure_verdict}
+            "since": b.since, "sure": b.sure, "sure_verdict": b.sure_verdict, "age": b.age}
 
 
 def resume_state(records: list[QueryResult | None], maps: MapSet, lag: int = LAG, block: int | None = None

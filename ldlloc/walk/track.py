@@ -20,9 +20,11 @@ Three steps, cheapest first, each checked before the frame takes its pose:
    tracking resumes from the last trusted pose, the restricted search's radius growing with the
    frames lost. After ``max_lost`` lost frames in a row the caller localizes the frame globally.
 
-Then a check: the first frame tracked again after ``check_after_lost`` lost frames is also localized
-globally (:func:`overruled`); where its image is confident of another pose that explains more of its
-lines, it is a global frame.
+Then a check (:func:`check_due`, :func:`overruled`): the first frame tracked again after
+``check_after_lost`` lost frames, and every ``check_every``-th frame of a track that is not ``confident``,
+is also localized globally; where that pose is another that explains more of its lines (``check_gain`` times
+more where its image is not confident), it is a global frame (the walk goes on from the copy of its room
+it reaches: :func:`ldlloc.walk.localize.reached`).
 
 A tracked pose holds when it was refined and explains at least ``TrackParams.keep`` of the lines
 that the last trusted global frame's pose explained (its exact line loss; the losses of lines
@@ -44,7 +46,7 @@ from ldlmap.core.errors import InputError, LdlError
 from ldlmap.core.frame import is_identity
 from ldlmap.core.lazy import lazy_module
 from ldlloc.batch.which_map import MapChoice, MapEntry, MapOption, MapSet, final_pose_loss, localize_on_maps
-from ldlloc.confidence import NO_CONTENDER_MARGIN, assess, distinct
+from ldlloc.confidence import NO_CONTENDER_MARGIN, assess, distinct, no_surer_than
 from ldlloc.lines2d import filter_by_length, query_keep_ratio
 from ldlloc.pipeline import Localization, Localizer, QueryLines, SearchNear, rotation_prior_name
 from ldlloc.refine.geometric import refine_and_keep
@@ -79,9 +81,14 @@ class TrackParams:
     lookback: int = 10  # frames back to the last trusted pose (a frame that failed or was lost is not tracked from)
     min_lines: int = 20  # a frame with fewer lines (step 1's, after the length filter) is lost at once: no search
     max_lost: int = 6  # frames lost in a row (each tracked at a growing radius) before a global search
-    check_after_lost: int = 2  # a frame tracked again after this many lost frames or more is also localized globally,
-    # and takes that pose where its image is confident of another that explains more of its lines (:func:`overruled`:
-    # a track resumed after a fast turn can lock onto a room's 180-degree twin, as sure as its start; 0: never)
+    check_after_lost: int = 2  # a frame tracked again after this many lost frames or more is also localized globally
+    # (:func:`check_due`, :func:`overruled`: a track resumed after a fast turn can lock onto a room's 180-degree twin,
+    # as sure as its start; 0: never) ...
+    check_every: int = 25  # ... and every this many-th frame of a track that is not confident (lost ones count;
+    # 0: never) ...
+    check_gain: float = 1.2  # ... taking the global pose where its lines explain more than the tracked pose's,
+    # this many times more where its image is not confident (a building's track turned 90 degrees explained
+    # 0.6-0.8 of the truth's lines for 100 frames: docs/benchmarks.md)
 
 
 class TorchThreads:
@@ -127,6 +134,9 @@ class Prediction:
     center: np.ndarray
     frames: int  # 1: the last frame was trusted
     last: tuple[np.ndarray, np.ndarray]  # the last trusted pose (R, t)
+    age: int = 0  # unsure frames since the last global frame or check, before this one
+    sure: float | None = None  # the image's own confidence and verdict at the global frame the track started from
+    sure_verdict: str | None = None  # (TrackBasis.sure, sure_verdict)
 
 
 @dataclass(frozen=True)
@@ -143,6 +153,7 @@ class TrackBasis:
     since: int = 0
     sure: float | None = None  # the image's own confidence at the last frame localized globally (None: not known) ...
     sure_verdict: str | None = None  # ... and its verdict
+    age: int = 0  # unsure frames since the last global frame or check, this one included (:func:`check_due`)
 
 
 def trusted(o) -> bool:
@@ -170,24 +181,27 @@ def next_basis(prev, out, p: TrackParams) -> TrackBasis | None:
     if not trusted(out):
         return aged(b, p)
     R, t = np.asarray(out.loc.rot_cam_from_world, float), np.asarray(out.loc.center, float)
-    if getattr(out, "tracked", False):
+    tracked = getattr(out, "tracked", False)
+    if tracked:
         sure, said = (None, None) if b is None else (b.sure, b.sure_verdict)
     else:
         sure, said = getattr(out, "single_confidence", None), getattr(out, "single_verdict", None)
+    age = b.age + unsure(out.loc, b.sure, b.sure_verdict) if tracked and b is not None and \
+        not getattr(out, "checked", False) else 0
     if b is None or b.entry is not out.entry:
-        return TrackBasis(out.entry, R, t, sure=sure, sure_verdict=said)
+        return TrackBasis(out.entry, R, t, sure=sure, sure_verdict=said, age=age)
     k = b.since + 1
     step = (t - b.center) / k
     if np.linalg.norm(step) > p.max_step_m:
-        return TrackBasis(out.entry, R, t, sure=sure, sure_verdict=said)
+        return TrackBasis(out.entry, R, t, sure=sure, sure_verdict=said, age=age)
     return TrackBasis(out.entry, R, t, step, R @ b.rot_cam_from_world.T if k == 1 else None, sure=sure,
-                      sure_verdict=said)
+                      sure_verdict=said, age=age)
 
 
 def aged(b: TrackBasis | None, p: TrackParams) -> TrackBasis | None:
-    """Basis ``b`` handed on by a frame that is not tracked from (lost, failed): one frame older, None
-    beyond ``p.lookback``."""
-    return None if b is None or b.since + 1 >= p.lookback else replace(b, since=b.since + 1)
+    """Basis ``b`` handed on by a frame that is not tracked from (lost, failed): one frame older (and one unsure
+    frame more), None beyond ``p.lookback``."""
+    return None if b is None or b.since + 1 >= p.lookback else replace(b, since=b.since + 1, age=b.age + 1)
 
 
 def predict(prev, p: TrackParams) -> Prediction | None:
@@ -201,12 +215,12 @@ def predict(prev, p: TrackParams) -> Prediction | None:
     k = b.since + 1
     R, t = b.rot_cam_from_world, b.center
     if b.step is None:
-        return Prediction(b.entry, R, t, k, (R, t))
+        return Prediction(b.entry, R, t, k, (R, t), b.age, b.sure, b.sure_verdict)
     Rp = R
     if b.turn is not None:  # the same turn again, kept a rotation
         U, _, Vt = np.linalg.svd(np.linalg.matrix_power(b.turn, k) @ R)
         Rp = U @ Vt
-    return Prediction(b.entry, Rp, t + k * b.step, k, (R, t))
+    return Prediction(b.entry, Rp, t + k * b.step, k, (R, t), b.age, b.sure, b.sure_verdict)
 
 
 def starts(pred: Prediction, p: TrackParams) -> tuple[np.ndarray, np.ndarray, list[str]]:
@@ -387,25 +401,38 @@ def track(img: np.ndarray, pred: Prediction | None, max_tilt_deg: float | None, 
     return lost_frame(arcs, secs, pred, max_tilt_deg, "neither its lines nor a search near the prediction held")
 
 
-def overruled(img: np.ndarray, got: tuple[Localization, MapChoice] | None, pred: Prediction | None, maps: MapSet,
-              max_tilt_deg: float | None, top_maps: int, p: TrackParams, threads: TorchThreads
-              ) -> tuple[Localization, MapChoice] | None:
-    """The check: a frame tracked again after ``p.check_after_lost`` lost frames or more (``got``: :func:`track`'s,
-    from ``pred``) localized globally on every map of ``maps`` (:func:`ldlloc.batch.which_map.localize_on_maps`);
-    that localization when its image is ``confident`` of a pose distinct from the tracked one whose lines
-    explain more (lower exact loss) than the tracked pose's do, else None (the tracked pose stands). In the
-    demo room's looped video a track resumed after the seam's 180-degree jump followed the room's twin for
-    17 frames, `confident` from its start (docs/benchmarks.md)."""
-    if p.check_after_lost <= 0 or got is None or pred is None or not got[0].refined:
-        return None
-    if pred.frames <= p.check_after_lost:  # pred.frames: the lost frames before this one, plus one
-        return None
+def unsure(loc, sure: float | None, sure_verdict: str | None) -> bool:
+    """Whether a tracked frame's localization ``loc`` is not ``confident``: its own verdict, no surer than its
+    track's start (``sure``, ``sure_verdict``: :func:`ldlloc.confidence.no_surer_than`)."""
+    return no_surer_than(loc.confidence, loc.verdict, sure, sure_verdict)[1] != "confident"
+
+
+def check_due(got: tuple[Localization, MapChoice] | None, pred: Prediction | None, p: TrackParams) -> bool:
+    """Whether a tracked frame (``got``: :func:`track`'s, from ``pred``) is also localized globally
+    (:func:`overruled`): the first frame tracked again after ``p.check_after_lost`` lost frames or more (a track
+    resumed after a fast turn can lock onto a room's 180-degree twin, as sure as its start), and the
+    ``p.check_every``-th frame since the last global frame or check that is not ``confident`` (:func:`unsure`;
+    lost frames count: a track turned 90 degrees in a building's symmetric corridors held for 100 frames; a
+    demo room's track, sure but for a frame now and then, is checked rarely)."""
+    if got is None or pred is None or not got[0].refined:
+        return False
+    if 0 < p.check_after_lost < pred.frames:  # pred.frames: the lost frames before this one, plus one
+        return True
+    return 0 < p.check_every <= pred.age + 1 and unsure(got[0], pred.sure, pred.sure_verdict)
+
+
+def overruled(img: np.ndarray, got: tuple[Localization, MapChoice], maps: MapSet, max_tilt_deg: float | None,
+              top_maps: int, p: TrackParams, threads: TorchThreads) -> tuple[Localization, MapChoice] | None:
+    """The check of a tracked frame (``got``; :func:`check_due`): the frame localized globally on every map of
+    ``maps`` (:func:`ldlloc.batch.which_map.localize_on_maps`); that localization when its pose is distinct from
+    the tracked one and its lines explain more (lower exact loss): where its image is ``confident``, any more;
+    else ``p.check_gain`` times the tracked pose's. None: the tracked pose stands (docs/benchmarks.md)."""
     threads.restore()
     try:
         loc, choice = localize_on_maps(img, maps, max_tilt_deg, top_maps)
     except LdlError:  # the check found nothing: the tracked pose stands
         return None
-    if loc.verdict != "confident" or not loc.refined:
+    if not loc.refined or loc.verdict == "failed":
         return None
     R, t = np.asarray(got[0].rot_cam_from_world, float), np.asarray(got[0].center, float)
     entry = got[1].chosen.entry
@@ -414,7 +441,8 @@ def overruled(img: np.ndarray, got: tuple[Localization, MapChoice] | None, pred:
     loz = entry.localizer
     tracked = float(score_on_map(loc.arcs, R[None], t[None], loz.map, loz.params.search, loz.device,
                                  loz.params.principal.group_tol)[0])
-    return (loc, choice) if own_loss(choice) < tracked else None
+    return (loc, choice) if own_loss(choice) < (tracked if loc.verdict == "confident" else p.check_gain * tracked) \
+        else None
 
 
 def own_loss(choice: MapChoice) -> float:
