@@ -169,12 +169,18 @@ def choose_map(options: list[MapOption], params: GeometricParams | None = None) 
     return min(options, key=choice_key)
 
 
-def final_pose_loss(localizer: Localizer, loc: Localization) -> float:
-    """The exact loss (:func:`ldlloc.search.pose_search.score_on_map`) of ``loc``'s final pose on
-    ``localizer``'s map, seen from the candidate translation nearest to it."""
+def poses_loss(localizer: Localizer, arcs: np.ndarray, rotations: np.ndarray, centers: np.ndarray) -> np.ndarray:
+    """(N,) the exact losses (:func:`ldlloc.search.pose_search.score_on_map`) of the query lines ``arcs`` at
+    the poses ``rotations`` (N, 3, 3) and ``centers`` (N, 3) on ``localizer``'s map, each seen from the
+    candidate translation nearest to it."""
     p = localizer.params
-    return float(score_on_map(loc.arcs, np.asarray(loc.rot_cam_from_world)[None], np.asarray(loc.center)[None],
-                              localizer.map, p.search, localizer.device, p.principal.group_tol)[0])
+    return score_on_map(arcs, rotations, centers, localizer.map, p.search, localizer.device, p.principal.group_tol)
+
+
+def final_pose_loss(localizer: Localizer, loc: Localization) -> float:
+    """The exact loss of ``loc``'s final pose on ``localizer``'s map (:func:`poses_loss`)."""
+    return float(poses_loss(localizer, loc.arcs, np.asarray(loc.rot_cam_from_world)[None],
+                            np.asarray(loc.center)[None])[0])
 
 
 def localize_on_maps(img: np.ndarray, maps: MapSet, max_tilt_deg: float | None, top_maps: int = TOP_MAPS,

@@ -27,10 +27,9 @@ from typing import Callable, Iterable
 import numpy as np
 
 from ldlmap.core.errors import InputError, LdlError
-from ldlloc.batch.which_map import TOP_MAPS, MapChoice, MapEntry, MapSet, localize_on_maps
+from ldlloc.batch.which_map import TOP_MAPS, MapChoice, MapEntry, MapSet, localize_on_maps, poses_loss
 from ldlloc.confidence import MODEL, distinct, no_surer_than, sound_where_moved, walk_judgement
 from ldlloc.pipeline import Localization, Localizer, SearchNear
-from ldlloc.search.pose_search import score_on_map
 from ldlloc.walk.copies import copies_undecided, even_copies, reachable_pose, room_copies
 from ldlloc.walk.hypotheses import MAX_HYPOTHESES, Hypotheses, from_choice, joined
 from ldlloc.walk.lattice import LatticeParams, lattice_poses
@@ -184,9 +183,7 @@ def localize_frame(item, prev: FrameOutcome | None, maps: MapSet, params: WalkPa
             ref_loss = own_loss(choice)
         out.copies = room_copies(loc, out.entry, maps.entries, index, loc.arcs, out.hypotheses)
         if got is None and pred is not None and checked is None:
-            loz = pred.entry.localizer
-            loss = score_on_map(loc.arcs, pred.rot_cam_from_world[None], pred.center[None], loz.map,
-                                loz.params.search, loz.device, loz.params.principal.group_tol)
+            loss = poses_loss(pred.entry.localizer, loc.arcs, pred.rot_cam_from_world[None], pred.center[None])
             out.hypotheses = joined(out.hypotheses, index[id(pred.entry)], pred.rot_cam_from_world[None],
                                     pred.center[None], loss)
             start = reached(out, pred, prev, index, params, free)
@@ -230,7 +227,7 @@ def reached(out: FrameOutcome, pred, prev: FrameOutcome, index: dict[int, int], 
         return None
     # the candidates: every pose, or the own pose and the copies (appended after the frame's hypotheses)
     keep = np.r_[own[:1], np.arange(len(out.hypotheses), len(poses))] if copies_only else np.arange(len(poses))
-    j = reachable_pose(poses.take(keep), int(np.flatnonzero(keep == own[0])[0]), (index[id(pred.entry)], R, t),
+    j = reachable_pose(poses.take(keep), 0 if copies_only else int(own[0]), (index[id(pred.entry)], R, t),
                        pred.frames, params.motion, dt, free, 0.0 if copies_only else None)
     if j is None:
         return None
@@ -382,8 +379,7 @@ def along(o: FrameOutcome, anchor: FrameOutcome, rel, maps: MapSet, index: dict[
         arcs = frame_arcs(o.frame, loz)
     except LdlError:
         return
-    loss = score_on_map(arcs, R, C, loz.map, loz.params.search, loz.device, loz.params.principal.group_tol)
-    o.hypotheses = joined(o.hypotheses, index[id(entry)], R, C, loss)
+    o.hypotheses = joined(o.hypotheses, index[id(entry)], R, C, poses_loss(loz, arcs, R, C))
 
 
 def frame_arcs(frame: WalkFrame, loz: Localizer) -> np.ndarray:

@@ -45,12 +45,12 @@ import numpy as np
 from ldlmap.core.errors import InputError, LdlError
 from ldlmap.core.frame import is_identity
 from ldlmap.core.lazy import lazy_module
-from ldlloc.batch.which_map import MapChoice, MapEntry, MapOption, MapSet, final_pose_loss, localize_on_maps
+from ldlloc.batch.which_map import (MapChoice, MapEntry, MapOption, MapSet, final_pose_loss, localize_on_maps,
+                                    poses_loss)
 from ldlloc.confidence import NO_CONTENDER_MARGIN, assess, distinct, no_surer_than
 from ldlloc.lines2d import filter_by_length, query_keep_ratio
 from ldlloc.pipeline import Localization, Localizer, QueryLines, SearchNear, rotation_prior_name
 from ldlloc.refine.geometric import refine_and_keep
-from ldlloc.search.pose_search import score_on_map
 
 cv2 = lazy_module("cv2")
 torch = lazy_module("torch")
@@ -320,11 +320,9 @@ def lost_frame(arcs: np.ndarray, secs: dict[str, float], pred: Prediction, max_t
                why: str) -> tuple[Localization, MapChoice]:
     """Step 3 without a search: the frame takes the predicted pose, not refined, ``failed`` (confidence
     0), its only hypothesis (the walk's path keeps it); ``why``: why tracking lost it."""
-    entry = pred.entry
-    loz, m = entry.localizer, entry.localizer.map
+    entry, m = pred.entry, pred.entry.localizer.map
     R, t = pred.rot_cam_from_world, pred.center
-    loss = float(score_on_map(arcs, R[None], t[None], m, loz.params.search, loz.device,
-                              loz.params.principal.group_tol)[0]) if len(arcs) else 0.0
+    loss = float(poses_loss(entry.localizer, arcs, R[None], t[None])[0]) if len(arcs) else 0.0
     loc = Localization(R, t, R, t, R[None], t[None], {**secs, "total": sum(secs.values())}, num_rotations=0,
                        num_lines=len(arcs), refined=False, candidates_loss=np.array([loss]),
                        rotation_prior=rotation_prior_name(max_tilt_deg),
@@ -438,9 +436,7 @@ def overruled(img: np.ndarray, got: tuple[Localization, MapChoice], maps: MapSet
     entry = got[1].chosen.entry
     if choice.chosen.entry is entry and not distinct(loc.rot_cam_from_world, loc.center, R[None], t[None])[0]:
         return None
-    loz = entry.localizer
-    tracked = float(score_on_map(loc.arcs, R[None], t[None], loz.map, loz.params.search, loz.device,
-                                 loz.params.principal.group_tol)[0])
+    tracked = float(poses_loss(entry.localizer, loc.arcs, R[None], t[None])[0])
     return (loc, choice) if own_loss(choice) < (tracked if loc.verdict == "confident" else p.check_gain * tracked) \
         else None
 
