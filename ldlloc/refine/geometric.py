@@ -129,6 +129,8 @@ class GeometricResult:
     accepted: np.ndarray  # (K,) bool: refinement kept
     matched: np.ndarray  # (K,) matched 2D points in the last round
     residual_deg: np.ndarray  # (K,) median angle (deg) of the matched points to their lines
+    fit: np.ndarray | None = None  # (K,) the matched points counted by how near their lines they lie: each
+    # 1 - (angle / final association angle)^2 (a pose that matches many points loosely is not the better one)
 
 
 def _so3_exp(w):
@@ -241,7 +243,7 @@ def refine_poses_geometric(arcs: np.ndarray, rotations: np.ndarray, centers: np.
     at = slot[rep]  # (K,) each pose's row among the active ones
     R, t, match, r = R[at], t[at], match[at], r[at]
     matched = (match >= 0).sum(1)
-    med = torch.nan_to_num(torch.nanmedian(r, dim=1).values, nan=1.0)  # sine; 1 (90 deg) when none matched
+    med_deg, fit = residual_stats(r, params.final_assoc_deg)
     move = torch.linalg.vector_norm(t - t0, dim=-1)
     turn = torch.rad2deg(torch.arccos(((torch.einsum("kij,kij->k", R, R0) - 1) / 2).clamp(-1, 1)))
     ok = (move <= params.max_move_m) & (turn <= params.max_turn_deg) & (matched >= params.min_points) \
@@ -250,7 +252,17 @@ def refine_poses_geometric(arcs: np.ndarray, rotations: np.ndarray, centers: np.
     U, _, Vt = np.linalg.svd(R.double().numpy())  # the nearest rotations (float32 steps drift ~1e-7)
     rots = np.where(keep[:, None, None], U @ Vt, np.asarray(rotations, dtype=np.float64).reshape(-1, 3, 3))
     cens = np.where(keep[:, None], t.double().numpy() + origin, C0)
-    return GeometricResult(rots, cens, keep, matched.numpy(), np.degrees(np.arcsin(med.clamp(max=1.0).double().numpy())))
+    return GeometricResult(rots, cens, keep, matched.numpy(), med_deg, fit)
+
+
+def residual_stats(r, final_assoc_deg: float) -> tuple[np.ndarray, np.ndarray]:
+    """From the matched points' residual sines ``r`` (K, X; NaN: unmatched): each pose's median residual in
+    degrees (90 when none matched) and its fit, the points counted by how near their lines they lie (each
+    1 - (residual / final association angle)^2: :attr:`GeometricResult.fit`)."""
+    med = torch.nan_to_num(torch.nanmedian(r, dim=1).values, nan=1.0).clamp(max=1.0)
+    final = float(np.sin(np.radians(final_assoc_deg)))
+    fit = (1.0 - (r / final) ** 2).clamp_min(0.0).nan_to_num(0.0).sum(1)
+    return np.degrees(np.arcsin(med.double().numpy())), fit.double().numpy()
 
 
 def pose_kernels(kernels, default: str, K: int):
