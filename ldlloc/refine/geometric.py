@@ -129,7 +129,7 @@ class GeometricResult:
     accepted: np.ndarray  # (K,) bool: refinement kept
     matched: np.ndarray  # (K,) matched 2D points in the last round
     residual_deg: np.ndarray  # (K,) median angle (deg) of the matched points to their lines
-    fit: np.ndarray | None = None  # (K,) the matched points counted by how near their lines they lie: each
+    fit: np.ndarray  # (K,) the matched points counted by how near their lines they lie: each
     # 1 - (angle / final association angle)^2 (a pose that matches many points loosely is not the better one)
 
 

@@ -244,7 +244,8 @@ def best_fit(kept: np.ndarray, g: GeometricResult) -> int:
     round, each counted by how near its line it lies (``GeometricResult.fit``), then the smallest median
     residual; among the kept ones when any is. The exact loss counts arcs, too coarse for the 0.1-0.2 m
     between two minima of a small frame; a bare count of matched points prefers a corridor's pose 0.2-0.5 m
-    along it that matches a few more points loosely (docs/benchmarks.md)."""
+    along it that matches a few more points loosely
+    (docs/benchmarks.md#the-tracker-alone-a-finer-fit-refined-twice-2026-11-28-session-22)."""
     order = np.lexsort((g.residual_deg, -np.asarray(g.fit), ~np.asarray(kept)))
     return int(order[0])
 
