@@ -36,14 +36,6 @@ from bench.bench_walk import building_data, building_maps  # noqa: E402
 from bench.common import console, write_json  # noqa: E402
 
 
-def predicted(R1: np.ndarray, t1: np.ndarray, R2: np.ndarray, t2: np.ndarray, max_step_m: float):
-    """The pose after (R1, t1), the frame before being (R2, t2): the same step and turn again (none beyond ``max_step_m``)."""
-    if np.linalg.norm(t1 - t2) > max_step_m:
-        return R1, t1
-    U, _, Vt = np.linalg.svd(R1 @ R2.T @ R1)
-    return U @ Vt, t1 + (t1 - t2)
-
-
 def how(loc) -> str:
     """How a tracked frame was found (its message)."""
     from ldlloc.walk.track import is_lost
@@ -54,6 +46,7 @@ def how(loc) -> str:
 
 
 def band(t: float | None, r: float | None) -> str:
+    """The error band of a frame's pose (``t`` metres and ``r`` degrees off; None: no pose)."""
     if t is None:
         return "beyond"
     return "0.1m" if t < 0.1 and r < 5 else ("0.5m" if t < 0.5 and r < 5 else "beyond")
@@ -65,7 +58,7 @@ def track_frames(data: Path, maps_path: Path) -> list[dict]:
     from ldlmap.datasets import open_dataset
     from ldlloc.batch.which_map import MapSet, poses_loss
     from ldlloc.pipeline import LocalizeParams
-    from ldlloc.walk.track import Prediction, TorchThreads, TrackParams, frame_arcs, track
+    from ldlloc.walk.track import TorchThreads, TrackBasis, TrackParams, frame_arcs, predicted_from, track
     from ldlloc.walk.video import decoded_frames, video_info
 
     queries = sorted(open_dataset(data, "omniscenes").queries("walk_video"), key=lambda q: int(Path(q.image).stem))
@@ -82,12 +75,14 @@ def track_frames(data: Path, maps_path: Path) -> list[dict]:
                 continue
             status.update(f"tracking frame {k + 1} / {len(queries)}")
             entry, q1, q2 = by_scene[q.scene], queries[k - 1], queries[k - 2]
-            Rp, tp = predicted(q1.rot_cam_from_world, q1.center, q2.rot_cam_from_world, q2.center, p.max_step_m)
+            R1, t1 = q1.rot_cam_from_world, q1.center
+            moving = np.linalg.norm(t1 - q2.center) <= p.max_step_m  # as next_basis: a longer step is no velocity
+            pred = predicted_from(TrackBasis(entry, R1, t1, t1 - q2.center if moving else None,
+                                             R1 @ q2.rot_cam_from_world.T if moving else None))
             arcs, _ = frame_arcs(last, entry, p)
-            ref = float(poses_loss(entry.localizer, arcs, q1.rot_cam_from_world[None], q1.center[None])[0])
+            ref = float(poses_loss(entry.localizer, arcs, R1[None], t1[None])[0])
             cpu = time.process_time()
-            got = track(img, Prediction(entry, Rp, tp, 1, (q1.rot_cam_from_world, q1.center)), None, p, ref, cache,
-                        threads)
+            got = track(img, pred, None, p, ref, cache, threads)
             cpu = time.process_time() - cpu
             threads.release()
             t = r = None

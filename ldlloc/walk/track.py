@@ -206,13 +206,16 @@ def aged(b: TrackBasis | None, p: TrackParams) -> TrackBasis | None:
 
 
 def predict(prev, p: TrackParams) -> Prediction | None:
-    """The pose of the frame after ``prev`` (the walk's last frame): its basis (:func:`next_basis`) moved
-    on at the walk's velocity for every frame since (constant velocity: a video's kept frames are
-    evenly spaced; the turn too when known); without a velocity the basis pose itself. None without
-    a basis (no trusted frame in the last ``lookback``)."""
+    """The pose of the frame after ``prev`` (the walk's last frame): its basis (:func:`next_basis`) moved on
+    (:func:`predicted_from`); None without a basis (no trusted frame in the last ``lookback``)."""
     b = basis_of(prev)
-    if b is None:
-        return None
+    return None if b is None else predicted_from(b)
+
+
+def predicted_from(b: TrackBasis) -> Prediction:
+    """The pose of the frame after basis ``b``'s frames: its pose moved on at the walk's velocity for every
+    frame since (constant velocity: a video's kept frames are evenly spaced; the turn too when known);
+    without a velocity the basis pose itself."""
     k = b.since + 1
     R, t = b.rot_cam_from_world, b.center
     if b.step is None:
@@ -303,12 +306,15 @@ def track_by_lines(arcs: np.ndarray, secs: dict[str, float], pred: Prediction, p
     tick = time.perf_counter()
     g, kept, loss = refined_starts(arcs, R0, t0, pred, p, assoc)
     k = best_fit(kept, g)
-    if not kept[k] or loss[k] > p.keep * ref_loss:
+    def holds(kept_: np.ndarray, loss_: np.ndarray) -> np.ndarray:  # refined, explaining enough of the lines
+        return np.asarray(kept_) & ~(np.asarray(loss_) > p.keep * ref_loss)
+
+    if not holds(kept, loss)[k]:
         return None
     k0, twice = k, ""
     if p.polish:  # refined once more from where it ended: 4 rounds can stop 0.1-0.2 m short of the minimum
         g2, kept2, loss2 = refined_starts(arcs, g.rotations[k:k + 1], g.centers[k:k + 1], pred, p, p.assoc_deg)
-        if kept2[0] and g2.fit[0] > g.fit[k] and loss2[0] <= p.keep * ref_loss:
+        if holds(kept2, loss2)[0] and g2.fit[0] > g.fit[k]:
             g, loss, k, twice = g2, loss2, 0, " twice"
     secs = {**secs, "refine": time.perf_counter() - tick}
     R, t = g.rotations[k], g.centers[k]
