@@ -112,10 +112,12 @@ def summary(rows: list[dict]) -> dict:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seed", type=int, default=4044, help="the building's seed (bench_walk --building --video)")
+    ap.add_argument("--walk-doors", choices=("closed", "open"), default="closed",
+                    help="the video's doors (bench_walk --walk-doors): open, it walks through them frame by frame")
     ap.add_argument("--threads", type=int, default=1, help="torch intra-op threads (default 1)")
     ap.add_argument("--output", default=str(HERE / "track.json"), help="results (default bench/track.json)")
     args = ap.parse_args(argv)
-    walk = argparse.Namespace(seed=args.seed, width=1024, visits=1, video=True, doors="closed", walk_doors=None)
+    walk = argparse.Namespace(seed=args.seed, width=1024, visits=1, video=True, doors="closed", walk_doors=args.walk_doors)
     use_threads(args.threads)
     data = building_data(walk)
     maps, _ = building_maps(data, walk)

@@ -312,7 +312,8 @@ def run_building_video(data: Path, maps: Path, build: dict, args) -> dict:
                      "margin": w.get("margin"), "tracked": bool(w.get("tracked")), "lost": bool(w.get("lost")),
                      "walk": walk, "single": {"t": None, "r": None, "verdict": None, "pose": None}})
     copy_rows(rows, queries, data)
-    return {"seed": args.seed, "width": args.width, "visits": args.visits, "doors": args.doors, "video": True,
+    return {"seed": args.seed, "width": args.width, "visits": args.visits, "doors": args.doors,
+            "walk_doors": args.walk_doors or args.doors, "video": True,
             "seconds": seconds, "cpu_s": cpu, "prepare": build, "frames": rows, **building_counts(rows),
             "walk_decided": sum(r["walk_decided"] for r in rows), "tracked": sum(r["tracked"] for r in rows),
             "lost": sum(r["lost"] for r in rows)}

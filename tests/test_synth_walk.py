@@ -13,6 +13,7 @@ from typer.testing import CliRunner
 
 from ldlmap.cli import app
 from ldlmap.core.errors import InputError
+from ldlmap.core.geometry import rotation_error_deg
 from ldlmap.core.polygon import points_in_polygon
 from ldlmap.synth.building import building_params, plan_building, walk_spaces
 from ldlmap.synth.capture import capture_settings
@@ -21,7 +22,7 @@ from ldlmap.synth.multiroom import MultiRoomParams, multiroom_specs
 from ldlmap.synth.render import render_through
 from ldlmap.synth.scene import build_scene
 from ldlmap.synth.walk import WALK_STEP_M, check_walk_doors, write_walks
-from ldlmap.synth.walkplan import EYE_HEIGHT, STEP_RANGE, BuiltRooms, WalkRoom, plan_walk
+from ldlmap.synth.walkplan import EYE_HEIGHT, MAX_TURN_DEG, STEP_RANGE, BuiltRooms, WalkRoom, plan_walk
 from ldlloc.walk.relative import RelativeParams, panorama_features, relative_pose
 from tests.conftest import DEMO_SEED
 from tests.test_cli_synth import L_ROOM
@@ -146,12 +147,34 @@ def test_building_tour_changes_floor_by_the_stairwell(building_tour):
     assert len(climb) >= 1 and all(p.t[2] < p.room.z + p.room.spec.ceiling_height for p in climb)
 
 
+@pytest.mark.xdist_group("synth_walk")  # one worker plans ``building_tour``
+def test_building_video_walks_on_through_open_doors(building_tour):
+    """A video whose doors stand open walks through each doorway frame by frame (no ``door`` jump,
+    every step within the video's spacing), and a frame in a doorway, in the wall's thickness, sees
+    both rooms with no ray lost; through closed doors the same walk has no frame there."""
+    spaces, _ = building_tour
+    built, step = BuiltRooms(), WALK_STEP_M["video"]
+    poses = plan_walk(spaces, step, np.random.default_rng(5), built, smooth=True, visits=1, doorways=True)
+    closed = plan_walk(spaces, step, np.random.default_rng(5), built, smooth=True, visits=1)
+    assert [p.jump for p in poses].count("door") == 0 and [p.jump for p in closed].count("door") >= 4
+    walked = [np.linalg.norm(b.t[:2] - a.t[:2]) for a, b in zip(poses[:-1], poses[1:]) if b.jump is None]
+    assert max(walked) <= step * STEP_RANGE[1] + 1e-6
+    in_wall = [p for p in poses if not points_in_polygon(p.t[None, :2], p.room.footprint())[0]]
+    assert len(in_wall) >= 4 and not any(not points_in_polygon(p.t[None, :2], p.room.footprint())[0] for p in closed)
+    p = in_wall[0]
+    space = next(s for s in spaces if any(r is p.room for r in s))
+    pano = render_through(built.seen_from(p.room, space, True), p.R, p.t, 256, supersample=1)
+    assert np.isfinite(pano.depth).all() and pano.depth.max() > 4.0  # down the corridor or across the room
+
+
 def test_video_spacing_and_room_jumps():
     specs, _ = multiroom_specs(4, MultiRoomParams(rooms=2))
     spaces = [[WalkRoom(id=f"room{i}", scene="multiroom_1", spec=s)] for i, s in enumerate(specs, start=1)]
     poses = plan_walk(spaces, WALK_STEP_M["video"], np.random.default_rng(2), BuiltRooms(), smooth=True)
     steps = check_walk(poses, [s[0] for s in spaces], WALK_STEP_M["video"])
     assert len(steps) > 40 and steps.max() <= 0.3 + 1e-6
+    turns = [rotation_error_deg(a.R, b.R) for a, b in zip(poses[:-1], poses[1:]) if b.jump is None]
+    assert max(turns) <= MAX_TURN_DEG + 1.0 and np.median(turns) < 10  # + the tilt's drift; a loop's far ends reverse
     assert [p.jump for p in poses].count("cut") == 1
     k = [p.jump for p in poses].index("cut")
     assert poses[k - 1].room.id == "room1" and poses[k].room.id == "room2"

@@ -3,7 +3,9 @@ with a 360 camera (the path: :mod:`ldlmap.synth.walkplan`).
 
 - ``tour``: a capture tour, a photo every 1-3 m (``--walk-step``, default 2 m: steps of 0.5-1.5 x it), sharp;
 - ``video``: a 360 video, a frame every 0.1-0.3 m (default 0.2 m) at 1 m/s (5 frames a second),
-  motion blur growing with the turn between frames, also written as ``video/walk_video.mp4`` (PyAV).
+  motion blur growing with the turn between frames, also written as ``video/walk_video.mp4`` (PyAV);
+  through a building's open doors (``--walk-doors open``) frame by frame, through closed ones in one
+  step (``jump: door``: no photo inside a door's panel).
 
 Each walk is a split, ``walk_tour`` / ``walk_video``, in the OmniScenes layout of the other splits:
 ``walk_<kind>_pano/walk_<kind>_<scene>_scene_1/<stem>.jpg`` with its pose file, the stems numbered
@@ -137,7 +139,8 @@ def write_walks(tmp: Path, spaces: list[list[WalkRoom]], kinds: tuple[str, ...],
     for kind in kinds:
         rng = np.random.default_rng([int(seed) & 0xFFFFFFFF, _STREAM, WALK_KINDS.index(kind)])
         st = float(step or WALK_STEP_M[kind])
-        poses = plan_walk(spaces, st, rng, built, smooth=kind == "video", visits=visits)
+        poses = plan_walk(spaces, st, rng, built, smooth=kind == "video", visits=visits,
+                          doorways=kind == "video" and doors == "open")  # a video walks on through an open door
         digits = max(4, len(str(len(poses) - 1)))
         stems = [f"{k:0{digits}d}" for k in range(len(poses))]
         fps = WALKING_SPEED / st if kind == "video" else None

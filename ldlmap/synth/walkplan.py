@@ -8,7 +8,8 @@ steps). Between waypoints the path is the shortest one on that grid, weighted to
 the walls, then pulled straight wherever the grid has a line of sight (:func:`grid_path`), so it
 goes through doors and down corridors and never through a wall. It is sampled with steps drawn in
 [0.5, 1.5] x the walk's step (:func:`sample_path`); where a step's chord would leave the free space
-(a corner), the corner itself becomes a frame. Heights: one eye height per walk in
+(a corner), the corner itself becomes a frame. No frame stands in a doorway (a closed door's panel
+is there) unless the walk is a video whose doors stand open: it walks on through them frame by frame. Heights: one eye height per walk in
 :data:`EYE_HEIGHT` with a 2 cm bounce; tilts of :data:`TILT_DEG`; the camera's yaw follows the
 walking direction. A building's stairwell is climbed as far as its ceiling lets the camera go
 (:func:`stair_climb`), then the walk goes on in the next floor's stairwell where the flight from
@@ -43,6 +44,8 @@ HIP_M = 1.0  # m above the floor: the lower height the clearance is checked at
 EYE_HEIGHT = (1.5, 1.7)  # m, the walk's camera height above the floor (one draw per walk)
 BOUNCE_M = 0.02  # m, the walking bounce of the camera
 TILT_DEG = (1.0, 3.0)  # tilt of the camera's up axis from the vertical
+MAX_TURN_DEG = 30.0  # a video's camera turns at most this per frame (150 deg/s at 5 frames a second: a walker
+# turns round in a second and more; the walking direction reverses in one frame at a room's far end)
 STEP_RANGE = (0.5, 1.5)  # a step is drawn in this range times the walk's step
 WALL_WEIGHT = 0.3  # m: grid edges cost length x (1 + WALL_WEIGHT / clearance): paths keep off walls
 
@@ -293,19 +296,20 @@ def _past_doorway(nxt: float, last: float, hi: float, blocked: np.ndarray, fine:
 
 
 def sample_path(poly: np.ndarray, step: float, rng: np.random.Generator, grid: FreeGrid,
-                objects: bool = True) -> tuple[np.ndarray, np.ndarray]:
+                objects: bool = True, doorways: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """Frames (N, 3) along the 3D polyline ``poly``, its ends the first and last, steps of
-    ``STEP_RANGE`` x ``step`` along it, none in a doorway (:func:`_past_doorway`), and whether each was
-    reached across a doorway longer than a step. A step whose straight chord would cross a wall
-    outside a door, or (``objects``: a video's) an object, ends at the farthest point of the path it
-    can see instead (a tour's photographer walks round the furniture between two photos)."""
+    ``STEP_RANGE`` x ``step`` along it, none in a doorway (:func:`_past_doorway`) unless ``doorways``
+    (its doors stand open), and whether each was reached across a doorway longer than a step. A step
+    whose straight chord would cross a wall outside a door, or (``objects``: a video's) an object, ends
+    at the farthest point of the path it can see instead (a tour's photographer walks round the
+    furniture between two photos)."""
     poly = np.asarray(poly, dtype=np.float64)
     if len(poly) == 1:
         return poly.copy(), np.zeros(1, dtype=bool)
     cum = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(poly, axis=0), axis=1))])
     total = float(cum[-1])
     fine = np.arange(0.0, total + 0.05, 0.05)
-    blocked = grid.in_doorway(_along(poly, cum, fine)[0][:, :2])
+    blocked = grid.in_doorway(_along(poly, cum, fine)[0][:, :2]) & (not doorways)
     floor_z = float(poly[0, 2]) + 1e-6
 
     def clear(a: float, b: float) -> bool:  # a stair climb is straight
@@ -318,7 +322,7 @@ def sample_path(poly: np.ndarray, step: float, rng: np.random.Generator, grid: F
         nxt = min(total, s[-1] + step * rng.uniform(*STEP_RANGE))
         nxt, flag = _past_doorway(nxt, s[-1], step * STEP_RANGE[1], blocked, fine)
         if not clear(s[-1], nxt):  # the farthest point it sees (else the nearest)
-            corner = cum[(cum > s[-1] + 1e-6) & (cum < nxt) & ~grid.in_doorway(poly[:, :2])]
+            corner = cum[(cum > s[-1] + 1e-6) & (cum < nxt) & ~(grid.in_doorway(poly[:, :2]) & (not doorways))]
             cands = np.sort(np.concatenate([fine[(fine > s[-1] + 1e-6) & (fine < nxt) & ~blocked], corner]))[::-1]
             nxt = next((float(c) for c in cands if clear(s[-1], c)), float(cands[-1]) if len(cands) else nxt)
             flag = False
@@ -327,17 +331,31 @@ def sample_path(poly: np.ndarray, step: float, rng: np.random.Generator, grid: F
     return _along(poly, cum, np.asarray(s))[0], np.asarray(door)
 
 
+def turn_limited(angle: np.ndarray, most: float) -> np.ndarray:
+    """Angles (radians, unwrapped) turning at most ``most`` per frame: limited forwards and backwards, the
+    two averaged (a turn starts a little before the corner and ends a little after it)."""
+    def limited(a: np.ndarray) -> np.ndarray:
+        out = a.copy()
+        for k in range(1, len(a)):  # a walk's frames: hundreds, once per walk
+            out[k] = out[k - 1] + np.clip(a[k] - out[k - 1], -most, most)
+        return out
+
+    return 0.5 * (limited(angle) + limited(angle[::-1])[::-1])
+
+
 def walk_rotations(pos: np.ndarray, rng: np.random.Generator, smooth: bool) -> np.ndarray:
     """World->camera rotations (N, 3, 3) of one leg of a walk: the yaw follows the walking direction
-    (``smooth``, a video: averaged over about 1 m, slowly wandering; else with 10 deg of noise), the up
-    axis tilted by ``TILT_DEG`` (a video: drifting smoothly; a tour: drawn per frame)."""
+    (``smooth``, a video: averaged over about 1 m, turning at most :data:`MAX_TURN_DEG` a frame, slowly
+    wandering; else with 10 deg of noise), the up axis tilted by ``TILT_DEG`` (a video: drifting
+    smoothly; a tour: drawn per frame)."""
     n = len(pos)
     d = np.gradient(pos[:, :2], axis=0) if n > 1 else np.array([[1.0, 0.0]])
     u = d / np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-9)
     k = np.arange(n)
+    heading = np.arctan2(u[:, 1], u[:, 0])
     if smooth:
-        win = np.ones(5) / 5.0
-        u = np.column_stack([np.convolve(np.pad(u[:, i], 2, mode="edge"), win, "valid") for i in range(2)])
+        heading = np.convolve(np.pad(np.unwrap(heading), 2, mode="edge"), np.ones(5) / 5.0, "valid")
+        heading = turn_limited(heading, np.radians(MAX_TURN_DEG))
         noise = np.radians(3.0) * np.sin(0.21 * k + rng.uniform(0, 2 * np.pi))
         tilt = np.radians(2.0 + np.sin(0.13 * k + rng.uniform(0, 2 * np.pi)))
         azimuth = rng.uniform(0, 2 * np.pi) + 0.05 * k
@@ -345,7 +363,7 @@ def walk_rotations(pos: np.ndarray, rng: np.random.Generator, smooth: bool) -> n
         noise = np.radians(rng.normal(0.0, 10.0, n))
         tilt = np.radians(rng.uniform(*TILT_DEG, n))
         azimuth = rng.uniform(0, 2 * np.pi, n)
-    yaw = np.arctan2(u[:, 1], u[:, 0]) + rng.uniform(0, 2 * np.pi) + noise
+    yaw = heading + rng.uniform(0, 2 * np.pi) + noise
     z = np.array([0.0, 0.0, 1.0])
     return np.stack([(rotation_from_axis_angle(z, float(y))
                       @ rotation_from_axis_angle(np.array([np.cos(a), np.sin(a), 0.0]), float(t))).T
@@ -498,11 +516,11 @@ def room_of(rooms: list[WalkRoom], xyz: np.ndarray) -> WalkRoom:
 
 
 def plan_walk(spaces: list[list[WalkRoom]], step: float, rng: np.random.Generator, built: BuiltRooms,
-              smooth: bool = False, visits: int = 3) -> list[WalkPose]:
+              smooth: bool = False, visits: int = 3, doorways: bool = False) -> list[WalkPose]:
     """A walk through ``spaces`` in order (each a list of rooms joined by doors): a loop in a room
     alone, a floor's tour (:func:`floor_route`) in a space with a corridor, up its stairwell when the
     next space is the floor above (:func:`stair_climb`); frames every ``step`` metres on average
-    (``smooth``: a video's orientations)."""
+    (``smooth``: a video's orientations; ``doorways``: frames may stand in its open doorways)."""
     if not spaces or not all(spaces):
         raise InputError("a walk needs at least one room")
     eye = float(rng.uniform(*EYE_HEIGHT))
@@ -525,7 +543,7 @@ def plan_walk(spaces: list[list[WalkRoom]], step: float, rng: np.random.Generato
         xy = np.concatenate([legs[0]] + [g[1:] for g in legs[1:]])
         poly = np.column_stack([xy, np.full(len(xy), grid.z + eye)])
         poly = np.concatenate([poly, tail[1:]]) if len(tail) else poly
-        pos, door = sample_path(poly, step, rng, grid, objects=smooth)
+        pos, door = sample_path(poly, step, rng, grid, objects=smooth, doorways=doorways)
         pos[:, 2] += BOUNCE_M * np.sin(rng.uniform(0, 2 * np.pi) + np.arange(len(pos)) * 2.1)
         for k, (R, t) in enumerate(zip(walk_rotations(pos, rng, smooth), pos)):
             out.append(WalkPose(R=R, t=t, room=room_of(rooms, t), jump=jump if k == 0 else ("door" if door[k] else None)))
