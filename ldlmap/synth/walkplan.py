@@ -9,9 +9,10 @@ the walls, then pulled straight wherever the grid has a line of sight (:func:`gr
 goes through doors and down corridors and never through a wall. It is sampled with steps drawn in
 [0.5, 1.5] x the walk's step (:func:`sample_path`); where a step's chord would leave the free space
 (a corner), the corner itself becomes a frame. No frame stands in a doorway (a closed door's panel
-is there) unless the walk is a video whose doors stand open: it walks on through them frame by frame. Heights: one eye height per walk in
-:data:`EYE_HEIGHT` with a 2 cm bounce; tilts of :data:`TILT_DEG`; the camera's yaw follows the
-walking direction. A building's stairwell is climbed as far as its ceiling lets the camera go
+is there) unless the walk is a video whose doors stand open: it walks on through them frame by frame.
+Heights: one eye height per walk in :data:`EYE_HEIGHT` with a 2 cm bounce; tilts of :data:`TILT_DEG`;
+the camera's yaw follows the walking direction (a video's turning at most :data:`MAX_TURN_DEG` a frame).
+A building's stairwell is climbed as far as its ceiling lets the camera go
 (:func:`stair_climb`), then the walk goes on in the next floor's stairwell where the flight from
 below arrives (:func:`stair_arrival`): the floors are closed solids, so that stretch is a jump,
 marked in the ground truth.
@@ -309,7 +310,9 @@ def sample_path(poly: np.ndarray, step: float, rng: np.random.Generator, grid: F
     cum = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(poly, axis=0), axis=1))])
     total = float(cum[-1])
     fine = np.arange(0.0, total + 0.05, 0.05)
-    blocked = grid.in_doorway(_along(poly, cum, fine)[0][:, :2]) & (not doorways)
+    # where no frame may stand: a doorway, unless its doors stand open
+    blocked = np.zeros(len(fine), dtype=bool) if doorways else grid.in_doorway(_along(poly, cum, fine)[0][:, :2])
+    corner_ok = np.ones(len(poly), dtype=bool) if doorways else ~grid.in_doorway(poly[:, :2])
     floor_z = float(poly[0, 2]) + 1e-6
 
     def clear(a: float, b: float) -> bool:  # a stair climb is straight
@@ -322,7 +325,7 @@ def sample_path(poly: np.ndarray, step: float, rng: np.random.Generator, grid: F
         nxt = min(total, s[-1] + step * rng.uniform(*STEP_RANGE))
         nxt, flag = _past_doorway(nxt, s[-1], step * STEP_RANGE[1], blocked, fine)
         if not clear(s[-1], nxt):  # the farthest point it sees (else the nearest)
-            corner = cum[(cum > s[-1] + 1e-6) & (cum < nxt) & ~(grid.in_doorway(poly[:, :2]) & (not doorways))]
+            corner = cum[(cum > s[-1] + 1e-6) & (cum < nxt) & corner_ok]
             cands = np.sort(np.concatenate([fine[(fine > s[-1] + 1e-6) & (fine < nxt) & ~blocked], corner]))[::-1]
             nxt = next((float(c) for c in cands if clear(s[-1], c)), float(cands[-1]) if len(cands) else nxt)
             flag = False
