@@ -31,9 +31,8 @@ ROOT = HERE.parent
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from bench.bench_real import use_threads  # noqa: E402
 from bench.bench_walk import building_data, building_maps  # noqa: E402
-from bench.common import console, write_json  # noqa: E402
+from bench.common import console, set_threads, write_json  # noqa: E402
 
 
 def how(loc) -> str:
@@ -118,7 +117,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--output", default=str(HERE / "track.json"), help="results (default bench/track.json)")
     args = ap.parse_args(argv)
     walk = argparse.Namespace(seed=args.seed, width=1024, visits=1, video=True, doors="closed", walk_doors=args.walk_doors)
-    use_threads(args.threads)
+    set_threads(args.threads)
     data = building_data(walk)
     maps, _ = building_maps(data, walk)
     rows = track_frames(data, maps)

@@ -306,15 +306,16 @@ def track_by_lines(arcs: np.ndarray, secs: dict[str, float], pred: Prediction, p
     tick = time.perf_counter()
     g, kept, loss = refined_starts(arcs, R0, t0, pred, p, assoc)
     k = best_fit(kept, g)
-    def holds(kept_: np.ndarray, loss_: np.ndarray) -> np.ndarray:  # refined, explaining enough of the lines
-        return np.asarray(kept_) & ~(np.asarray(loss_) > p.keep * ref_loss)
 
-    if not holds(kept, loss)[k]:
+    def holds(kept_: bool, loss_: float) -> bool:  # refined, explaining enough of the lines
+        return bool(kept_) and not loss_ > p.keep * ref_loss
+
+    if not holds(kept[k], loss[k]):
         return None
     k0, twice = k, ""
     if p.polish:  # refined once more from where it ended: 4 rounds can stop 0.1-0.2 m short of the minimum
         g2, kept2, loss2 = refined_starts(arcs, g.rotations[k:k + 1], g.centers[k:k + 1], pred, p, p.assoc_deg)
-        if holds(kept2, loss2)[0] and g2.fit[0] > g.fit[k]:
+        if holds(kept2[0], loss2[0]) and g2.fit[0] > g.fit[k]:
             g, loss, k, twice = g2, loss2, 0, " twice"
     secs = {**secs, "refine": time.perf_counter() - tick}
     R, t = g.rotations[k], g.centers[k]
